@@ -1,0 +1,125 @@
+"""``snreg bench``: median wall time per case of each registration method on this machine.
+
+Cases are simulated with the thesis protocol (every cohort patient, sigma 5 mm, 0-3 extra
+nodes); each method registers every case once after a warm-up, in this process. Two
+times per method: the solver alone (the registration: transform estimate), and the whole
+``register`` call (solver, pairing and the posterior confidence, which runs the global
+hypothesis search for every method). With
+``compare=True`` probreg's rigid CPD and Open3D's point-to-point ICP run on the same
+cases where those optional packages are installed (``pip install .[compare]``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from snreg.registration import METHODS, register
+from snreg.registration.chamfer import solve_chamfer
+from snreg.registration.cpd import solve_cpd
+from snreg.registration.global_search import solve_global
+from snreg.registration.icp import solve_icp
+from snreg.registration.problem import make_problem
+from snreg.simulation.cohort import synthetic_cohort
+from snreg.simulation.protocol import Trial, make_trial
+
+__all__ = ["BenchRow", "bench_registration", "format_rows"]
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    name: str
+    cases: int
+    solver_median_ms: float
+    solver_p90_ms: float
+    total_median_ms: float   # the whole register() call; NaN for external packages
+    accuracy: float          # fraction of cases with every true node paired right (nearest rule for externals)
+
+
+def bench_cases(reps: int = 2, sigma: float = 5.0, seed: int = 7) -> list[Trial]:
+    return [make_trial(p.name, p.nodes.xyz, p.nodes.labels, sigma, extra, rep, (seed, k, extra, rep))
+            for k, p in enumerate(synthetic_cohort()) for extra in range(4) for rep in range(reps)]
+
+
+def _time(cases: list[Trial], solve) -> tuple[np.ndarray, float]:
+    solve(cases[0])
+    times, right = [], []
+    for case in cases:
+        start = time.perf_counter()
+        pairing = solve(case)
+        times.append((time.perf_counter() - start) * 1e3)
+        true = case.truth >= 0
+        right.append(bool(np.all(pairing[true] == case.truth[true])))
+    return np.array(times), float(np.mean(right))
+
+
+def _row(name: str, cases: list[Trial], solve, total=None) -> BenchRow:
+    times, acc = _time(cases, solve)
+    total_ms = float(np.median(_time(cases, total)[0])) if total else float("nan")
+    return BenchRow(name, len(cases), float(np.median(times)), float(np.percentile(times, 90)), total_ms, acc)
+
+
+def _solver_only(method: str):
+    solver = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer}.get(method)
+
+    def solve(case: Trial) -> np.ndarray:
+        problem = make_problem(case.moved_preop, case.intraop)
+        if solver is None:
+            correction = solve_global(problem)[0].correction
+        else:
+            correction = solver(problem)
+        return _nearest_pairing(case, correction @ problem.initial)
+    return solve
+
+
+def _nearest_pairing(case: Trial, transform: np.ndarray) -> np.ndarray:
+    moved = case.moved_preop @ transform[:3, :3].T + transform[:3, 3]
+    return np.argmin(((moved[:, None] - case.intraop[None]) ** 2).sum(-1), axis=0)
+
+
+def _external(cases: list[Trial]) -> list[BenchRow]:
+    rows = []
+    try:
+        from probreg import cpd as probreg_cpd
+
+        def solve_probreg(case):
+            res = probreg_cpd.registration_cpd(case.moved_preop, case.intraop, tf_type_name="rigid", update_scale=False)
+            t = np.eye(4)
+            t[:3, :3], t[:3, 3] = res.transformation.rot, res.transformation.t
+            return _nearest_pairing(case, t)
+
+        rows.append(_row("probreg rigid CPD", cases, solve_probreg))
+    except ImportError:
+        pass
+    try:
+        import open3d as o3d
+
+        def solve_open3d(case):
+            src, dst = o3d.geometry.PointCloud(), o3d.geometry.PointCloud()
+            src.points = o3d.utility.Vector3dVector(case.moved_preop)
+            dst.points = o3d.utility.Vector3dVector(case.intraop)
+            res = o3d.pipelines.registration.registration_icp(
+                src, dst, 1e6, np.eye(4), o3d.pipelines.registration.TransformationEstimationPointToPoint())
+            return _nearest_pairing(case, np.asarray(res.transformation))
+
+        rows.append(_row("Open3D ICP", cases, solve_open3d))
+    except ImportError:
+        pass
+    return rows
+
+
+def bench_registration(reps: int = 2, compare: bool = False, methods=METHODS) -> list[BenchRow]:
+    cases = bench_cases(reps)
+    rows = [_row(m, cases, _solver_only(m), lambda case, m=m: register(case.moved_preop, case.intraop, method=m).pairing)
+            for m in methods]
+    return rows + (_external(cases) if compare else [])
+
+
+def format_rows(rows: list[BenchRow]) -> str:
+    lines = ["| method | cases | solver median ms | solver p90 ms | register() median ms | solver pairing accuracy, nearest rule (sigma 5 mm) |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {r.name} | {r.cases} | {r.solver_median_ms:.2f} | {r.solver_p90_ms:.2f} | "
+              f"{'-' if np.isnan(r.total_median_ms) else f'{r.total_median_ms:.2f}'} | {100 * r.accuracy:.1f}% |" for r in rows]
+    return "\n".join(lines)

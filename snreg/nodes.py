@@ -1,0 +1,202 @@
+"""Node sets and their files: CSV (DESIGN.md §4) and 3D Slicer markups (``.mrk.json``).
+
+A :class:`NodeSet` is the one currency between preop, session and registration:
+ids, anatomical labels (``"OBT R"``), positions in mm and optional gamma counts.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes"]
+
+SLICER_SCHEMA = (
+    "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
+    "Resources/Schema/markups-schema-v1.0.3.json#"
+)
+
+
+class NodeFileError(ValueError):
+    """A node file that cannot be read; the message says which file and what to fix."""
+
+
+@dataclass
+class NodeSet:
+    """Nodes with ids (unique str), labels (str, may be empty), xyz (N, 3) mm and counts (N,) or None.
+
+    ``frame`` names the coordinate frame (``"trocar"``, ``"LPS"``...) when known.
+    """
+
+    ids: list[str]
+    labels: list[str]
+    xyz: np.ndarray
+    counts: np.ndarray | None = None
+    frame: str = ""
+    comments: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.ids = [str(i) for i in self.ids]
+        self.labels = [str(label) for label in self.labels]
+        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
+        n = len(self.xyz)
+        if len(self.ids) != n or len(self.labels) != n:
+            raise ValueError(f"a node set needs one id and one label per node: {n} positions, "
+                             f"{len(self.ids)} ids, {len(self.labels)} labels")
+        if len(set(self.ids)) != n:
+            dup = sorted({i for i in self.ids if self.ids.count(i) > 1})
+            raise ValueError(f"node ids must be unique; repeated: {', '.join(dup)}")
+        if not np.all(np.isfinite(self.xyz)):
+            raise ValueError("node positions must be finite numbers (found NaN or infinity)")
+        if self.counts is not None:
+            self.counts = np.asarray(self.counts, dtype=float).reshape(-1)
+            if len(self.counts) != n:
+                raise ValueError(f"counts has {len(self.counts)} values for {n} nodes")
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    @classmethod
+    def from_xyz(cls, xyz, labels=None, prefix: str = "SN", **kwargs) -> "NodeSet":
+        """Nodes named ``SN1..SNn`` from bare positions."""
+        xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+        labels = list(labels) if labels is not None else [""] * len(xyz)
+        return cls([f"{prefix}{k + 1}" for k in range(len(xyz))], labels, xyz, **kwargs)
+
+    # -- CSV ---------------------------------------------------------------
+    def to_csv(self) -> str:
+        out = io.StringIO()
+        if self.frame:
+            out.write(f"# frame: {self.frame}\n")
+        for comment in self.comments:
+            out.write(f"# {comment}\n")
+        writer = csv.writer(out, lineterminator="\n")
+        header = ["id", "label", "x", "y", "z"] + (["counts"] if self.counts is not None else [])
+        writer.writerow(header)
+        for k in range(len(self)):
+            row = [self.ids[k], self.labels[k]] + [_fmt(v) for v in self.xyz[k]]
+            if self.counts is not None:
+                row.append(_fmt(self.counts[k]))
+            writer.writerow(row)
+        return out.getvalue()
+
+    @classmethod
+    def from_csv(cls, text: str, source: str = "node file") -> "NodeSet":
+        frame, comments, body = "", [], []
+        for line in text.split("\n"):
+            line = line.rstrip("\r")
+            stripped = line.strip()
+            if stripped.startswith("#"):
+                comment = stripped.lstrip("#").strip()
+                if comment.lower().startswith("frame:"):
+                    frame = comment.split(":", 1)[1].strip()
+                elif comment:
+                    comments.append(comment)
+            elif stripped:
+                body.append(line)
+        if not body:
+            raise NodeFileError(f"{source}: no header line; expected 'id,label,x,y,z'")
+        rows = list(csv.reader(body))
+        header = [h.strip().lower() for h in rows[0]]
+        missing = [c for c in ("id", "label", "x", "y", "z") if c not in header]
+        if missing:
+            raise NodeFileError(f"{source}: header lacks {', '.join(missing)}; expected 'id,label,x,y,z[,counts]'")
+        col = {name: header.index(name) for name in header}
+        ids, labels, xyz, counts = [], [], [], []
+        has_counts = "counts" in col
+        for line_no, row in enumerate(rows[1:], start=2):
+            if len(row) < len(header):
+                raise NodeFileError(f"{source}: data row {line_no} has {len(row)} fields, header has {len(header)}")
+            try:
+                point = [float(row[col[a]]) for a in ("x", "y", "z")]
+                count = float(row[col["counts"]]) if has_counts and row[col["counts"]].strip() else math.nan
+            except ValueError:
+                raise NodeFileError(f"{source}: data row {line_no} has a coordinate that is not a number") from None
+            ids.append(row[col["id"]].strip())
+            labels.append(row[col["label"]].strip())
+            xyz.append(point)
+            counts.append(count)
+        try:
+            return cls(ids, labels, np.array(xyz).reshape(-1, 3),
+                       np.array(counts) if has_counts else None, frame=frame, comments=comments)
+        except ValueError as err:
+            raise NodeFileError(f"{source}: {err}") from None
+
+    # -- 3D Slicer markups ---------------------------------------------------
+    def to_slicer(self) -> dict:
+        """A Slicer fiducial list: our id as point label, our anatomical label as description.
+
+        Positions are written as given with ``coordinateSystem`` LPS (DICOM patient space);
+        counts have no place in the Slicer schema and are not written.
+        """
+        points = [
+            {"id": str(k + 1), "label": self.ids[k], "description": self.labels[k], "associatedNodeID": "",
+             "position": [float(v) for v in self.xyz[k]], "orientation": [-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0],
+             "selected": True, "locked": False, "visibility": True, "positionStatus": "defined"}
+            for k in range(len(self))
+        ]
+        return {"@schema": SLICER_SCHEMA,
+                "markups": [{"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm",
+                             "locked": False, "labelFormat": "%N-%d", "controlPoints": points, "measurements": []}]}
+
+    @classmethod
+    def from_slicer(cls, doc: dict, source: str = "markups file") -> "NodeSet":
+        try:
+            markups = doc["markups"]
+            fiducials = [m for m in markups if m.get("type", "Fiducial") == "Fiducial"]
+            markup = fiducials[0]
+            system = markup.get("coordinateSystem", "LPS").upper()
+            ids, labels, xyz = [], [], []
+            for k, point in enumerate(markup.get("controlPoints", [])):
+                ids.append(point.get("label") or point.get("id") or f"F-{k + 1}")
+                labels.append(point.get("description", ""))
+                xyz.append([float(v) for v in point["position"]])
+        except (KeyError, IndexError, TypeError, ValueError, AttributeError):
+            raise NodeFileError(f"{source}: not a 3D Slicer fiducial list (.mrk.json with markups/controlPoints)") from None
+        xyz = np.array(xyz, dtype=float).reshape(-1, 3)
+        if system == "RAS":
+            xyz[:, :2] *= -1.0
+        try:
+            return cls(ids, labels, xyz, frame="LPS")
+        except ValueError as err:
+            raise NodeFileError(f"{source}: {err}") from None
+
+
+def read_nodes(path: str | Path) -> NodeSet:
+    """Read a node CSV or a Slicer ``.mrk.json``; :class:`NodeFileError` says what is wrong."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise NodeFileError(f"{path}: no such file") from None
+    except UnicodeDecodeError:
+        raise NodeFileError(f"{path}: not a text node file (expected UTF-8 CSV or .mrk.json)") from None
+    if path.name.lower().endswith(".json"):
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError:
+            raise NodeFileError(f"{path}: not valid JSON") from None
+        return NodeSet.from_slicer(doc, str(path))
+    return NodeSet.from_csv(text, str(path))
+
+
+def write_nodes(nodes: NodeSet, path: str | Path) -> None:
+    """Write a node set as CSV, or as Slicer markups when the name ends in ``.json``."""
+    path = Path(path)
+    if path.name.lower().endswith(".json"):
+        path.write_text(json.dumps(nodes.to_slicer(), indent=2), encoding="utf-8")
+    else:
+        path.write_text(nodes.to_csv(), encoding="utf-8")
+
+
+def _fmt(value: float) -> str:
+    if math.isnan(value):
+        return ""
+    text = f"{value:.6f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text

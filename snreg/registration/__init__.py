@@ -1,0 +1,105 @@
+"""Register the preop node set to the intraop node set and pair the nodes (DESIGN.md §4).
+
+>>> result = register(preop_xyz, intraop_xyz, method="global")
+>>> result.transform      # (4, 4) intraop_from_preop
+>>> result.pairing        # preop index per intraop node, -1 for a node judged extra
+
+Methods: ``icp``, ``cpd``, ``chamfer`` (the thesis' three) and ``global`` (ours, default).
+Each names the pairing rule that fills ``pairing`` (:mod:`snreg.registration.pairing`);
+all three rules are in ``pairings``. ``confidence`` is the posterior probability that a
+node's pairing is right, whichever method produced it (weighed against the hypotheses of
+the global search); ``CONFIDENT`` is the threshold above which pairings were right at
+least 99% of the time in ``snreg simulate`` (README, "Registration accuracy").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from snreg import geometry
+from snreg.registration.assignment import assign, evaluate, sigma2_of, squared_distances
+from snreg.registration.chamfer import solve_chamfer
+from snreg.registration.cpd import solve_cpd
+from snreg.registration.global_search import solve_global
+from snreg.registration.icp import solve_icp
+from snreg.registration.pairing import RULES, alternatives, pair, posterior_confidence
+from snreg.registration.problem import make_problem
+
+__all__ = ["register", "RegistrationResult", "METHODS", "PAIRING_RULE", "CONFIDENT"]
+
+METHODS = ("icp", "cpd", "chamfer", "global")
+PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "assignment"}
+CONFIDENT = 0.95
+
+
+@dataclass
+class RegistrationResult:
+    """The outcome of :func:`register`; distances and RMS in mm, transform ``intraop_from_preop``."""
+
+    method: str
+    transform: np.ndarray
+    pairing: np.ndarray
+    distances_mm: np.ndarray
+    rms_mm: float
+    confidence: np.ndarray
+    pairing_rule: str
+    pairings: dict[str, np.ndarray] = field(default_factory=dict)
+    score: float = float("nan")
+
+    @property
+    def confident(self) -> np.ndarray:
+        """Per intraop node: is its pairing confident enough to act on (>= ``CONFIDENT``)?"""
+        return self.confidence >= CONFIDENT
+
+
+def register(preop, intraop, method: str = "global", preop_labels=None, intraop_labels=None, initial=None,
+             max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
+             *, pairing_rule: str | None = None, **options) -> RegistrationResult:
+    """Register preop (N, 3) to intraop (M, 3) nodes in mm and pair every intraop node.
+
+    ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
+    within ``max_rotation_deg`` and ``max_translation_mm`` (displacement of the preop
+    centroid) of it. Labels such as ``"OBT R"`` forbid left/right crossings and favour
+    matching stations. ``pairing_rule`` overrides the method's rule; ``options`` go to
+    the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer).
+    Raises ValueError with a message a user understands on bad input.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown registration method {method!r}; choose one of {', '.join(METHODS)}")
+    rule = pairing_rule or PAIRING_RULE[method]
+    if rule not in RULES:
+        raise ValueError(f"unknown pairing rule {rule!r}; choose one of {', '.join(RULES)}")
+    problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
+                           initial=initial, max_rotation_deg=max_rotation_deg,
+                           max_translation_mm=max_translation_mm, seed=seed)
+
+    n_pairs = min(len(problem.preop), len(problem.intraop))
+    if method == "global":
+        candidates = solve_global(problem, **options)
+        base = candidates[0]
+        correction, assignment = base.correction, base.assignment
+    else:
+        solver = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer}[method]
+        correction = solver(problem, **options)
+        d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
+        assignment = assign(problem, correction, sigma2_of(float(np.sort(d2.min(axis=0))[:n_pairs].sum()), n_pairs))
+        base = evaluate(problem, assignment)
+        # The confidence weighs this pairing against the hypotheses of the global search.
+        candidates = [base] + solve_global(problem)
+
+    moved = geometry.apply(correction, problem.preop)
+    paired = np.flatnonzero(assignment >= 0)
+    sse = float(np.sum((moved[assignment[paired]] - problem.intraop[paired]) ** 2))
+    sigma2 = sigma2_of(sse, len(paired))
+    pairings = {r: pair(r, problem, correction, assignment, sigma2) for r in RULES}
+    pairing = pairings[rule]
+    confidence = posterior_confidence(problem, pairing, candidates + alternatives(problem, base, pairing))
+
+    d2 = squared_distances(moved, problem.intraop)
+    distances = np.sqrt(np.where(pairing >= 0, d2[np.maximum(pairing, 0), np.arange(len(pairing))], d2.min(axis=0)))
+    rms = float(np.sqrt(np.mean(distances[pairing >= 0] ** 2))) if np.any(pairing >= 0) else float("nan")
+    return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
+                              distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
+                              pairings=pairings, score=base.score)

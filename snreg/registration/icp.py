@@ -1,0 +1,32 @@
+"""``icp``: point-to-point Iterative Closest Point (Besl & McKay 1992), the thesis' baseline (§2.5).
+
+Every preop (moving) node takes its nearest intraop (fixed) node as partner, Kabsch
+fits the rigid correction, and this repeats until the mean squared error stops
+changing. Starts from the initial alignment; no global search, as in MATLAB's
+``pcregistericp`` that the thesis used.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from snreg import geometry
+from snreg.registration.assignment import squared_distances
+from snreg.registration.problem import Problem
+
+__all__ = ["solve_icp"]
+
+
+def solve_icp(problem: Problem, *, max_iter: int = 100, tolerance_mm2: float = 1e-8) -> np.ndarray:
+    """The correction (4, 4) in the initial-aligned frame."""
+    correction = np.eye(4)
+    previous = np.inf
+    for _ in range(max_iter):
+        d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
+        partner = np.argmin(d2, axis=1)
+        mse = float(d2[np.arange(len(partner)), partner].mean())
+        if previous - mse < tolerance_mm2:
+            break
+        previous = mse
+        correction = geometry.kabsch(problem.preop, problem.intraop[partner])
+    return correction

@@ -1,0 +1,104 @@
+"""The registration problem: validated inputs, bounds, prior and label costs, shared by every method."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from snreg import geometry
+from snreg.registration.labels import label_cost
+
+__all__ = ["Problem", "make_problem"]
+
+
+@dataclass(frozen=True)
+class Problem:
+    """preop (N, 3) already moved by ``initial``; intraop (M, 3); mm throughout.
+
+    ``initial`` is the rough ``intraop_from_preop`` the bounds are measured from; every
+    solver returns a correction ``D`` in the initial-aligned frame and the final
+    transform is ``D @ initial``. ``label_nats`` (N, M) is the label cost of pairing
+    preop n with intraop m in nats (zeros without labels).
+    """
+
+    preop: np.ndarray
+    intraop: np.ndarray
+    initial: np.ndarray
+    label_nats: np.ndarray
+    max_rotation_deg: float
+    max_translation_mm: float
+    seed: int
+
+    @property
+    def centre(self) -> np.ndarray:
+        """The preop centroid (initial-aligned): translations are measured as its displacement."""
+        return self.preop.mean(axis=0)
+
+    @property
+    def has_labels(self) -> bool:
+        return bool(np.any(self.label_nats))
+
+    def correction_size(self, correction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation angle in degrees, centroid displacement in mm) of correction(s) (..., 4, 4)."""
+        correction = np.asarray(correction)
+        angle = geometry.rotation_angle_deg(correction)
+        c = self.centre
+        moved_c = np.einsum("...ij,j->...i", correction[..., :3, :3], c) + correction[..., :3, 3]
+        return angle, np.linalg.norm(moved_c - c, axis=-1)
+
+    def within_bounds(self, correction: np.ndarray) -> np.ndarray:
+        angle, shift = self.correction_size(correction)
+        return (angle <= self.max_rotation_deg + 1e-9) & (shift <= self.max_translation_mm + 1e-9)
+
+    def prior_nats(self, correction: np.ndarray) -> np.ndarray:
+        """Negative log prior of a correction: Gaussian in angle and shift with the bounds at 2 sigma.
+
+        The rough alignment is trusted to be right within the bounds (thesis §3.6.2: 60
+        degrees and 6 cm); smaller corrections are more likely than larger ones.
+        """
+        angle, shift = self.correction_size(correction)
+        return 0.5 * (2.0 * angle / self.max_rotation_deg) ** 2 + 0.5 * (2.0 * shift / self.max_translation_mm) ** 2
+
+
+def _as_points(name: str, value, minimum: int) -> np.ndarray:
+    try:
+        points = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} nodes must be an (n, 3) array of x, y, z in mm") from None
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name} nodes must be an (n, 3) array of x, y, z in mm; got shape {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise ValueError(f"{name} nodes contain NaN or infinite coordinates; remove or re-measure those nodes")
+    if len(points) < minimum:
+        raise ValueError(f"registration needs at least {minimum} {name} nodes; got {len(points)}")
+    return points
+
+
+def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, initial=None,
+                 max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0) -> Problem:
+    """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`."""
+    preop = _as_points("preop", preop, 3)
+    intraop = _as_points("intraop", intraop, 3)
+    if initial is None:
+        initial = np.eye(4)
+    initial = np.asarray(initial, dtype=float)
+    if initial.shape != (4, 4) or not np.all(np.isfinite(initial)):
+        raise ValueError("initial must be a finite 4x4 rigid transform (intraop_from_preop)")
+    rot = initial[:3, :3]
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise ValueError("initial must be a rigid transform: its 3x3 part is not a rotation")
+    for name, labels, n in (("preop", preop_labels, len(preop)), ("intraop", intraop_labels, len(intraop))):
+        if labels is not None and len(labels) != n:
+            raise ValueError(f"{name}_labels has {len(labels)} labels for {n} {name} nodes")
+    if not (max_rotation_deg > 0 and max_translation_mm > 0):
+        raise ValueError("max_rotation_deg and max_translation_mm must be positive")
+    return Problem(
+        preop=geometry.apply(initial, preop),
+        intraop=intraop,
+        initial=initial,
+        label_nats=label_cost(preop_labels, intraop_labels, len(preop), len(intraop)),
+        max_rotation_deg=float(max_rotation_deg),
+        max_translation_mm=float(max_translation_mm),
+        seed=int(seed),
+    )

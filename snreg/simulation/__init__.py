@@ -1,0 +1,8 @@
+"""The thesis' registration simulation study (§5.4) on a synthetic or supplied cohort."""
+
+from snreg.simulation.cohort import Patient, load_cohort, synthetic_cohort
+from snreg.simulation.report import markdown_report, write_report
+from snreg.simulation.study import StudyConfig, StudyResult, run_study
+
+__all__ = ["Patient", "load_cohort", "synthetic_cohort", "StudyConfig", "StudyResult", "run_study",
+           "markdown_report", "write_report"]

@@ -1,0 +1,198 @@
+"""The study report: markdown tables (thesis Tables 6-8, Fig. 23 analogues), a trial CSV and PNG plots."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from snreg.registration import CONFIDENT
+from snreg.simulation.stats import (accuracy, calibration, column, extras_breakdown, paired_tests, select,
+                                    threshold_for)
+from snreg.simulation.study import StudyResult
+
+__all__ = ["markdown_report", "write_report"]
+
+ORACLES = ("oracle_nearest", "oracle_one_to_one")
+
+
+def _table(header: list[str], lines: list[list[str]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(line) + " |" for line in lines]
+    return "\n".join(out)
+
+
+def _pm(values: np.ndarray) -> str:
+    return f"{values.mean():.1f} ± {values.std(ddof=1) if len(values) > 1 else 0.0:.1f}"
+
+
+def table6(study: StudyResult) -> str:
+    methods = list(study.config.methods)
+    header = ["sigma (mm)", "trials", "avg max error (mm)", "avg error (mm)", "oracle NN", "oracle 1-1"] + methods
+    best = "global" if "global" in methods else methods[-1]
+    header.append(f"{best} - best oracle (pp)")
+    lines = []
+    for sigma in study.config.sigmas:
+        rows = select(study.rows, sigma=sigma, method=methods[0])
+        oracles = [accuracy(column(rows, o)) for o in ORACLES]
+        accs = [accuracy(column(select(study.rows, sigma=sigma, method=m), "success")) for m in methods]
+        gap = 100 * (accs[methods.index(best)].rate - max(o.rate for o in oracles))
+        lines.append([f"{sigma:g}", str(len(rows)), _pm(column(rows, "max_error_mm")), _pm(column(rows, "mean_error_mm"))]
+                     + [str(o) for o in oracles] + [str(a) for a in accs] + [f"{gap:+.1f}"])
+    return _table(header, lines)
+
+
+def table8(study: StudyResult) -> str:
+    methods = list(study.config.methods)
+    header = ["sigma (mm)"] + [f"{m} RMS (mm)" for m in methods] + [f"{m} TRE (mm)" for m in methods] + [f"{m} ms" for m in methods]
+    lines = []
+    for sigma in study.config.sigmas:
+        subsets = [select(study.rows, sigma=sigma, method=m) for m in methods]
+        lines.append([f"{sigma:g}"] + [_pm(column(s, "rms_mm")) for s in subsets]
+                     + [_pm(column(s, "tre_mm")) for s in subsets]
+                     + [f"{np.median(column(s, 'time_ms')):.1f}" for s in subsets])
+    return _table(header, lines)
+
+
+def comparisons(study: StudyResult) -> str:
+    methods = list(study.config.methods)
+    header = ["sigma (mm)", "a vs b", "mean RMS a / b", "t-test p (Bonferroni)", "only a right / only b right", "McNemar p (Bonferroni)"]
+    lines = []
+    for sigma in study.config.sigmas:
+        for test in paired_tests(select(study.rows, sigma=sigma), methods):
+            lines.append([f"{sigma:g}", f"{test['a']} vs {test['b']}", f"{test['rms_a']:.2f} / {test['rms_b']:.2f}",
+                          f"{test['t_p_bonferroni']:.3g}", f"{test['only_a']} / {test['only_b']}",
+                          f"{test['mcnemar_p_bonferroni']:.3g}"])
+    return _table(header, lines)
+
+
+def table7(study: StudyResult) -> str:
+    extras = list(study.config.extras)
+    header = ["method", "sigma (mm)"] + [f"{e} extra: RMS, p vs {extras[0]}, accuracy" for e in extras]
+    lines = []
+    for method in study.config.methods:
+        for sigma in study.config.sigmas:
+            cells = []
+            for item in extras_breakdown(select(study.rows, sigma=sigma), method, extras):
+                p = "" if np.isnan(item["p_vs_first"]) else f", p={item['p_vs_first']:.3g}"
+                cells.append(f"{item['rms_mean']:.1f}±{item['rms_std']:.1f}{p}, {100 * item['accuracy'].rate:.0f}%")
+            lines.append([method, f"{sigma:g}"] + cells)
+    return _table(header, lines)
+
+
+def error_ratio(study: StudyResult) -> str:
+    header = ["method", "sigma (mm)", "max ratio, right: median [max]", "max ratio, wrong: median [min]"]
+    lines = []
+    for method in study.config.methods:
+        for sigma in study.config.sigmas:
+            rows = select(study.rows, sigma=sigma, method=method)
+            ratio, ok = column(rows, "max_error_ratio"), column(rows, "success").astype(bool)
+            right = f"{np.median(ratio[ok]):.2f} [{ratio[ok].max():.2f}]" if ok.any() else "-"
+            wrong = f"{np.median(ratio[~ok]):.2f} [{ratio[~ok].min():.2f}]" if (~ok).any() else "-"
+            lines.append([method, f"{sigma:g}", right, wrong])
+    return _table(header, lines)
+
+
+def calibration_table(study: StudyResult) -> str:
+    header = ["method", f"pairings >= {CONFIDENT}: right", "coverage", "threshold for 99% right", "bins: [lo, hi) n right"]
+    lines = []
+    for method in study.config.methods:
+        conf, corr = study.confidence[method], study.correct[method]
+        above = conf >= CONFIDENT
+        thr, _, cover = threshold_for(conf, corr)
+        bins = "; ".join(f"[{b['low']:.2f},{b['high']:.2f}) {b['n']} {100 * b['right']:.1f}%" for b in calibration(conf, corr))
+        right = f"{100 * corr[above].mean():.2f}% of {int(above.sum())}" if above.any() else "-"
+        lines.append([method, right, f"{100 * above.mean():.1f}%", f"{thr:.3f} (covers {100 * cover:.1f}%)", bins])
+    return _table(header, lines)
+
+
+def markdown_report(study: StudyResult, command: str = "") -> str:
+    cfg = study.config
+    parts = [
+        "# snreg simulation study",
+        f"`{command}`" if command else "",
+        f"Methods {', '.join(cfg.methods)}; sigma {', '.join(f'{s:g}' for s in cfg.sigmas)} mm; extras "
+        f"{', '.join(map(str, cfg.extras))}; {cfg.reps} repetitions per patient and condition; seed {cfg.seed}.",
+        "## Pairing accuracy (Table 6 analogue)",
+        "All true intraop nodes paired with their own preop node; 95% Wilson intervals. Oracles use the true transform.",
+        table6(study),
+        "## RMS after registration (Table 8 analogue), TRE and median time",
+        table8(study),
+        "## Paired comparisons",
+        comparisons(study),
+        "## By number of extra nodes (Table 7 analogue)",
+        table7(study),
+        "## Max error ratio (Fig. 23 analogue)",
+        error_ratio(study),
+        "## Confidence calibration (true intraop nodes)",
+        calibration_table(study),
+    ]
+    return "\n\n".join(p for p in parts if p) + "\n"
+
+
+def write_report(study: StudyResult, directory: str | Path, command: str = "") -> dict[str, Path]:
+    """Write report.md, trials.csv and the PNG plots into ``directory``; returns their paths."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = {"markdown": directory / "report.md", "trials": directory / "trials.csv"}
+    paths["markdown"].write_text(markdown_report(study, command), encoding="utf-8")
+    with paths["trials"].open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(study.rows[0]))
+        writer.writeheader()
+        writer.writerows(study.rows)
+    paths.update(_plots(study, directory))
+    return paths
+
+
+def _plots(study: StudyResult, directory: Path) -> dict[str, Path]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg = study.config
+    sigmas = np.array(cfg.sigmas)
+    out = {}
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name in list(ORACLES) + list(cfg.methods):
+        key, method = (name, cfg.methods[0]) if name in ORACLES else ("success", name)
+        accs = [accuracy(column(select(study.rows, sigma=s, method=method), key)) for s in cfg.sigmas]
+        rate = np.array([a.rate for a in accs]) * 100
+        err = np.array([[a.rate - a.low, a.high - a.rate] for a in accs]).T * 100
+        ax.errorbar(sigmas, rate, yerr=err, marker="o", capsize=3, label=name, linestyle="--" if name in ORACLES else "-")
+    ax.set(xlabel="intraop error sigma per axis (mm)", ylabel="pairing accuracy (%)", title="Pairing accuracy (95% CI)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    out["accuracy_plot"] = directory / "accuracy.png"
+    fig.savefig(out["accuracy_plot"], dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, len(cfg.methods), figsize=(3.2 * len(cfg.methods), 4), sharey=True, squeeze=False)
+    for ax, method in zip(axes[0], cfg.methods):
+        data, labels = [], []
+        for s in cfg.sigmas:
+            rows = select(study.rows, sigma=s, method=method)
+            ratio, ok = column(rows, "max_error_ratio"), column(rows, "success").astype(bool)
+            data += [ratio[ok], ratio[~ok]]
+            labels += [f"{s:g}✓", f"{s:g}✗"]
+        ax.boxplot([d if len(d) else [np.nan] for d in data], showfliers=False)
+        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=90, fontsize=7)
+        ax.axhline(1.0, color="grey", lw=0.8)
+        ax.set_title(method)
+    axes[0][0].set_ylabel("max error ratio (Fig. 23)")
+    out["error_ratio_plot"] = directory / "error_ratio.png"
+    fig.savefig(out["error_ratio_plot"], dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5, 5))
+    for method in cfg.methods:
+        bins = calibration(study.confidence[method], study.correct[method])
+        ax.plot([b["mean_confidence"] for b in bins], [b["right"] for b in bins], marker="o", label=method)
+    ax.plot([0, 1], [0, 1], color="grey", lw=0.8)
+    ax.set(xlabel="confidence", ylabel="fraction of pairings right", title="Confidence calibration")
+    ax.legend()
+    out["calibration_plot"] = directory / "calibration.png"
+    fig.savefig(out["calibration_plot"], dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return out

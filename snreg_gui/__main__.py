@@ -1,0 +1,5 @@
+import sys
+
+from snreg_gui.app import main
+
+sys.exit(main())

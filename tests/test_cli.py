@@ -1,0 +1,86 @@
+"""The ``snreg`` command line: output contracts and one-line errors with exit status 2."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from snreg import geometry
+from snreg.cli import main
+from snreg.nodes import NodeSet, write_nodes
+
+
+@pytest.fixture
+def node_files(tmp_path, pelvic_nodes):
+    xyz, labels = pelvic_nodes
+    preop = NodeSet.from_xyz(xyz, labels, prefix="P")
+    moved = geometry.apply(geometry.transform_from_euler(20, 10, -5, [10, -5, 12]), xyz)
+    order = [3, 1, 0, 5, 4, 2]
+    intraop = NodeSet(["SN1", "SN2", "SN3", "SN4", "SN5", "SN6"], [labels[k] for k in order], moved[order])
+    write_nodes(preop, tmp_path / "preop.csv")
+    write_nodes(intraop, tmp_path / "intraop.mrk.json")
+    return tmp_path / "preop.csv", tmp_path / "intraop.mrk.json"
+
+
+def test_register_writes_json(node_files, tmp_path, capsys):
+    preop, intraop = node_files
+    out = tmp_path / "result.json"
+    assert main(["register", str(preop), str(intraop), "--labels", "-o", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert [n["preop_id"] for n in doc["nodes"]] == ["P4", "P2", "P1", "P6", "P5", "P3"]
+    assert doc["rms_mm"] < 1e-6 and all(n["confident"] for n in doc["nodes"])
+    assert np.asarray(doc["intraop_from_preop"]).shape == (4, 4)
+    assert "RMS" in capsys.readouterr().out
+
+
+def test_register_json_on_stdout(node_files, capsys):
+    preop, intraop = node_files
+    assert main(["register", str(preop), str(intraop), "--method", "icp", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["method"] == "icp" and len(doc["nodes"]) == 6
+
+
+@pytest.mark.parametrize("content, fragment", [
+    ("id,label,x,y,z\nA,,0,0,0\nB,,1,0,0\n", "at least 3 preop nodes"),
+    ("garbage without header structure", "header lacks"),
+])
+def test_register_bad_input_is_one_line_exit_2(node_files, tmp_path, capsys, content, fragment):
+    _, intraop = node_files
+    bad = tmp_path / "bad.csv"
+    bad.write_text(content)
+    assert main(["register", str(bad), str(intraop)]) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.count("\n") == 1
+
+
+def test_register_session_file_not_yet_supported(node_files, tmp_path, capsys):
+    preop, _ = node_files
+    assert main(["register", str(preop), str(tmp_path / "s.h5")]) == 2
+    assert "session" in capsys.readouterr().err
+
+
+def test_simulate_small(tmp_path):
+    cmd = [sys.executable, "-m", "snreg.cli", "simulate", "--reps", "1", "--sigmas", "2,10", "--extras", "0,2",
+           "--methods", "icp,global", "--workers", "1", "-o", str(tmp_path / "sim")]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "oracle NN" in done.stdout and "| 10 | 26 |" in done.stdout
+    assert (tmp_path / "sim" / "report.md").exists() and (tmp_path / "sim" / "trials.csv").exists()
+    assert "simulate: 26/26 patient x sigma blocks" in done.stderr
+
+
+def test_simulate_rejects_bad_arguments(capsys):
+    assert main(["simulate", "--methods", "global+magic"]) == 2
+    assert "only '+labels'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "--sigmas", "two"])
+    assert exc.value.code == 2
+
+
+def test_bench_prints_every_method(capsys):
+    assert main(["bench", "--reps", "1"]) == 0
+    out = capsys.readouterr().out
+    for method in ("icp", "cpd", "chamfer", "global"):
+        assert f"| {method} | 52 |" in out

@@ -1,0 +1,102 @@
+"""The synthetic cohort, the thesis protocol, statistics and the report."""
+
+import csv
+
+import numpy as np
+import pytest
+
+from snreg import geometry
+from snreg.nodes import NodeSet, write_nodes
+from snreg.simulation import StudyConfig, load_cohort, run_study, synthetic_cohort, write_report
+from snreg.simulation.cohort import MIN_SEPARATION_MM, THESIS_NODE_COUNTS
+from snreg.simulation.protocol import error_stats, make_trial, oracle_success
+from snreg.simulation.stats import accuracy, threshold_for
+from snreg.simulation.study import parse_method
+
+
+def test_cohort_matches_thesis_table1():
+    patients = synthetic_cohort()
+    assert [len(p.nodes) for p in patients] == list(THESIS_NODE_COUNTS)
+    for p in patients:
+        d = np.linalg.norm(p.nodes.xyz[:, None] - p.nodes.xyz[None], axis=-1)
+        assert d[np.triu_indices(len(d), 1)].min() >= MIN_SEPARATION_MM
+        for label, xyz in zip(p.nodes.labels, p.nodes.xyz):
+            station, side = label.split()
+            assert side in "LR" and (xyz[0] > 0) == (side == "L")   # LPS: +x is the patient's left
+    assert synthetic_cohort()[3].nodes.xyz.tolist() == patients[3].nodes.xyz.tolist()
+
+
+def test_a_directory_of_csvs_replaces_the_cohort(tmp_path):
+    write_nodes(NodeSet.from_xyz(np.eye(3) * 30, ["OBT R", "EXT L", "INT R"]), tmp_path / "a.csv")
+    (tmp_path / "b.csv").write_text("id,label,x,y,z\nA,,0,0,0\nB,,1,1,1\n")
+    with pytest.raises(ValueError, match="at least 3 nodes"):
+        load_cohort(tmp_path)
+    (tmp_path / "b.csv").unlink()
+    assert [p.name for p in load_cohort(tmp_path)] == ["a"]
+    with pytest.raises(ValueError, match="no node CSV"):
+        load_cohort(tmp_path / "missing")
+
+
+def test_trial_follows_the_protocol():
+    patient = synthetic_cohort()[6]
+    trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 5.0, 2, 0, (1, 2, 3))
+    n = len(patient.nodes)
+    assert len(trial.intraop) == n + 2 and np.sum(trial.truth == -1) == 2
+    assert sorted(trial.truth[trial.truth >= 0]) == list(range(n))
+    np.testing.assert_allclose(geometry.apply(trial.intraop_from_moved, trial.moved_preop), trial.preop, atol=1e-9)
+    yaw, pitch, roll = geometry.euler_from_rotation(geometry.invert(trial.intraop_from_moved))
+    assert all(0 <= a <= 30 for a in (yaw, pitch, roll))
+    again = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 5.0, 2, 0, (1, 2, 3))
+    np.testing.assert_array_equal(again.intraop, trial.intraop)
+
+
+def test_extra_nodes_sit_5_to_15_mm_per_axis_from_a_true_node():
+    patient = synthetic_cohort()[1]
+    trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 0.0, 3, 0, (4,))
+    true = trial.intraop[trial.truth >= 0]
+    for extra in trial.intraop[trial.truth < 0]:
+        offsets = np.abs(true - extra)
+        assert np.any(np.all((offsets >= 5) & (offsets <= 15), axis=1))
+
+
+def test_oracles_and_error_ratio_on_a_clean_trial():
+    patient = synthetic_cohort()[0]
+    trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 0.0, 0, 0, (5,))
+    assert oracle_success(trial) == {"oracle_nearest": True, "oracle_one_to_one": True}
+    assert error_stats(trial)["max_error_ratio"] == 0.0
+
+
+def test_wilson_interval_and_threshold():
+    acc = accuracy([True] * 95 + [False] * 5)
+    assert acc.rate == 0.95 and acc.low == pytest.approx(0.8882, abs=1e-3) and acc.high == pytest.approx(0.9785, abs=1e-3)
+    conf = np.array([0.99, 0.98, 0.97, 0.6, 0.5])
+    right = np.array([True, True, True, False, True])
+    threshold, precision, coverage = threshold_for(conf, right, precision=0.99)
+    assert threshold == 0.97 and precision == 1.0 and coverage == 0.6
+
+
+def test_parse_method():
+    assert parse_method("global") == ("global", False, {})
+    assert parse_method("global+labels") == ("global", True, {})
+    assert parse_method("cpd:w=0.1") == ("cpd", False, {"w": 0.1})
+    assert parse_method("chamfer:form=volume") == ("chamfer", False, {"form": "volume"})
+    with pytest.raises(ValueError):
+        parse_method("global+magic")
+
+
+def test_small_study_is_reproducible_and_reports(tmp_path):
+    patients = synthetic_cohort()[:3]
+    config = StudyConfig(methods=("icp", "global"), sigmas=(2.0, 10.0), extras=(0, 1), reps=2, seed=3, workers=1)
+    study = run_study(patients, config, progress=False)
+    assert len(study.rows) == 3 * 2 * 2 * 2 * 2
+    parallel = run_study(patients, StudyConfig(**{**config.__dict__, "workers": 2}), progress=False)
+    assert [r["success"] for r in parallel.rows] == [r["success"] for r in study.rows]
+    assert [r["rms_mm"] for r in parallel.rows] == [r["rms_mm"] for r in study.rows]
+    paths = write_report(study, tmp_path, "snreg simulate --reps 2")
+    text = paths["markdown"].read_text()
+    assert "Table 6 analogue" in text and "| 2 | 12 |" in text and "global - best oracle" in text
+    with paths["trials"].open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == len(study.rows) and {"success", "rms_mm", "max_error_ratio", "oracle_nearest"} <= set(rows[0])
+    for key in ("accuracy_plot", "error_ratio_plot", "calibration_plot"):
+        assert paths[key].stat().st_size > 1000
