@@ -170,3 +170,16 @@ def test_methods_work_with_more_preop_than_intraop_nodes(method, pelvic_nodes):
     intraop, _ = moved_case(xyz)
     result = register(xyz, intraop[:4], method=method)
     np.testing.assert_array_equal(result.pairing, np.arange(4))
+
+
+def test_pairing_rule_can_be_chosen(pelvic_nodes):
+    xyz, _ = pelvic_nodes
+    intraop, _ = moved_case(xyz, noise=1.0)
+    duplicate = intraop[2] + np.array([3.0, -2.0, 2.0])
+    both = np.vstack([intraop, duplicate])
+    nearest = register(xyz, both, pairing_rule="nearest")
+    strict = register(xyz, both, pairing_rule="one_to_one")
+    assert nearest.pairing_rule == "nearest" and nearest.pairing[-1] == 2 and nearest.pairing[2] == 2
+    assert sorted(strict.pairing) == [-1, 0, 1, 2, 3, 4, 5]
+    with pytest.raises(ValueError, match="unknown pairing rule"):
+        register(xyz, both, pairing_rule="closest")

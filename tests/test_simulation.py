@@ -100,3 +100,17 @@ def test_small_study_is_reproducible_and_reports(tmp_path):
     assert len(rows) == len(study.rows) and {"success", "rms_mm", "max_error_ratio", "oracle_nearest"} <= set(rows[0])
     for key in ("accuracy_plot", "error_ratio_plot", "calibration_plot"):
         assert paths[key].stat().st_size > 1000
+
+
+def test_intraop_labels_keep_the_side_and_sometimes_miss_the_station():
+    patient = synthetic_cohort()[6]
+    same, total = 0, 0
+    for rep in range(40):
+        trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 2.0, 1, rep, (rep,))
+        for m, n in enumerate(trial.truth):
+            if n >= 0:
+                pre, intra = trial.preop_labels[n].split(), trial.intraop_labels[m].split()
+                assert pre[1] == intra[1]
+                same += pre[0] == intra[0]
+                total += 1
+    assert 0.6 < same / total < 0.8    # STATION_ERROR = 0.3

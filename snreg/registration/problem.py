@@ -35,10 +35,6 @@ class Problem:
         """The preop centroid (initial-aligned): translations are measured as its displacement."""
         return self.preop.mean(axis=0)
 
-    @property
-    def has_labels(self) -> bool:
-        return bool(np.any(self.label_nats))
-
     def correction_size(self, correction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rotation angle in degrees, centroid displacement in mm) of correction(s) (..., 4, 4)."""
         correction = np.asarray(correction)

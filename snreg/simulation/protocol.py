@@ -5,6 +5,11 @@ Per trial: intraop = preop + N(0, sigma^2) per axis; ``n_extra`` extra intraop n
 shuffled; the preop set moved by a random rigid transform (yaw, pitch, roll uniform in
 [0, 30] degrees about its centroid, translation uniform in [-20, 20] mm per axis); then
 every method registers the moved preop set to the intraop set.
+
+Intraop labels (used only by ``+labels`` methods) copy the preop station and side; an
+extra node takes its host's label; each station is then wrong with probability
+``STATION_ERROR`` (thesis Table 1: stations were revised in 11 of 13 patients), the side
+never.
 """
 
 from __future__ import annotations
@@ -18,8 +23,11 @@ from scipy.optimize import linear_sum_assignment
 from snreg import geometry
 from snreg.registration import register
 from snreg.registration.assignment import squared_distances
+from snreg.registration.labels import STATIONS, parse_label
 
-__all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome"]
+__all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "STATION_ERROR"]
+
+STATION_ERROR = 0.3
 
 
 @dataclass(frozen=True)
@@ -41,14 +49,16 @@ class Trial:
 
 def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float, n_extra: int, rep: int,
                seed_words: tuple[int, ...]) -> Trial:
-    rng = np.random.default_rng(np.random.SeedSequence(seed_words))
+    seeds = np.random.SeedSequence(seed_words)
+    rng = np.random.default_rng(seeds)
+    label_rng = np.random.default_rng(seeds.spawn(1)[0])   # label noise leaves the geometry's stream alone
     n = len(preop)
     noisy = preop + rng.normal(0.0, sigma, preop.shape)
     hosts = rng.integers(0, n, n_extra)
     offsets = rng.uniform(5.0, 15.0, (n_extra, 3)) * rng.choice([-1.0, 1.0], (n_extra, 3))
     intraop = np.vstack([noisy, noisy[hosts] + offsets])
     truth = np.concatenate([np.arange(n), np.full(n_extra, -1)])
-    intra_labels = list(labels) + [labels[h] for h in hosts]
+    intra_labels = [_relabel(label, label_rng) for label in list(labels) + [labels[h] for h in hosts]]
     order = rng.permutation(len(intraop))
     intraop, truth = intraop[order], truth[order]
     intra_labels = [intra_labels[k] for k in order]
@@ -60,6 +70,13 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     moved_from_original = geometry.make_transform(rotation, centre + shift - rotation @ centre)
     return Trial(patient, float(sigma), int(n_extra), int(rep), preop, geometry.apply(moved_from_original, preop),
                  intraop, truth, list(labels), intra_labels, geometry.invert(moved_from_original))
+
+
+def _relabel(label: str, rng: np.random.Generator) -> str:
+    station, side = parse_label(label)
+    if station and rng.random() < STATION_ERROR:
+        station = rng.choice(sorted(set(STATIONS.values()) - {station}))
+    return f"{station} {side}".strip()
 
 
 @dataclass
