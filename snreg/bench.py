@@ -1,4 +1,4 @@
-"""``snreg bench``: median wall time per case of each registration method on this machine.
+"""``snreg bench``: median wall time of registration per case and of tracking per stereo pair.
 
 Cases are simulated with the thesis protocol (every cohort patient, sigma 5 mm, 0-3 extra
 nodes); each method registers every case once after a warm-up, in this process. Two
@@ -25,7 +25,7 @@ from snreg.registration.problem import make_problem
 from snreg.simulation.cohort import synthetic_cohort
 from snreg.simulation.protocol import Trial, make_trial
 
-__all__ = ["BenchRow", "bench_registration", "format_rows"]
+__all__ = ["BenchRow", "bench_registration", "format_rows", "TrackingBench", "bench_tracking", "format_tracking"]
 
 
 @dataclass(frozen=True)
@@ -122,4 +122,53 @@ def format_rows(rows: list[BenchRow]) -> str:
              "|---|---|---|---|---|---|"]
     lines += [f"| {r.name} | {r.cases} | {r.solver_median_ms:.2f} | {r.solver_p90_ms:.2f} | "
               f"{'-' if np.isnan(r.total_median_ms) else f'{r.total_median_ms:.2f}'} | {100 * r.accuracy:.1f}% |" for r in rows]
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class TrackingBench:
+    method: str
+    pairs: int
+    median_ms: float
+    p99_ms: float
+
+    @property
+    def pairs_per_s(self) -> float:
+        return 1000.0 / self.median_ms
+
+
+def bench_tracking(pairs: int = 40, seed: int = 3) -> list[TrackingBench]:
+    """Time 1920x1080 stereo pair -> probe position (thesis calibration, rendered probe at 80-280 mm)."""
+    from snreg.calibration.files import thesis_calibration
+    from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
+    from snreg.tracking.probe_model import default_probe_model
+    from snreg.tracking.stereo import StereoTracker, TrackingError
+
+    calibration, probe = thesis_calibration(), default_probe_model()
+    renderer = StereoRenderer(calibration, probe)
+    axis = np.array([1.0, -0.35, 0.4])
+    frames = []
+    for k, depth in enumerate(np.linspace(80, 280, 5)):
+        radiance = renderer.radiance(ProbePose.make([-25.0, 5.0, depth], axis))
+        frames += [renderer.expose(radiance, RenderOptions(noise_sigma=3.0, seed=seed * 1000 + k * 100 + f))
+                   for f in range(max(pairs // 5, 1))]
+    rows = []
+    for method in ("triangulation", "sgbm"):
+        tracker = StereoTracker(calibration, probe, method=method)
+        tracker.track(*frames[0])
+        times = []
+        for left, right in frames:
+            start = time.perf_counter()
+            try:
+                tracker.track(left, right)
+            except TrackingError:
+                pass
+            times.append((time.perf_counter() - start) * 1e3)
+        rows.append(TrackingBench(method, len(frames), float(np.median(times)), float(np.percentile(times, 99))))
+    return rows
+
+
+def format_tracking(rows: list[TrackingBench]) -> str:
+    lines = ["| tracker | pairs | median ms per 1920x1080 pair | pairs/s | p99 ms (latency bound) |", "|---|---|---|---|---|"]
+    lines += [f"| {r.method} | {r.pairs} | {r.median_ms:.2f} | {r.pairs_per_s:.0f} | {r.p99_ms:.2f} |" for r in rows]
     return "\n".join(lines)

@@ -114,15 +114,69 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_track(args) -> int:
+    import cv2
+
+    from snreg.calibration.files import CalibrationFileError, load_calibration
+    from snreg.tracking import StereoTracker, TrackingError, load_probe_model
+
+    try:
+        calibration = load_calibration(args.calib)
+        probe = load_probe_model(args.probe)
+    except (CalibrationFileError, ValueError) as err:
+        raise UserError(str(err)) from None
+    images = []
+    for path in (args.left, args.right):
+        image = cv2.imread(path, cv2.IMREAD_COLOR)
+        if image is None:
+            raise UserError(f"{path}: not a readable image")
+        images.append(image)
+    tracker = StereoTracker(calibration, probe, method=args.method)
+    try:
+        fix = tracker.marker_width(images[0]) if args.method == "width" else tracker.track(*images)
+    except TrackingError as err:
+        raise UserError(f"{err}") from None
+    doc = fix.as_dict()
+    if args.json:
+        print(json.dumps(doc))
+    else:
+        print(f"tip    {fix.tip[0]:8.2f} {fix.tip[1]:8.2f} {fix.tip[2]:8.2f} mm (camera frame)")
+        print(f"centre {fix.centre[0]:8.2f} {fix.centre[1]:8.2f} {fix.centre[2]:8.2f} mm")
+        print(f"axis   {fix.axis[0]:8.4f} {fix.axis[1]:8.4f} {fix.axis[2]:8.4f}")
+        print(f"quality {fix.quality:.3f} ({fix.n_stripes} stripes, {fix.method})")
+    return 0
+
+
+def cmd_experiment_tracking(args) -> int:
+    from snreg.calibration.files import thesis_calibration
+    from snreg.tracking.experiment import THESIS_BANDS, format_table, run_tracking_experiment
+    from snreg.tracking.probe_model import default_probe_model
+
+    if args.frames < 2:
+        raise UserError("--frames must be at least 2")
+
+    def progress(done, total):
+        print(f"\rtracking experiment: {done}/{total} positions", end="" if done < total else "\n",
+              file=sys.stderr, flush=True)
+
+    results = run_tracking_experiment(thesis_calibration(), default_probe_model(), THESIS_BANDS, frames=args.frames,
+                                      noise_sigma=args.noise, seed=args.seed, progress=progress)
+    print(format_table(results))
+    return 0
+
+
 def cmd_bench(args) -> int:
-    from snreg.bench import bench_registration, format_rows
+    from snreg.bench import bench_registration, bench_tracking, format_rows, format_tracking
 
     print("registration (simulated cases, one process):")
     print(format_rows(bench_registration(reps=args.reps, compare=args.compare)))
+    print("\ntracking (rendered 1920x1080 pairs, one process):")
+    print(format_tracking(bench_tracking(pairs=args.pairs)))
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from snreg.calibration.command import add_calibrate_parser
     from snreg.registration import METHODS
     from snreg.simulation.study import DEFAULT_EXTRAS, DEFAULT_METHODS, DEFAULT_REPS, DEFAULT_SIGMAS
 
@@ -156,9 +210,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("bench", help="time the registration methods")
+    add_calibrate_parser(sub)
+
+    p = sub.add_parser("track", help="probe position from one stereo pair")
+    p.add_argument("left")
+    p.add_argument("right")
+    p.add_argument("--calib", required=True, help="stereo calibration file (.yaml)")
+    p.add_argument("--probe", help="probe model file (default: resources/probe/drop_in_probe.yaml)")
+    p.add_argument("--method", choices=("triangulation", "sgbm", "width"), default="triangulation")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_track)
+
+    p = sub.add_parser("experiment", help="accuracy experiments")
+    experiments = p.add_subparsers(dest="experiment", required=True)
+    e = experiments.add_parser("tracking", help="thesis Table 4 on rendered frames")
+    e.add_argument("--frames", type=int, default=60, help="noisy frames per probe position (thesis: 60)")
+    e.add_argument("--noise", type=float, default=3.0, help="sensor noise sigma, grey levels")
+    e.add_argument("--seed", type=int, default=0)
+    e.set_defaults(func=cmd_experiment_tracking)
+
+    p = sub.add_parser("bench", help="time the registration methods and the tracker")
     p.add_argument("--reps", type=int, default=2, help="cases per patient and extras count")
     p.add_argument("--compare", action="store_true", help="also probreg CPD and Open3D ICP where installed")
+    p.add_argument("--pairs", type=int, default=40, help="stereo pairs to track")
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -1,0 +1,203 @@
+"""Synthetic Firefly stereo pairs: a tissue-like scene with the DROP-IN probe at a known pose.
+
+Ground truth for tests, the tracking accuracy experiment and the demo. Every pixel of
+each eye is ray-cast in the left camera frame (mm; x right, y down, z forward): a
+textured tissue plane behind the probe, the probe (a cylinder with a hemispherical tip,
+stripes and body from the :class:`~snreg.tracking.probe_model.ProbeModel`), and an
+optional tissue blob hiding part of one stripe. The endoscope light sits at the
+camera (inverse-square fall-off, Lambert shading, optional specular highlights);
+vignetting and a slow light gradient make the exposure uneven. Sensor noise and blur
+are drawn from a seed, so a render is deterministic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from snreg.calibration.files import StereoCalibration
+from snreg.tracking.probe_model import ProbeModel
+
+__all__ = ["ProbePose", "RenderOptions", "StereoRenderer"]
+
+_TEXTURE_MM = 600.0       # side of the tissue texture patch
+_TEXTURE_PX = 2048
+
+
+@dataclass(frozen=True)
+class ProbePose:
+    """The probe in the left camera frame: tip position (mm) and unit axis from the tip towards the body."""
+
+    tip: np.ndarray
+    axis: np.ndarray
+
+    @classmethod
+    def make(cls, tip, axis) -> "ProbePose":
+        axis = np.asarray(axis, dtype=float)
+        return cls(np.asarray(tip, dtype=float), axis / np.linalg.norm(axis))
+
+    def point(self, s_mm: float) -> np.ndarray:
+        """The axis point ``s_mm`` from the tip (e.g. the stripe-band centre)."""
+        return self.tip + s_mm * self.axis
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    noise_sigma: float = 0.0          # sensor noise, grey levels
+    blur_sigma_px: float = 0.0
+    specular: bool = False
+    hide_stripe: int | None = None    # index of a stripe partly hidden by a tissue blob
+    background_gap_mm: float = 60.0   # tissue plane this far behind the probe tip
+    seed: int = 0
+
+
+def _tissue_texture(seed: int) -> np.ndarray:
+    """A BGR float32 texture: pink-red tissue with blotches, fine grain and darker vessels."""
+    rng = np.random.default_rng(seed)
+    size = _TEXTURE_PX
+    grain = np.zeros((size, size), np.float32)
+    for octave, weight in ((4, 0.35), (16, 0.3), (64, 0.2), (256, 0.15)):
+        small = rng.normal(0, 1, (octave, octave)).astype(np.float32)
+        grain += weight * cv2.resize(small, (size, size), interpolation=cv2.INTER_CUBIC)
+    fine = cv2.GaussianBlur(rng.normal(0, 1, (size, size)).astype(np.float32), (0, 0), 1.5)
+    grain = grain / grain.std() * 0.5 + fine / fine.std() * 0.35
+    vessels = np.zeros((size, size), np.float32)
+    for _ in range(40):
+        pts = np.cumsum(rng.normal(0, 25, (30, 2)), axis=0) + rng.uniform(0, size, 2)
+        cv2.polylines(vessels, [pts.astype(np.int32)], False, 1.0, int(rng.integers(2, 7)), cv2.LINE_AA)
+    vessels = cv2.GaussianBlur(vessels, (0, 0), 2.0)
+    base = np.array([95.0, 105.0, 185.0], np.float32)          # BGR pink-red
+    texture = base * (1.0 + 0.22 * grain[..., None]) - vessels[..., None] * np.array([40.0, 60.0, 70.0], np.float32)
+    return np.clip(texture, 10, 255)
+
+
+class StereoRenderer:
+    """Render left/right BGR uint8 images of the probe scene for a stereo calibration."""
+
+    def __init__(self, calibration: StereoCalibration, probe: ProbeModel, texture_seed: int = 7):
+        self.calibration, self.probe = calibration, probe
+        self.texture = _tissue_texture(texture_seed)
+        width, height = calibration.image_size
+        u, v = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+        pixels = np.stack([u, v, np.ones_like(u)], axis=-1)
+        rot = np.asarray(calibration.R, dtype=np.float32)
+        self._eyes = []
+        for K, to_left, origin in ((calibration.K1, np.eye(3, dtype=np.float32), np.zeros(3)),
+                                   (calibration.K2, rot.T, -(calibration.R.T @ calibration.T.ravel()))):
+            rays = pixels @ np.linalg.inv(K).astype(np.float32).T @ to_left.T
+            rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+            self._eyes.append((rays, origin.astype(np.float32)))
+        radius = np.hypot((u - width / 2) / (width / 2), (v - height / 2) / (height / 2))
+        self._vignette = (1.0 - 0.35 * radius**2).astype(np.float32)
+
+    def render(self, pose: ProbePose, options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right BGR uint8 images of the probe at ``pose``."""
+        return self.expose(self.radiance(pose, options), options)
+
+    def radiance(self, pose: ProbePose, options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
+        """The noise-free float images; :meth:`expose` turns them into frames (for many noisy frames of one pose)."""
+        return tuple(self._shade(rays, origin, pose, options) for rays, origin in self._eyes)
+
+    def expose(self, radiance: tuple[np.ndarray, np.ndarray], options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
+        """Blur, sensor noise (seeded by ``options.seed``) and 8-bit quantisation of both eyes."""
+        rng = np.random.default_rng(options.seed)
+        images = []
+        for image in radiance:
+            if options.blur_sigma_px > 0:
+                image = cv2.GaussianBlur(image, (0, 0), options.blur_sigma_px)
+            if options.noise_sigma > 0:
+                image = image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(options.noise_sigma)
+            images.append(np.clip(image, 0, 255).astype(np.uint8))
+        return images[0], images[1]
+
+    # -- scene -------------------------------------------------------------
+    def _shade(self, rays, origin, pose: ProbePose, options: RenderOptions) -> np.ndarray:
+        depth = np.full(rays.shape[:2], np.inf, np.float32)
+        colour = np.zeros(rays.shape, np.float32)
+        self._tissue_plane(rays, origin, pose, options, depth, colour)
+        self._probe(rays, origin, pose, options, depth, colour)
+        if options.hide_stripe is not None:
+            self._blob(rays, origin, pose, options, depth, colour)
+        # endoscope light at the camera, inverse-square fall-off; exposure set for the probe tip
+        falloff = np.clip((1.15 * pose.tip[2] / np.where(np.isfinite(depth), depth, 1e4)) ** 2, 0.15, 1.6)
+        gradient = 0.85 + 0.15 * np.linspace(-1, 1, rays.shape[1], dtype=np.float32)[None, :]
+        return colour * (falloff * self._vignette * gradient)[..., None]
+
+    def _tissue_plane(self, rays, origin, pose, options, depth, colour):
+        z = pose.tip[2] + options.background_gap_mm
+        normal = np.array([0.15, -0.1, -1.0], np.float32)
+        normal /= np.linalg.norm(normal)
+        anchor = np.array([0.0, 0.0, z], np.float32)
+        t = ((anchor - origin) @ normal) / (rays @ normal)
+        hit = origin + t[..., None] * rays
+        scale = _TEXTURE_PX / _TEXTURE_MM
+        map_x = (hit[..., 0] * scale + _TEXTURE_PX / 2).astype(np.float32)
+        map_y = (hit[..., 1] * scale + _TEXTURE_PX / 2).astype(np.float32)
+        tex = cv2.remap(self.texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        lambert = np.abs(rays @ normal)
+        np.copyto(depth, t.astype(np.float32))
+        np.copyto(colour, tex * lambert[..., None])
+
+    def _probe(self, rays, origin, pose, options, depth, colour):
+        probe, r = self.probe, self.probe.radius_mm
+        a, w = pose.tip.astype(np.float32), pose.axis.astype(np.float32)
+        delta = origin - a
+        d_par = rays @ w
+        d_perp = rays - d_par[..., None] * w
+        delta_perp = delta - (delta @ w) * w
+        qa = (d_perp**2).sum(-1)
+        qb = 2.0 * (d_perp @ delta_perp)
+        qc = float(delta_perp @ delta_perp) - r * r
+        disc = qb * qb - 4 * qa * qc
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t_cyl = (-qb - np.sqrt(disc)) / (2 * qa)
+        s = (delta @ w) + t_cyl * d_par
+        cyl = (disc > 0) & (t_cyl > 0) & (s >= 0) & (s <= probe.length_mm)
+        # hemispherical tip
+        b = rays @ delta
+        disc_s = b * b - (float(delta @ delta) - r * r)
+        with np.errstate(invalid="ignore"):
+            t_sph = -b - np.sqrt(disc_s)
+        s_sph = (delta @ w) + t_sph * d_par
+        sph = (disc_s > 0) & (t_sph > 0) & (s_sph < 0)
+        t = np.where(cyl, t_cyl, np.where(sph, t_sph, np.inf))
+        hit_mask = np.isfinite(t) & (t < depth)
+        if not hit_mask.any():
+            return
+        tt = t[hit_mask]
+        ray = rays[hit_mask]
+        point = origin + tt[:, None] * ray
+        s_hit = (point - a) @ w
+        axis_point = a + np.maximum(s_hit, 0.0)[:, None] * w
+        normal = (point - axis_point) / r
+        lambert = np.clip(-(normal * ray).sum(-1), 0.0, 1.0)
+        stripe = probe.stripe_at(s_hit) >= 0
+        albedo = np.where(stripe[:, None], np.array(probe.stripe_bgr, np.float32), np.array(probe.body_bgr, np.float32))
+        shade = albedo * (0.25 + 0.75 * lambert[:, None])
+        if options.specular:
+            shade += 160.0 * (lambert**60)[:, None]
+        depth[hit_mask] = tt
+        colour[hit_mask] = shade
+
+    def _blob(self, rays, origin, pose, options, depth, colour):
+        """A tissue sphere in front of one side of a stripe, hiding part of it."""
+        probe = self.probe
+        centre_axis = pose.point(probe.stripe_centres_mm[options.hide_stripe])
+        to_camera = -centre_axis / np.linalg.norm(centre_axis)
+        side = np.cross(pose.axis, to_camera)
+        side /= np.linalg.norm(side)
+        radius = probe.stripe_width_mm * 0.9
+        centre = (centre_axis + to_camera * (probe.radius_mm + radius + 3.0)
+                  + side * 0.6 * probe.radius_mm + pose.axis * probe.stripe_width_mm * 0.6).astype(np.float32)
+        delta = origin - centre
+        b = rays @ delta
+        disc = b * b - (float(delta @ delta) - radius * radius)
+        with np.errstate(invalid="ignore"):
+            t = -b - np.sqrt(disc)
+        hit = (disc > 0) & (t > 0) & (t < depth)
+        depth[hit] = t[hit]
+        normal = (origin + t[hit][:, None] * rays[hit] - centre) / radius
+        lambert = np.clip(-(normal * rays[hit]).sum(-1), 0.0, 1.0)
+        colour[hit] = np.array([85.0, 95.0, 170.0], np.float32) * (0.3 + 0.7 * lambert[:, None])

@@ -1,0 +1,100 @@
+"""The DROP-IN probe model: geometry and colours, read from a file (DESIGN.md §4, Probe model).
+
+Default (``resources/probe/drop_in_probe.yaml``): a cylinder 10 mm in diameter, tip on its
+axis at 0; three green stripes 4 mm wide centred 20, 30 and 40 mm from the tip; a dark
+grey body. The file is OpenCV ``FileStorage`` YAML like the calibration file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["ProbeModel", "load_probe_model", "save_probe_model", "default_probe_model", "DEFAULT_PROBE_PATH"]
+
+DEFAULT_PROBE_PATH = Path(__file__).resolve().parents[2] / "resources" / "probe" / "drop_in_probe.yaml"
+
+
+@dataclass(frozen=True)
+class ProbeModel:
+    """Probe geometry (mm, along the axis from the tip) and colours (BGR, HSV ranges in OpenCV units)."""
+
+    diameter_mm: float
+    length_mm: float
+    stripe_centres_mm: tuple[float, ...]
+    stripe_width_mm: float
+    stripe_bgr: tuple[int, int, int]
+    body_bgr: tuple[int, int, int]
+    hsv_low: tuple[int, int, int]
+    hsv_high: tuple[int, int, int]
+
+    @property
+    def radius_mm(self) -> float:
+        return self.diameter_mm / 2.0
+
+    @property
+    def band_centre_mm(self) -> float:
+        """Distance from the tip to the middle of the stripe band."""
+        return float(np.mean(self.stripe_centres_mm))
+
+    def stripe_at(self, s_mm: np.ndarray) -> np.ndarray:
+        """Index of the stripe covering axial position(s) ``s_mm``, -1 where none."""
+        s = np.asarray(s_mm, dtype=float)
+        index = np.full(s.shape, -1, dtype=int)
+        for k, centre in enumerate(self.stripe_centres_mm):
+            index[np.abs(s - centre) <= self.stripe_width_mm / 2.0] = k
+        return index
+
+
+def save_probe_model(model: ProbeModel, path: str | Path) -> None:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
+    try:
+        fs.write("diameter_mm", float(model.diameter_mm))
+        fs.write("length_mm", float(model.length_mm))
+        fs.write("stripe_width_mm", float(model.stripe_width_mm))
+        for key in ("stripe_centres_mm", "stripe_bgr", "body_bgr", "hsv_low", "hsv_high"):
+            fs.write(key, np.asarray(getattr(model, key), dtype=float).reshape(1, -1))
+    finally:
+        fs.release()
+
+
+def load_probe_model(path: str | Path | None = None) -> ProbeModel:
+    """Read a probe model file (the default when ``path`` is None); ValueError says what is wrong."""
+    path = Path(path) if path is not None else DEFAULT_PROBE_PATH
+    if not path.is_file():
+        raise ValueError(f"{path}: no such probe model file")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError):   # OpenCV 5 wraps its parse error in a SystemError
+        raise ValueError(f"{path}: not a probe model file (OpenCV YAML)") from None
+    try:
+        def number(key):
+            node = fs.getNode(key)
+            if node.empty():
+                raise ValueError(f"{path}: probe model lacks {key}")
+            return float(node.real())
+
+        def row(key, n=None):
+            node = fs.getNode(key)
+            if node.empty() or not node.isMap():
+                raise ValueError(f"{path}: probe model lacks {key}")
+            values = np.asarray(node.mat(), dtype=float).ravel()
+            if n is not None and len(values) != n:
+                raise ValueError(f"{path}: {key} needs {n} values")
+            return values
+
+        model = ProbeModel(number("diameter_mm"), number("length_mm"), tuple(float(v) for v in row("stripe_centres_mm")),
+                           number("stripe_width_mm"),
+                           *(tuple(int(v) for v in row(k, 3)) for k in ("stripe_bgr", "body_bgr", "hsv_low", "hsv_high")))
+    finally:
+        fs.release()
+    if model.diameter_mm <= 0 or len(model.stripe_centres_mm) < 2:
+        raise ValueError(f"{path}: a probe needs a positive diameter and at least two stripes")
+    return model
+
+
+def default_probe_model() -> ProbeModel:
+    return load_probe_model(DEFAULT_PROBE_PATH)

@@ -1,0 +1,310 @@
+"""Probe position from a stereo pair (thesis §3.4.2, Appendix A): stripes, SGBM depth, triangulation.
+
+Per pair: find the stripes in the left image and, in the band of rows they occupy, in the
+right image; map their centroids into the rectified frame. Two measurements follow:
+
+- ``triangulation``: the stripe centroids of both eyes (``cv2.triangulatePoints`` with the
+  rectified projections). A centroid of the visible band lies on the projection of the
+  axis, so the triangulated points are axis points.
+- ``sgbm``: the thesis method. The rectified pair is cropped around the stripes (only the
+  crop is remapped), SGBM with the Appendix A parameters runs on it over a disparity
+  window centred on the triangulated disparity, the median disparity inside each stripe is
+  reprojected with Q. That is a point of the visible surface; the median visible surface
+  of a cylinder seen side-on lies sqrt(3)/2 radius in front of the axis, so the point is
+  moved back by that much, away from the camera and perpendicular to the axis.
+
+Stripe axis points and their known distances from the tip give the axis and the tip by
+least squares. Which end is the tip comes from the dark body: it runs on longer behind
+the last stripe than in front of the first. Points leave in the left camera frame
+(rectified coordinates rotated back by R1 transposed), in mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from snreg.calibration.files import StereoCalibration
+from snreg.tracking.markers import Stripes, find_stripes
+from snreg.tracking.probe_model import ProbeModel, default_probe_model
+
+__all__ = ["ProbeFix", "SGBMParams", "StereoTracker", "TrackingError", "METHODS"]
+
+METHODS = ("sgbm", "triangulation")
+_MAX_SURFACE_POINTS = 800
+_NEIGHBOURS = np.stack(np.meshgrid(np.arange(-2, 3), np.arange(-2, 3)), axis=-1).reshape(-1, 2)
+
+
+class TrackingError(ValueError):
+    """No usable probe position in this pair; the message says why."""
+
+
+@dataclass(frozen=True)
+class SGBMParams:
+    """StereoSGBM settings of thesis Appendix A; the block size is ours (the thesis does not give it)."""
+
+    block_size: int = 5
+    num_disparities: int = 18 * 16     # thesis range, used when no triangulated disparity is available
+    window: int = 64                   # disparity window around the triangulated disparity (multiple of 16)
+    prefilter_cap: int = 20
+    uniqueness_ratio: int = 15
+    speckle_window: int = 0
+    speckle_range: int = 0
+    p1_factor: int = 8                 # P1 = 8 * channels * block^2
+    p2_factor: int = 36                # P2 = 36 * channels * block^2
+
+
+@dataclass(frozen=True)
+class ProbeFix:
+    """A probe position in the left camera frame (mm): tip and stripe-band centre on the axis."""
+
+    tip: np.ndarray
+    centre: np.ndarray
+    axis: np.ndarray
+    quality: float
+    method: str
+    n_stripes: int
+
+    def as_dict(self) -> dict:
+        return {"tip": [round(float(v), 3) for v in self.tip], "centre": [round(float(v), 3) for v in self.centre],
+                "axis": [round(float(v), 5) for v in self.axis], "quality": round(float(self.quality), 4),
+                "method": self.method, "n_stripes": self.n_stripes}
+
+
+class StereoTracker:
+    """Find the probe in stereo pairs of one calibrated camera; rectification maps made once."""
+
+    def __init__(self, calibration: StereoCalibration, probe: ProbeModel | None = None,
+                 params: SGBMParams = SGBMParams(), method: str = "sgbm"):
+        if method not in METHODS:
+            raise ValueError(f"tracking method must be one of {', '.join(METHODS)}")
+        self.calibration, self.probe, self.params, self.method = calibration, probe or default_probe_model(), params, method
+        size = calibration.image_size
+        self._maps = [cv2.initUndistortRectifyMap(K, D, R, P, size, cv2.CV_32FC1)
+                      for K, D, R, P in ((calibration.K1, calibration.D1, calibration.R1, calibration.P1),
+                                         (calibration.K2, calibration.D2, calibration.R2, calibration.P2))]
+        self._cam_from_rect = calibration.R1.T
+        fx = calibration.P1[0, 0]
+        self._max_disparity = int(np.ceil(fx * calibration.baseline_mm / 20.0))    # probe >= 20 mm away
+
+    # -- public --------------------------------------------------------------
+    def track(self, left: np.ndarray, right: np.ndarray) -> ProbeFix:
+        """The probe position in this pair; TrackingError says why there is none."""
+        self._check(left, "left")
+        self._check(right, "right")
+        stripes_left = find_stripes(left, self.probe)
+        if stripes_left is None:
+            raise TrackingError("no probe stripe found in the left image")
+        x0, y0, x1, y1 = stripes_left.box
+        stripes_right = find_stripes(right, self.probe, (x0 - self._max_disparity - 20, y0 - 40, x1 + 20, y1 + 40))
+        if stripes_right is None:
+            raise TrackingError("no probe stripe found in the right image")
+        if len(stripes_right) != len(stripes_left):
+            raise TrackingError(f"{len(stripes_left)} stripes in the left image but {len(stripes_right)} in the right")
+        rect_left = self._rectify_points(stripes_left.centroids, 0)
+        rect_right = self._rectify_points(stripes_right.centroids, 1)
+        disparity = rect_left[:, 0] - rect_right[:, 0]
+        if np.any(disparity <= 0):
+            raise TrackingError("left and right stripes do not match (non-positive disparity)")
+        points = self._triangulate_axis(stripes_left.centroids, stripes_right.centroids)
+        tip_first = self._tip_first(left, points) if len(points) >= 2 else None
+        if self.method == "sgbm":
+            surface = self._sgbm_surface(left, right, stripes_left, float(np.median(disparity)))
+            points = self._onto_cylinder(points, surface)
+        return self._fit_axis(points, tip_first)
+
+    def marker_width(self, left: np.ndarray) -> ProbeFix:
+        """The thesis' marker-width baseline (§3.4.1): depth from the probe's width in pixels (pinhole)."""
+        self._check(left, "left")
+        stripes = find_stripes(left, self.probe)
+        if stripes is None:
+            raise TrackingError("no probe stripe found in the left image")
+        ys, xs = np.nonzero(stripes.labels)
+        x0, y0 = stripes.box[:2]
+        (cx, cy), (w, h), _ = cv2.minAreaRect(np.column_stack([xs + x0, ys + y0]).astype(np.float32))
+        width_px = min(w, h) if len(stripes) > 1 else max(w, h)
+        K = self.calibration.K1
+        z = K[0, 0] * self.probe.diameter_mm / max(width_px, 1e-6)
+        centre = np.array([(cx - K[0, 2]) * z / K[0, 0], (cy - K[1, 2]) * z / K[1, 1], z])
+        ray2d = np.append(stripes.direction, 0.0)
+        axis = ray2d / np.linalg.norm(ray2d)
+        return ProbeFix(centre - self.probe.band_centre_mm * axis, centre, axis, len(stripes) / 3.0, "width", len(stripes))
+
+    # -- steps ---------------------------------------------------------------
+    def _check(self, image: np.ndarray, eye: str) -> None:
+        width, height = self.calibration.image_size
+        if image is None or image.ndim != 3 or image.shape[2] != 3:
+            raise TrackingError(f"the {eye} image must be a colour (BGR) image")
+        if image.shape[1] != width or image.shape[0] != height:
+            raise TrackingError(f"the {eye} image is {image.shape[1]}x{image.shape[0]} but the calibration is "
+                                f"for {width}x{height}; use the matching calibration file")
+
+    def _rectify_points(self, points: np.ndarray, eye: int) -> np.ndarray:
+        c = self.calibration
+        K, D, R, P = (c.K1, c.D1, c.R1, c.P1) if eye == 0 else (c.K2, c.D2, c.R2, c.P2)
+        return cv2.undistortPoints(points.reshape(-1, 1, 2).astype(np.float64), K, D, R=R, P=P).reshape(-1, 2)
+
+    def _to_camera(self, rect_points: np.ndarray) -> np.ndarray:
+        return rect_points @ self._cam_from_rect.T
+
+    def _triangulate(self, rect_left: np.ndarray, rect_right: np.ndarray) -> np.ndarray:
+        c = self.calibration
+        homog = cv2.triangulatePoints(c.P1, c.P2, rect_left.T.astype(np.float64), rect_right.T.astype(np.float64))
+        return self._to_camera((homog[:3] / homog[3]).T)
+
+    def _project(self, points: np.ndarray, eye: int) -> np.ndarray:
+        c = self.calibration
+        if eye == 0:
+            rvec, tvec, K, D = np.zeros(3), np.zeros(3), c.K1, c.D1
+        else:
+            rvec, tvec, K, D = cv2.Rodrigues(c.R)[0].ravel(), c.T.ravel(), c.K2, c.D2
+        return cv2.projectPoints(points.reshape(-1, 1, 3).astype(np.float64), rvec, tvec, K, D)[0].reshape(-1, 2)
+
+    def _triangulate_axis(self, centroids_left: np.ndarray, centroids_right: np.ndarray) -> np.ndarray:
+        """Axis points of the stripes from their image centroids in both eyes.
+
+        A stripe's pixel centroid is the image of the visible half-ring's centroid, which
+        lies pi/4 radius in front of the axis (towards that eye, perpendicular to the
+        axis). Each eye sees that point from a slightly different side, so the centroids
+        are shifted back by the predicted offsets and triangulated again.
+        """
+        origins = (np.zeros(3), -(self.calibration.R.T @ self.calibration.T.ravel()))
+        raw = (centroids_left, centroids_right)
+        corrected = raw
+        for _ in range(3):
+            points = self._triangulate(self._rectify_points(corrected[0], 0), self._rectify_points(corrected[1], 1))
+            if len(points) < 2:
+                return points
+            axis = np.linalg.svd(points - points.mean(axis=0))[2][0]
+            shifted = []
+            for eye in (0, 1):
+                rays = points - origins[eye]
+                toward = -(rays - (rays @ axis)[:, None] * axis)
+                toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+                offset = (np.pi / 4.0) * self.probe.radius_mm * toward
+                shifted.append(raw[eye] - (self._project(points + offset, eye) - self._project(points, eye)))
+            corrected = tuple(shifted)
+        return self._triangulate(self._rectify_points(corrected[0], 0), self._rectify_points(corrected[1], 1))
+
+    def _sgbm_surface(self, left, right, stripes: Stripes, disparity_guess: float) -> np.ndarray:
+        """3D points (camera frame) of the visible stripe surface from SGBM on the rectified crop."""
+        p = self.params
+        width, height = self.calibration.image_size
+        corners = np.array([[stripes.box[0], stripes.box[1]], [stripes.box[2], stripes.box[1]],
+                            [stripes.box[0], stripes.box[3]], [stripes.box[2], stripes.box[3]]], float)
+        rect = self._rectify_points(corners, 0)
+        pad = 8
+        x0, y0 = int(max(rect[:, 0].min() - pad, 0)), int(max(rect[:, 1].min() - pad, 0))
+        x1, y1 = int(min(rect[:, 0].max() + pad, width)), int(min(rect[:, 1].max() + pad, height))
+        min_disp = max(int(disparity_guess) - p.window // 2, 0)
+        num_disp = p.window
+        xa = max(x0 - min_disp - num_disp, 0)
+        crops = []
+        for eye, image in enumerate((left, right)):
+            map_x, map_y = self._maps[eye]
+            crops.append(cv2.cvtColor(cv2.remap(image, map_x[y0:y1, xa:x1], map_y[y0:y1, xa:x1], cv2.INTER_LINEAR),
+                                      cv2.COLOR_BGR2GRAY))
+        matcher = cv2.StereoSGBM_create(minDisparity=min_disp, numDisparities=num_disp, blockSize=p.block_size,
+                                        P1=p.p1_factor * p.block_size**2, P2=p.p2_factor * p.block_size**2,
+                                        preFilterCap=p.prefilter_cap, uniquenessRatio=p.uniqueness_ratio,
+                                        speckleWindowSize=p.speckle_window, speckleRange=p.speckle_range)
+        disparity = matcher.compute(crops[0], crops[1]).astype(np.float32) / 16.0
+        labels = np.zeros((height, width), np.uint8)
+        bx0, by0, bx1, by1 = stripes.box
+        labels[by0:by1, bx0:bx1] = stripes.labels
+        map_x, map_y = self._maps[0]
+        rect_labels = cv2.remap(labels, map_x[y0:y1, xa:x1], map_y[y0:y1, xa:x1], cv2.INTER_NEAREST)
+        inner = cv2.erode((rect_labels > 0).astype(np.uint8), np.ones((3, 3), np.uint8))
+        ys, xs = np.nonzero((inner > 0) & (disparity >= min_disp))
+        if len(xs) < 20:
+            raise TrackingError("too few valid disparities on the stripes")
+        if len(xs) > _MAX_SURFACE_POINTS:
+            keep = np.linspace(0, len(xs) - 1, _MAX_SURFACE_POINTS).astype(int)
+            ys, xs = ys[keep], xs[keep]
+        homog = np.column_stack([xs + xa, ys + y0, disparity[ys, xs], np.ones(len(xs))]) @ self.calibration.Q.T
+        return self._to_camera(homog[:, :3] / homog[:, 3:])
+
+    def _onto_cylinder(self, axis_points: np.ndarray, surface: np.ndarray) -> np.ndarray:
+        """Refine the axis so the SGBM surface points lie one radius from it (robust least squares).
+
+        The along-axis positions of the stripes stay those of ``axis_points``; depth and
+        lateral position come from the surface fit.
+        """
+        if len(axis_points) < 2:
+            return axis_points
+        centre = axis_points.mean(axis=0)
+        direction = np.linalg.svd(axis_points - centre)[2][0]
+        e1 = np.cross(direction, [0.0, 0.0, 1.0] if abs(direction[2]) < 0.9 else [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(direction, e1)
+        radius = self.probe.radius_mm
+
+        def line(params):
+            c = centre + params[0] * e1 + params[1] * e2
+            u = direction + params[2] * e1 + params[3] * e2
+            return c, u / np.linalg.norm(u)
+
+        def residual(params):
+            c, u = line(params)
+            rel = surface - c
+            return np.linalg.norm(rel - (rel @ u)[:, None] * u, axis=1) - radius
+
+        fit = least_squares(residual, np.zeros(4), loss="soft_l1", f_scale=0.5, method="trf")
+        c, u = line(fit.x)
+        return c + ((axis_points - c) @ u)[:, None] * u
+
+    def _fit_axis(self, points: np.ndarray, tip_first: bool | None) -> ProbeFix:
+        probe = self.probe
+        n = len(points)
+        s_all = np.array(probe.stripe_centres_mm)
+        if n == len(s_all):
+            s = s_all
+        elif n == 2:
+            gap = np.linalg.norm(points[1] - points[0])
+            s = s_all[[0, -1]] if abs(gap - (s_all[-1] - s_all[0])) < abs(gap - (s_all[1] - s_all[0])) else s_all[:2]
+        else:
+            raise TrackingError(f"{n} stripe(s) seen; the axis needs at least two")
+        if tip_first is False:
+            points = points[::-1]
+        design = np.column_stack([np.ones(n), s])
+        coef, *_ = np.linalg.lstsq(design, points, rcond=None)
+        axis = coef[1] / np.linalg.norm(coef[1])
+        tip = np.mean(points - s[:, None] * axis, axis=0)
+        residual = points - (tip + s[:, None] * axis)
+        rms = float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+        quality = (n / len(s_all)) * float(np.exp(-0.5 * (rms / 1.5) ** 2)) * (0.5 if tip_first is None else 1.0)
+        return ProbeFix(tip, tip + probe.band_centre_mm * axis, axis, quality, self.method, n)
+
+    def _tip_first(self, left: np.ndarray, points: np.ndarray) -> bool | None:
+        """Is the first stripe point the one nearest the tip? None when the image cannot tell.
+
+        Behind the last stripe the dark body runs on for ``length - last stripe`` mm; in front
+        of the first it ends after ``first stripe + radius`` mm. So look at the image 28-34 mm
+        beyond each end stripe (on the measured 3D axis): grey body there marks the back,
+        red tissue the tip.
+        """
+        probe = self.probe
+        u = (points[-1] - points[0]) / np.linalg.norm(points[-1] - points[0])
+        gap = probe.stripe_width_mm / 2.0 + np.array([28.0, 30.0, 32.0, 34.0])
+        verdicts = []
+        for end, sign in ((points[0], -1.0), (points[-1], 1.0)):
+            pixels = self._project(end + sign * gap[:, None] * u, 0)
+            inside = (pixels[:, 0] >= 2) & (pixels[:, 0] < left.shape[1] - 3) & (pixels[:, 1] >= 2) & (pixels[:, 1] < left.shape[0] - 3)
+            if not inside.all():
+                verdicts.append(None)
+                continue
+            near = np.round(pixels).astype(int)[:, None, :] + _NEIGHBOURS[None]
+            bgr = left[near[..., 1], near[..., 0]].astype(np.float32).mean(axis=1)   # 5x5 mean beats sensor noise
+            red, green = bgr[:, 2], bgr[:, 1]
+            verdicts.append(bool(np.mean(red - green < 0.2 * red + 2.0) > 0.5))      # grey body, not red tissue
+        before, after = verdicts
+        if before is not None and after is not None and before != after:
+            return after
+        if before is None and after is not None:
+            return after
+        if after is None and before is not None:
+            return not before
+        return None
