@@ -146,3 +146,20 @@ def test_track_command(scene, tmp_path, capsys):
     (tmp_path / "junk.png").write_bytes(b"not an image")
     assert main(["track", str(tmp_path / "junk.png"), str(tmp_path / "r.png"), "--calib", str(THESIS_CALIBRATION_PATH)]) == 2
     assert "not a readable image" in capsys.readouterr().err
+
+
+def test_a_fully_hidden_middle_stripe_leaves_two_that_still_give_the_axis(scene):
+    calibration, probe, renderer = scene
+    pose = pose_at(130)
+    left, right = renderer.render(pose, RenderOptions(noise_sigma=2, seed=8))
+    covered = []
+    for image, eye in ((left, 0), (right, 1)):
+        image = image.copy()
+        tracker = StereoTracker(calibration, probe)
+        middle = tracker._project(pose.point(probe.stripe_centres_mm[1])[None], eye)[0]
+        cv2.circle(image, tuple(int(v) for v in middle), 55, (60, 70, 140), -1)   # a tissue flap over it
+        covered.append(image)
+    fix = StereoTracker(calibration, probe).track(*covered)
+    assert fix.n_stripes == 2
+    assert np.linalg.norm(fix.centre - pose.point(probe.band_centre_mm)) < 1.5
+    assert np.linalg.norm(fix.tip - pose.tip) < 3.0

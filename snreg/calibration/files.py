@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from snreg import __version__
+from snreg.storage import open_for_reading
 
 __all__ = ["StereoCalibration", "CalibrationFileError", "load_calibration", "save_calibration", "thesis_calibration",
            "THESIS_CALIBRATION_PATH"]
@@ -96,15 +97,8 @@ def save_calibration(calib: StereoCalibration, path: str | Path) -> None:
 def load_calibration(path: str | Path) -> StereoCalibration:
     """Read a calibration file; :class:`CalibrationFileError` says what is missing or wrong."""
     path = Path(path)
-    if not path.is_file():
-        raise CalibrationFileError(f"{path}: no such calibration file")
+    fs = open_for_reading(path, "calibration", CalibrationFileError)
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError):   # OpenCV 5 wraps its parse error in a SystemError
-        raise CalibrationFileError(f"{path}: not an OpenCV calibration file (YAML/XML FileStorage)") from None
-    try:
-        if not fs.isOpened():
-            raise CalibrationFileError(f"{path}: not an OpenCV calibration file (YAML/XML FileStorage)")
         values = {}
         for name in _MATRICES:
             node = fs.getNode(name)

@@ -13,6 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from snreg.storage import open_for_reading
+
 __all__ = ["ProbeModel", "load_probe_model", "save_probe_model", "default_probe_model", "DEFAULT_PROBE_PATH"]
 
 DEFAULT_PROBE_PATH = Path(__file__).resolve().parents[2] / "resources" / "probe" / "drop_in_probe.yaml"
@@ -64,12 +66,7 @@ def save_probe_model(model: ProbeModel, path: str | Path) -> None:
 def load_probe_model(path: str | Path | None = None) -> ProbeModel:
     """Read a probe model file (the default when ``path`` is None); ValueError says what is wrong."""
     path = Path(path) if path is not None else DEFAULT_PROBE_PATH
-    if not path.is_file():
-        raise ValueError(f"{path}: no such probe model file")
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError):   # OpenCV 5 wraps its parse error in a SystemError
-        raise ValueError(f"{path}: not a probe model file (OpenCV YAML)") from None
+    fs = open_for_reading(path, "probe model")
     try:
         def number(key):
             node = fs.getNode(key)

@@ -78,7 +78,7 @@ class StereoTracker:
     """Find the probe in stereo pairs of one calibrated camera; rectification maps made once."""
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel | None = None,
-                 params: SGBMParams = SGBMParams(), method: str = "sgbm"):
+                 params: SGBMParams = SGBMParams(), method: str = "triangulation"):
         if method not in METHODS:
             raise ValueError(f"tracking method must be one of {', '.join(METHODS)}")
         self.calibration, self.probe, self.params, self.method = calibration, probe or default_probe_model(), params, method
