@@ -107,6 +107,7 @@ def format_table(results: list[BandResult]) -> str:
     lines = [header, "|---|---|---|---|---|---|---|"]
     for r in results:
         axis = " ".join(f"{v:.2f}" for v in r.axis_std_mm)
+        tip = "-" if r.tracker == "width" else f"{r.tip_rms_mm:.2f}"   # the width method has no 3D axis, hence no tip
         lines.append(f"| {r.band[0]}-{r.band[1]} | {r.tracker} | {r.step_rms_mm:.2f} ± {r.step_std_mm:.2f} | [{axis}] | "
-                     f"{r.rms_mm:.2f} | {r.tip_rms_mm:.2f} | {100 * r.tracked:.0f}% |")
+                     f"{r.rms_mm:.2f} | {tip} | {100 * r.tracked:.0f}% |")
     return "\n".join(lines)
