@@ -165,6 +165,18 @@ def cmd_experiment_tracking(args) -> int:
     return 0
 
 
+def cmd_experiment_imu(args) -> int:
+    from snreg.imu.experiment import format_table, measure_yaw_drift, run_protractor_experiment
+
+    print(format_table(run_protractor_experiment(seed=args.seed)))
+    with_bias = measure_yaw_drift(seed=args.seed)
+    without = measure_yaw_drift(seed=args.seed, bias_correction=False)
+    print(f"\nyaw drift of a still sensor (no magnetometer), z gyro bias {with_bias.bias_dps[2]:+.3f} deg/s: "
+          f"{with_bias.deg_per_min:+.3f} deg/min with bias correction, "
+          f"{without.deg_per_min:+.3f} deg/min without")
+    return 0
+
+
 def cmd_bench(args) -> int:
     from snreg.bench import bench_registration, bench_tracking, format_rows, format_tracking
 
@@ -177,6 +189,8 @@ def cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from snreg.calibration.command import add_calibrate_parser
+    from snreg.calibration.trocar_command import add_trocar_parser
+    from snreg.imu.command import add_imu_parser
     from snreg.registration import METHODS
     from snreg.simulation.study import DEFAULT_EXTRAS, DEFAULT_METHODS, DEFAULT_REPS, DEFAULT_SIGMAS
 
@@ -210,7 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=cmd_simulate)
 
-    add_calibrate_parser(sub)
+    add_trocar_parser(add_calibrate_parser(sub))
+    add_imu_parser(sub)
 
     p = sub.add_parser("track", help="probe position from one stereo pair")
     p.add_argument("left")
@@ -228,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--noise", type=float, default=3.0, help="sensor noise sigma, grey levels")
     e.add_argument("--seed", type=int, default=0)
     e.set_defaults(func=cmd_experiment_tracking)
+    e = experiments.add_parser("imu", help="thesis Fig. 19: simulated protractor rotations")
+    e.add_argument("--seed", type=int, default=0)
+    e.set_defaults(func=cmd_experiment_imu)
 
     p = sub.add_parser("bench", help="time the registration methods and the tracker")
     p.add_argument("--reps", type=int, default=2, help="cases per patient and extras count")

@@ -84,3 +84,10 @@ def test_bench_prints_every_method(capsys):
     out = capsys.readouterr().out
     for method in ("icp", "cpd", "chamfer", "global"):
         assert f"| {method} | 52 |" in out
+
+
+def test_experiment_imu_prints_the_protractor_table_and_drift(capsys):
+    assert main(["experiment", "imu", "--seed", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| all |" in out and "horizontal plane (yaw) | 10 |" in out
+    assert "deg/min with bias correction" in out

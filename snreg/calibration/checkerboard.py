@@ -19,6 +19,7 @@ pattern ends proved unreliable on real images), but shows as a large per-view st
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import cv2
@@ -45,6 +46,14 @@ class Board:
                              f"(so its orientation is defined), got {self.cols}x{self.rows}")
         if not self.square_mm > 0:
             raise ValueError(f"the square size must be positive (mm), got {self.square_mm}")
+
+    @classmethod
+    def parse(cls, text: str, square_mm: float) -> "Board":
+        """A board from ``"COLSxROWS"`` (inner corners, e.g. ``"10x7"``); ValueError with a hint otherwise."""
+        match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+        if not match:
+            raise ValueError(f"board {text!r}: expected inner corners as COLSxROWS, e.g. 10x7")
+        return cls(int(match[1]), int(match[2]), square_mm)
 
     @property
     def n_corners(self) -> int:

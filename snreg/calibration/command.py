@@ -8,7 +8,6 @@ error, the baseline and a per-view table whose indices ``--drop`` takes; writes 
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
 
 import cv2
@@ -44,9 +43,6 @@ def cmd_calibrate_stereo(args) -> int:
     """Run ``snreg calibrate stereo``; bad input raises ``snreg.cli.UserError`` with one sentence."""
     from snreg.cli import UserError  # here: snreg.cli imports this module
 
-    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", args.board)
-    if not match:
-        raise UserError(f"--board {args.board!r}: expected inner corners as COLSxROWS, e.g. 10x7")
     try:
         drop = [int(v) for v in args.drop.split(",") if v.strip()]
     except ValueError:
@@ -55,7 +51,7 @@ def cmd_calibrate_stereo(args) -> int:
     if not output.parent.is_dir():
         raise UserError(f"{output}: the folder {output.parent} does not exist")
     try:
-        board = Board(int(match[1]), int(match[2]), args.square)
+        board = Board.parse(args.board, args.square)
         pairs = load_image_pairs(args.left, args.right)
         result = calibrate_stereo(pairs.left, pairs.right, board, left_names=pairs.left_paths, right_names=pairs.right_paths)
         if drop:

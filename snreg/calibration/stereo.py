@@ -146,13 +146,13 @@ def load_image_pairs(left_patterns: str | Sequence[str], right_patterns: str | S
     Natural order puts ``left2`` before ``left10``. Raises ``ValueError`` for no matching files,
     unequal counts, unreadable files or images of different sizes.
     """
-    left_paths, right_paths = _expand(left_patterns, "left"), _expand(right_patterns, "right")
+    left_paths, right_paths = expand_globs(left_patterns, "left"), expand_globs(right_patterns, "right")
     if len(left_paths) != len(right_paths):
         n = min(len(left_paths), len(right_paths))
         extra = (left_paths if len(left_paths) > n else right_paths)[n]
         raise ValueError(f"{len(left_paths)} left but {len(right_paths)} right images; they are paired by sorted "
                          f"name, so the counts must match (first unpaired: {extra})")
-    left, right = [_read(p) for p in left_paths], [_read(p) for p in right_paths]
+    left, right = [read_grey(p) for p in left_paths], [read_grey(p) for p in right_paths]
     _check_pairs(left, right, left_paths, right_paths)
     return ImagePairs(left, right, left_paths, right_paths)
 
@@ -228,7 +228,8 @@ def _natural_key(path: str) -> list:
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path)]
 
 
-def _expand(patterns: str | Sequence[str], side: str) -> list[str]:
+def expand_globs(patterns: str | Sequence[str], side: str) -> list[str]:
+    """Files matching one or more glob patterns, in natural order; ValueError naming ``side`` if none."""
     patterns = [patterns] if isinstance(patterns, str) else list(patterns)
     paths = {p for pattern in patterns for p in glob.glob(str(Path(pattern).expanduser())) if Path(p).is_file()}
     if not paths:
@@ -236,7 +237,8 @@ def _expand(patterns: str | Sequence[str], side: str) -> list[str]:
     return sorted(paths, key=_natural_key)
 
 
-def _read(path: str) -> np.ndarray:
+def read_grey(path: str) -> np.ndarray:
+    """An image file as 8-bit grey; ValueError when it is not a readable image."""
     image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise ValueError(f"{path}: not a readable image")

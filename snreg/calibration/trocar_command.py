@@ -1,0 +1,171 @@
+"""``snreg calibrate trocar``: the trocar and IMU constants of the chain (:mod:`snreg.chain`).
+
+``snreg calibrate trocar pivot --images GLOB --board COLSxROWS --square MM --calib calib.yaml [--imu-csv CSV]
+[--imu-trocar MM] [-o chain.json]``: pivot calibration (:mod:`snreg.calibration.pivot`) from left images
+of a still board taken while the endoscope pivots about the trocar; with an IMU CSV (columns ``yaw``,
+``pitch``, ``roll`` in degrees, sensor to earth, one row per image in sorted image order) also the
+IMU-camera rotation.
+
+``snreg calibrate trocar manual --imu-trocar MM --trocar-camera MM [-o chain.json]``: the thesis's
+hand-measured chain (§4.1: 460 and 158 mm, axes aligned by eye), printed as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from snreg.calibration.checkerboard import Board, find_corners
+from snreg.calibration.files import load_calibration
+from snreg.calibration.pivot import (MIN_POSES, PivotResult, board_from_camera_pose, imu_camera_rotation,
+                                     imu_from_camera_transform, pivot_calibration)
+from snreg.calibration.stereo import expand_globs, read_grey
+from snreg.chain import ChainCalibration
+from snreg.geometry import euler_from_rotation
+
+__all__ = ["add_trocar_parser"]
+
+THESIS_IMU_TROCAR_MM = 460.0
+
+
+def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
+    """Add ``trocar`` with its modes ``pivot`` and ``manual`` to the ``calibrate`` subparsers; returns its parser."""
+    trocar = calibrate_subparsers.add_parser("trocar", help="trocar and IMU calibration of the chain (thesis §3.5, §4.1)")
+    modes = trocar.add_subparsers(dest="trocar_mode", required=True)
+    p = modes.add_parser("pivot", help="pivot calibration from images of a still board",
+                         description="Find the trocar pivot in the camera frame from left images of a still checkerboard "
+                                     "taken while the endoscope pivots about the trocar in two directions.")
+    p.add_argument("--images", required=True, nargs="+", metavar="GLOB", help="left images, e.g. 'pivot/left*.png' (quoted)")
+    p.add_argument("--board", required=True, metavar="COLSxROWS", help="inner corners as OpenCV counts them, e.g. 10x7")
+    p.add_argument("--square", required=True, type=float, metavar="MM", help="square size, mm")
+    p.add_argument("--calib", required=True, help="stereo calibration file (.yaml); its left camera is used")
+    p.add_argument("--imu-csv", metavar="CSV", help="IMU orientation per image: columns yaw,pitch,roll (degrees), "
+                                                    "rows in sorted image order")
+    p.add_argument("--imu-trocar", type=float, default=THESIS_IMU_TROCAR_MM, metavar="MM",
+                   help=f"IMU-trocar distance for the chain file, mm (default {THESIS_IMU_TROCAR_MM:g}, thesis manual; "
+                        "it cancels out of the chain)")
+    p.add_argument("-o", "--output", metavar="JSON", help="write the chain constants as JSON")
+    p.set_defaults(func=cmd_trocar_pivot)
+    p = modes.add_parser("manual", help="hand-measured distances (thesis §4.1)",
+                         description="Chain constants from measured distances, IMU axes aligned with the camera's by eye.")
+    p.add_argument("--imu-trocar", required=True, type=float, metavar="MM", help="IMU-trocar distance, mm (thesis 460)")
+    p.add_argument("--trocar-camera", required=True, type=float, metavar="MM", help="trocar-camera distance, mm (thesis 158)")
+    p.add_argument("-o", "--output", metavar="JSON", help="also write the chain constants to this file")
+    p.set_defaults(func=cmd_trocar_manual)
+    return trocar
+
+
+def cmd_trocar_manual(args) -> int:
+    """Print (and with ``-o`` write) the thesis's manual chain as JSON; bad input raises ``UserError``."""
+    from snreg.cli import UserError  # here: snreg.cli imports the calibrate commands
+
+    try:
+        chain = ChainCalibration.manual(args.imu_trocar, args.trocar_camera)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    text = _chain_json(chain, "manual")
+    if args.output:
+        _write(Path(args.output), text)
+    print(text)
+    return 0
+
+
+def cmd_trocar_pivot(args) -> int:
+    """Run the pivot calibration on image files and report it; bad input raises ``UserError``."""
+    from snreg.cli import UserError  # here: snreg.cli imports the calibrate commands
+
+    output = Path(args.output) if args.output else None
+    if output is not None and not output.parent.is_dir():
+        raise UserError(f"{output}: the folder {output.parent} does not exist")
+    try:
+        board = Board.parse(args.board, args.square)
+        calib = load_calibration(args.calib)
+        paths = expand_globs(args.images, "image")
+        imu = _read_orientations(args.imu_csv, len(paths)) if args.imu_csv else None
+        found, poses = [], []
+        for k, path in enumerate(paths):
+            image = read_grey(path)
+            if (image.shape[1], image.shape[0]) != calib.image_size:
+                raise ValueError(f"{path} is {image.shape[1]}x{image.shape[0]} but the calibration is for "
+                                 f"{calib.image_size[0]}x{calib.image_size[1]} images")
+            corners = find_corners(image, board)
+            if corners is not None:
+                found.append(k)
+                poses.append(board_from_camera_pose(corners, board, calib.K1, calib.D1))
+        if len(poses) < MIN_POSES:
+            raise ValueError(f"board {board.cols}x{board.rows} (inner corners) found in only {len(poses)} of {len(paths)} "
+                             f"images, need {MIN_POSES}; check --board (inner corners) and that the board is in view")
+        poses = np.array(poses)
+        pivot = pivot_calibration(poses)
+        hand_eye = imu_camera_rotation(imu[found][pivot.inliers], poses[pivot.inliers]) if imu is not None else None
+        rotation = hand_eye.imu_from_camera if hand_eye is not None else np.eye(3)
+        chain = ChainCalibration(imu_from_camera_transform(rotation, pivot, args.imu_trocar), args.imu_trocar)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    lines = _report(pivot, board, paths, found)
+    if hand_eye is not None:
+        yaw, pitch, roll = euler_from_rotation(hand_eye.imu_from_camera)
+        lines.append(f"IMU-camera rotation (imu_from_camera; yaw, pitch, roll): {yaw:.2f}, {pitch:.2f}, {roll:.2f} degrees; "
+                     f"RMS residual {hand_eye.rms_deg:.2f} degrees over {hand_eye.n_pairs} pose pairs")
+    else:
+        lines.append("IMU-camera rotation: identity assumed (no --imu-csv; the thesis aligned the axes by eye)")
+    print("\n".join(lines))
+    if output is not None:
+        _write(output, _chain_json(chain, "pivot"))
+        print(f"wrote {output}")
+    return 0
+
+
+def _report(pivot: PivotResult, board: Board, paths: list[str], found: list[int]) -> list[str]:
+    x, y, z = pivot.pivot_camera_mm
+    bx, by, bz = pivot.pivot_board_mm
+    lines = [f"pivot calibration from {len(found)} of {len(paths)} images, board {board.cols}x{board.rows} inner corners "
+             f"of {board.square_mm:g} mm"]
+    missing = [Path(p).name for k, p in enumerate(paths) if k not in found]
+    if missing:
+        lines.append(f"board not found in (skipped): {', '.join(missing)}")
+    outliers = [Path(paths[found[k]]).name for k in np.flatnonzero(~pivot.inliers)]
+    if outliers:
+        lines.append(f"poses left out as outliers: {', '.join(outliers)}")
+    lines += [f"pivot in the camera frame: {x:.2f}, {y:.2f}, {z:.2f} mm",
+              f"trocar-camera distance: {pivot.trocar_camera_mm:.2f} mm (standard error {pivot.distance_sd_mm:.2f} mm)",
+              f"pivot in the board frame: {bx:.2f}, {by:.2f}, {bz:.2f} mm",
+              f"RMS residual: {pivot.rms_mm:.2f} mm over {pivot.n_used} poses; tilt range {pivot.tilt_range_deg:.1f} degrees",
+              f"verdict: {pivot.verdict}: {pivot.advice}"]
+    return lines
+
+
+def _read_orientations(path: str, n_images: int) -> Rotation:
+    """``earth_from_imu`` per image from a CSV with ``yaw``, ``pitch``, ``roll`` columns (degrees; ``#`` lines skipped)."""
+    try:
+        with open(path, newline="", encoding="utf-8") as stream:
+            rows = list(csv.DictReader(line for line in stream if not line.lstrip().startswith("#")))
+    except OSError as err:
+        raise ValueError(f"{path}: cannot read the IMU file ({err.strerror})") from None
+    if not rows or not {"yaw", "pitch", "roll"} <= set(rows[0]):
+        raise ValueError(f"{path}: the IMU file needs a header with the columns yaw,pitch,roll (degrees)")
+    try:
+        angles = np.array([[float(row["yaw"]), float(row["pitch"]), float(row["roll"])] for row in rows])
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: yaw, pitch and roll must be numbers (degrees) in every row") from None
+    if len(angles) != n_images:
+        raise ValueError(f"{path} has {len(angles)} IMU rows for {n_images} images; give one row per image")
+    return Rotation.from_euler("ZYX", angles, degrees=True)
+
+
+def _chain_json(chain: ChainCalibration, method: str) -> str:
+    return json.dumps({**chain.to_dict(), "method": method})
+
+
+def _write(path: Path, text: str) -> None:
+    from snreg.cli import UserError
+
+    try:
+        path.write_text(text + "\n", encoding="utf-8")
+    except OSError as err:
+        raise UserError(f"{path}: cannot write the chain file ({err.strerror})") from None

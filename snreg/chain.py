@@ -1,0 +1,183 @@
+"""The transform chain from the camera to the trocar frame (thesis §3.5, Fig 7-8): the one place that composes it.
+
+A stored node at ``p_camera`` (mm, left camera frame) lies in the trocar frame at::
+
+    p_trocar = trocar_from_imu(t) @ imu_from_camera @ p_camera
+
+- ``imu_from_camera`` (4, 4) is fixed by the mount: the IMU-camera rotation (the thesis aligned the
+  axes by eye, the identity; :func:`snreg.calibration.pivot.imu_camera_rotation` measures it) and the
+  camera origin on the shaft ``imu_trocar_mm + trocar_camera_mm`` ahead of the IMU (thesis §4.1:
+  460 + 158 mm).
+- ``trocar_from_imu(t)`` (thesis Fig 8B): the IMU sits on the shaft ``imu_trocar_mm`` behind the pivot;
+  its orientation at time t (``earth_from_imu``, sensor to earth, as an AHRS gives it) turned into the
+  trocar frame by the reference orientation ``trocar_from_earth`` rotates that lever about the pivot.
+
+Frames: the trocar frame has its origin at the pivot and, in the reference pose
+(:meth:`ChainCalibration.with_reference`), z along the shaft *into* the patient and x, y the camera's
+turned by the least rotation that does so (none for a camera looking along the shaft): the camera at
+``z = +trocar_camera_mm``, the IMU at ``z = -imu_trocar_mm`` (the thesis's Fig 8B counts d upwards).
+
+The IMU-trocar distance cancels in the product: the camera sits at ``-R_camera(t) p_camera`` from the
+pivot whatever the IMU's lever, so only the trocar-camera distance and the rotations matter, and the
+7 cm spread of the thesis's arc method (§4.1, Table 2) cannot reach the nodes as long as one value
+enters both transforms, as here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from snreg.geometry import apply, make_transform
+
+__all__ = ["ChainCalibration", "reference_rotation", "trocar_from_imu", "trocar_from_camera", "trocar_from_probe",
+           "camera_to_trocar"]
+
+_TRANSFORMS = ("imu_from_camera", "trocar_from_earth")
+_ORTHONORMAL_TOL = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class ChainCalibration:
+    """The calibrated constants of the chain; mm.
+
+    ``imu_from_camera`` (4, 4): camera to IMU, the camera origin on the shaft ahead of the IMU.
+    ``imu_trocar_mm``: distance from the IMU to the pivot along the shaft (the line from the IMU to the
+    camera origin), less than their distance. ``trocar_from_earth`` (4, 4, rotation only): the
+    reference orientation; the identity until :meth:`with_reference` sets it (the thesis used the IMU
+    angles as they came, i.e. the identity).
+    """
+
+    imu_from_camera: np.ndarray
+    imu_trocar_mm: float
+    trocar_from_earth: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self):
+        for name in _TRANSFORMS:
+            object.__setattr__(self, name, _rigid(getattr(self, name), name))
+        if np.any(self.trocar_from_earth[:3, 3] != 0):
+            raise ValueError("trocar_from_earth is a reference orientation and must have zero translation")
+        imu_camera_mm = float(np.linalg.norm(self.imu_from_camera[:3, 3]))
+        if not 0.0 <= self.imu_trocar_mm < imu_camera_mm:
+            raise ValueError(f"the IMU-trocar distance ({self.imu_trocar_mm} mm) must lie between 0 and the IMU-camera "
+                             f"distance ({imu_camera_mm:.1f} mm): the pivot is on the shaft between them")
+        object.__setattr__(self, "imu_trocar_mm", float(self.imu_trocar_mm))
+
+    @classmethod
+    def manual(cls, imu_trocar_mm: float = 460.0, trocar_camera_mm: float = 158.0) -> "ChainCalibration":
+        """The thesis's chain (§4.1): axes aligned by eye (identity), the camera on the IMU's z axis.
+
+        Defaults are the thesis's manual IMU-trocar measurement and its measured trocar-camera distance.
+        """
+        if not (trocar_camera_mm > 0 and imu_trocar_mm >= 0):
+            raise ValueError(f"distances must be positive (mm), got IMU-trocar {imu_trocar_mm}, "
+                             f"trocar-camera {trocar_camera_mm}")
+        return cls(make_transform(np.eye(3), [0.0, 0.0, imu_trocar_mm + trocar_camera_mm]), imu_trocar_mm)
+
+    @property
+    def trocar_camera_mm(self) -> float:
+        """Distance from the pivot to the camera origin, mm."""
+        return float(np.linalg.norm(self.imu_from_camera[:3, 3])) - self.imu_trocar_mm
+
+    @property
+    def pivot_imu_mm(self) -> np.ndarray:
+        """(3,) the pivot in the IMU frame, mm: ``imu_trocar_mm`` along the shaft towards the camera."""
+        shaft = self.imu_from_camera[:3, 3]
+        return self.imu_trocar_mm * shaft / np.linalg.norm(shaft)
+
+    @property
+    def shaft_camera(self) -> np.ndarray:
+        """(3,) unit direction of the shaft into the patient (IMU to camera) in the camera frame."""
+        shaft = self.imu_from_camera[:3, 3]
+        return self.imu_from_camera[:3, :3].T @ shaft / np.linalg.norm(shaft)
+
+    def with_reference(self, earth_from_imu) -> "ChainCalibration":
+        """The same chain with the trocar axes fixed by the reference pose at this IMU orientation (3, 3) or Rotation."""
+        camera_from_earth = (_orientation(earth_from_imu) @ self.imu_from_camera[:3, :3]).T
+        return replace(self, trocar_from_earth=make_transform(reference_rotation(self.shaft_camera) @ camera_from_earth,
+                                                              np.zeros(3)))
+
+    def to_dict(self) -> dict:
+        """JSON-ready: each transform as a nested list under its own name, distances in mm."""
+        return {"imu_from_camera": self.imu_from_camera.tolist(), "trocar_from_earth": self.trocar_from_earth.tolist(),
+                "imu_trocar_mm": self.imu_trocar_mm, "trocar_camera_mm": self.trocar_camera_mm}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ChainCalibration":
+        """Inverse of :meth:`to_dict`; ``trocar_camera_mm``, when present, must agree with the transform."""
+        missing = [key for key in (*_TRANSFORMS, "imu_trocar_mm") if key not in data]
+        if missing:
+            raise ValueError(f"chain calibration lacks {', '.join(missing)}")
+        try:
+            chain = cls(np.asarray(data["imu_from_camera"], dtype=float), float(data["imu_trocar_mm"]),
+                        np.asarray(data["trocar_from_earth"], dtype=float))
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"chain calibration: {err}") from None
+        if "trocar_camera_mm" in data and abs(float(data["trocar_camera_mm"]) - chain.trocar_camera_mm) > 1e-6:
+            raise ValueError(f"chain calibration: trocar_camera_mm {data['trocar_camera_mm']} disagrees with "
+                             f"imu_from_camera and imu_trocar_mm ({chain.trocar_camera_mm:.6f} mm)")
+        return chain
+
+
+def reference_rotation(shaft_camera: np.ndarray) -> np.ndarray:
+    """(3, 3) ``trocar_from_camera`` rotation in the reference pose: the least rotation turning the shaft (3,) onto z.
+
+    ``shaft_camera``: the shaft's direction into the patient in the camera frame (``-p_camera`` of the
+    pivot calibration); for a camera looking along the shaft, the identity.
+    """
+    rotation, _ = Rotation.align_vectors([0.0, 0.0, 1.0], np.asarray(shaft_camera, dtype=float))
+    return rotation.as_matrix()
+
+
+def trocar_from_imu(chain: ChainCalibration, earth_from_imu) -> np.ndarray:
+    """(4, 4) IMU to trocar at one IMU orientation (3, 3) or Rotation: the lever to the pivot, turned (Fig 8B)."""
+    rotation = chain.trocar_from_earth[:3, :3] @ _orientation(earth_from_imu)
+    return make_transform(rotation, -rotation @ chain.pivot_imu_mm)
+
+
+def trocar_from_camera(chain: ChainCalibration, earth_from_imu) -> np.ndarray:
+    """(4, 4) camera to trocar at one IMU orientation: ``trocar_from_imu(t) @ imu_from_camera``."""
+    return trocar_from_imu(chain, earth_from_imu) @ chain.imu_from_camera
+
+
+def trocar_from_probe(chain: ChainCalibration, earth_from_imu, camera_from_probe: np.ndarray) -> np.ndarray:
+    """(4, 4) probe to trocar: :func:`trocar_from_camera` composed with the tracked ``camera_from_probe`` (4, 4)."""
+    return trocar_from_camera(chain, earth_from_imu) @ _rigid(camera_from_probe, "camera_from_probe")
+
+
+def camera_to_trocar(chain: ChainCalibration, earth_from_imu, points_camera: np.ndarray) -> np.ndarray:
+    """Points (N, 3) or (3,) mm from the camera to the trocar frame, all seen at one IMU orientation."""
+    points = np.asarray(points_camera, dtype=float)
+    if points.shape[-1:] != (3,) or points.ndim > 2:
+        raise ValueError(f"points must have shape (N, 3) or (3,), got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError("points contain NaN or infinite values")
+    return apply(trocar_from_camera(chain, earth_from_imu), points.reshape(-1, 3)).reshape(points.shape)
+
+
+def _orientation(earth_from_imu) -> np.ndarray:
+    """(3, 3) rotation from a scipy Rotation or a (3, 3) / (4, 4) array; rejects non-rotations."""
+    if isinstance(earth_from_imu, Rotation):
+        if not earth_from_imu.single:
+            raise ValueError(f"expected one IMU orientation, got {len(earth_from_imu)}")
+        return earth_from_imu.as_matrix()
+    matrix = np.asarray(earth_from_imu, dtype=float)
+    if matrix.shape not in ((3, 3), (4, 4)):
+        raise ValueError(f"an IMU orientation must be a (3, 3) rotation or a scipy Rotation, got shape {matrix.shape}")
+    return _rigid(make_transform(matrix[:3, :3], np.zeros(3)), "the IMU orientation")[:3, :3]
+
+
+def _rigid(transform: np.ndarray, name: str) -> np.ndarray:
+    """A read-only float (4, 4) copy of a rigid transform; ``ValueError`` naming ``name`` otherwise."""
+    matrix = np.array(transform, dtype=float)
+    if matrix.shape != (4, 4):
+        raise ValueError(f"{name} must be a 4x4 transform, got shape {matrix.shape}")
+    rotation = matrix[:3, :3]
+    if (not np.isfinite(matrix).all() or not np.allclose(matrix[3], [0, 0, 0, 1])
+            or not np.allclose(rotation @ rotation.T, np.eye(3), atol=_ORTHONORMAL_TOL)
+            or np.linalg.det(rotation) < 0):
+        raise ValueError(f"{name} is not a rigid transform (rotation with determinant +1, last row 0 0 0 1)")
+    matrix.setflags(write=False)
+    return matrix

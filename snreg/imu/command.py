@@ -1,0 +1,158 @@
+"""``snreg imu monitor`` and ``snreg imu simulate`` (DESIGN.md §4): live angles from a port, and the simulator."""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import sys
+import time
+
+from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
+from snreg.imu.reader import DEFAULT_BAUD, ImuPortError, SerialImuReader
+from snreg.imu.motion import protractor_profile
+from snreg.imu.simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
+
+__all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
+
+_QUEUE_SIZE = 1 << 17         # ~10 min at 208 Hz: the monitor never falls that far behind
+_STATUS_EVERY_S = 0.2
+
+
+def add_imu_parser(subparsers) -> None:
+    """Add ``imu monitor`` and ``imu simulate`` to the ``snreg`` subcommands."""
+    p = subparsers.add_parser("imu", help="the endoscope IMU: live monitor and simulator")
+    imu = p.add_subparsers(dest="imu_command", required=True)
+
+    m = imu.add_parser("monitor", help="live yaw, pitch and roll from an IMU serial port")
+    m.add_argument("port", help="serial port: /dev/ttyACM0, COM3, or a simulator's pty or --port-link")
+    m.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"bits per second (default {DEFAULT_BAUD}, as the firmware)")
+    m.add_argument("--seconds", type=float, help="stop after this many seconds (default: at Ctrl-C)")
+    m.add_argument("--csv", help="write t_host_s,t_device_s,yaw,pitch,roll per sample (s since start, device s, degrees)")
+    m.add_argument("--json", action="store_true", help='print {"samples", "corrupt", "dropped"} as JSON at exit')
+    m.set_defaults(func=cmd_imu_monitor)
+
+    s = imu.add_parser("simulate", help="an IMU on a pseudo-terminal, protractor moves or a replayed CSV (until Ctrl-C)")
+    s.add_argument("--port-link", help="also make this symlink to the pty, e.g. /tmp/snreg-imu")
+    s.add_argument("--rate", type=float, help="sample rate in Hz (default 208)")
+    s.add_argument("--replay", help="play a recorded CSV (Time (s), Gyroscope X (deg/s), ..., Accelerometer X (g), ...)")
+    s.add_argument("--seed", type=int, default=0, help="seed for noise, bias and faults")
+    s.add_argument("--garbage", type=float, default=0.0, help="fraction of samples that come with a corrupt line")
+    s.add_argument("--dropout", type=float, default=0.0, help="fraction of samples skipped")
+    s.set_defaults(func=cmd_imu_simulate)
+
+
+class _AngleLog:
+    """Fuses samples into (yaw, pitch, roll) degrees and writes them as CSV rows (host s since start,
+    device s with the 32-bit microsecond clock unwrapped)."""
+
+    def __init__(self, fusion_class, reader: SerialImuReader, out):
+        self._fusion_class, self._reader, self._out = fusion_class, reader, out
+        self._fusion = None
+        self._t0_ns = time.perf_counter_ns()
+        self._last_us, self._wraps = None, 0
+        self.angles = (0.0, 0.0, 0.0)
+
+    def add(self, sample) -> None:
+        if self._fusion is None:
+            self._fusion = self._fusion_class(self._reader.rate_hz)
+        self.angles = yaw, pitch, roll = self._fusion.update(sample)
+        if self._last_us is not None and self._last_us - sample.t_device_us > DEVICE_CLOCK_WRAP_US // 2:
+            self._wraps += 1
+        self._last_us = sample.t_device_us
+        if self._out:
+            t_device_s = (self._wraps * DEVICE_CLOCK_WRAP_US + sample.t_device_us) / 1e6
+            self._out.write(f"{(sample.t_host_ns - self._t0_ns) / 1e9:.6f},{t_device_s:.6f},"
+                            f"{yaw:.4f},{pitch:.4f},{roll:.4f}\n")
+
+
+def cmd_imu_monitor(args) -> int:
+    from snreg.cli import UserError
+    from snreg.imu.fusion import Fusion
+
+    if args.seconds is not None and not args.seconds > 0:
+        raise UserError("--seconds must be a positive number of seconds")
+    if args.baud <= 0:
+        raise UserError(f"--baud must be a positive rate in bits per second, e.g. {DEFAULT_BAUD}")
+    try:
+        out = open(args.csv, "w", encoding="utf-8", newline="") if args.csv else None
+    except OSError as err:
+        raise UserError(f"cannot write {args.csv} ({err.strerror}); choose a writable path for --csv") from None
+    reader = SerialImuReader(args.port, args.baud, queue_size=_QUEUE_SIZE)
+    log = _AngleLog(Fusion, reader, out)
+    try:
+        reader.start()
+    except ImuPortError as err:
+        if out:
+            out.close()
+        raise UserError(str(err)) from None
+    if out:
+        out.write("t_host_s,t_device_s,yaw,pitch,roll\n")
+    live = sys.stderr.isatty()
+    deadline = None if args.seconds is None else time.perf_counter() + args.seconds
+    next_status = time.perf_counter()
+    try:
+        while deadline is None or time.perf_counter() < deadline:
+            try:
+                log.add(reader.queue.get(timeout=0.05))
+            except queue.Empty:
+                pass
+            if live and time.perf_counter() >= next_status:
+                next_status += _STATUS_EVERY_S
+                (yaw, pitch, roll), c = log.angles, reader.counts
+                print(f"\ryaw {yaw:8.2f}  pitch {pitch:7.2f}  roll {roll:7.2f} deg  {reader.state.value:<12} "
+                      f"samples {c.samples}  corrupt {c.corrupt}  dropped {c.dropped}   ", end="", file=sys.stderr, flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        state, problem = reader.state, reader.problem
+        reader.stop()
+        while not reader.queue.empty():
+            log.add(reader.queue.get_nowait())
+        if out:
+            out.close()
+    if live:
+        print(file=sys.stderr)
+    c = reader.counts
+    if args.json:
+        print(json.dumps({"samples": c.samples, "corrupt": c.corrupt, "dropped": c.dropped}))
+    else:
+        last = f" (last: {reader.last_corrupt.reason})" if reader.last_corrupt else ""
+        print(f"{c.samples} samples, {c.corrupt} corrupt{last}, {c.dropped} dropped; {state.value}"
+              f"{': ' + problem if problem else ''}")
+    return 0
+
+
+def cmd_imu_simulate(args) -> int:
+    from snreg.cli import UserError
+
+    try:
+        faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
+        if args.replay:
+            if args.rate is not None:
+                raise UserError("--rate does not apply to --replay, which keeps the recording's times; drop one")
+            source = CsvReplay(args.replay, faults=faults, seed=args.seed)
+            what = f"replaying {args.replay} ({len(source.readings.t_s)} samples at {source.rate_hz:.1f} Hz)"
+        else:
+            rate = 208.0 if args.rate is None else args.rate
+            source = ImuSimulator(protractor_profile(repeat=True), rate_hz=rate, faults=faults, seed=args.seed)
+            what = f"protractor moves (1, 5, 10 deg about y and z) at {rate:g} Hz"
+        port = SimulatedPort(source, port_link=args.port_link)
+    except (ValueError, OSError) as err:
+        raise UserError(str(err)) from None
+    previous = signal.signal(signal.SIGTERM, _interrupt)      # `kill` cleans up like Ctrl-C
+    try:
+        with port:
+            link = f" (link {args.port_link})" if args.port_link else ""
+            print(f"IMU simulator on {port.device}{link}: {what}; starts when a reader opens the port; "
+                  "Ctrl-C to stop", flush=True)
+            port.run()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return 0
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt

@@ -1,0 +1,323 @@
+"""The IMU stream end to end through real pseudo-terminals and pyserial: simulator, reader, replay, commands."""
+
+import argparse
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import tty
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from snreg.cli import UserError
+from snreg.imu import command
+from snreg.imu.command import add_imu_parser
+from snreg.imu.fusion import Fusion, fuse_arrays
+from snreg.imu.protocol import ImuSample, StreamCounts, format_line, parse_line
+from snreg.imu.reader import ImuPortError, ImuState, SerialImuReader
+from snreg.imu.motion import MotionProfile, protractor_profile, rotate, still
+from snreg.imu.simulator import CsvReplay, Faults, ImuSimulator, SensorModel, SimulatedPort
+
+XIO_CSV = Path(__file__).resolve().parents[2] / "shared" / "data" / "imu" / "fusion_sensor_data.csv"
+EXACT = SensorModel(0.0, 0.0, 0.0, None, None)          # noise-free, unquantised, no bias
+
+
+def wait_until(predicate, timeout=10.0):
+    """Poll ``predicate`` every 5 ms; False if it is still false after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def test_the_simulated_stream_arrives_complete_and_in_order():
+    sim = ImuSimulator(protractor_profile(rate_dps=100.0, hold_s=0.1, start_s=0.1), rate_hz=4000, n_samples=3000, seed=3)
+    got = []
+    with SimulatedPort(sim) as port:
+        reader = SerialImuReader(port.port, on_sample=got.append, queue_size=10)
+        with reader:                                          # the port is open before the simulator writes
+            port.start()
+            assert wait_until(lambda: port.finished.is_set() and reader.counts.samples == sim.sent.samples)
+            assert reader.state is ImuState.STREAMING and reader.problem == ""
+            assert reader.info.odr_hz == 4000 and reader.rate_hz == 4000
+    assert reader.state is ImuState.STOPPED
+    assert reader.counts == sim.sent == StreamCounts(samples=3000, corrupt=0, dropped=0)
+    expected = sim.readings(3000)
+    np.testing.assert_array_equal([s.t_device_us for s in got], expected.t_device_us)
+    np.testing.assert_array_equal(np.array([s.accel_g for s in got]), np.round(expected.accel_g, 6))
+    np.testing.assert_array_equal(np.array([s.gyro_dps for s in got]), np.round(expected.gyro_dps, 6))
+    assert np.all(np.diff([s.t_host_ns for s in got]) >= 0)
+    assert reader.queue.qsize() == 10 and reader.overflow == 2990
+
+
+def test_a_fuzzed_stream_gives_the_true_corrupt_and_dropped_counts_across_the_clock_wrap():
+    sim = ImuSimulator(rate_hz=4000, n_samples=4000, seed=11, faults=Faults(dropout_rate=0.03, garbage_rate=0.06),
+                       start_us=(1 << 32) - 500_000)
+    got = []
+    with SimulatedPort(sim) as port, SerialImuReader(port.port, on_sample=got.append) as reader:
+        port.start()
+        assert wait_until(lambda: port.finished.is_set() and reader.counts.samples == sim.sent.samples)
+        assert reader.state is ImuState.STREAMING
+    assert reader.counts == sim.sent
+    assert reader.last_corrupt.reason in {"not a protocol line", "no $...*checksum frame (truncated?)", "checksum mismatch"}
+    assert sim.sent.corrupt > 150 and sim.sent.dropped > 200 and sim.sent.samples > 3500
+    times = np.array([s.t_device_us for s in got])
+    assert times.min() < 10_000 and times.max() > (1 << 32) - 10_000      # the device clock wrapped
+
+
+def test_unplug_then_replug_behind_the_same_link(tmp_path):
+    link = str(tmp_path / "imu")
+    states = []
+    first = SimulatedPort(ImuSimulator(rate_hz=1000, seed=1), port_link=link).start()
+    reader = SerialImuReader(link, on_state=lambda state, problem: states.append(state), retry_interval_s=0.05)
+    with reader:
+        assert wait_until(lambda: reader.counts.samples > 50)
+        first.stop()                                          # unplug: the pty closes and the link goes
+        assert wait_until(lambda: reader.state is ImuState.DISCONNECTED)
+        assert not os.path.lexists(link) and link in reader.problem
+        before = reader.counts.samples
+        second = SimulatedPort(ImuSimulator(rate_hz=1000, seed=2), port_link=link).start()
+        try:
+            assert wait_until(lambda: reader.state is ImuState.STREAMING and reader.counts.samples > before + 50)
+        finally:
+            reader.stop()
+            second.stop()
+    assert states == [ImuState.CONNECTING, ImuState.STREAMING, ImuState.DISCONNECTED, ImuState.CONNECTING,
+                      ImuState.STREAMING, ImuState.STOPPED]
+    assert reader.counts.dropped == 0
+    assert reader.counts.corrupt <= 1       # at most the line the reconnect cut (pyserial flushes on open)
+
+
+def test_silence_makes_the_stream_stale_and_data_revives_it():
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        reader = SerialImuReader(os.ttyname(slave), rate_hz=1000, stale_after_s=0.2)
+        with reader:
+            assert wait_until(lambda: reader.state is ImuState.STALE, timeout=5)    # open but silent
+            os.write(master, b"".join(format_line(1000 * k, [0, 0, 1], [0, 0, 0]) for k in range(5)))
+            assert wait_until(lambda: reader.state is ImuState.STREAMING)
+            t0 = time.perf_counter()
+            assert wait_until(lambda: reader.state is ImuState.STALE, timeout=5)
+            assert 0.1 < time.perf_counter() - t0 < 1.0
+            assert "no valid IMU sample for 0.2 s" in reader.problem
+            os.write(master, format_line(5000, [0, 0, 1], [0, 0, 0]))
+            assert wait_until(lambda: reader.state is ImuState.STREAMING)
+        assert reader.counts == StreamCounts(samples=6, corrupt=0, dropped=0)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_port_that_cannot_be_opened_says_what_to_do(tmp_path):
+    with pytest.raises(ImuPortError, match="Cannot open the IMU port .*check that the IMU is plugged in") as info:
+        SerialImuReader(str(tmp_path / "ttyACM9")).start()
+    assert isinstance(info.value, ValueError)
+
+
+def _replay_through_a_pty(replay, speed):
+    got = []
+    with SimulatedPort(replay, speed=speed) as port, SerialImuReader(port.port, on_sample=got.append) as reader:
+        port.start()
+        assert wait_until(lambda: port.finished.is_set() and reader.counts.samples == len(replay.readings.t_s), 30)
+    assert reader.counts.corrupt == 0
+    return got
+
+
+def test_replay_keeps_the_recorded_values_unclipped(tmp_path):
+    path = tmp_path / "rec.csv"
+    path.write_text("Time (s),Gyroscope X (deg/s),Gyroscope Y (deg/s),Gyroscope Z (deg/s),Accelerometer X (g),"
+                    "Accelerometer Y (g),Accelerometer Z (g),Magnetometer X (uT)\n"
+                    "0,365.3081,-0.1517251,1.5e-07,0.001015204,-0.02,0.9970807,15.3\n"
+                    "0.01,-250,0,0,-4.5,0,1,15.3\n0.02,0,0,0,0,0,1,15.3\n", encoding="utf-8")
+    replay = CsvReplay(path)
+    assert replay.decimals == 9 and replay.rate_hz == pytest.approx(100.0)
+    got = _replay_through_a_pty(replay, speed=1.0)
+    np.testing.assert_array_equal([s.gyro_dps for s in got], [[365.3081, -0.1517251, 1.5e-07], [-250, 0, 0], [0, 0, 0]])
+    np.testing.assert_array_equal([s.accel_g for s in got], [[0.001015204, -0.02, 0.9970807], [-4.5, 0, 1], [0, 0, 1]])
+    assert [s.t_device_us for s in got] == [0, 10_000, 20_000]
+
+
+@pytest.mark.skipif(not XIO_CSV.exists(), reason="x-io sample recording not available")
+def test_replay_of_the_xio_recording_reproduces_the_file():
+    replay = CsvReplay(XIO_CSV)
+    got = _replay_through_a_pty(replay, speed=200.0)
+    with open(XIO_CSV, newline="", encoding="utf-8") as f:
+        rows = np.array([[float(v) for v in row[:7]] for row in list(csv.reader(f))[1:]])
+    assert len(got) == len(rows) == 13514
+    np.testing.assert_array_equal([s.gyro_dps for s in got], rows[:, 1:4])           # exact: the file's precision
+    np.testing.assert_array_equal([s.accel_g for s in got], rows[:, 4:7])
+    np.testing.assert_array_equal([s.t_device_us for s in got], np.round(rows[:, 0] * 1e6))
+    assert np.abs(rows[:, 1:4]).max() > 300                                           # beyond +-125 deg/s, kept
+    # ... and fused as they arrive, the angles equal imufusion run on the file directly
+    live = Fusion(replay.rate_hz, gyroscope_range_dps=2000.0, initial_bias_period_s=0)
+    angles = np.array([live.update(sample) for sample in got])
+    direct = fuse_arrays(rows[:, 0], rows[:, 1:4], rows[:, 4:7], gyroscope_range_dps=2000.0, initial_bias_period_s=0)
+    assert np.abs((angles - direct + 180.0) % 360.0 - 180.0).max() < 1e-3
+
+
+def test_a_level_sensor_at_rest_reads_gravity_its_bias_and_datasheet_noise():
+    sim = ImuSimulator(rate_hz=208, seed=4)
+    r = sim.readings(20_000)
+    accel_sigma, gyro_sigma = 75e-6 * np.sqrt(104), 3.8e-3 * np.sqrt(104)             # density * sqrt(ODR / 2)
+    np.testing.assert_allclose(r.accel_g.mean(axis=0), [0, 0, 1], atol=4 * accel_sigma / np.sqrt(20_000) + 1e-4)
+    np.testing.assert_allclose(r.gyro_dps.mean(axis=0), sim.gyro_bias_dps, atol=4 * gyro_sigma / np.sqrt(20_000) + 3e-3)
+    np.testing.assert_allclose(r.accel_g.std(axis=0), accel_sigma, rtol=0.05)
+    np.testing.assert_allclose(r.gyro_dps.std(axis=0), gyro_sigma, rtol=0.05)
+    assert np.all(np.abs(sim.gyro_bias_dps) <= 0.5) and not np.allclose(sim.gyro_bias_dps, ImuSimulator(seed=5).gyro_bias_dps)
+    for values, lsb in ((r.accel_g, 0.122e-3), (r.gyro_dps, 4.375e-3)):              # LSM6DSOX LSBs at +-4 g, +-125 dps
+        np.testing.assert_allclose(values / lsb, np.round(values / lsb), atol=1e-6)
+    np.testing.assert_array_equal(np.diff(r.t_device_us[:5]), [4808, 4807, 4808, 4808])
+
+
+def test_gyro_integrates_to_the_true_orientation_and_accel_is_gravity_in_the_sensor_frame():
+    profile = MotionProfile([still(0.2), rotate((0, 0, 1), 90, 45), rotate((1, 1, 0), -30, 20, smooth=False), still(0.2)],
+                            initial=Rotation.from_euler("x", 10, degrees=True))
+    sim = ImuSimulator(profile, rate_hz=1000, sensor=EXACT, n_samples=int(profile.duration_s * 1000) + 1)
+    r = sim.readings(sim.n_samples)
+    truth = sim.true_orientation(r.t_device_us)
+    np.testing.assert_allclose(r.accel_g, truth.inv().apply([0, 0, 1]), atol=1e-12)
+    estimate = profile.initial
+    for k in range(len(r.t_s) - 1):                                                 # trapezoid in the body frame
+        estimate = estimate * Rotation.from_rotvec(np.radians(r.gyro_dps[k] + r.gyro_dps[k + 1]) / 2 * 1e-3)
+    end = Rotation.from_rotvec(np.radians(-30) * np.array([1, 1, 0]) / np.sqrt(2)) * Rotation.from_euler("z", 90, degrees=True)
+    assert np.degrees((end * profile.initial * truth[-1].inv()).magnitude()) < 1e-9
+    assert np.degrees((estimate * truth[-1].inv()).magnitude()) < 0.05
+
+
+def test_profiles_hold_at_the_end_or_repeat():
+    spin = MotionProfile([rotate((0, 0, 1), 90, 90, smooth=False)], repeat=True)
+    np.testing.assert_allclose(spin.orientation(2.5).as_euler("ZYX", degrees=True)[0], [-135, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(spin.angular_velocity_dps([0.5, 7.5]), [[0, 0, 90], [0, 0, 90]])
+    held = MotionProfile([rotate((0, 1, 0), 20, 10)])
+    assert held.orientation(50.0)[0].approx_equal(Rotation.from_euler("y", 20, degrees=True))
+    np.testing.assert_array_equal(held.angular_velocity_dps([-1.0, 50.0]), np.zeros((2, 3)))
+    protractor = protractor_profile()
+    assert protractor.duration_s == pytest.approx(4 + 2 * sum(2 * a / 5 + 2 * 2 for a in (1, 5, 10)))
+    assert protractor.orientation(protractor.duration_s)[0].magnitude() < 1e-12     # it returns to the start
+    assert np.degrees(protractor.orientation(4 + 0.2 + 1.0)[0].magnitude()) == pytest.approx(1.0)
+
+
+def test_the_range_clips_and_quantises_like_the_sensor():
+    fast = MotionProfile([rotate((0, 0, 1), 200, 200, smooth=False)])
+    for range_dps, expected in ((125, 32767 * 4.375e-3), (250, 200.0)):
+        sensor = SensorModel(0.0, 0.0, 0.0, accel_range_g=4, gyro_range_dps=range_dps)
+        r = ImuSimulator(fast, rate_hz=100, sensor=sensor, n_samples=50).readings(50)
+        assert r.gyro_dps[10:40, 2] == pytest.approx(expected, abs=8.75e-3)
+    with pytest.raises(ValueError, match="range"):
+        SensorModel(gyro_range_dps=300)
+    with pytest.raises(ValueError, match="fractions"):
+        Faults(dropout_rate=0.6, garbage_rate=0.6)
+
+
+def test_the_stream_is_deterministic_under_its_seed():
+    def stream(seed):
+        sim = ImuSimulator(protractor_profile(), rate_hz=500, n_samples=2000, seed=seed, faults=Faults(0.05, 0.05))
+        return [line for _, line in sim.lines()], sim.sent
+    assert stream(7) == stream(7)
+    assert stream(7)[0] != stream(8)[0]
+    lines, sent = stream(7)
+    parsed = [parse_line(line) for line in lines]
+    assert sum(isinstance(p, ImuSample) for p in parsed) == sent.samples
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog="snreg")
+    add_imu_parser(parser.add_subparsers(dest="command", required=True))
+    return parser
+
+
+def _run(*argv):
+    args = _parser().parse_args(list(argv))
+    return args.func(args)
+
+
+@pytest.mark.parametrize("as_json", [True, False])
+def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, capsys, as_json):
+    class StubFusion:                         # the interface of snreg.imu.fusion.Fusion
+        rates = []
+
+        def __init__(self, sample_rate_hz):
+            self.rates.append(sample_rate_hz)
+
+        def update(self, sample):
+            return float(sample.t_device_us % 360), 1.0, -2.0
+
+    monkeypatch.setitem(sys.modules, "snreg.imu.fusion", types.SimpleNamespace(Fusion=StubFusion))
+    sim = ImuSimulator(rate_hz=4000, n_samples=1200, seed=5, faults=Faults(0.02, 0.02), start_us=(1 << 32) - 100_000)
+    with SimulatedPort(sim) as port:
+        class ReaderThatStartsTheSimulator(SerialImuReader):
+            def start(self):
+                super().start()
+                port.start()
+                return self
+
+        monkeypatch.setattr(command, "SerialImuReader", ReaderThatStartsTheSimulator)
+        out = tmp_path / "angles.csv"
+        assert _run("imu", "monitor", port.port, "--seconds", "0.6", "--csv", str(out), *["--json"] * as_json) == 0
+    printed = capsys.readouterr().out
+    if as_json:
+        summary = json.loads(printed)
+        assert summary == {"samples": sim.sent.samples, "corrupt": sim.sent.corrupt, "dropped": sim.sent.dropped}
+    else:
+        assert printed.startswith(f"{sim.sent.samples} samples, {sim.sent.corrupt} corrupt (last: ")
+        assert f"{sim.sent.dropped} dropped; streaming" in printed
+    assert StubFusion.rates[-1] == 4000.0
+    with open(out, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == sim.sent.samples and list(rows[0]) == ["t_host_s", "t_device_s", "yaw", "pitch", "roll"]
+    device_s = np.array([float(r["t_device_s"]) for r in rows])
+    assert np.all(np.diff(device_s) > 0) and device_s[-1] > (1 << 32) / 1e6              # unwrapped
+    assert all(float(r["t_host_s"]) >= 0 for r in rows) and {r["roll"] for r in rows} == {"-2.0000"}
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["imu", "monitor", "/nonexistent/ttyACM0"], "Cannot open the IMU port"),
+    (["imu", "monitor", "/dev/null", "--seconds", "0"], "--seconds"),
+    (["imu", "monitor", "/dev/null", "--baud", "0"], "--baud"),
+    (["imu", "simulate", "--rate", "-5"], "positive"),
+    (["imu", "simulate", "--garbage", "1.5"], "fractions"),
+    (["imu", "simulate", "--replay", "/nonexistent.csv"], "not a readable IMU CSV"),
+    (["imu", "simulate", "--replay", "x.csv", "--rate", "100"], "--rate does not apply"),
+    (["imu", "simulate", "--port-link", "/nonexistent/dir/imu"], "cannot create the link"),
+])
+def test_bad_input_is_one_user_error(argv, message):
+    with pytest.raises(UserError, match=message):
+        _run(*argv)
+
+
+def test_simulate_refuses_to_replace_a_regular_file(tmp_path):
+    target = tmp_path / "precious.txt"
+    target.write_text("keep me")
+    with pytest.raises(UserError, match="not a symlink"):
+        _run("imu", "simulate", "--port-link", str(target))
+    assert target.read_text() == "keep me"
+
+
+def test_simulate_command_streams_until_killed_and_cleans_up(tmp_path):
+    link = tmp_path / "snreg-imu"
+    code = ("import argparse, sys\nfrom snreg.imu.command import add_imu_parser\n"
+            "p = argparse.ArgumentParser()\nadd_imu_parser(p.add_subparsers(dest='command', required=True))\n"
+            "a = p.parse_args(sys.argv[1:])\nsys.exit(a.func(a))\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, "imu", "simulate", "--port-link", str(link), "--rate", "500",
+                             "--seed", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert str(link) in proc.stdout.readline()
+        with SerialImuReader(str(link)) as reader:
+            assert wait_until(lambda: reader.counts.samples > 100)
+        assert reader.counts.corrupt == 0 and reader.counts.dropped == 0     # it started when the reader opened
+        assert reader.info.odr_hz == 500
+        proc.send_signal(signal.SIGTERM)             # handled like Ctrl-C (SIGINT may be ignored in background jobs)
+        assert proc.wait(timeout=10) == 0, proc.stderr.read()
+    finally:
+        proc.kill()
+    assert not os.path.lexists(link)
