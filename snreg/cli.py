@@ -191,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     from snreg.calibration.command import add_calibrate_parser
     from snreg.calibration.trocar_command import add_trocar_parser
     from snreg.imu.command import add_imu_parser
+    from snreg.preop.command import add_preop_parser
     from snreg.registration import METHODS
     from snreg.simulation.study import DEFAULT_EXTRAS, DEFAULT_METHODS, DEFAULT_REPS, DEFAULT_SIGMAS
 
@@ -226,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_trocar_parser(add_calibrate_parser(sub))
     add_imu_parser(sub)
+    add_preop_parser(sub)
 
     p = sub.add_parser("track", help="probe position from one stereo pair")
     p.add_argument("left")

@@ -91,3 +91,16 @@ def test_experiment_imu_prints_the_protractor_table_and_drift(capsys):
     out = capsys.readouterr().out
     assert "| all |" in out and "horizontal plane (yaw) | 10 |" in out
     assert "deg/min with bias correction" in out
+
+
+def test_preop_through_the_snreg_command_line(tmp_path, capsys):
+    from snreg.nodes import read_nodes
+    from snreg.preop.synthetic import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
+
+    counts, origin = spect_of_nodes(THESIS_SOURCES, seed=2)
+    write_nm(counts, origin, THESIS_VOXEL_MM, tmp_path / "phantom.dcm")
+    assert main(["preop", str(tmp_path / "phantom.dcm"), "-o", str(tmp_path / "nodes.csv")]) == 0
+    assert len(read_nodes(tmp_path / "nodes.csv")) == len(THESIS_SOURCES)
+    (tmp_path / "text.dcm").write_text("not dicom")
+    assert main(["preop", str(tmp_path / "text.dcm"), "-o", str(tmp_path / "x.csv")]) == 2
+    assert capsys.readouterr().err.count("\n") == 1

@@ -1,0 +1,69 @@
+"""``snreg preop SPECT_PATH -o nodes.csv [--threshold REL] [--nodes N] [--stations CSV]``.
+
+Loads a SPECT (NM) volume -- a multi-frame file, a series directory or slice files -- segments
+its nodes (:mod:`snreg.preop.segment`) and writes them as a node file (CSV, or Slicer markups
+for ``.mrk.json``) in LPS mm. Nothing from the patient module (name, ID, birth date) is
+ever printed or written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from snreg.nodes import write_nodes
+from snreg.preop.segment import read_station_table, segment_nodes
+from snreg.preop.volume import PreopError, load_volume
+
+__all__ = ["add_preop_parser", "cmd_preop"]
+
+
+def add_preop_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``preop`` to the ``snreg`` subparsers; returns its parser."""
+    p = subparsers.add_parser("preop", help="sentinel-node centres from a SPECT (NM) DICOM volume",
+                              description="Segment the nodes of a SPECT volume by a threshold relative to its "
+                                          "maximum, split merged hot spots, and write their centres (LPS mm).")
+    p.add_argument("spect", nargs="+", metavar="SPECT_PATH",
+                   help="a multi-frame NM file, a directory holding one series, or the slice files")
+    p.add_argument("-o", "--output", required=True, metavar="NODES", help="node file to write (.csv or .mrk.json)")
+    p.add_argument("--threshold", type=float, default=0.3, metavar="REL",
+                   help="activity threshold as a fraction of the maximum (default 0.3)")
+    p.add_argument("--nodes", type=int, metavar="N", help="expected number of nodes")
+    p.add_argument("--stations", metavar="CSV", help="station per node id: a CSV with columns id,station")
+    p.add_argument("--midline-x", type=float, metavar="MM",
+                   help="patient x of the midline for left/right labels (default: the volume centre)")
+    p.set_defaults(func=cmd_preop)
+    return p
+
+
+def cmd_preop(args) -> int:
+    """Run ``snreg preop``; bad input raises ``snreg.cli.UserError`` with one sentence."""
+    from snreg.cli import UserError
+
+    source = args.spect[0] if len(args.spect) == 1 else args.spect
+    try:
+        stations = read_station_table(args.stations) if args.stations else None
+        volume = load_volume(source, modality="NM")
+        result = segment_nodes(volume, threshold=args.threshold, n_nodes=args.nodes,
+                               midline_x=args.midline_x, stations=stations)
+    except PreopError as err:
+        raise UserError(str(err)) from None
+    for warning in volume.warnings:
+        print(f"snreg: warning: {warning}", file=sys.stderr)
+    nodes = result.nodes
+    if volume.placed_by_default:
+        nodes.comments.append("placed by default: positions are relative to the volume, not to the patient")
+    try:
+        write_nodes(nodes, args.output)
+    except OSError as err:
+        raise UserError(f"{args.output}: cannot write the node file ({err.strerror})") from None
+    z, y, x = volume.voxels.shape
+    sx, sy, sz = volume.spacing_mm
+    print(f"{len(nodes)} node(s) above {args.threshold:g} x maximum in a {x}x{y}x{z} volume "
+          f"({sx:.3f} x {sy:.3f} x {sz:.3f} mm), written to {args.output}")
+    print(f"{'id':<5} {'label':<8} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'peak':>10} {'total':>12}")
+    for k in range(len(nodes)):
+        px, py, pz = nodes.xyz[k]
+        print(f"{nodes.ids[k]:<5} {nodes.labels[k]:<8} {px:8.1f} {py:8.1f} {pz:8.1f} "
+              f"{result.peak_counts[k]:10.4g} {result.total_counts[k]:12.6g}")
+    return 0

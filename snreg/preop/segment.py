@@ -1,0 +1,180 @@
+"""Sentinel nodes from SPECT activity, as the thesis did by hand (§3.3, §5.4.1), automated.
+
+A threshold relative to the maximum separates sentinel nodes from higher echelons; connected
+components (scipy.ndimage.label, 26-connected) are the hot spots; a hot spot with several
+peaks of the lightly smoothed activity is split by activity-weighted k-means started at those
+peaks (the thesis used k-means for the centres). Centres are activity-weighted centroids in
+LPS mm; nodes are sorted by total activity, the hottest first (``SN1``).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from snreg.nodes import NodeSet
+from snreg.preop.volume import PreopError, Volume
+from snreg.registration.labels import parse_label
+
+__all__ = ["PreopNodes", "segment_nodes", "read_station_table", "side_labels"]
+
+KMEANS_ITERATIONS = 30
+
+
+@dataclass(frozen=True)
+class PreopNodes:
+    """Segmented nodes: the NodeSet (LPS mm, counts = total activity) and per-node details.
+
+    peak_counts, total_counts (N,) in the volume's real units; threshold in the same units;
+    clusters (Z, Y, X) int32: 0 outside, k + 1 for the voxels of node k.
+    """
+
+    nodes: NodeSet
+    peak_counts: np.ndarray
+    total_counts: np.ndarray
+    threshold: float
+    clusters: np.ndarray
+
+
+def segment_nodes(volume: Volume, *, threshold: float = 0.3, n_nodes: int | None = None,
+                  smoothing_mm: float = 3.0, min_separation_mm: float = 10.0,
+                  midline_x: float | None = None, stations: dict[str, str] | None = None) -> PreopNodes:
+    """Nodes in ``volume`` above ``threshold`` x its maximum activity.
+
+    ``n_nodes`` asks for exactly that many: the hot spots with the highest peaks are kept and,
+    if too few, merged hot spots are split further. Peaks closer than ``min_separation_mm``
+    count as one node (pelvic nodes closer than ~10 mm merge at SPECT resolution).
+    Labels: side from x against ``midline_x`` (default the volume centre; LPS +x is the
+    patient's left) and a station from ``stations`` (node id -> station) when given.
+    """
+    if not 0.0 < threshold < 1.0:
+        raise PreopError(f"the threshold is relative to the maximum and must lie between 0 and 1, not {threshold:g}")
+    if n_nodes is not None and n_nodes < 1:
+        raise PreopError(f"the number of nodes must be at least 1, not {n_nodes}")
+    voxels = volume.voxels
+    peak_value = float(voxels.max()) if voxels.size else 0.0
+    if not np.isfinite(peak_value) or peak_value <= 0 or float(voxels.min()) >= peak_value:
+        raise PreopError("the volume has no activity above its background: nothing to segment")
+    level = threshold * peak_value
+    mask = voxels > level
+    components, n_components = ndimage.label(mask, structure=np.ones((3, 3, 3)))
+    spacing_zyx = volume.spacing_mm[::-1]
+    smooth = ndimage.gaussian_filter(voxels, sigma=smoothing_mm / spacing_zyx)
+    seeds = _seeds(smooth, mask, components, n_components, spacing_zyx, min_separation_mm)
+    if n_nodes is not None:
+        seeds = _choose(seeds, smooth, n_nodes, components, spacing_zyx)
+    clusters = np.zeros(voxels.shape, dtype=np.int32)
+    centres, peaks, totals = [], [], []
+    for component, component_seeds in seeds.items():
+        index = np.argwhere(components == component)
+        weight = voxels[tuple(index.T)] - level      # zero at the mask edge: the cut-off adds no bias
+        assignment = _kmeans(index * spacing_zyx, weight, component_seeds, spacing_zyx)
+        for k in range(len(component_seeds)):
+            own = assignment == k
+            if not own.any():
+                continue
+            centres.append(np.average(index[own], axis=0, weights=weight[own] + 1e-12))
+            values = voxels[tuple(index[own].T)]
+            peaks.append(float(values.max()))
+            totals.append(float(values.sum()))
+            clusters[tuple(index[own].T)] = len(centres)
+    order = np.argsort(totals, kind="stable")[::-1]
+    relabel = np.zeros(len(order) + 1, dtype=np.int32)
+    relabel[order + 1] = np.arange(1, len(order) + 1)
+    xyz = volume.patient_xyz(np.array(centres)[order])
+    ids = [f"SN{k + 1}" for k in range(len(order))]
+    if midline_x is None:
+        midline_x = float(volume.patient_xyz((np.array(voxels.shape) - 1) / 2)[0, 0])
+    labels = side_labels(xyz, midline_x, ids, stations)
+    totals_sorted = np.array(totals)[order]
+    nodes = NodeSet(ids, labels, xyz, totals_sorted, frame="LPS")
+    return PreopNodes(nodes, np.array(peaks)[order], totals_sorted, level, relabel[clusters])
+
+
+def side_labels(xyz, midline_x: float, ids, stations: dict[str, str] | None = None) -> list[str]:
+    """Labels like ``"OBT L"``: L where x > ``midline_x`` (LPS: +x is the patient's left), else R."""
+    stations = stations or {}
+    sides = ["L" if x > midline_x else "R" for x in np.asarray(xyz, float).reshape(-1, 3)[:, 0]]
+    return [f"{stations.get(i, '')} {side}".strip() for i, side in zip(ids, sides)]
+
+
+def read_station_table(path) -> dict[str, str]:
+    """Node id -> station code (e.g. ``{"SN1": "OBT"}``) from a CSV with columns ``id,station``."""
+    path = Path(path)
+    try:
+        rows = list(csv.DictReader(line for line in path.read_text(encoding="utf-8").splitlines()
+                                   if line.strip() and not line.lstrip().startswith("#")))
+    except (OSError, UnicodeDecodeError) as err:
+        raise PreopError(f"{path}: cannot read the station table ({err.__class__.__name__})") from None
+    if not rows or not {"id", "station"} <= {k.strip().lower() for k in rows[0]}:
+        raise PreopError(f"{path}: a station table needs a header 'id,station' and one row per node")
+    table = {}
+    for row in rows:
+        row = {k.strip().lower(): (v or "").strip() for k, v in row.items()}
+        station, _ = parse_label(row["station"])
+        if not station:
+            raise PreopError(f"{path}: '{row['station']}' for {row['id']} is not a known station "
+                             "(BIF, SAC, COM, EXT, INT, PR, PVS, OBT)")
+        table[row["id"]] = station
+    return table
+
+
+def _seeds(smooth, mask, components, n_components, spacing_zyx, min_separation_mm) -> dict[int, list]:
+    """Per component (1..n): its peaks (voxel indices), strongest first, at least min_separation_mm apart."""
+    local_max = (smooth == ndimage.maximum_filter(smooth, size=3)) & mask
+    candidates = np.argwhere(local_max)
+    values = smooth[tuple(candidates.T)]
+    seeds: dict[int, list] = {c: [] for c in range(1, n_components + 1)}
+    for k in np.argsort(values, kind="stable")[::-1]:
+        peak = candidates[k]
+        chosen = seeds[int(components[tuple(peak)])]
+        if all(np.linalg.norm((peak - other) * spacing_zyx) >= min_separation_mm for other in chosen):
+            chosen.append(peak)
+    for component, chosen in seeds.items():   # a plateau-free component still has its maximum
+        if not chosen:
+            index = np.argwhere(components == component)
+            chosen.append(index[np.argmax(smooth[tuple(index.T)])])
+    return seeds
+
+
+def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zyx) -> dict[int, list]:
+    """At most n_nodes seeds: components ranked by their top peak, extra peaks by height.
+
+    When peaks run out (nodes merged beyond a visible dip), the component with the most voxels
+    per seed gets a new seed at its voxel farthest from its seeds, for k-means to refine.
+    """
+    height = {c: float(smooth[tuple(s[0])]) for c, s in seeds.items()}
+    kept = sorted(seeds, key=lambda c: -height[c])[:n_nodes]
+    chosen = {c: [seeds[c][0]] for c in kept}
+    extras = sorted(((float(smooth[tuple(p)]), c, i) for c in kept for i, p in enumerate(seeds[c][1:], 1)),
+                    key=lambda e: -e[0])
+    for _, component, i in extras[:n_nodes - len(kept)]:
+        chosen[component].append(seeds[component][i])
+    size = {c: int(np.count_nonzero(components == c)) for c in chosen}
+    while sum(len(s) for s in chosen.values()) < n_nodes:
+        component = max(chosen, key=lambda c: size[c] / len(chosen[c]))
+        if size[component] <= len(chosen[component]):
+            break   # every voxel is a node already
+        index = np.argwhere(components == component)
+        gap = np.min([np.linalg.norm((index - s) * spacing_zyx, axis=1) for s in chosen[component]], axis=0)
+        chosen[component].append(index[np.argmax(gap)])
+    return chosen
+
+
+def _kmeans(points_mm, weight, seeds, spacing_zyx) -> np.ndarray:
+    """(P,) cluster of each point: activity-weighted Lloyd iterations from the seed voxels (deterministic)."""
+    centres = np.array(seeds, float) * spacing_zyx
+    if len(centres) == 1:
+        return np.zeros(len(points_mm), dtype=int)
+    for _ in range(KMEANS_ITERATIONS):
+        assignment = np.argmin(((points_mm[:, None, :] - centres[None]) ** 2).sum(-1), axis=1)
+        updated = np.array([np.average(points_mm[assignment == k], axis=0, weights=weight[assignment == k] + 1e-12)
+                            if np.any(assignment == k) else centres[k] for k in range(len(centres))])
+        if np.allclose(updated, centres, atol=1e-3):
+            break
+        centres = updated
+    return assignment

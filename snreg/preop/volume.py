@@ -1,0 +1,212 @@
+"""SPECT (NM) and CT DICOM into a :class:`Volume`: voxels in real units plus patient geometry.
+
+Accepts one multi-frame file, a directory of one series, or a list of slice files.
+Geometry is the DICOM patient frame (LPS, mm): x to the patient's left, y posterior,
+z superior. Where a file carries no geometry (older reconstructed NM, such as the
+public ``NM-MONO2-16-13x-heart.dcm`` sample) the volume is placed with identity
+orientation at the origin, and :attr:`Volume.placed_by_default` and a warning say so:
+node positions are then only meaningful relative to each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pydicom
+from pydicom.errors import InvalidDicomError
+
+__all__ = ["Volume", "PreopError", "load_volume"]
+
+_PROJECTION_TYPES = {"STATIC", "WHOLE BODY", "DYNAMIC", "GATED", "TOMO", "GATED TOMO"}
+
+
+class PreopError(ValueError):
+    """Input that cannot become a volume; the message is one sentence a user can act on."""
+
+
+@dataclass(frozen=True)
+class Volume:
+    """voxels (Z, Y, X) float32 in real units (counts, Bq/ml or HU) and its patient geometry.
+
+    ``patient_from_index`` (4, 4) maps a homogeneous index ``(column, row, slice, 1)`` --
+    the reverse of the array's axis order -- to LPS patient mm.
+    """
+
+    voxels: np.ndarray
+    patient_from_index: np.ndarray
+    modality: str
+    placed_by_default: bool = False
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def spacing_mm(self) -> np.ndarray:
+        """(3,) voxel size along column, row and slice index, mm."""
+        return np.linalg.norm(self.patient_from_index[:3, :3], axis=0)
+
+    def patient_xyz(self, index_zyx) -> np.ndarray:
+        """(N, 3) LPS mm of (N, 3) fractional array indices in (slice, row, column) order."""
+        index = np.asarray(index_zyx, dtype=float).reshape(-1, 3)[:, ::-1]
+        return index @ self.patient_from_index[:3, :3].T + self.patient_from_index[:3, 3]
+
+
+def load_volume(path, *, modality: str | None = None) -> Volume:
+    """The volume in ``path``: a multi-frame file, a directory of one series, or a list of files.
+
+    ``modality`` (e.g. ``"NM"``) rejects files of another modality. Raises :class:`PreopError`.
+    """
+    datasets = _read_all(path)
+    found = {str(ds.get("Modality", "")) for ds in datasets}
+    if modality and found != {modality}:
+        raise PreopError(f"{_name(path)} is {'/'.join(sorted(found)) or 'of unknown modality'}, "
+                         f"not {modality}; give the {modality} series")
+    series = {str(ds.get("SeriesInstanceUID", "")) for ds in datasets}
+    if len(series) > 1:
+        raise PreopError(f"{_name(path)} holds {len(series)} series; give the files of one series")
+    if len(datasets) == 1:
+        return _from_multiframe(datasets[0], _name(path))
+    return _from_slices(datasets, _name(path))
+
+
+def _name(path) -> str:
+    if isinstance(path, (list, tuple)):
+        return f"the {len(path)} files given" if len(path) != 1 else str(path[0])
+    return str(path)
+
+
+def _read_all(path) -> list:
+    if isinstance(path, (list, tuple)):
+        files, skip_non_dicom = [Path(p) for p in path], False
+    else:
+        path = Path(path)
+        if not path.exists():
+            raise PreopError(f"{path} does not exist")
+        skip_non_dicom = path.is_dir()
+        files = sorted(p for p in path.iterdir() if p.is_file()) if skip_non_dicom else [path]
+    datasets = []
+    for file in files:
+        try:
+            datasets.append(pydicom.dcmread(file))
+        except (InvalidDicomError, OSError, ValueError, EOFError):
+            if not skip_non_dicom:
+                raise PreopError(f"{file} is not a readable DICOM file") from None
+    if not datasets:
+        raise PreopError(f"{_name(path)} contains no DICOM files")
+    return datasets
+
+
+def _pixels(ds, source: str) -> np.ndarray:
+    """Stored values as float32 (frames, rows, columns); undecodable data is a PreopError."""
+    if "PixelData" not in ds:
+        raise PreopError(f"{source} has no pixel data")
+    try:
+        raw = ds.pixel_array
+    except Exception:  # pydicom raises RuntimeError, NotImplementedError or ValueError per plugin
+        syntax = ds.file_meta.get("TransferSyntaxUID")
+        raise PreopError(f"{source}: the pixel data ({syntax.name if syntax else 'unknown encoding'}) "
+                         "cannot be decoded by the installed decoders; export it uncompressed") from None
+    if ds.get("SamplesPerPixel", 1) != 1:
+        raise PreopError(f"{source} is a colour image, not a SPECT or CT volume")
+    return np.asarray(raw, dtype=np.float32).reshape(-1, ds.Rows, ds.Columns)
+
+
+def _real_units(ds, stored: np.ndarray) -> np.ndarray:
+    """Stored values to real units: a simple linear RealWorldValueMapping for NM, else Rescale."""
+    slope, intercept = float(ds.get("RescaleSlope", 1) or 1), float(ds.get("RescaleIntercept", 0) or 0)
+    mapping = ds.get("RealWorldValueMappingSequence")
+    if ds.get("Modality") == "NM" and mapping and "RealWorldValueSlope" in mapping[0]:
+        slope = float(mapping[0].RealWorldValueSlope)
+        intercept = float(mapping[0].get("RealWorldValueIntercept", 0))
+    return (stored * np.float32(slope) + np.float32(intercept)).astype(np.float32)
+
+
+def _affine(iop, ipp, pixel_spacing, slice_vector) -> np.ndarray:
+    row_dir, col_dir = np.asarray(iop[:3], float), np.asarray(iop[3:], float)
+    affine = np.eye(4)
+    affine[:3, 0] = row_dir * float(pixel_spacing[1])   # along a row: column index, column spacing
+    affine[:3, 1] = col_dir * float(pixel_spacing[0])   # down a column: row index, row spacing
+    affine[:3, 2] = slice_vector
+    affine[:3, 3] = np.asarray(ipp, float)
+    return affine
+
+
+def _slice_spacing(ds) -> float | None:
+    for source in (ds, _shared_item(ds, "PixelMeasuresSequence")):
+        if source is None:
+            continue
+        for key in ("SpacingBetweenSlices", "SliceThickness"):
+            if source.get(key):
+                return abs(float(source.get(key)))
+    return None
+
+
+def _shared_item(ds, sequence: str):
+    shared = ds.get("SharedFunctionalGroupsSequence")
+    if shared and sequence in shared[0]:
+        return shared[0].get(sequence)[0]
+    return None
+
+
+def _from_multiframe(ds, source: str) -> Volume:
+    stored = _pixels(ds, source)
+    image_type = [str(v).upper() for v in ds.get("ImageType", [])]
+    if ds.get("Modality") == "NM" and len(image_type) > 2 and image_type[2] in _PROJECTION_TYPES:
+        raise PreopError(f"{source} holds NM {image_type[2].lower()} images, not a reconstructed SPECT volume")
+    if len(stored) < 2:
+        raise PreopError(f"{source} is a single 2D image, not a volume")
+    voxels = _real_units(ds, stored)
+    spacing = ds.get("PixelSpacing") or getattr(_shared_item(ds, "PixelMeasuresSequence"), "PixelSpacing", None)
+    iop, ipp = ds.get("ImageOrientationPatient"), ds.get("ImagePositionPatient")
+    detector = ds.get("DetectorInformationSequence")
+    if (iop is None or ipp is None) and detector and "ImageOrientationPatient" in detector[0]:
+        iop, ipp = detector[0].ImageOrientationPatient, detector[0].get("ImagePositionPatient")
+    orientation = _shared_item(ds, "PlaneOrientationSequence")
+    per_frame = ds.get("PerFrameFunctionalGroupsSequence")
+    if iop is None and orientation is not None and per_frame:
+        iop = orientation.ImageOrientationPatient
+        positions = [np.asarray(f.PlanePositionSequence[0].ImagePositionPatient, float) for f in per_frame]
+        return _volume(voxels, iop, positions, spacing, None, ds, source)
+    slice_step = _slice_spacing(ds)
+    if iop is None or ipp is None or spacing is None or slice_step is None:
+        return _default_placement(voxels, spacing, slice_step, ds, source)
+    normal = np.cross(np.asarray(iop[:3], float), np.asarray(iop[3:], float))
+    return Volume(voxels, _affine(iop, ipp, spacing, normal * slice_step), str(ds.Modality))
+
+
+def _from_slices(datasets, source: str) -> Volume:
+    first = datasets[0]
+    iop, spacing = first.get("ImageOrientationPatient"), first.get("PixelSpacing")
+    if iop is None or spacing is None or any("ImagePositionPatient" not in ds for ds in datasets):
+        raise PreopError(f"{source}: the slices lack ImagePositionPatient/ImageOrientationPatient/PixelSpacing, "
+                         "so they cannot be stacked in order")
+    normal = np.cross(np.asarray(iop[:3], float), np.asarray(iop[3:], float))
+    datasets = sorted(datasets, key=lambda ds: float(np.dot(normal, np.asarray(ds.ImagePositionPatient, float))))
+    stored = np.concatenate([_real_units(ds, _pixels(ds, source)) for ds in datasets])
+    positions = [np.asarray(ds.ImagePositionPatient, float) for ds in datasets]
+    return _volume(stored, iop, positions, spacing, normal, first, source)
+
+
+def _volume(voxels, iop, positions, spacing, normal, ds, source: str) -> Volume:
+    """A volume whose slice vector comes from the positions of consecutive slices (mm)."""
+    positions = np.asarray(positions, float)
+    if spacing is None:
+        raise PreopError(f"{source} has no PixelSpacing, so its voxel size is unknown")
+    if len(positions) != len(voxels) or len(positions) < 2:
+        raise PreopError(f"{source}: {len(positions)} slice positions for {len(voxels)} slices")
+    steps = np.diff(positions, axis=0)
+    step = (positions[-1] - positions[0]) / (len(positions) - 1)
+    if np.linalg.norm(step) < 1e-6 or np.max(np.linalg.norm(steps - step, axis=1)) > 0.01 * np.linalg.norm(step) + 1e-3:
+        raise PreopError(f"{source}: the slices are not evenly spaced (missing or repeated slices?)")
+    return Volume(voxels, _affine(iop, positions[0], spacing, step), str(ds.get("Modality", "")))
+
+
+def _default_placement(voxels, spacing, slice_step, ds, source: str) -> Volume:
+    pixel = [float(v) for v in spacing] if spacing else [1.0, 1.0]
+    step = slice_step or 1.0
+    affine = np.diag([pixel[1], pixel[0], step, 1.0])
+    warning = (f"{source} carries no patient position/orientation; the volume is placed with identity "
+               f"orientation at the origin ({pixel[1]:g} x {pixel[0]:g} x {step:g} mm voxels"
+               f"{'' if spacing and slice_step else ', some sizes assumed 1 mm'}), so node positions are "
+               "relative to the volume corner, not to the patient")
+    return Volume(voxels, affine, str(ds.get("Modality", "")), placed_by_default=True, warnings=(warning,))
