@@ -50,14 +50,13 @@ def _read_initial(path: str | None) -> np.ndarray | None:
 def cmd_register(args) -> int:
     from snreg.nodes import NodeFileError, read_nodes
     from snreg.registration import CONFIDENT, register
+    from snreg.session import read_intraop_nodes
 
     try:
         preop = read_nodes(args.preop)
-        if Path(args.intraop).suffix.lower() in (".h5", ".hdf5"):
-            raise UserError(f"{args.intraop}: reading intraop nodes from a session file needs snreg.session, "
-                            "which this version does not have yet; export the nodes to CSV")
-        intraop = read_nodes(args.intraop)
-    except NodeFileError as err:
+        is_session = Path(args.intraop).suffix.lower() in (".h5", ".hdf5")
+        intraop = read_intraop_nodes(args.intraop) if is_session else read_nodes(args.intraop)
+    except (NodeFileError, ValueError) as err:
         raise UserError(str(err)) from None
     try:
         result = register(preop.xyz, intraop.xyz, method=args.method,
@@ -192,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     from snreg.calibration.trocar_command import add_trocar_parser
     from snreg.imu.command import add_imu_parser
     from snreg.preop.command import add_preop_parser
+    from snreg.session.command import add_session_parser
     from snreg.registration import METHODS
     from snreg.simulation.study import DEFAULT_EXTRAS, DEFAULT_METHODS, DEFAULT_REPS, DEFAULT_SIGMAS
 
@@ -228,6 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_trocar_parser(add_calibrate_parser(sub))
     add_imu_parser(sub)
     add_preop_parser(sub)
+    add_session_parser(sub)
 
     p = sub.add_parser("track", help="probe position from one stereo pair")
     p.add_argument("left")

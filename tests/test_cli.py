@@ -55,10 +55,20 @@ def test_register_bad_input_is_one_line_exit_2(node_files, tmp_path, capsys, con
     assert fragment in err and err.count("\n") == 1
 
 
-def test_register_session_file_not_yet_supported(node_files, tmp_path, capsys):
+def test_register_reads_intraop_nodes_from_a_session(node_files, tmp_path, capsys, pelvic_nodes):
+    from snreg.session import Session
+
     preop, _ = node_files
-    assert main(["register", str(preop), str(tmp_path / "s.h5")]) == 2
-    assert "session" in capsys.readouterr().err
+    xyz, labels = pelvic_nodes
+    moved = geometry.apply(geometry.transform_from_euler(10, -5, 5, [4, 2, -3]), xyz)
+    with Session.create(tmp_path / "s.h5", case_id="phantom-01") as session:
+        for k in range(len(xyz)):
+            session.add_intraop_node(f"SN{k + 1}", labels[k], moved[k])
+    assert main(["register", str(preop), str(tmp_path / "s.h5"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [n["preop_id"] for n in doc["nodes"]] == [f"P{k + 1}" for k in range(len(xyz))]
+    assert main(["register", str(preop), str(tmp_path / "missing.h5")]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
 
 
 def test_simulate_small(tmp_path):

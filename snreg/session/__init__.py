@@ -1,0 +1,288 @@
+"""Crash-safe HDF5 sessions (DESIGN.md §4 "Session (HDF5)").
+
+>>> with Session.create("s.h5", case_id="phantom-01") as s:
+...     s.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0])   # durable once it returns
+>>> Session.open("s.h5").intraop_nodes()                    # NodeSet, frame "trocar"
+
+Nodes, calibrations, preop sets and registrations go to a write-ahead journal (``s.h5.journal``, fsynced)
+before the HDF5 file; :meth:`Session.open` merges the journal, and reads it alone when a kill left the
+HDF5 file unreadable (``Session.damaged``); ``snreg session recover`` rebuilds a clean file.
+"""
+
+from __future__ import annotations
+
+import datetime
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from snreg import __version__
+from snreg.nodes import NodeSet
+from snreg.session import reader, writer
+from snreg.session.journal import Journal, journal_path, read_journal
+from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, jpeg_bytes,
+                                  position_mm, stereo_from_dict, stereo_to_dict, validate_case_id)
+
+__all__ = ["Session", "SessionError", "IntraopNode", "read_intraop_nodes", "validate_case_id"]
+
+
+class Session:
+    """A session being recorded (:meth:`create`) or read (:meth:`open`); use it as a context manager."""
+
+    def __init__(self, path: Path, header: dict, h5: h5py.File | None, journal: Journal | None, damaged: bool):
+        self.path, self.header, self._h5, self._journal, self.damaged = path, header, h5, journal, damaged
+        self._nodes: dict[str, IntraopNode] = {}
+        self._calibration: dict[str, dict] = {}
+        self._preop: dict | None = None
+        self._registrations: list[dict] = []
+        self._buffers: dict[str, writer.StreamBuffer] = {}
+
+    # -- opening -------------------------------------------------------------
+    @classmethod
+    def create(cls, path: str | Path, case_id: str, *, stream_flush_s: float = 1.0) -> "Session":
+        """A new session at ``path`` (refused if it or its journal exists); streams flush every ``stream_flush_s`` s."""
+        path = Path(path)
+        header = {"format": FORMAT, "format_version": FORMAT_VERSION, "case_id": validate_case_id(case_id),
+                  "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                  "snreg_version": __version__}
+        if path.exists() or journal_path(path).exists():
+            raise SessionError(f"{path}: a session (or its journal) already exists there; choose a new file name")
+        journal = Journal(journal_path(path))
+        journal.append("session", header)
+        h5 = h5py.File(path, "w")
+        writer.init_file(h5, header)
+        h5.flush()
+        session = cls(path, header, h5, journal, damaged=False)
+        session._buffers = {name: writer.StreamBuffer(h5, name, stream_flush_s) for name in STREAM_DTYPES}
+        return session
+
+    @classmethod
+    def open(cls, path: str | Path) -> "Session":
+        """Read a session (never opened for writing); :class:`SessionError` in one sentence when it cannot be."""
+        path = Path(path)
+        entries = read_journal(journal_path(path)).entries
+        if not path.exists() and not entries:
+            raise SessionError(f"{path}: no such session file")
+        journal_header = next((data for kind, data in entries if kind == "session"), None)
+        h5, header = None, None
+        try:
+            h5 = h5py.File(path, "r")
+            header = reader.read_header(h5, path)
+        except SessionError:
+            newer = "format_version" in h5.attrs and int(h5.attrs["format_version"]) > FORMAT_VERSION
+            h5.close()
+            h5 = None
+            if journal_header is None or newer:   # foreign or newer; else a kill before the header was flushed
+                raise
+        except (OSError, ValueError, KeyError):
+            if h5 is not None:
+                h5.close()
+            h5 = None
+            if journal_header is None:
+                raise SessionError(f"{path}: not a readable snreg session file (corrupt, truncated or foreign); "
+                                   "if it was being recorded, run 'snreg session recover'") from None
+        session = cls(path, header or dict(journal_header), h5, None, damaged=h5 is None)
+        if h5 is not None:
+            session._load_hdf5()
+        session._replay(entries)
+        return session
+
+    def _load_hdf5(self) -> None:
+        for part, load in (("nodes", reader.read_nodes), ("calibration", reader.read_calibration),
+                           ("preop", reader.read_preop), ("registrations", reader.read_registrations)):
+            try:
+                value = load(self._h5)
+            except (OSError, ValueError, KeyError, RuntimeError):
+                self.damaged = True
+                continue
+            if part == "nodes":
+                self._nodes.update({node.id: node for node in value})
+            elif part == "calibration":
+                self._calibration.update(value)
+            elif part == "preop":
+                self._preop = value
+            else:
+                self._registrations = value
+
+    def _replay(self, entries: list) -> None:
+        """Merge journal entries over what the HDF5 file holds (the journal is never behind it)."""
+        known = {reg["n"] for reg in self._registrations}
+        for kind, data in entries:
+            if kind == "node":
+                self._nodes[data["id"]] = IntraopNode.from_json(data)
+            elif kind == "calibration":
+                self._calibration[data["kind"]] = data["data"]
+            elif kind == "preop":
+                self._preop = data
+            elif kind == "registration" and data["n"] not in known:
+                self._registrations.append(data)
+                known.add(data["n"])
+
+    # -- writing -------------------------------------------------------------
+    def add_intraop_node(self, node_id: str, label: str, xyz_trocar, *, xyz_camera=None, spread_mm: float = float("nan"),
+                         n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
+                         left_jpeg=b"", right_jpeg=b"") -> IntraopNode:
+        """Store a node (positions mm, time ns host clock); it is on disk when this returns.
+
+        Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here.
+        """
+        self._writable()
+        node_id = str(node_id)
+        if node_id in self._nodes:
+            raise SessionError(f"{self.path}: node id {node_id!r} is already stored; use a new id")
+        nan3 = np.full(3, np.nan)
+        node = IntraopNode(node_id, str(label), time.time_ns() if time_ns is None else int(time_ns),
+                           position_mm(xyz_trocar), nan3 if xyz_camera is None else position_mm(xyz_camera), float(spread_mm),
+                           int(n_frames), float(counts), jpeg_bytes(left_jpeg), jpeg_bytes(right_jpeg))
+        self._journal.append("node", node.to_json())
+        writer.write_node(self._h5, node)
+        self._h5.flush()
+        self._nodes[node_id] = node
+        return node
+
+    def set_calibration(self, *, stereo=None, chain=None) -> None:
+        """Store a :class:`~snreg.calibration.files.StereoCalibration` and/or a :class:`~snreg.chain.ChainCalibration`."""
+        self._writable()
+        items = ([("stereo", stereo_to_dict(stereo))] if stereo is not None else []) + \
+                ([("chain", chain.to_dict())] if chain is not None else [])
+        for kind, data in items:
+            self._journal.append("calibration", {"kind": kind, "data": data})
+            writer.write_calibration(self._h5, kind, data)
+            self._calibration[kind] = data
+        self._h5.flush()
+
+    def set_preop_nodes(self, nodes: NodeSet) -> None:
+        self._writable()
+        data = {"ids": nodes.ids, "labels": nodes.labels, "xyz": nodes.xyz.tolist(),
+                "counts": None if nodes.counts is None else nodes.counts.tolist(), "frame": nodes.frame}
+        self._journal.append("preop", data)
+        writer.write_preop(self._h5, data)
+        self._h5.flush()
+        self._preop = data
+
+    def add_registration(self, result) -> int:
+        """Store a :class:`~snreg.registration.RegistrationResult` as ``registration/<n>``; returns n."""
+        self._writable()
+        data = {"n": len(self._registrations), "method": result.method, "rms_mm": float(result.rms_mm),
+                "pairing_rule": result.pairing_rule, "transform": np.asarray(result.transform).tolist(),
+                "pairing": np.asarray(result.pairing).tolist(), "distances_mm": np.asarray(result.distances_mm).tolist(),
+                "confidence": np.asarray(result.confidence).tolist()}
+        self._journal.append("registration", data)
+        writer.write_registration(self._h5, data)
+        self._h5.flush()
+        self._registrations.append(data)
+        return data["n"]
+
+    def append_imu(self, t_host_ns, t_device_ns, acc_g, gyro_dps) -> None:
+        """IMU samples: times (n,) ns, acceleration (n, 3) g, angular rate (n, 3) deg/s."""
+        self._append("imu", t_host_ns=t_host_ns, t_device_ns=t_device_ns, acc_g=acc_g, gyro_dps=gyro_dps)
+
+    def append_probe(self, t_host_ns, t_device_ns, tip_mm, centre_mm, axis, quality) -> None:
+        """Probe poses: times (n,) ns, tip and centre (n, 3) mm camera frame, axis (n, 3) unit, quality (n,)."""
+        self._append("probe", t_host_ns=t_host_ns, t_device_ns=t_device_ns, tip_mm=tip_mm, centre_mm=centre_mm,
+                     axis=axis, quality=quality)
+
+    def append_frames(self, t_host_ns, t_device_ns, index) -> None:
+        """Frame times (n,) ns and frame indices (n,)."""
+        self._append("frames", t_host_ns=t_host_ns, t_device_ns=t_device_ns, index=index)
+
+    def _append(self, name: str, **columns) -> None:
+        self._writable()
+        n = np.atleast_1d(columns["t_host_ns"]).shape[0]
+        rows = np.zeros(n, STREAM_DTYPES[name])
+        for key, value in columns.items():
+            rows[key] = np.asarray(value).reshape(rows[key].shape)
+        self._buffers[name].append(rows)
+
+    def _writable(self) -> None:
+        if self._journal is None:
+            raise SessionError(f"{self.path}: opened for reading; create a new session to record")
+
+    # -- reading -------------------------------------------------------------
+    @property
+    def case_id(self) -> str:
+        return str(self.header["case_id"])
+
+    def intraop_records(self) -> list[IntraopNode]:
+        return list(self._nodes.values())
+
+    def intraop_nodes(self) -> NodeSet:
+        """The stored nodes in the trocar frame (mm); counts None when no node has any."""
+        records = self.intraop_records()
+        counts = np.array([r.counts for r in records], dtype=float)
+        return NodeSet([r.id for r in records], [r.label for r in records],
+                       np.array([r.xyz_trocar for r in records], dtype=float).reshape(-1, 3),
+                       counts if np.any(np.isfinite(counts)) else None, frame="trocar")
+
+    def preop_nodes(self) -> NodeSet | None:
+        p = self._preop
+        return None if p is None else NodeSet(p["ids"], p["labels"], p["xyz"], p["counts"], frame=p["frame"])
+
+    def calibration(self) -> dict:
+        """``{"stereo": StereoCalibration, "chain": ChainCalibration}`` for those stored."""
+        from snreg.chain import ChainCalibration
+        out = {}
+        if "stereo" in self._calibration:
+            out["stereo"] = stereo_from_dict(self._calibration["stereo"])
+        if "chain" in self._calibration:
+            out["chain"] = ChainCalibration.from_dict(self._calibration["chain"])
+        return out
+
+    def registrations(self) -> list:
+        """Stored :class:`~snreg.registration.RegistrationResult` objects, in order."""
+        from snreg.registration import RegistrationResult
+        return [RegistrationResult(r["method"], np.asarray(r["transform"]), np.asarray(r["pairing"], dtype=int),
+                                   np.asarray(r["distances_mm"]), float(r["rms_mm"]), np.asarray(r["confidence"]),
+                                   r["pairing_rule"]) for r in self._registrations]
+
+    def stream(self, name: str):
+        """The ``streams/<name>`` table, lazily (an h5py dataset); empty when the HDF5 file is unreadable."""
+        if name not in STREAM_DTYPES:
+            raise SessionError(f"no stream {name!r}; streams are {', '.join(STREAM_DTYPES)}")
+        try:
+            return self._h5[f"streams/{name}"]
+        except (TypeError, KeyError, OSError, ValueError):
+            return np.zeros(0, STREAM_DTYPES[name])
+
+    def save_as(self, path: str | Path) -> None:
+        """Write everything this session holds, streams up to their first unreadable block, to a clean HDF5 file."""
+        with h5py.File(path, "w") as h5:
+            writer.init_file(h5, self.header)
+            for node in self.intraop_records():
+                writer.write_node(h5, node)
+            for kind, data in self._calibration.items():
+                writer.write_calibration(h5, kind, data)
+            if self._preop is not None:
+                writer.write_preop(h5, self._preop)
+            for data in self._registrations:
+                writer.write_registration(h5, data)
+            for name in STREAM_DTYPES:
+                source = self.stream(name)
+                rows = reader.readable_rows(source) if isinstance(source, h5py.Dataset) else source
+                h5[f"streams/{name}"].resize(len(rows), axis=0)
+                h5[f"streams/{name}"][:] = rows
+
+    # -- closing -------------------------------------------------------------
+    def close(self) -> None:
+        """Flush buffered streams and close the files (idempotent)."""
+        if self._h5 is not None and self._h5.id.valid:
+            for buffer in self._buffers.values():
+                buffer.flush()
+            self._h5.close()
+        if self._journal is not None:
+            self._journal.close()
+
+    def __enter__(self) -> "Session":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_intraop_nodes(path: str | Path) -> NodeSet:
+    """The intraop nodes of a session file (trocar frame, mm), for ``snreg register``."""
+    with Session.open(path) as session:
+        return session.intraop_nodes()
+

@@ -1,0 +1,68 @@
+"""``snreg session info|export|recover``: wired into ``snreg.cli`` by :func:`add_session_parser`."""
+
+from __future__ import annotations
+
+import json
+
+from snreg.session.schema import SessionError
+
+
+def add_session_parser(subparsers) -> None:
+    """Add ``session`` with its ``info``, ``export`` and ``recover`` subcommands; each sets ``func``."""
+    session = subparsers.add_parser("session", help="inspect, export or recover a session file (HDF5)")
+    commands = session.add_subparsers(dest="session_command", required=True)
+    info = commands.add_parser("info", help="case id, creation time, counts of nodes and stream samples")
+    info.add_argument("session")
+    info.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    info.set_defaults(func=cmd_info)
+    export = commands.add_parser("export", help="write the intraop nodes (trocar frame, mm) as CSV or Slicer markups")
+    export.add_argument("session")
+    export.add_argument("--format", choices=("csv", "slicer"), default="csv")
+    export.add_argument("-o", "--output", required=True)
+    export.set_defaults(func=cmd_export)
+    recover = commands.add_parser("recover", help="rebuild a clean session file from a damaged one and its journal")
+    recover.add_argument("session")
+    recover.add_argument("-o", "--output", default=None, help="write here instead of replacing the file")
+    recover.set_defaults(func=cmd_recover)
+
+
+def cmd_info(args) -> int:
+    from snreg.session.export import session_info
+    info = _guard(session_info, args.session)
+    if args.json:
+        print(json.dumps(info))
+        return 0
+    streams = ", ".join(f"{name} {n}" for name, n in info["streams"].items())
+    regs = "; ".join(f"#{r['n']} {r['method']} RMS {r['rms_mm']:.2f} mm" for r in info["registrations"]) or "none"
+    print(f"case {info['case_id']}, created {info['created_utc']}, format {info['format_version']}, "
+          f"snreg {info['snreg_version']}")
+    print(f"nodes: {info['intraop_nodes']} intraop, {info['preop_nodes']} preop; streams: {streams}")
+    print(f"calibration: {', '.join(info['calibration']) or 'none'}; registrations: {regs}")
+    if info["damaged"]:
+        print("the HDF5 file is damaged; nodes were read from the journal; run 'snreg session recover'")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from snreg.session.export import export_nodes
+    n = _guard(export_nodes, args.session, args.format, args.output)
+    print(f"wrote {n} nodes to {args.output}")
+    return 0
+
+
+def cmd_recover(args) -> int:
+    from snreg.session.export import recover
+    out = _guard(recover, args.session, args.output)
+    print(f"recovered session written to {out}")
+    return 0
+
+
+def _guard(func, *args):
+    """Run ``func``; a session or file error becomes a one-sentence :class:`snreg.cli.UserError`."""
+    from snreg.cli import UserError
+    try:
+        return func(*args)
+    except SessionError as err:
+        raise UserError(str(err)) from None
+    except OSError as err:
+        raise UserError(f"{err.filename or args[0]}: {err.strerror or err}") from None

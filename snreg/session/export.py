@@ -1,0 +1,60 @@
+"""Summaries, node export and recovery of session files (the work behind ``snreg session``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from snreg.session import Session
+from snreg.session.journal import journal_path, read_journal
+from snreg.session.schema import STREAM_DTYPES, SessionError
+
+
+def session_info(path: str | Path) -> dict:
+    """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, calibration, registrations."""
+    with Session.open(path) as session:
+        preop = session.preop_nodes()
+        return {"case_id": session.case_id, "created_utc": session.header.get("created_utc", ""),
+                "format_version": session.header.get("format_version"),
+                "snreg_version": session.header.get("snreg_version", ""),
+                "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
+                "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
+                "calibration": sorted(session.calibration()),
+                "registrations": [{"n": n, "method": r.method, "rms_mm": r.rms_mm}
+                                  for n, r in enumerate(session.registrations())],
+                "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged}
+
+
+def export_nodes(path: str | Path, fmt: str, out: str | Path) -> int:
+    """Write the intraop nodes (trocar frame, mm) as node CSV or 3D Slicer markups; returns how many."""
+    with Session.open(path) as session:
+        nodes = session.intraop_nodes()
+    text = nodes.to_csv() if fmt == "csv" else json.dumps(nodes.to_slicer(), indent=2)
+    Path(out).write_text(text, encoding="utf-8")
+    return len(nodes)
+
+
+def recover(path: str | Path, out: str | Path | None = None) -> Path:
+    """Rebuild a clean session from whatever of the HDF5 file is readable plus the journal.
+
+    Without ``out`` the file is replaced in place and the original kept beside it as
+    ``<name>.damaged-<unix time>``; returns the path written.
+    """
+    path = Path(path)
+    target = Path(out) if out is not None else path
+    tmp = target.with_name(target.name + ".recovering")
+    try:
+        session = Session.open(path)
+    except SessionError as err:
+        if "recover" not in str(err):
+            raise
+        raise SessionError(f"{path}: nothing to recover: neither the file nor a journal beside it holds a "
+                           "snreg session") from None
+    with session:
+        session.save_as(tmp)
+    if target == path and path.exists():
+        os.replace(path, path.with_name(f"{path.name}.damaged-{int(time.time())}"))
+    os.replace(tmp, target)
+    return target

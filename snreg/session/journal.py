@@ -1,0 +1,72 @@
+"""The write-ahead journal beside a session (``<session>.h5.journal``): what makes a stored node durable.
+
+HDF5 cannot promise a consistent file after a kill in the middle of a write, so every node, calibration,
+preop set and registration is first appended here as one JSON line prefixed by its CRC-32 and fsynced;
+a torn or damaged line (the kill's last, partial write) fails its checksum and is skipped on reading.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from snreg.session.schema import JOURNAL_SUFFIX
+
+
+def journal_path(session_path: str | Path) -> Path:
+    session_path = Path(session_path)
+    return session_path.with_name(session_path.name + JOURNAL_SUFFIX)
+
+
+@dataclass(frozen=True)
+class JournalEntries:
+    """The readable entries, in order, as (kind, data) pairs, and how many lines were damaged."""
+
+    entries: list
+    damaged: int
+
+
+class Journal:
+    """An append-only journal; :meth:`append` returns once the line is on disk (fsync)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self._file = open(self.path, "ab")
+        directory = os.open(self.path.parent, os.O_RDONLY)   # make the new file's name durable too
+        try:
+            os.fsync(directory)
+        finally:
+            os.close(directory)
+
+    def append(self, kind: str, data: dict) -> None:
+        payload = json.dumps({"kind": kind, "data": data}, separators=(",", ":"), allow_nan=True).encode("utf-8")
+        self._file.write(b"%08x " % zlib.crc32(payload) + payload + b"\n")
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def read_journal(path: str | Path) -> JournalEntries:
+    """Every line whose checksum holds; a missing journal has no entries."""
+    try:
+        raw = Path(path).read_bytes()
+    except FileNotFoundError:
+        return JournalEntries([], 0)
+    entries, damaged = [], 0
+    for line in raw.split(b"\n"):
+        if not line:
+            continue
+        crc, _, payload = line.partition(b" ")
+        try:
+            if int(crc, 16) != zlib.crc32(payload):
+                raise ValueError
+            record = json.loads(payload)
+            entries.append((str(record["kind"]), record["data"]))
+        except (ValueError, KeyError, TypeError):
+            damaged += 1
+    return JournalEntries(entries, damaged)

@@ -1,0 +1,84 @@
+"""Reading the HDF5 side of a session: header checks and the tables as written by :mod:`.writer`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from snreg.session.schema import FORMAT, FORMAT_VERSION, IntraopNode, SessionError
+
+HEADER_KEYS = ("format", "format_version", "created_utc", "snreg_version", "case_id")
+
+
+def read_header(h5: h5py.File, path: Path) -> dict:
+    """The root attributes; :class:`SessionError` for a foreign or newer file."""
+    header = {key: _plain(h5.attrs[key]) for key in HEADER_KEYS if key in h5.attrs}
+    if header.get("format") != FORMAT:
+        raise SessionError(f"{path}: not a snreg session (the HDF5 file lacks format={FORMAT!r})")
+    version = int(header.get("format_version", 0))
+    if version > FORMAT_VERSION:
+        raise SessionError(f"{path}: session format version {version} is newer than this snreg reads "
+                           f"({FORMAT_VERSION}); update snreg")
+    return header
+
+
+def read_nodes(h5: h5py.File) -> list[IntraopNode]:
+    """Every complete row of ``nodes/intraop`` (a row cut short by a kill is dropped)."""
+    group = h5["nodes/intraop"]
+    cols = {name: group[name][()] for name in group}
+    n = min(len(v) for v in cols.values())
+    return [IntraopNode(_plain(cols["id"][k]), _plain(cols["label"][k]), int(cols["time_ns"][k]),
+                        cols["xyz_trocar"][k], cols["xyz_camera"][k], float(cols["spread_mm"][k]),
+                        int(cols["n_frames"][k]), float(cols["counts"][k]), bytes(cols["left_jpeg"][k]),
+                        bytes(cols["right_jpeg"][k]))
+            for k in range(n)]
+
+
+def read_calibration(h5: h5py.File) -> dict:
+    """``{"stereo": dict, "chain": dict}`` for those present, in the journal's JSON form."""
+    out = {}
+    for kind, group in h5["calibration"].items():
+        data = {key: _plain(value) for key, value in group.attrs.items()}
+        data.update({key: ds[()].tolist() for key, ds in group.items()})
+        out[kind] = data
+    return out
+
+
+def read_preop(h5: h5py.File) -> dict | None:
+    group = h5["nodes/preop"]
+    if "id" not in group:
+        return None
+    return {"ids": [_plain(v) for v in group["id"][()]], "labels": [_plain(v) for v in group["label"][()]],
+            "xyz": group["xyz"][()].tolist(), "counts": group["counts"][()].tolist() if "counts" in group else None,
+            "frame": _plain(group.attrs.get("frame", ""))}
+
+
+def read_registrations(h5: h5py.File) -> list[dict]:
+    out = []
+    for name in sorted(h5["registration"], key=int):
+        group = h5["registration"][name]
+        data = {key: group[key][()].tolist() for key in ("transform", "pairing", "distances_mm", "confidence")}
+        data.update({key: _plain(group.attrs[key]) for key in ("method", "rms_mm", "pairing_rule")}, n=int(name))
+        out.append(data)
+    return out
+
+
+def readable_rows(dataset: h5py.Dataset, block: int = 4096) -> np.ndarray:
+    """The rows of a stream table up to the first unreadable block (for recovery)."""
+    parts = []
+    for start in range(0, dataset.shape[0], block):
+        try:
+            parts.append(dataset[start:start + block])
+        except (OSError, ValueError, RuntimeError):
+            break
+    return np.concatenate(parts) if parts else np.zeros(0, dataset.dtype)
+
+
+def _plain(value):
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

@@ -1,0 +1,118 @@
+"""The session file's schema (DESIGN.md §4 "Session (HDF5)"): names, versions, stream tables, validation.
+
+Everything a session stores is pseudonymous: the only identifier is ``case_id``, checked here so that a
+patient name or birth date typed by mistake is refused before anything reaches the disk.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+FORMAT = "snreg-session"
+FORMAT_VERSION = 1
+JOURNAL_SUFFIX = ".journal"
+
+_CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
+_DATE = re.compile(r"(19|20)\d{2}[-._]?\d{2}[-._]?\d{2}|\d{2}[-._]\d{2}[-._](19|20)\d{2}")
+
+# Stream tables: host time (time.time_ns of the recording computer) and device time, both ns.
+STREAM_DTYPES = {
+    "imu": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("acc_g", "<f4", (3,)),
+                     ("gyro_dps", "<f4", (3,))]),
+    "probe": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("tip_mm", "<f4", (3,)),
+                       ("centre_mm", "<f4", (3,)), ("axis", "<f4", (3,)), ("quality", "<f4")]),
+    "frames": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("index", "<i8")]),
+}
+
+
+class SessionError(ValueError):
+    """A session file that cannot be used; the message is one sentence naming the file and what to do."""
+
+
+def validate_case_id(case_id: str) -> str:
+    """Return ``case_id`` if it is a pseudonym: 1-64 of ``A-Z a-z 0-9 . _ -`` and nothing like a date."""
+    text = str(case_id)
+    if not _CASE_ID.fullmatch(text):
+        raise SessionError(f"case id {text!r} is refused: use a pseudonymous id of 1 to 64 letters, digits, '.', '_' "
+                           "or '-' (no spaces, no patient names)")
+    if _DATE.search(text):
+        raise SessionError(f"case id {text!r} is refused: it looks like a date; use a pseudonymous id without "
+                           "birth dates")
+    return text
+
+
+@dataclass(frozen=True, eq=False)
+class IntraopNode:
+    """One stored sentinel node: positions in mm (trocar and left-camera frames), time in ns (host clock).
+
+    ``spread_mm`` is the scatter of the tip over the ``n_frames`` averaged; ``counts`` the gamma probe
+    reading (NaN when none); the snapshots are JPEG bytes (empty when none).
+    """
+
+    id: str
+    label: str
+    time_ns: int
+    xyz_trocar: np.ndarray
+    xyz_camera: np.ndarray
+    spread_mm: float
+    n_frames: int
+    counts: float
+    left_jpeg: bytes = b""
+    right_jpeg: bytes = b""
+
+    def to_json(self) -> dict:
+        """JSON-ready, the snapshots as hex (the journal's form)."""
+        return {"id": self.id, "label": self.label, "time_ns": int(self.time_ns),
+                "xyz_trocar": [float(v) for v in self.xyz_trocar], "xyz_camera": [float(v) for v in self.xyz_camera],
+                "spread_mm": float(self.spread_mm), "n_frames": int(self.n_frames), "counts": float(self.counts),
+                "left_jpeg": self.left_jpeg.hex(), "right_jpeg": self.right_jpeg.hex()}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "IntraopNode":
+        return cls(str(data["id"]), str(data["label"]), int(data["time_ns"]),
+                   np.asarray(data["xyz_trocar"], dtype=float), np.asarray(data["xyz_camera"], dtype=float),
+                   float(data["spread_mm"]), int(data["n_frames"]), float(data["counts"]),
+                   bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]))
+
+
+def position_mm(value) -> np.ndarray:
+    """A (3,) position in mm; :class:`SessionError` for anything else."""
+    vec = np.asarray(value, dtype=float).reshape(-1)
+    if vec.shape != (3,):
+        raise SessionError(f"a node position needs 3 coordinates in mm, got {vec.size}")
+    return vec
+
+
+def jpeg_bytes(image) -> bytes:
+    """JPEG bytes as given, or an image (H, W[, 3]) uint8 encoded with ``cv2.imencode``."""
+    if isinstance(image, (bytes, bytearray)):
+        return bytes(image)
+    image = np.asarray(image)
+    if image.ndim == 1:
+        return image.astype(np.uint8).tobytes()
+    ok, buf = cv2.imencode(".jpg", image)
+    if not ok:
+        raise SessionError("a node snapshot could not be encoded as JPEG; pass a uint8 image (H, W[, 3])")
+    return buf.tobytes()
+
+
+def stereo_to_dict(calib) -> dict:
+    """A :class:`~snreg.calibration.files.StereoCalibration` in JSON form: matrices as nested lists."""
+    out = {"image_size": [int(v) for v in calib.image_size]}
+    for key in ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q"):
+        out[key] = np.asarray(getattr(calib, key), dtype=float).tolist()
+    for key in ("rms_reprojection_px", "board_cols", "board_rows", "square_mm", "n_views", "created_utc", "snreg_version"):
+        out[key] = getattr(calib, key)
+    return out
+
+
+def stereo_from_dict(data: dict):
+    """Inverse of :func:`stereo_to_dict`."""
+    from snreg.calibration.files import StereoCalibration
+    data = dict(data)
+    size = tuple(int(v) for v in data.pop("image_size"))
+    return StereoCalibration(size, **{k: np.asarray(v) if isinstance(v, list) else v for k, v in data.items()})

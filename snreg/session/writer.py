@@ -1,0 +1,106 @@
+"""Writing the HDF5 side of a session: groups, resizable tables, and buffered streams.
+
+Streams (IMU at 208 Hz, probe at 30 Hz, frame times) are buffered and appended in chunks about once a
+second, so an hour never sits in memory; a kill loses at most the last unflushed second of them.
+"""
+
+from __future__ import annotations
+
+import time
+
+import h5py
+import numpy as np
+
+from snreg.session.schema import STREAM_DTYPES, IntraopNode
+
+_BYTES = h5py.vlen_dtype(np.uint8)
+_STR = h5py.string_dtype()
+_NODE_FIELDS = {"id": _STR, "label": _STR, "time_ns": "<i8", "xyz_trocar": ("<f8", 3), "xyz_camera": ("<f8", 3),
+                "spread_mm": "<f8", "n_frames": "<i8", "counts": "<f8", "left_jpeg": _BYTES, "right_jpeg": _BYTES}
+
+
+def init_file(h5: h5py.File, header: dict) -> None:
+    """Root attributes and the empty groups and tables of a new session."""
+    for key, value in header.items():
+        h5.attrs[key] = value
+    for group in ("calibration", "nodes/preop", "registration"):
+        h5.require_group(group)
+    for name, dtype in STREAM_DTYPES.items():
+        h5.create_dataset(f"streams/{name}", shape=(0,), maxshape=(None,), dtype=dtype, chunks=(1024,),
+                          compression="gzip", compression_opts=1)
+    intraop = h5.require_group("nodes/intraop")
+    for name, dtype in _NODE_FIELDS.items():
+        base, shape = dtype if isinstance(dtype, tuple) else (dtype, None)
+        intraop.create_dataset(name, shape=(0, shape) if shape else (0,), maxshape=(None, shape) if shape else (None,),
+                               dtype=base, chunks=(16, shape) if shape else (16,))
+
+
+def write_node(h5: h5py.File, node: IntraopNode) -> None:
+    """Append one row to every ``nodes/intraop`` table."""
+    intraop = h5["nodes/intraop"]
+    n = intraop["id"].shape[0]
+    values = {"id": node.id, "label": node.label, "time_ns": node.time_ns, "xyz_trocar": node.xyz_trocar,
+              "xyz_camera": node.xyz_camera, "spread_mm": node.spread_mm, "n_frames": node.n_frames,
+              "counts": node.counts, "left_jpeg": np.frombuffer(node.left_jpeg, np.uint8),
+              "right_jpeg": np.frombuffer(node.right_jpeg, np.uint8)}
+    for name, value in values.items():
+        intraop[name].resize(n + 1, axis=0)
+        intraop[name][n] = value
+
+
+def write_calibration(h5: h5py.File, kind: str, data: dict) -> None:
+    """``calibration/stereo`` or ``calibration/chain``: each matrix a dataset under its own name, scalars attributes."""
+    if kind in h5["calibration"]:
+        del h5["calibration"][kind]
+    group = h5["calibration"].create_group(kind)
+    for key, value in data.items():
+        if isinstance(value, list):
+            group.create_dataset(key, data=np.asarray(value, dtype=float))
+        else:
+            group.attrs[key] = value
+
+
+def write_preop(h5: h5py.File, data: dict) -> None:
+    """``nodes/preop``: ids, labels, xyz (N, 3) mm, counts (N,) when known; the frame as an attribute."""
+    del h5["nodes/preop"]
+    group = h5.create_group("nodes/preop")
+    group.create_dataset("id", data=np.array(data["ids"], dtype=object), dtype=_STR)
+    group.create_dataset("label", data=np.array(data["labels"], dtype=object), dtype=_STR)
+    group.create_dataset("xyz", data=np.asarray(data["xyz"], dtype=float).reshape(-1, 3))
+    if data["counts"] is not None:
+        group.create_dataset("counts", data=np.asarray(data["counts"], dtype=float))
+    group.attrs["frame"] = data["frame"]
+
+
+def write_registration(h5: h5py.File, data: dict) -> None:
+    """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing, distances (mm), confidence; method, RMS."""
+    group = h5["registration"].create_group(str(data["n"]))
+    for key in ("transform", "pairing", "distances_mm", "confidence"):
+        group.create_dataset(key, data=np.asarray(data[key], dtype=int if key == "pairing" else float))
+    for key in ("method", "rms_mm", "pairing_rule"):
+        group.attrs[key] = data[key]
+
+
+class StreamBuffer:
+    """Rows waiting for one stream table; :meth:`append` writes them out once ``flush_s`` seconds have passed."""
+
+    def __init__(self, h5: h5py.File, name: str, flush_s: float):
+        self._h5, self._dataset, self._flush_s = h5, h5[f"streams/{name}"], flush_s
+        self._pending: list[np.ndarray] = []
+        self._last = time.monotonic()
+
+    def append(self, rows: np.ndarray) -> None:
+        self._pending.append(rows)
+        if time.monotonic() - self._last >= self._flush_s:
+            self.flush()
+
+    def flush(self) -> None:
+        self._last = time.monotonic()
+        if not self._pending:
+            return
+        rows = np.concatenate(self._pending)
+        self._pending = []
+        n = self._dataset.shape[0]
+        self._dataset.resize(n + len(rows), axis=0)
+        self._dataset[n:] = rows
+        self._h5.flush()
