@@ -124,7 +124,7 @@ class Session:
     def add_intraop_node(self, node_id: str, label: str, xyz_trocar, *, xyz_camera=None, spread_mm: float = float("nan"),
                          n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
                          left_jpeg=b"", right_jpeg=b"") -> IntraopNode:
-        """Store a node (positions mm, time ns host clock); it is on disk when this returns.
+        """Store a node (positions mm; time ns on the host clock, perf_counter_ns like the streams); on disk when this returns.
 
         Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here.
         """
@@ -133,7 +133,7 @@ class Session:
         if node_id in self._nodes:
             raise SessionError(f"{self.path}: node id {node_id!r} is already stored; use a new id")
         nan3 = np.full(3, np.nan)
-        node = IntraopNode(node_id, str(label), time.time_ns() if time_ns is None else int(time_ns),
+        node = IntraopNode(node_id, str(label), time.perf_counter_ns() if time_ns is None else int(time_ns),
                            position_mm(xyz_trocar), nan3 if xyz_camera is None else position_mm(xyz_camera), float(spread_mm),
                            int(n_frames), float(counts), jpeg_bytes(left_jpeg), jpeg_bytes(right_jpeg))
         self._journal.append("node", node.to_json())

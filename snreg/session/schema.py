@@ -19,7 +19,7 @@ JOURNAL_SUFFIX = ".journal"
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
 _DATE = re.compile(r"(19|20)\d{2}[-._]?\d{2}[-._]?\d{2}|\d{2}[-._]\d{2}[-._](19|20)\d{2}")
 
-# Stream tables: host time (time.time_ns of the recording computer) and device time, both ns.
+# Stream tables: host time (time.perf_counter_ns, monotonic, as DESIGN.md §3) and device time, both ns.
 STREAM_DTYPES = {
     "imu": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("acc_g", "<f4", (3,)),
                      ("gyro_dps", "<f4", (3,))]),
