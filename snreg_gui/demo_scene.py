@@ -1,0 +1,82 @@
+"""The demo phantom: the probe visiting four sentinel-node positions and resting on each, rendered in stereo.
+
+Why: the acquisition screen needs a live feed with a known truth and no hardware. The probe rests on
+node k for ``rest_frames`` frames, then glides to node k+1 over ``move_frames`` frames, and the cycle
+repeats. Rendering costs ~0.15 s per pose at half resolution, so each pose is rendered once
+(a few sensor-noise exposures per resting pose, one per moving pose) and then replayed from memory;
+:meth:`PhantomScene.prerender` does it all before the feed starts, because rendering holds the GIL
+in bursts long enough to stall the GUI thread.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from snreg.calibration.files import StereoCalibration
+from snreg.sources import ProbePose, RenderOptions, StereoRenderer
+from snreg.tracking import ProbeModel
+
+_AXIS = np.array([1.0, -0.35, 0.4])        # probe pointing right, up and away: a side view the tracker reads
+# stripe-band centres of the four phantom nodes, left camera frame (mm)
+NODE_CENTRES_MM = np.array([[-18.0, -6.0, 85.0], [16.0, -4.0, 92.0], [14.0, 8.0, 118.0], [-16.0, 6.0, 110.0]])
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Frames spent resting on each node and moving to the next; ``noise_variants`` exposures per rest."""
+
+    rest_frames: int = 90
+    move_frames: int = 5
+    noise_variants: int = 3
+
+    @property
+    def cycle(self) -> int:
+        return len(NODE_CENTRES_MM) * (self.rest_frames + self.move_frames)
+
+
+class PhantomScene:
+    """Rendered stereo frames of the probe along the node tour; ``truth_tip`` and ``resting_node`` give ground truth."""
+
+    def __init__(self, calibration: StereoCalibration, probe: ProbeModel, schedule: Schedule = Schedule(),
+                 noise_sigma: float = 2.0, seed: int = 0):
+        self.schedule, self.noise_sigma, self.seed = schedule, noise_sigma, seed
+        self.renderer = StereoRenderer(calibration, probe)
+        axis = _AXIS / np.linalg.norm(_AXIS)
+        self.node_poses = [ProbePose.make(centre - probe.band_centre_mm * axis, axis) for centre in NODE_CENTRES_MM]
+        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def resting_node(self, index: int) -> int | None:
+        """The node the probe rests on at frame ``index``, None while it moves."""
+        node, step = divmod(index % self.schedule.cycle, self.schedule.rest_frames + self.schedule.move_frames)
+        return node if step < self.schedule.rest_frames else None
+
+    def pose(self, index: int) -> ProbePose:
+        """The true probe pose at frame ``index``: a node while resting, a straight glide between nodes otherwise."""
+        node, step = divmod(index % self.schedule.cycle, self.schedule.rest_frames + self.schedule.move_frames)
+        here = self.node_poses[node]
+        if step < self.schedule.rest_frames:
+            return here
+        there = self.node_poses[(node + 1) % len(self.node_poses)]
+        u = (step - self.schedule.rest_frames + 1) / (self.schedule.move_frames + 1)
+        return ProbePose.make(here.tip + u * (there.tip - here.tip), here.axis)
+
+    def truth_tip(self, node: int) -> np.ndarray:
+        """(3,) true tip of node ``node`` in the left camera frame, mm."""
+        return self.node_poses[node].tip.copy()
+
+    def prerender(self) -> None:
+        """Render every frame of the tour once (~3 s at half resolution), so :meth:`render` only replays."""
+        for index in range(self.schedule.cycle):
+            self.render(index)
+
+    def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback)."""
+        cycle_index = index % self.schedule.cycle
+        resting = self.resting_node(index)
+        key = (resting, index % self.schedule.noise_variants) if resting is not None else (-1, cycle_index)
+        if key not in self._cache:
+            options = RenderOptions(noise_sigma=self.noise_sigma, seed=self.seed + len(self._cache))
+            self._cache[key] = self.renderer.expose(self.renderer.radiance(self.pose(index), options), options)
+        return self._cache[key]

@@ -1,0 +1,73 @@
+"""The IMU as the acquisition screen sees it: a serial reader feeding the orientation filter, read as snapshots.
+
+Why: samples arrive at ~208 Hz in the reader's own thread; the tracking worker and the health display
+only need the latest orientation and the stream's health, taken at their own pace under a lock.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from snreg.imu import Fusion, ImuSample, SerialImuReader
+
+STALE_AFTER_S = 1.0
+
+
+@dataclass(frozen=True)
+class ImuSnapshot:
+    """The IMU now: state and its one-sentence problem, measured rate, age of the last sample, orientation."""
+
+    state: str
+    problem: str
+    rate_hz: float
+    age_s: float
+    euler_deg: tuple[float, float, float]     # yaw, pitch, roll
+    earth_from_imu: np.ndarray                # (3, 3)
+    samples: int
+    corrupt: int
+
+    @property
+    def stale(self) -> bool:
+        return self.age_s > STALE_AFTER_S
+
+
+class ImuMonitor:
+    """Reads ``port`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`; thread-safe :meth:`snapshot`."""
+
+    def __init__(self, port: str, sample_rate_hz: float = 208.0):
+        self._lock = threading.Lock()
+        self._fusion = Fusion(sample_rate_hz)
+        self._arrivals: deque[int] = deque(maxlen=int(sample_rate_hz * 2))
+        self._euler, self._rotation = (0.0, 0.0, 0.0), np.eye(3)
+        self._reader = SerialImuReader(port, on_sample=self._on_sample)
+
+    def start(self) -> "ImuMonitor":
+        self._reader.start()
+        return self
+
+    def stop(self) -> None:
+        self._reader.stop()
+
+    def _on_sample(self, sample: ImuSample) -> None:
+        euler = self._fusion.update(sample)
+        rotation = self._fusion.earth_from_sensor
+        with self._lock:
+            self._euler, self._rotation = euler, rotation
+            self._arrivals.append(sample.t_host_ns)
+
+    def snapshot(self) -> ImuSnapshot:
+        now = time.perf_counter_ns()
+        with self._lock:
+            arrivals = list(self._arrivals)
+            euler, rotation = self._euler, self._rotation
+        recent = [t for t in arrivals if now - t <= 1_000_000_000]
+        age_s = (now - arrivals[-1]) / 1e9 if arrivals else float("inf")
+        state = self._reader.state
+        counts = self._reader.counts
+        return ImuSnapshot(state.value, self._reader.problem, float(len(recent)), age_s, tuple(euler), rotation,
+                           counts.samples, counts.corrupt)
