@@ -201,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("register", help="register preop nodes to intraop nodes and pair them")
     p.add_argument("preop", help="preop node file (.csv or .mrk.json)")
-    p.add_argument("intraop", help="intraop node file (.csv or .mrk.json)")
+    p.add_argument("intraop", help="intraop node file (.csv or .mrk.json) or session (.h5)")
     p.add_argument("--method", choices=METHODS, default="global")
     p.add_argument("--labels", action="store_true", help="use the anatomical labels (e.g. 'OBT R')")
     p.add_argument("--initial", help="rough intraop_from_preop: 4x4 text or JSON file")

@@ -114,3 +114,14 @@ def test_preop_through_the_snreg_command_line(tmp_path, capsys):
     (tmp_path / "text.dcm").write_text("not dicom")
     assert main(["preop", str(tmp_path / "text.dcm"), "-o", str(tmp_path / "x.csv")]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_register_takes_an_initial_alignment_file(node_files, tmp_path, capsys):
+    preop, intraop = node_files
+    rough = geometry.transform_from_euler(15, 8, -3, [8, -4, 10])
+    (tmp_path / "initial.json").write_text(json.dumps({"transform": rough.tolist()}))
+    assert main(["register", str(preop), str(intraop), "--initial", str(tmp_path / "initial.json"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["rms_mm"] < 1e-6
+    (tmp_path / "bad.json").write_text(json.dumps([[1, 0], [0, 1]]))
+    assert main(["register", str(preop), str(intraop), "--initial", str(tmp_path / "bad.json")]) == 2
+    assert "must be 4x4" in capsys.readouterr().err
