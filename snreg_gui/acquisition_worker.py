@@ -68,15 +68,6 @@ def _display_rgb(bgr: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(small, cv2.COLOR_BGR2RGB)
 
 
-def _project(calibration: StereoCalibration, points_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (N, 2) of left-camera points (N, 3) mm in the left and in the right image."""
-    zero = np.zeros(3)
-    left, _ = cv2.projectPoints(points_camera, zero, zero, calibration.K1, calibration.D1)
-    rvec, _ = cv2.Rodrigues(calibration.R)
-    right, _ = cv2.projectPoints(points_camera, rvec, calibration.T.ravel(), calibration.K2, calibration.D2)
-    return left.reshape(-1, 2), right.reshape(-1, 2)
-
-
 class AcquisitionWorker(QObject):
     """Frame loop and node store. ``make_source`` runs in the worker thread (a renderer may take time to build)."""
 
@@ -164,8 +155,8 @@ class AcquisitionWorker(QObject):
         if fix is not None:
             tip_trocar = camera_to_trocar(self._chain, imu.earth_from_imu, fix.tip)
             self._fixes.append((fix.tip, tip_trocar))
-            overlay_left, overlay_right = (DISPLAY_SCALE * pixels for pixels in _project(
-                self._calibration, np.array([fix.tip, fix.tip + _AXIS_DRAWN_MM * fix.axis])))
+            drawn = np.array([fix.tip, fix.tip + _AXIS_DRAWN_MM * fix.axis])
+            overlay_left, overlay_right = (DISPLAY_SCALE * self._tracker.project(drawn, eye) for eye in (0, 1))
         self.frame_processed.emit(FrameResult(
             frame.index, _display_rgb(frame.left), _display_rgb(frame.right), fix, reason, overlay_left, overlay_right,
             tip_trocar, imu, frame.skew_ms, self._fps_measured, track_ms, len(self._fixes), now))

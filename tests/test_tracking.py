@@ -156,7 +156,7 @@ def test_a_fully_hidden_middle_stripe_leaves_two_that_still_give_the_axis(scene)
     for image, eye in ((left, 0), (right, 1)):
         image = image.copy()
         tracker = StereoTracker(calibration, probe)
-        middle = tracker._project(pose.point(probe.stripe_centres_mm[1])[None], eye)[0]
+        middle = tracker.project(pose.point(probe.stripe_centres_mm[1])[None], eye)[0]
         cv2.circle(image, tuple(int(v) for v in middle), 55, (60, 70, 140), -1)   # a tissue flap over it
         covered.append(image)
     fix = StereoTracker(calibration, probe).track(*covered)

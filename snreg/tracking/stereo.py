@@ -87,6 +87,8 @@ class StereoTracker:
                       for K, D, R, P in ((calibration.K1, calibration.D1, calibration.R1, calibration.P1),
                                          (calibration.K2, calibration.D2, calibration.R2, calibration.P2))]
         self._cam_from_rect = calibration.R1.T
+        self._eye_poses = ((np.zeros(3), np.zeros(3), calibration.K1, calibration.D1),
+                           (cv2.Rodrigues(calibration.R)[0].ravel(), calibration.T.ravel(), calibration.K2, calibration.D2))
         fx = calibration.P1[0, 0]
         self._max_disparity = int(np.ceil(fx * calibration.baseline_mm / 20.0))    # probe >= 20 mm away
 
@@ -155,12 +157,9 @@ class StereoTracker:
         homog = cv2.triangulatePoints(c.P1, c.P2, rect_left.T.astype(np.float64), rect_right.T.astype(np.float64))
         return self._to_camera((homog[:3] / homog[3]).T)
 
-    def _project(self, points: np.ndarray, eye: int) -> np.ndarray:
-        c = self.calibration
-        if eye == 0:
-            rvec, tvec, K, D = np.zeros(3), np.zeros(3), c.K1, c.D1
-        else:
-            rvec, tvec, K, D = cv2.Rodrigues(c.R)[0].ravel(), c.T.ravel(), c.K2, c.D2
+    def project(self, points: np.ndarray, eye: int) -> np.ndarray:
+        """Raw image pixels (N, 2) of left-camera points (N, 3) mm in the left (eye 0) or right (eye 1) image."""
+        rvec, tvec, K, D = self._eye_poses[eye]
         return cv2.projectPoints(points.reshape(-1, 1, 3).astype(np.float64), rvec, tvec, K, D)[0].reshape(-1, 2)
 
     def _triangulate_axis(self, centroids_left: np.ndarray, centroids_right: np.ndarray) -> np.ndarray:
@@ -185,7 +184,7 @@ class StereoTracker:
                 toward = -(rays - (rays @ axis)[:, None] * axis)
                 toward /= np.linalg.norm(toward, axis=1, keepdims=True)
                 offset = (np.pi / 4.0) * self.probe.radius_mm * toward
-                shifted.append(raw[eye] - (self._project(points + offset, eye) - self._project(points, eye)))
+                shifted.append(raw[eye] - (self.project(points + offset, eye) - self.project(points, eye)))
             corrected = tuple(shifted)
         return self._triangulate(self._rectify_points(corrected[0], 0), self._rectify_points(corrected[1], 1))
 
@@ -291,7 +290,7 @@ class StereoTracker:
         gap = probe.stripe_width_mm / 2.0 + np.array([28.0, 30.0, 32.0, 34.0])
         verdicts = []
         for end, sign in ((points[0], -1.0), (points[-1], 1.0)):
-            pixels = self._project(end + sign * gap[:, None] * u, 0)
+            pixels = self.project(end + sign * gap[:, None] * u, 0)
             inside = (pixels[:, 0] >= 2) & (pixels[:, 0] < left.shape[1] - 3) & (pixels[:, 1] >= 2) & (pixels[:, 1] < left.shape[0] - 3)
             if not inside.all():
                 verdicts.append(None)
