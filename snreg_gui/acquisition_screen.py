@@ -15,7 +15,7 @@ from PySide6.QtWidgets import (QFormLayout, QGridLayout, QGroupBox, QHBoxLayout,
 
 from snreg_gui.acquisition_worker import THESIS_FIXES_PER_NODE, FrameResult, StoreRequest
 from snreg_gui.feed_view import FeedView
-from snreg_gui.imu_monitor import STALE_AFTER_S, ImuMonitor
+from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg_gui.orientation_plot import OrientationPlot
 
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send

@@ -22,7 +22,7 @@ from snreg.chain import ChainCalibration, camera_to_trocar
 from snreg.session import Session, SessionError
 from snreg.sources import FrameSource
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
-from snreg_gui.imu_monitor import ImuMonitor, ImuSnapshot
+from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 
 THESIS_FIXES_PER_NODE = 60
 DISPLAY_SCALE = 0.5          # feeds are shown at this fraction of the camera resolution: less work on the GUI thread

@@ -11,7 +11,7 @@ from PySide6.QtWidgets import QApplication, QLabel, QMainWindow
 from snreg import __version__
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import THESIS_FIXES_PER_NODE, AcquisitionWorker, start_worker, stop_worker
-from snreg_gui.demo_rig import DemoRig
+from snreg.demo.rig import DemoRig
 
 
 class MainWindow(QMainWindow):

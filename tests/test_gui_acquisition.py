@@ -11,9 +11,9 @@ from snreg.session import Session
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import FrameResult
 from snreg_gui.app import MainWindow
-from snreg_gui.demo_rig import DemoRig
-from snreg_gui.demo_scene import Schedule
-from snreg_gui.imu_monitor import ImuSnapshot
+from snreg.demo.rig import DemoRig
+from snreg.demo.scene import Schedule
+from snreg.imu.monitor import ImuSnapshot
 
 FIXES = 20                      # a short store window keeps the test quick (thesis: 60)
 MAX_GUI_GAP_MS = 50.0

@@ -4,9 +4,11 @@
 ...     s.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0])   # durable once it returns
 >>> Session.open("s.h5").intraop_nodes()                    # NodeSet, frame "trocar"
 
-Nodes, calibrations, preop sets and registrations go to a write-ahead journal (``s.h5.journal``, fsynced)
-before the HDF5 file; :meth:`Session.open` merges the journal, and reads it alone when a kill left the
-HDF5 file unreadable (``Session.damaged``); ``snreg session recover`` rebuilds a clean file.
+Nodes, node removals (undo), calibrations, preop sets and registrations go to a write-ahead journal
+(``s.h5.journal``, fsynced) before the HDF5 file; :meth:`Session.open` merges the journal, and reads it alone
+when a kill left the HDF5 file unreadable (``Session.damaged``); ``snreg session recover`` rebuilds a clean
+file. :meth:`Session.resume` reopens a session to go on recording into it. The journal keeps every node ever
+stored, so an undone node stays on record there.
 """
 
 from __future__ import annotations
@@ -89,6 +91,41 @@ class Session:
         session._replay(entries)
         return session
 
+    @classmethod
+    def resume(cls, path: str | Path, *, stream_flush_s: float = 1.0) -> "Session":
+        """Reopen a session to go on recording (after a restart or a crash); what only the journal held is written
+        into the HDF5 file first. A damaged HDF5 file is refused: run ``snreg session recover`` on it."""
+        path = Path(path)
+        if not path.exists():
+            raise SessionError(f"{path}: no such session file")
+        with cls.open(path) as merged:
+            if merged.damaged:
+                raise SessionError(f"{path}: the HDF5 file is damaged; run 'snreg session recover' on it, "
+                                   "then continue the recovered file")
+            state = (merged.header, merged.intraop_records(), dict(merged._calibration), merged._preop,
+                     list(merged._registrations))
+        header, nodes, calibration, preop, registrations = state
+        try:
+            h5 = h5py.File(path, "r+")
+        except OSError as err:
+            raise SessionError(f"{path}: cannot be opened for writing ({err}); is it open in another program?") from None
+        session = cls(path, header, h5, Journal(journal_path(path)), damaged=False)
+        session._nodes = {node.id: node for node in nodes}
+        session._calibration, session._preop = calibration, preop
+        written = {int(n) for n in h5["registration"]}
+        for kind, data in calibration.items():
+            writer.write_calibration(h5, kind, data)
+        if preop is not None:
+            writer.write_preop(h5, preop)
+        for data in registrations:
+            if data["n"] not in written:
+                writer.write_registration(h5, data)
+        session._registrations = registrations
+        writer.rewrite_nodes(h5, nodes)
+        h5.flush()
+        session._buffers = {name: writer.StreamBuffer(h5, name, stream_flush_s) for name in STREAM_DTYPES}
+        return session
+
     def _load_hdf5(self) -> None:
         for part, load in (("nodes", reader.read_nodes), ("calibration", reader.read_calibration),
                            ("preop", reader.read_preop), ("registrations", reader.read_registrations)):
@@ -112,6 +149,8 @@ class Session:
         for kind, data in entries:
             if kind == "node":
                 self._nodes[data["id"]] = IntraopNode.from_json(data)
+            elif kind == "node_removed":
+                self._nodes.pop(data["id"], None)
             elif kind == "calibration":
                 self._calibration[data["kind"]] = data["data"]
             elif kind == "preop":
@@ -141,6 +180,29 @@ class Session:
         self._h5.flush()
         self._nodes[node_id] = node
         return node
+
+    def remove_intraop_node(self, node_id: str) -> IntraopNode:
+        """Take back a stored node (undo); durable when this returns. The journal keeps the node on record."""
+        self._writable()
+        node_id = str(node_id)
+        if node_id not in self._nodes:
+            raise SessionError(f"{self.path}: there is no stored node {node_id!r} to remove")
+        self._journal.append("node_removed", {"id": node_id})
+        node = self._nodes.pop(node_id)
+        writer.rewrite_nodes(self._h5, list(self._nodes.values()))
+        self._h5.flush()
+        return node
+
+    def next_node_id(self, prefix: str = "SN") -> str:
+        """The first ``<prefix><k>`` (k = 1, 2, ...) not stored: after an undo the id is used again."""
+        k = 1
+        while f"{prefix}{k}" in self._nodes:
+            k += 1
+        return f"{prefix}{k}"
+
+    @property
+    def writable(self) -> bool:
+        return self._journal is not None
 
     def set_calibration(self, *, stereo=None, chain=None) -> None:
         """Store a :class:`~snreg.calibration.files.StereoCalibration` and/or a :class:`~snreg.chain.ChainCalibration`."""

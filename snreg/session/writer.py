@@ -48,6 +48,14 @@ def write_node(h5: h5py.File, node: IntraopNode) -> None:
         intraop[name][n] = value
 
 
+def rewrite_nodes(h5: h5py.File, nodes: list[IntraopNode]) -> None:
+    """Replace every ``nodes/intraop`` row with ``nodes`` (after an undo, or to catch up with the journal)."""
+    for dataset in h5["nodes/intraop"].values():
+        dataset.resize(0, axis=0)
+    for node in nodes:
+        write_node(h5, node)
+
+
 def write_calibration(h5: h5py.File, kind: str, data: dict) -> None:
     """``calibration/stereo`` or ``calibration/chain``: each matrix a dataset under its own name, scalars attributes."""
     if kind in h5["calibration"]:

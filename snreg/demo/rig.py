@@ -19,8 +19,8 @@ from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, still
 from snreg.session import Session
 from snreg.sources import CallableSource, FrameSource
 from snreg.tracking import default_probe_model
-from snreg_gui.demo_scene import PhantomScene, Schedule
-from snreg_gui.imu_monitor import ImuMonitor
+from snreg.demo.scene import PhantomScene, Schedule
+from snreg.imu.monitor import ImuMonitor
 
 DEMO_FPS = 30.0
 
