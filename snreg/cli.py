@@ -192,6 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     from snreg.imu.command import add_imu_parser
     from snreg.preop.command import add_preop_parser
     from snreg.session.command import add_session_parser
+    from snreg.demo.command import add_demo_parser
     from snreg.registration import METHODS
     from snreg.simulation.study import DEFAULT_EXTRAS, DEFAULT_METHODS, DEFAULT_REPS, DEFAULT_SIGMAS
 
@@ -229,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_imu_parser(sub)
     add_preop_parser(sub)
     add_session_parser(sub)
+    add_demo_parser(sub)
 
     p = sub.add_parser("track", help="probe position from one stereo pair")
     p.add_argument("left")

@@ -1,15 +1,14 @@
-"""The acquisition worker: reads frame pairs, tracks the probe, maps it to the trocar frame, stores nodes.
+"""The acquisition worker: reads frame pairs and runs :class:`snreg.acquisition.Acquisition` on them.
 
 Why: capture, tracking and session writes must never run on the GUI thread (DESIGN.md §5). The worker
 lives in its own QThread, paced by a timer there; every frame ends as one :class:`FrameResult` signal,
-and "Store SN" requests arrive as queued slot calls between frames, so a node is the median of fixes
-this worker itself kept. Connect the signals before :func:`start_worker`.
+and "Store SN" and undo requests arrive as queued slot calls between frames, so a node is the median
+of fixes this worker itself kept. Connect the signals before :func:`start_worker`.
 """
 
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -17,48 +16,42 @@ import cv2
 import numpy as np
 from PySide6.QtCore import QCoreApplication, QMetaObject, QObject, Qt, QThread, QTimer, Signal, Slot
 
+from snreg.acquisition import THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError
 from snreg.calibration.files import StereoCalibration
-from snreg.chain import ChainCalibration, camera_to_trocar
-from snreg.session import Session, SessionError
-from snreg.sources import FrameSource
-from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
+from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
+from snreg.session import Session, SessionError
+from snreg.sources import FrameSource, SourceError
 
-THESIS_FIXES_PER_NODE = 60
 DISPLAY_SCALE = 0.5          # feeds are shown at this fraction of the camera resolution: less work on the GUI thread
 _AXIS_DRAWN_MM = 50.0
 
 
 @dataclass(frozen=True, eq=False)
 class FrameResult:
-    """One processed pair: RGB images for display, the fix (or why there is none) and where to draw it.
+    """One processed pair for display: RGB images, the core's outcome, where to draw the probe, stream health.
 
     Images and overlays are at ``DISPLAY_SCALE`` of the camera resolution.
     ``overlay_left``/``overlay_right``: (2, 2) display pixels of the tip and of a point ``_AXIS_DRAWN_MM`` up the
-    axis, None without a fix. ``valid_fixes``: fixes now in the store window (at most N).
+    axis, None without a fix.
     """
 
-    index: int
+    outcome: FrameOutcome
     left_rgb: np.ndarray
     right_rgb: np.ndarray
-    fix: ProbeFix | None
-    reason: str
     overlay_left: np.ndarray | None
     overlay_right: np.ndarray | None
-    tip_trocar: np.ndarray | None
     imu: ImuSnapshot
     skew_ms: float
     fps: float
-    track_ms: float
-    valid_fixes: int
     t_host_ns: int
 
 
 @dataclass(frozen=True)
 class StoreRequest:
-    node_id: str
+    """Store SN as asked for on screen; the id is the session's next free ``SN<k>``."""
+
     label: str
-    n_fixes: int
     counts: float = float("nan")
 
 
@@ -69,22 +62,22 @@ def _display_rgb(bgr: np.ndarray) -> np.ndarray:
 
 
 class AcquisitionWorker(QObject):
-    """Frame loop and node store. ``make_source`` runs in the worker thread (a renderer may take time to build)."""
+    """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build)."""
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
+    node_removed = Signal(object)        # snreg.session.IntraopNode taken back by undo
     store_failed = Signal(str)           # one sentence saying what to do
     source_stopped = Signal(str)         # the source's problem
 
     def __init__(self, make_source: Callable[[], FrameSource], calibration: StereoCalibration, probe,
                  chain: ChainCalibration, imu: ImuMonitor, session: Session, fps: float,
-                 max_fixes: int = THESIS_FIXES_PER_NODE):
+                 fixes_per_node: int = THESIS_FIXES_PER_NODE):
         super().__init__()
-        self._make_source, self._calibration, self._probe = make_source, calibration, probe
-        self._chain, self._imu, self._session, self._fps = chain, imu, session, fps
-        self._fixes: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max_fixes)
+        self._make_source, self._imu, self._fps = make_source, imu, fps
+        self._setup = (calibration, probe, chain, session, fixes_per_node)
+        self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
-        self._tracker: StereoTracker | None = None
         self._timer: QTimer | None = None
         self._last_frame = None
         self._last_ns: int | None = None
@@ -92,8 +85,13 @@ class AcquisitionWorker(QObject):
 
     @Slot()
     def start(self) -> None:
-        self._source = self._make_source()
-        self._tracker = StereoTracker(self._calibration, self._probe)
+        calibration, probe, chain, session, fixes = self._setup
+        self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes)
+        try:
+            self._source = self._make_source()
+        except (SourceError, OSError, ValueError) as err:
+            self.source_stopped.emit(str(err))
+            return
         self._timer = QTimer(self)
         self._timer.setTimerType(Qt.TimerType.PreciseTimer)
         self._timer.timeout.connect(self._step)
@@ -109,27 +107,35 @@ class AcquisitionWorker(QObject):
         self.moveToThread(QCoreApplication.instance().thread())
 
     @Slot(int)
-    def set_max_fixes(self, n: int) -> None:
-        """Keep the last ``n`` valid fixes for "Store SN" (thesis: 60)."""
-        self._fixes = deque(self._fixes, maxlen=max(1, int(n)))
+    def set_fixes_per_node(self, n: int) -> None:
+        """Store the median of the last ``n`` valid fixes (thesis: 60)."""
+        if self.acquisition is not None:
+            self.acquisition.set_fixes_per_node(n)
 
     @Slot(object)
     def store_node(self, request: StoreRequest) -> None:
-        """Median and spread of the last ``request.n_fixes`` valid fixes into the session (durable on return)."""
-        fixes = list(self._fixes)[-request.n_fixes:]
-        if len(fixes) < request.n_fixes:
-            self.store_failed.emit(f"Only {len(fixes)} of {request.n_fixes} valid fixes so far; hold the probe on the node.")
-            return
-        camera, trocar = summarise(np.array([f[0] for f in fixes])), summarise(np.array([f[1] for f in fixes]))
+        """Median and spread of the store window into the session (durable on return), with the last frame as snapshots."""
         left, right = (self._last_frame.left, self._last_frame.right) if self._last_frame is not None else (b"", b"")
         try:
-            node = self._session.add_intraop_node(request.node_id, request.label, trocar.xyz, xyz_camera=camera.xyz,
-                                                  spread_mm=trocar.spread_mm, n_frames=trocar.n_frames,
-                                                  counts=request.counts, left_jpeg=left, right_jpeg=right)
-        except (SessionError, OSError, ValueError) as err:
+            node = self.acquisition.store(self.acquisition.session.next_node_id(), request.label,
+                                          counts=request.counts, left_jpeg=left, right_jpeg=right)
+        except StoreError as err:
+            self.store_failed.emit(f"Not stored: {err}.")
+            return
+        except (SessionError, OSError) as err:
             self.store_failed.emit(f"The node was not stored: {err}")
             return
         self.node_stored.emit(node)
+
+    @Slot()
+    def undo(self) -> None:
+        """Take back the node stored last."""
+        try:
+            node = self.acquisition.undo()
+        except (StoreError, SessionError, OSError) as err:
+            self.store_failed.emit(f"Nothing undone: {err}.")
+            return
+        self.node_removed.emit(node)
 
     @Slot()
     def _step(self) -> None:
@@ -144,22 +150,14 @@ class AcquisitionWorker(QObject):
             self._fps_measured = instant if self._fps_measured == 0 else 0.9 * self._fps_measured + 0.1 * instant
         self._last_ns, self._last_frame = now, frame
         imu = self._imu.snapshot()
-        started = time.perf_counter()
-        fix, reason = None, ""
-        try:
-            fix = self._tracker.track(frame.left, frame.right)
-        except TrackingError as err:
-            reason = str(err)
-        track_ms = (time.perf_counter() - started) * 1e3
-        overlay_left = overlay_right = tip_trocar = None
-        if fix is not None:
-            tip_trocar = camera_to_trocar(self._chain, imu.earth_from_imu, fix.tip)
-            self._fixes.append((fix.tip, tip_trocar))
-            drawn = np.array([fix.tip, fix.tip + _AXIS_DRAWN_MM * fix.axis])
-            overlay_left, overlay_right = (DISPLAY_SCALE * self._tracker.project(drawn, eye) for eye in (0, 1))
-        self.frame_processed.emit(FrameResult(
-            frame.index, _display_rgb(frame.left), _display_rgb(frame.right), fix, reason, overlay_left, overlay_right,
-            tip_trocar, imu, frame.skew_ms, self._fps_measured, track_ms, len(self._fixes), now))
+        outcome = self.acquisition.process(frame, ImuReading(imu.earth_from_imu, self._imu.take_samples()))
+        overlay_left = overlay_right = None
+        if outcome.fix is not None:
+            drawn = np.array([outcome.fix.tip, outcome.fix.tip + _AXIS_DRAWN_MM * outcome.fix.axis])
+            tracker = self.acquisition.tracker
+            overlay_left, overlay_right = (DISPLAY_SCALE * tracker.project(drawn, eye) for eye in (0, 1))
+        self.frame_processed.emit(FrameResult(outcome, _display_rgb(frame.left), _display_rgb(frame.right),
+                                              overlay_left, overlay_right, imu, frame.skew_ms, self._fps_measured, now))
 
 
 def start_worker(worker: AcquisitionWorker) -> QThread:

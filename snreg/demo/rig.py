@@ -2,21 +2,17 @@
 
 Why: the demo and the GUI tests must exercise what a phantom session runs (a frame source read and
 tracked, an IMU on a serial port read by :class:`SerialImuReader` and fused, the camera-to-trocar
-chain, a durable session file), only with rendered frames and a simulated IMU on a pseudo-terminal.
+chain), only with rendered frames and a simulated IMU on a pseudo-terminal. The session file is not the
+rig's: whoever runs it (the app, the headless demo) creates it.
 The IMU is held still and level, so the trocar frame is the camera frame shifted by the trocar-camera
 distance along the shaft, which the tests use as ground truth.
 """
 
 from __future__ import annotations
 
-import tempfile
-import time
-from pathlib import Path
-
 from snreg.calibration import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, still
-from snreg.session import Session
 from snreg.sources import CallableSource, FrameSource
 from snreg.tracking import default_probe_model
 from snreg.demo.scene import PhantomScene, Schedule
@@ -26,21 +22,18 @@ DEMO_FPS = 30.0
 
 
 class DemoRig:
-    """Calibration, chain, simulated IMU (started), session file; :meth:`frame_source` builds the rendered feed.
+    """Calibration, chain, simulated IMU (started); :meth:`frame_source` builds the rendered feed.
 
     scale: the thesis 1920x1080 cameras at this fraction of their resolution (rendering speed).
     """
 
-    def __init__(self, session_path: str | Path | None = None, *, scale: float = 0.5,
+    def __init__(self, *, scale: float = 0.5,
                  schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0):
         self.calibration = thesis_calibration().scaled(scale)
         self.probe = default_probe_model()
         self.chain = ChainCalibration.manual()
         self.schedule, self.fps, self.seed = schedule, fps, seed
         self.scene: PhantomScene | None = None
-        path = Path(session_path) if session_path else Path(tempfile.gettempdir()) / f"snreg-demo-{time.strftime('%Y%m%d-%H%M%S')}.h5"
-        self.session = Session.create(path, case_id="phantom-demo")
-        self.session.set_calibration(stereo=self.calibration, chain=self.chain)
         self._port = SimulatedPort(ImuSimulator(MotionProfile([still(1.0)]), seed=seed)).start()
         self.imu = ImuMonitor(self._port.port).start()
 
@@ -52,7 +45,6 @@ class DemoRig:
         return CallableSource(self.scene.render, self.fps, name="Demo phantom")
 
     def close(self) -> None:
-        """Stop the IMU and close the session; call after the worker has stopped."""
+        """Stop the IMU; call after the worker has stopped."""
         self.imu.stop()
         self._port.stop()
-        self.session.close()

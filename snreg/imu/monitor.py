@@ -1,7 +1,8 @@
-"""The IMU as the acquisition screen sees it: a serial reader feeding the orientation filter, read as snapshots.
+"""The IMU as acquisition sees it: a serial reader feeding the orientation filter, read as snapshots.
 
-Why: samples arrive at ~208 Hz in the reader's own thread; the tracking worker and the health display
-only need the latest orientation and the stream's health, taken at their own pace under a lock.
+Why: samples arrive at ~208 Hz in the reader's own thread; the tracking loop and the health display
+only need the latest orientation and the stream's health, taken at their own pace under a lock, and
+the loop records the raw samples into the session (:meth:`ImuMonitor.take_samples`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 from snreg.imu import Fusion, ImuSample, SerialImuReader
 
 STALE_AFTER_S = 1.0
+KEPT_SAMPLES_S = 10.0     # raw samples wait this long for :meth:`ImuMonitor.take_samples` before the oldest go
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,7 @@ class ImuMonitor:
         self._lock = threading.Lock()
         self._fusion = Fusion(sample_rate_hz)
         self._arrivals: deque[int] = deque(maxlen=int(sample_rate_hz * 2))
+        self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
         self._euler, self._rotation = (0.0, 0.0, 0.0), np.eye(3)
         self._reader = SerialImuReader(port, on_sample=self._on_sample)
 
@@ -59,6 +62,14 @@ class ImuMonitor:
         with self._lock:
             self._euler, self._rotation = euler, rotation
             self._arrivals.append(sample.t_host_ns)
+            self._pending.append(sample)
+
+    def take_samples(self) -> list[ImuSample]:
+        """The raw samples received since the last call (at most the last ``KEPT_SAMPLES_S`` seconds), for recording."""
+        with self._lock:
+            samples = list(self._pending)
+            self._pending.clear()
+        return samples
 
     def snapshot(self) -> ImuSnapshot:
         now = time.perf_counter_ns()

@@ -1,0 +1,60 @@
+"""The demo phantom in the patient: where its four sources lie on the SPECT, their labels, and the rough
+set-up alignment registration starts from.
+
+Why: the phantom experiment (thesis §4.2) registers a SPECT of the phantom to the nodes stored with the
+probe. The demo needs that SPECT with a known truth: the four sources sit where the rendered probe tip
+rests (trocar frame, IMU level), carried into patient coordinates (LPS mm) by a set-up pose that a real
+operating room would only know roughly. The operator's rough alignment (the thesis' MATLAB tool) is the
+standard port placement, :func:`setup_patient_from_trocar` at the nominal tilt, with the centroids matched.
+
+Set-up geometry: patient supine, the endoscope entering near the umbilicus and looking caudally into the
+pelvis, tilted ``tilt_deg`` below the horizontal, image "up" anterior, so the image's right is the
+patient's right (LPS -x) and the camera's y axis points posteriorly.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.geometry import apply, invert, make_transform
+from snreg.preop.synthetic import spect_of_nodes, write_nm
+
+# Labels of the four phantom nodes of snreg.demo.scene: sides from the phantom midline (the tips with camera
+# x below the mean lie on the patient's left), stations near (EXT) and far (OBT).
+PHANTOM_LABELS = ("EXT L", "EXT R", "OBT R", "OBT L")
+TRUE_TILT_DEG, TRUE_TURN_DEG = 34.0, 7.0          # the set-up as it happened
+NOMINAL_TILT_DEG = 30.0                           # the set-up as the operator assumes it
+TROCAR_LPS_MM = np.array([0.0, -110.0, 210.0])    # the pivot point near the umbilicus
+
+
+def setup_patient_from_trocar(tilt_deg: float, turn_deg: float = 0.0, trocar_lps=TROCAR_LPS_MM) -> np.ndarray:
+    """(4, 4) ``patient_from_trocar`` (LPS mm) for an endoscope looking caudally, ``tilt_deg`` below horizontal,
+    turned ``turn_deg`` towards the patient's left about the anterior-posterior axis."""
+    t = np.radians(tilt_deg)
+    axes = np.column_stack([[-1.0, 0.0, 0.0], [0.0, np.cos(t), np.sin(t)], [0.0, np.sin(t), -np.cos(t)]])
+    turn = Rotation.from_euler("y", turn_deg, degrees=True).as_matrix()
+    return make_transform(turn @ axes, trocar_lps)
+
+
+def true_sources_lps(truth_tips_camera: np.ndarray, chain: ChainCalibration) -> np.ndarray:
+    """(4, 3) source positions (LPS mm): the rendered tips carried through the chain (IMU level) and the true set-up."""
+    trocar = camera_to_trocar(chain, np.eye(3), truth_tips_camera)
+    return apply(setup_patient_from_trocar(TRUE_TILT_DEG, TRUE_TURN_DEG), trocar)
+
+
+def write_phantom_spect(sources_lps: np.ndarray, path: str | Path, seed: int = 0) -> Path:
+    """The phantom's SPECT (thesis geometry: 128x128x76, 4.795 mm, Poisson counts) as one NM DICOM file."""
+    centre = np.asarray(sources_lps, float).mean(axis=0)
+    counts, origin = spect_of_nodes(sources_lps, centre=centre, seed=seed)
+    return write_nm(counts, origin, 4.795, Path(path), patient_id="PHANTOM-DEMO", patient_name="PHANTOM^DEMO")[0]
+
+
+def rough_alignment(preop_lps: np.ndarray, intraop_trocar: np.ndarray) -> np.ndarray:
+    """(4, 4) ``intraop_from_preop`` as an operator would set it: the nominal set-up rotation, centroids matched."""
+    rotation = invert(setup_patient_from_trocar(NOMINAL_TILT_DEG))[:3, :3]
+    shift = np.mean(intraop_trocar, axis=0) - rotation @ np.mean(preop_lps, axis=0)
+    return make_transform(rotation, shift)

@@ -1,0 +1,53 @@
+"""``snreg demo --headless``: the simulated phantom experiment end to end (issue 6: RMS after registration <= 3 mm)."""
+
+import json
+
+import numpy as np
+
+from snreg.cli import main
+from snreg.demo.phantom import rough_alignment, setup_patient_from_trocar, true_sources_lps
+from snreg.geometry import apply, invert, rotation_angle_deg
+from snreg.chain import ChainCalibration
+from snreg.session import Session
+
+
+def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
+    path = tmp_path / "demo.h5"
+    assert main(["demo", "--headless", "-o", str(path), "--fixes", "20", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["rms_mm"] <= 3.0
+    assert out["pairing_correct"] is True
+    assert len(out["nodes"]) == 4 and sorted(out["pairing"]) == [0, 1, 2, 3]
+    assert all(node["confidence"] > 0.9 for node in out["nodes"])
+    with Session.open(path) as session:
+        assert session.intraop_nodes().ids == ["SN1", "SN2", "SN3", "SN4"]
+        assert len(session.preop_nodes()) == 4
+        assert abs(session.registrations()[0].rms_mm - out["rms_mm"]) < 1e-3
+        assert len(session.stream("probe")) >= 4 * 20 and len(session.stream("frames")) == out["frames"]
+        assert set(session.calibration()) == {"stereo", "chain"}
+        assert all(len(node.left_jpeg) > 0 for node in session.intraop_records())
+    assert (tmp_path / "demo-spect.dcm").exists()
+
+
+def test_demo_refuses_without_headless_and_an_existing_session(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path / "x.h5")]) == 2
+    assert "snreg-gui --demo" in capsys.readouterr().err
+    existing = tmp_path / "old.h5"
+    existing.write_bytes(b"not a session")
+    assert main(["demo", "--headless", "-o", str(existing)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert existing.read_bytes() == b"not a session"
+
+
+def test_the_rough_alignment_is_rough_but_within_the_search_bounds():
+    """The operator's set-up guess differs from the truth by a few degrees and millimetres, inside +-60 deg/mm."""
+    tips = np.array([[-40.0, 0.0, 80.0], [-10.0, 5.0, 90.0], [-12.0, 15.0, 110.0], [-42.0, 12.0, 100.0]])
+    chain = ChainCalibration.manual()
+    preop = true_sources_lps(tips, chain)
+    trocar = tips + [0.0, 0.0, chain.trocar_camera_mm]
+    initial = rough_alignment(preop, trocar)
+    truth = invert(setup_patient_from_trocar(34.0, 7.0))
+    angle = float(rotation_angle_deg(initial[:3, :3].T @ truth[:3, :3]))
+    assert 3.0 < angle < 60.0
+    np.testing.assert_allclose(apply(truth, preop), trocar, atol=1e-9)
+    assert np.linalg.norm(apply(initial, preop).mean(axis=0) - trocar.mean(axis=0)) < 1e-9
