@@ -1,0 +1,164 @@
+"""What a registration leaves behind for the record: the pairing table, the mapped preop nodes and a PNG report.
+
+Why: the technician exports the outcome of the registration panel (pairing CSV, a 3D Slicer fiducial list of
+the preop nodes in the intraop frame, a one-page figure), and offline review must be able to make the same
+files without a window. Everything here is Qt-free; the figure is drawn with matplotlib's Agg canvas on a
+``Figure`` object (no pyplot, so no global backend state and safe in a worker thread).
+
+>>> rows = pair_rows(preop, intraop, result)          # one PairRow per intraop node
+>>> write_pairs_csv("pairs.csv", preop, intraop, result)
+>>> write_nodes(mapped_preop(preop, result), "preop_in_trocar.mrk.json")
+>>> save_report_png("report.png", preop, intraop, result)   # 1200 x 800 px at the default size
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from snreg import geometry
+from snreg.nodes import NodeSet
+from snreg.registration import CONFIDENT, RegistrationResult
+
+__all__ = ["PairRow", "pair_rows", "mapped_preop", "summary_line", "write_pairs_csv", "registration_figure",
+           "save_report_png", "EXTRA", "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
+
+EXTRA = "extra"                 # shown instead of a preop id for an intraop node judged extra (pairing -1)
+# The three orthogonal projections (name, horizontal axis, vertical axis): axial x-y, coronal x-z, sagittal y-z.
+VIEWS = (("axial", 0, 1), ("coronal", 0, 2), ("sagittal", 1, 2))
+REPORT_SIZE_IN = (12.0, 8.0)
+REPORT_DPI = 100
+PREOP_COLOUR, INTRAOP_COLOUR, PAIR_COLOUR, DOUBT_COLOUR = "#1f77b4", "#d62728", "#7f7f7f", "#fdd0a2"
+_CSV_COLUMNS = ("intraop_id", "intraop_label", "preop_id", "preop_label", "distance_mm", "confidence", "confident")
+
+
+@dataclass(frozen=True)
+class PairRow:
+    """One intraop node and what it was paired with; ``preop_id`` is :data:`EXTRA` (label "") for pairing -1."""
+
+    intraop_id: str
+    intraop_label: str
+    preop_id: str
+    preop_label: str
+    distance_mm: float
+    confidence: float
+
+    @property
+    def confident(self) -> bool:
+        return self.confidence >= CONFIDENT
+
+
+def _check(preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> None:
+    if len(result.pairing) != len(intraop):
+        raise ValueError(f"the result pairs {len(result.pairing)} intraop nodes but {len(intraop)} were given; "
+                         "use the node sets the registration was run on")
+    if len(result.pairing) and int(np.max(result.pairing)) >= len(preop):
+        raise ValueError(f"the result refers to preop node {int(np.max(result.pairing)) + 1} but only "
+                         f"{len(preop)} were given; use the node sets the registration was run on")
+
+
+def pair_rows(preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> list[PairRow]:
+    """One :class:`PairRow` per intraop node, in intraop order."""
+    _check(preop, intraop, result)
+    rows = []
+    for m, n in enumerate(np.asarray(result.pairing, dtype=int)):
+        preop_id, preop_label = (EXTRA, "") if n < 0 else (preop.ids[n], preop.labels[n])
+        rows.append(PairRow(intraop.ids[m], intraop.labels[m], preop_id, preop_label,
+                            float(result.distances_mm[m]), float(result.confidence[m])))
+    return rows
+
+
+def mapped_preop(preop: NodeSet, result: RegistrationResult) -> NodeSet:
+    """The preop nodes moved into the intraop (trocar) frame by ``result.transform``, ids and labels kept."""
+    return NodeSet(list(preop.ids), list(preop.labels), geometry.apply(result.transform, preop.xyz),
+                   None if preop.counts is None else preop.counts.copy(), frame="trocar",
+                   comments=[f"preop nodes mapped by a {result.method} registration (RMS {result.rms_mm:.2f} mm)"])
+
+
+def write_pairs_csv(path, preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> Path:
+    """The pairing table as CSV (``#`` comment lines: method, RMS, transform), one row per intraop node."""
+    rows = pair_rows(preop, intraop, result)
+    path = Path(path)
+    transform = " ".join(f"{v:.6g}" for v in np.asarray(result.transform).ravel())
+    with path.open("w", newline="", encoding="utf-8") as handle:
+        handle.write(f"# method: {result.method}\n# rms_mm: {result.rms_mm:.4f}\n"
+                     f"# intraop_from_preop (row-major 4x4): {transform}\n")
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(_CSV_COLUMNS)
+        for row in rows:
+            writer.writerow([row.intraop_id, row.intraop_label, row.preop_id, row.preop_label,
+                             f"{row.distance_mm:.3f}", f"{row.confidence:.4f}", int(row.confident)])
+    return path
+
+
+def summary_line(result: RegistrationResult, rows: list[PairRow]) -> str:
+    """One line: method, RMS, how many intraop nodes are paired and how many confidently."""
+    paired = sum(row.preop_id != EXTRA for row in rows)
+    confident = sum(row.confident for row in rows)
+    return (f"{result.method}: RMS {result.rms_mm:.2f} mm, {paired} of {len(rows)} intraop nodes paired, "
+            f"{confident} confident (>= {CONFIDENT:g})")
+
+
+def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationResult, *, title: str = ""):
+    """A matplotlib ``Figure``: axial/coronal/sagittal scatter of both sets and the pairs, the pair table, RMS.
+
+    Preop nodes are drawn after mapping by ``result.transform`` (blue circles), intraop nodes as red
+    crosses, pairs as grey lines; rows whose confidence is below ``CONFIDENT`` are shaded in the table.
+    """
+    from matplotlib.figure import Figure
+
+    rows = pair_rows(preop, intraop, result)
+    moved = geometry.apply(result.transform, preop.xyz)
+    figure = Figure(figsize=REPORT_SIZE_IN, dpi=REPORT_DPI)
+    grid = figure.add_gridspec(2, 3, height_ratios=(1.15, 1.0), hspace=0.3, wspace=0.3)
+    figure.suptitle(title or summary_line(result, rows), fontsize=12)
+    for column, (name, h, v) in enumerate(VIEWS):
+        ax = figure.add_subplot(grid[0, column])
+        for m, n in enumerate(result.pairing):
+            if n >= 0:
+                ax.plot([intraop.xyz[m, h], moved[n, h]], [intraop.xyz[m, v], moved[n, v]], color=PAIR_COLOUR, lw=1)
+        ax.scatter(moved[:, h], moved[:, v], s=60, facecolors="none", edgecolors=PREOP_COLOUR, linewidths=1.5,
+                   label="preop (mapped)")
+        ax.scatter(intraop.xyz[:, h], intraop.xyz[:, v], s=50, marker="x", color=INTRAOP_COLOUR, label="intraop")
+        for k, node_id in enumerate(preop.ids):
+            ax.annotate(node_id, moved[k, [h, v]], xytext=(4, 4), textcoords="offset points", fontsize=7,
+                        color=PREOP_COLOUR)
+        for k, node_id in enumerate(intraop.ids):
+            ax.annotate(node_id, intraop.xyz[k, [h, v]], xytext=(4, -9), textcoords="offset points", fontsize=7,
+                        color=INTRAOP_COLOUR)
+        ax.set_title(f"{name} ({'xyz'[h]}-{'xyz'[v]})")
+        ax.set_xlabel(f"{'xyz'[h]} (mm)")
+        ax.set_ylabel(f"{'xyz'[v]} (mm)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        if column == 0:
+            ax.legend(fontsize=7, loc="best")
+    table_ax = figure.add_subplot(grid[1, :])
+    table_ax.axis("off")
+    cells = [[r.intraop_id, r.intraop_label, r.preop_id, r.preop_label, f"{r.distance_mm:.1f}", f"{r.confidence:.2f}"]
+             for r in rows]
+    colours = [["white" if r.confident else DOUBT_COLOUR] * 6 for r in rows]
+    if cells:
+        table = table_ax.table(cellText=cells, cellColours=colours, cellLoc="center", loc="upper center",
+                               colLabels=["intraop id", "intraop label", "preop id", "preop label", "distance mm",
+                                          "confidence"])
+        table.auto_set_font_size(False)
+        table.set_fontsize(8)
+    table_ax.set_title(f"method {result.method}, pairing rule {result.pairing_rule}, RMS {result.rms_mm:.2f} mm; "
+                       f"shaded: confidence below {CONFIDENT:g}", fontsize=9)
+    return figure
+
+
+def save_report_png(path, preop: NodeSet, intraop: NodeSet, result: RegistrationResult, *, title: str = "",
+                    dpi: int = REPORT_DPI) -> Path:
+    """Write :func:`registration_figure` as a PNG of ``REPORT_SIZE_IN`` x ``dpi`` pixels (1200 x 800 by default)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    figure = registration_figure(preop, intraop, result, title=title)
+    FigureCanvasAgg(figure)
+    path = Path(path)
+    figure.savefig(path, dpi=dpi, format="png")
+    return path

@@ -1,0 +1,319 @@
+"""The registration panel: preop nodes (file or SPECT), intraop nodes, method, initial alignment, run, view, export.
+
+Why: after the intraop nodes are stored (trocar frame), the technician matches them to the preop SPECT nodes
+and must see whether each pairing can be trusted before telling the surgeon. The panel only orchestrates:
+:func:`snreg.registration.register` does the work in a worker thread, :mod:`snreg.registration.report`
+makes the exports. With a writable session the preop set and each result are stored in it; with a session
+opened for reading (review) the stored preop set and latest registration are shown and nothing is written.
+
+The initial alignment turns the preop set about its own centroid and then shifts it
+(:mod:`snreg_gui.registration_alignment`); the view shows the preop nodes under that alignment until a
+result exists, then under the result's ``intraop_from_preop``.
+
+>>> panel = RegistrationPanel()
+>>> panel.set_session(session)                 # intraop (and stored preop) nodes from the session
+>>> panel.load_preop("spect_folder")           # or a .csv / .mrk.json node file
+>>> panel.registered.connect(on_result)        # RegistrationResult; also panel.last_result
+>>> panel.run()
+>>> acquisition_worker.node_stored.connect(panel.refresh_intraop)   # new nodes in the session
+>>> panel.shutdown()                           # when the window closes
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox,
+                               QHBoxLayout, QLabel, QProgressBar, QPushButton, QScrollArea, QSplitter, QVBoxLayout,
+                               QWidget)
+
+from snreg import geometry
+from snreg.nodes import NodeSet, read_nodes
+from snreg.registration import METHODS
+from snreg.registration.report import mapped_preop, pair_rows, summary_line
+from snreg_gui.node_views import NodeScene, make_node_view
+from snreg_gui.registration_alignment import AlignmentBox
+from snreg_gui.registration_preop import PreopSourceBox
+from snreg_gui.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
+from snreg_gui.registration_tables import NodeTable, PairingTable
+from snreg_gui.registration_tasks import WorkerSet, sentence
+
+DEFAULT_METHOD = "global"
+
+
+def _same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
+    return a is not None and b is not None and a.ids == b.ids and np.allclose(a.xyz, b.xyz)
+
+
+def _has_nodes(nodes: NodeSet | None) -> bool:
+    return nodes is not None and len(nodes) > 0
+
+
+def _count(nodes: NodeSet) -> str:
+    return f"{len(nodes)} node{'s' * (len(nodes) != 1)}"
+
+
+class RegistrationPanel(QWidget):
+    """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
+
+    registered = Signal(object)
+
+    def __init__(self, parent=None):
+        super().__init__(parent)
+        self.last_result = None
+        self._session = None
+        self._intraop: NodeSet | None = None
+        self._record: RunRecord | None = None       # the result shown, with its node sets
+        self._record_current = False                 # do the inputs still match it?
+        self._preop_stored = False
+        self._registering = False
+        self._exporting = 0
+        self._tasks = WorkerSet()
+        self.preop_box = PreopSourceBox()
+        self.intraop_source = QLabel("no intraop nodes: open a session or a node file")
+        self.intraop_source.setWordWrap(True)
+        self.intraop_open_button = QPushButton("Node file...")
+        self.intraop_table = NodeTable()
+        self.method_combo = QComboBox()
+        self.method_combo.addItems([DEFAULT_METHOD] + [m for m in METHODS if m != DEFAULT_METHOD])
+        self.labels_check = QCheckBox("use labels (left/right, station)")
+        self.rotation_bound = self._bound_spin(1.0, 180.0, 60.0, " deg")
+        self.translation_bound = self._bound_spin(1.0, 500.0, 60.0, " mm")
+        self.alignment = AlignmentBox()
+        self.run_button = QPushButton("Run registration")
+        self.busy_bar = QProgressBar()
+        self.busy_bar.setRange(0, 0)
+        self.busy_bar.setVisible(False)
+        self.message = QLabel("")
+        self.message.setWordWrap(True)
+        self.view = make_node_view()
+        self.summary = QLabel("no registration yet")
+        self.summary.setWordWrap(True)
+        self.pairing_table = PairingTable()
+        self.export_buttons = {kind: QPushButton(f"Export {name}...") for kind, (name, _, _) in EXPORTS.items()}
+        self._layout()
+        self._set_exports_enabled(False)
+        self.preop_box.nodes_changed.connect(self._preop_changed)
+        self.intraop_open_button.clicked.connect(self._choose_intraop_file)
+        self.alignment.changed.connect(self._inputs_changed)
+        self.alignment.centre_button.clicked.connect(self._centre_preop)
+        self.run_button.clicked.connect(self.run)
+        for kind, button in self.export_buttons.items():
+            button.clicked.connect(lambda _=False, k=kind: self._choose_export(k))
+
+    @staticmethod
+    def _bound_spin(low: float, high: float, value: float, suffix: str) -> QDoubleSpinBox:
+        spin = QDoubleSpinBox()
+        spin.setRange(low, high)
+        spin.setValue(value)
+        spin.setSuffix(suffix)
+        return spin
+
+    def _layout(self) -> None:
+        intraop = QGroupBox("Intraop nodes (trocar frame)")
+        intraop_layout = QVBoxLayout(intraop)
+        row = QHBoxLayout()
+        row.addWidget(self.intraop_source, 1)
+        row.addWidget(self.intraop_open_button)
+        intraop_layout.addLayout(row)
+        intraop_layout.addWidget(self.intraop_table)
+        settings = QGroupBox("Registration")
+        form = QFormLayout(settings)
+        form.addRow("method", self.method_combo)
+        form.addRow(self.labels_check)
+        form.addRow("max rotation", self.rotation_bound)
+        form.addRow("max translation", self.translation_bound)
+        controls = QWidget()
+        column = QVBoxLayout(controls)
+        for widget in (self.preop_box, intraop, settings, self.alignment):
+            column.addWidget(widget)
+        column.addStretch(1)
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(controls)
+        scroll.setMinimumWidth(controls.sizeHint().width() + 20)
+        left = QWidget()
+        left_layout = QVBoxLayout(left)                  # Run stays visible below the scrolling settings
+        left_layout.setContentsMargins(0, 0, 0, 0)
+        left_layout.addWidget(scroll, 1)
+        for widget in (self.run_button, self.busy_bar, self.message):
+            left_layout.addWidget(widget)
+        results = QWidget()
+        results_layout = QVBoxLayout(results)
+        results_layout.addWidget(self.summary)
+        results_layout.addWidget(self.pairing_table)
+        exports = QHBoxLayout()
+        for button in self.export_buttons.values():
+            exports.addWidget(button)
+        results_layout.addLayout(exports)
+        right = QSplitter(Qt.Orientation.Vertical)
+        right.addWidget(self.view)
+        right.addWidget(results)
+        main = QSplitter(Qt.Orientation.Horizontal)
+        main.addWidget(left)
+        main.addWidget(right)
+        main.setStretchFactor(1, 2)
+        layout = QVBoxLayout(self)
+        layout.addWidget(main)
+
+    # -- public API ------------------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        """True while a registration, export, preop read or segmentation is under way."""
+        return self._registering or self._exporting > 0 or self.preop_box.busy
+
+    def set_session(self, session) -> None:
+        """Intraop nodes, and the stored preop set and latest registration if any, from ``session``; None clears."""
+        self._session = session
+        if session is None:
+            self._set_intraop(None, "no intraop nodes: open a session or a node file")
+            self._show_record(None)
+            return
+        preop = session.preop_nodes()
+        if preop is not None:
+            self.preop_box.set_nodes(preop, f"session {session.case_id}")
+            self._preop_stored = True
+        self.refresh_intraop()
+        stored = session.registrations()
+        latest = stored[-1] if stored else None
+        if latest is not None and preop is not None and len(latest.pairing) == len(self._intraop) \
+                and int(np.max(latest.pairing, initial=-1)) < len(preop):
+            note = f"Registration {len(stored) - 1} from the session."
+            self._show_record(RunRecord(preop, self._intraop, latest, note))
+
+    def refresh_intraop(self, *_) -> None:
+        """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""
+        if self._session is not None:
+            nodes = self._session.intraop_nodes()
+            self._set_intraop(nodes, f"{_count(nodes)} from session {self._session.case_id}")
+
+    def set_intraop_nodes(self, nodes: NodeSet) -> None:
+        """Use these intraop nodes (trocar frame, mm)."""
+        self._set_intraop(nodes, _count(nodes) + (f" ({nodes.frame} frame)" if nodes.frame else ""))
+
+    def load_preop(self, path) -> None:
+        """Read preop nodes from a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker."""
+        self.preop_box.load(path)
+
+    def run(self) -> None:
+        """Register the current preop to the current intraop nodes with the chosen settings, in a worker."""
+        preop, intraop = self.preop_box.nodes, self._intraop
+        if self._registering:
+            return self._say("A registration is already running; wait for it to finish.")
+        if not _has_nodes(preop):
+            return self._say("Load the preop nodes first: a node file or a SPECT.")
+        if not _has_nodes(intraop):
+            return self._say("There are no intraop nodes yet: store nodes or open an intraop node file.")
+        store = self._session is not None and _same_nodes(intraop, self._session.intraop_nodes())
+        request = RunRequest(preop, intraop, self.method_combo.currentText(), self.labels_check.isChecked(),
+                             self.alignment.transform(preop.xyz), self.rotation_bound.value(),
+                             self.translation_bound.value(), self._session if store else None,
+                             store and not self._preop_stored)
+        self._registering = True
+        self.run_button.setEnabled(False)
+        self.busy_bar.setVisible(True)
+        self._say(f"Registering {len(preop)} preop to {len(intraop)} intraop nodes ({request.method})...")
+        self._tasks.start(run_registration, request,
+                          returned=self._registration_done, errored=self._registration_failed)
+
+    def shutdown(self) -> None:
+        """Wait for every worker of the panel (call when the window closes)."""
+        self.preop_box.shutdown()
+        self._tasks.shutdown()
+
+    # -- inputs ------------------------------------------------------------------
+    def _say(self, text: str) -> None:
+        self.message.setText(text)
+
+    def _say_problem(self, message: str) -> None:
+        self._say(sentence(message))
+
+    def _set_intraop(self, nodes: NodeSet | None, source: str) -> None:
+        self._intraop = nodes
+        self.intraop_source.setText(source)
+        self.intraop_table.show_nodes(nodes)
+        self._inputs_changed()
+
+    def _preop_changed(self, nodes: NodeSet | None) -> None:
+        self._preop_stored = False
+        self._inputs_changed()
+
+    def _choose_intraop_file(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Intraop node file", "", "Node files (*.csv *.mrk.json *.json)")
+        if path:
+            self._tasks.start(read_nodes, path, returned=self.set_intraop_nodes, errored=self._say_problem)
+
+    def _centre_preop(self) -> None:
+        if not (_has_nodes(self.preop_box.nodes) and _has_nodes(self._intraop)):
+            return self._say("Centring needs both preop and intraop nodes.")
+        self.alignment.centre_on(self.preop_box.nodes.xyz, self._intraop.xyz)
+
+    def _inputs_changed(self) -> None:
+        """Preop, intraop or alignment changed: the view shows the initial alignment until the next run."""
+        self._record_current = False
+        record = self._record
+        if record is not None:
+            rows = pair_rows(record.preop, record.intraop, record.result)
+            self.summary.setText(f"{summary_line(record.result, rows)} - inputs changed since: run again")
+        self._refresh_view()
+
+    def _refresh_view(self) -> None:
+        record = self._record
+        if record is not None and self._record_current:
+            scene = NodeScene(mapped_preop(record.preop, record.result), record.intraop, record.result.pairing)
+        else:
+            preop = self.preop_box.nodes
+            moved = NodeSet(preop.ids, preop.labels, geometry.apply(self.alignment.transform(preop.xyz), preop.xyz)) \
+                if _has_nodes(preop) else None
+            scene = NodeScene(moved, self._intraop)
+        self.view.show_scene(scene)
+
+    # -- results -----------------------------------------------------------------
+    def _registration_done(self, record: RunRecord) -> None:
+        self._registration_ended()
+        if record.stored and record.preop is self.preop_box.nodes:
+            self._preop_stored = True
+        self._show_record(record)
+        self.registered.emit(record.result)
+
+    def _registration_failed(self, message: str) -> None:
+        self._registration_ended()
+        self._say_problem(message)
+
+    def _registration_ended(self) -> None:
+        self._registering = False
+        self.run_button.setEnabled(True)
+        self.busy_bar.setVisible(False)
+
+    def _show_record(self, record: RunRecord | None) -> None:
+        self._record, self._record_current = record, record is not None
+        self.last_result = None if record is None else record.result
+        rows = [] if record is None else pair_rows(record.preop, record.intraop, record.result)
+        self.pairing_table.show_rows(rows)
+        self.summary.setText("no registration yet" if record is None else summary_line(record.result, rows))
+        self._say("" if record is None else record.note)
+        self._set_exports_enabled(record is not None)
+        self._refresh_view()
+
+    # -- exports -------------------------------------------------------------------
+    def _set_exports_enabled(self, enabled: bool) -> None:
+        for button in self.export_buttons.values():
+            button.setEnabled(enabled)
+
+    def _choose_export(self, kind: str) -> None:
+        if self._record is None:
+            return self._say("Run a registration before exporting.")
+        name, file_filter, _ = EXPORTS[kind]
+        path, _ = QFileDialog.getSaveFileName(self, f"Export {name}", "", file_filter)
+        if path:
+            self._exporting += 1
+            self._tasks.start(export_file, kind, path, self._record,
+                              returned=self._exported, errored=self._export_failed)
+
+    def _exported(self, path) -> None:
+        self._exporting -= 1
+        self._say(f"Written {path}.")
+
+    def _export_failed(self, message: str) -> None:
+        self._exporting -= 1
+        self._say_problem(message)

@@ -1,0 +1,221 @@
+"""Where the registration panel gets its preop nodes: a node file, or a SPECT DICOM segmented live.
+
+Why: the threshold that separates sentinel nodes from higher echelons is a judgement (thesis §3.3), so the
+technician moves a slider and sees how many nodes it gives. The volume is read once; each slider or
+node-count change re-segments it in a worker after a short pause (debounce), and a result made for an older
+file or older settings is dropped. Same threshold meaning as ``snreg preop --threshold`` (fraction of the
+maximum activity).
+
+>>> box = PreopSourceBox()
+>>> box.nodes_changed.connect(panel_slot)      # NodeSet, LPS mm for a SPECT
+>>> box.load("spect_folder")                   # or a .csv / .mrk.json node file
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtWidgets import (QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSlider,
+                               QSpinBox)
+
+from snreg.nodes import NodeSet, read_nodes
+from snreg.preop import Volume, load_volume, segment_nodes
+from snreg_gui.registration_tables import NodeTable
+from snreg_gui.registration_tasks import WorkerSet, sentence
+
+DEFAULT_THRESHOLD_PERCENT = 30          # snreg preop's default, 0.3 x maximum
+RESEGMENT_DELAY_MS = 250
+NODE_FILE_SUFFIXES = (".csv", ".json", ".txt")
+
+
+@dataclass(frozen=True)
+class PreopRead:
+    """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file)."""
+
+    generation: int
+    nodes: NodeSet
+    volume: Volume | None
+    source: str
+
+
+def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None) -> PreopRead:
+    """Read a node file, or load a SPECT (NM) volume and segment it (worker thread)."""
+    location = Path(path)
+    if not location.exists():
+        raise ValueError(f"{location}: no such file or folder; choose a node file or a SPECT DICOM file or folder")
+    if location.is_file() and location.name.lower().endswith(NODE_FILE_SUFFIXES):
+        return PreopRead(generation, read_nodes(location), None, location.name)
+    volume = load_volume(location, modality="NM")
+    return segment(generation, volume, threshold, n_nodes, location.name)
+
+
+def segment(generation: int, volume: Volume, threshold: float, n_nodes: int | None, source: str) -> PreopRead:
+    """Segment an already loaded volume (worker thread)."""
+    return PreopRead(generation, segment_nodes(volume, threshold=threshold, n_nodes=n_nodes).nodes, volume, source)
+
+
+class PreopSourceBox(QGroupBox):
+    """Open buttons, threshold slider, node-count box, status line and the table of preop nodes.
+
+    Emits ``nodes_changed(NodeSet)`` whenever the preop nodes change (file read, re-segmented, or
+    :meth:`set_nodes`). ``status`` says how many nodes were found, or what went wrong, in one sentence.
+    """
+
+    nodes_changed = Signal(object)
+
+    def __init__(self, parent=None):
+        super().__init__("Preop nodes (SPECT)", parent)
+        self.nodes: NodeSet | None = None
+        self._volume: Volume | None = None
+        self._source = ""
+        self._generation = 0
+        self._loading = self._segmenting = self._pending = False
+        self._tasks = WorkerSet()
+        self.open_file_button = QPushButton("Node file...")
+        self.open_spect_button = QPushButton("SPECT file...")
+        self.open_folder_button = QPushButton("SPECT folder...")
+        self.threshold_slider = QSlider(Qt.Orientation.Horizontal)
+        self.threshold_slider.setRange(1, 99)
+        self.threshold_slider.setValue(DEFAULT_THRESHOLD_PERCENT)
+        self.threshold_slider.setToolTip("activity threshold as a fraction of the volume's maximum")
+        self.threshold_label = QLabel()
+        self.count_spin = QSpinBox()
+        self.count_spin.setRange(0, 50)
+        self.count_spin.setSpecialValueText("auto")
+        self.count_spin.setToolTip("expected number of nodes (auto: as many as the threshold gives)")
+        self.status = QLabel("no preop nodes: open a node file or a SPECT")
+        self.status.setWordWrap(True)
+        self.table = NodeTable()
+        self._timer = QTimer(self, singleShot=True, interval=RESEGMENT_DELAY_MS, timeout=self._resegment)
+        self._layout()
+        self._show_threshold()
+        self._set_spect_controls(False)
+        self.open_file_button.clicked.connect(self._choose_node_file)
+        self.open_spect_button.clicked.connect(self._choose_spect_file)
+        self.open_folder_button.clicked.connect(self._choose_spect_folder)
+        self.threshold_slider.valueChanged.connect(self._settings_changed)
+        self.count_spin.valueChanged.connect(self._settings_changed)
+
+    def _layout(self) -> None:
+        buttons = QHBoxLayout()
+        for button in (self.open_file_button, self.open_spect_button, self.open_folder_button):
+            buttons.addWidget(button)
+        threshold = QHBoxLayout()
+        threshold.addWidget(self.threshold_slider)
+        threshold.addWidget(self.threshold_label)
+        form = QFormLayout(self)
+        form.addRow(buttons)
+        form.addRow("threshold", threshold)
+        form.addRow("nodes", self.count_spin)
+        form.addRow(self.status)
+        form.addRow(self.table)
+
+    # -- public --------------------------------------------------------------
+    @property
+    def threshold(self) -> float:
+        return self.threshold_slider.value() / 100.0
+
+    @property
+    def n_nodes(self) -> int | None:
+        return self.count_spin.value() or None
+
+    @property
+    def busy(self) -> bool:
+        return self._loading or self._segmenting or self._timer.isActive()
+
+    def load(self, path) -> None:
+        """Read a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker."""
+        self._generation += 1
+        self._loading, self._pending = True, False
+        self._timer.stop()
+        self.status.setText(f"reading {Path(path).name}...")
+        self._tasks.start(read_preop, self._generation, str(path), self.threshold, self.n_nodes,
+                          returned=self._read_done, errored=self._failed)
+
+    def set_nodes(self, nodes: NodeSet | None, source: str) -> None:
+        """Show nodes given directly (e.g. a session's stored preop set); no volume to re-segment."""
+        self._generation += 1
+        self._volume, self._loading, self._pending = None, False, False
+        self._timer.stop()
+        self._set_spect_controls(False)
+        self._show(nodes, source)
+
+    def shutdown(self) -> None:
+        self._timer.stop()
+        self._tasks.shutdown()
+
+    # -- internals -----------------------------------------------------------
+    def _choose_node_file(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Preop node file", "", "Node files (*.csv *.mrk.json *.json)")
+        if path:
+            self.load(path)
+
+    def _choose_spect_file(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "SPECT DICOM file", "", "DICOM (*.dcm *.DCM *.ima);;All files (*)")
+        if path:
+            self.load(path)
+
+    def _choose_spect_folder(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "SPECT DICOM series folder")
+        if path:
+            self.load(path)
+
+    def _settings_changed(self) -> None:
+        self._show_threshold()
+        if self._volume is not None:
+            self._timer.start()
+
+    def _show_threshold(self) -> None:
+        self.threshold_label.setText(f"{self.threshold:.2f} x max")
+
+    def _set_spect_controls(self, enabled: bool) -> None:
+        self.threshold_slider.setEnabled(enabled)
+        self.count_spin.setEnabled(enabled)
+
+    def _resegment(self) -> None:
+        if self._volume is None:
+            return
+        if self._segmenting:
+            self._pending = True
+            return
+        self._segmenting = True
+        self.status.setText(f"segmenting at {self.threshold:.2f} x maximum...")
+        self._tasks.start(segment, self._generation, self._volume, self.threshold, self.n_nodes, self._source,
+                          returned=self._segment_done, errored=self._failed)
+
+    def _read_done(self, read: PreopRead) -> None:
+        if read.generation != self._generation:
+            return
+        self._loading = False
+        self._volume = read.volume
+        self._set_spect_controls(read.volume is not None)
+        self._show(read.nodes, read.source)
+
+    def _segment_done(self, read: PreopRead) -> None:
+        self._segmenting = False
+        if read.generation == self._generation:
+            self._show(read.nodes, read.source)
+        if self._pending:
+            self._pending = False
+            self._resegment()
+
+    def _failed(self, message: str) -> None:
+        self._loading = self._segmenting = False
+        self.status.setText(sentence(message))
+        if self._pending:
+            self._pending = False
+            self._resegment()
+
+    def _show(self, nodes: NodeSet | None, source: str) -> None:
+        self.nodes, self._source = nodes, source
+        self.table.show_nodes(nodes)
+        n = 0 if nodes is None else len(nodes)
+        if self._volume is not None:
+            self.status.setText(f"{n} node{'s' * (n != 1)} above {self.threshold:.2f} x maximum in {source}")
+        else:
+            self.status.setText(f"{n} node{'s' * (n != 1)} from {source}" if nodes is not None
+                                else "no preop nodes: open a node file or a SPECT")
+        self.nodes_changed.emit(nodes)
+

@@ -1,0 +1,88 @@
+"""What the registration panel's workers do: register and store, and write the exports.
+
+Why: registration, the session's fsynced writes and figure rendering can each take longer than a frame, so
+they run off the GUI thread (DESIGN §5). The inputs travel as one frozen :class:`RunRequest` and come back
+with the result as a :class:`RunRecord`, so a result always stays with the node sets that produced it even
+if the technician changes them while it runs. No widgets here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from snreg.nodes import NodeSet, write_nodes
+from snreg.registration import RegistrationResult, register
+from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
+from snreg.session import Session, SessionError
+
+# kind: (name, file dialog filter, suffix added when the chosen name ends in none of the accepted ones)
+EXPORTS = {"pairs": ("pairing CSV", "CSV (*.csv)", (".csv",)),
+           "slicer": ("Slicer markups", "3D Slicer markups (*.mrk.json)", (".mrk.json", ".json")),
+           "report": ("report PNG", "PNG image (*.png)", (".png",))}
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """One registration as chosen in the panel; ``session`` set only when the result is to be stored."""
+
+    preop: NodeSet
+    intraop: NodeSet
+    method: str
+    use_labels: bool
+    initial: np.ndarray
+    max_rotation_deg: float
+    max_translation_mm: float
+    session: Session | None = None
+    store_preop: bool = False
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """A result with the node sets it pairs, and what happened to it in the session (one sentence, or "")."""
+
+    preop: NodeSet
+    intraop: NodeSet
+    result: RegistrationResult
+    note: str = ""
+    stored: bool = False
+
+
+def run_registration(request: RunRequest) -> RunRecord:
+    """Register (worker thread); store the preop set and the result when the request carries a session."""
+    labels = (request.preop.labels, request.intraop.labels) if request.use_labels else (None, None)
+    result = register(request.preop.xyz, request.intraop.xyz, method=request.method, preop_labels=labels[0],
+                      intraop_labels=labels[1], initial=request.initial,
+                      max_rotation_deg=request.max_rotation_deg, max_translation_mm=request.max_translation_mm)
+    if request.session is None:
+        return RunRecord(request.preop, request.intraop, result)
+    try:
+        if request.store_preop:
+            request.session.set_preop_nodes(request.preop)
+        n = request.session.add_registration(result)
+    except SessionError:
+        return RunRecord(request.preop, request.intraop, result,
+                         "Review session: the result is shown but not stored (the file is open for reading).")
+    except OSError as err:
+        return RunRecord(request.preop, request.intraop, result,
+                         f"The result could not be stored in the session ({err.strerror or err}); export it instead.")
+    return RunRecord(request.preop, request.intraop, result, f"Stored in the session as registration {n}.", True)
+
+
+def export_file(kind: str, path: str, record: RunRecord) -> Path:
+    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups or ``report`` PNG."""
+    suffixes = EXPORTS[kind][2]
+    path = Path(path if str(path).lower().endswith(suffixes) else f"{path}{suffixes[0]}")
+    try:
+        if kind == "pairs":
+            write_pairs_csv(path, record.preop, record.intraop, record.result)
+        elif kind == "slicer":
+            write_nodes(mapped_preop(record.preop, record.result), path)
+        else:
+            save_report_png(path, record.preop, record.intraop, record.result)
+    except OSError as err:
+        raise ValueError(f"{path}: cannot write the {EXPORTS[kind][0]} ({err.strerror or err}); "
+                         "choose another folder") from None
+    return path

@@ -1,0 +1,305 @@
+"""The registration panel driven through its real widgets (offscreen), on seeded synthetic node sets and SPECT."""
+
+import csv
+import struct
+
+import numpy as np
+import pytest
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QGuiApplication
+from PySide6.QtWidgets import QFileDialog
+
+from snreg import geometry
+from snreg.nodes import NodeSet, read_nodes, write_nodes
+from snreg.preop.synthetic import spect_of_nodes, write_nm
+from snreg.registration.labels import parse_label
+from snreg.registration.report import EXTRA, REPORT_DPI, REPORT_SIZE_IN
+from snreg.session import Session
+from snreg_gui import node_views
+from snreg_gui.node_views import ThreeViewPlot, make_node_view
+from snreg_gui.registration_alignment import initial_transform
+from snreg_gui.registration_panel import RegistrationPanel
+
+TIMEOUT_MS = 15_000
+
+
+def moved_case(pelvic_nodes, yaw_deg: float, seed: int = 7):
+    """Preop nodes P1..P6; intraop nodes I1..I6 = preop turned by ``yaw_deg`` about their centroid, shifted 30 mm,
+    1 mm noise, shuffled. Returns preop, intraop and the true pairing (preop index per intraop node)."""
+    xyz, labels = pelvic_nodes
+    rng = np.random.default_rng(seed)
+    rotation = geometry.rotation_from_euler(yaw_deg, 0.0, 0.0)
+    centre = xyz.mean(axis=0)
+    truth = geometry.make_transform(rotation, centre - rotation @ centre + [30.0, 0.0, 0.0])
+    order = rng.permutation(len(xyz))
+    intraop_xyz = geometry.apply(truth, xyz)[order] + rng.normal(0.0, 1.0, (len(xyz), 3))
+    preop = NodeSet.from_xyz(xyz, labels, prefix="P")
+    intraop = NodeSet.from_xyz(intraop_xyz, [labels[k] for k in order], prefix="I", frame="trocar")
+    return preop, intraop, order
+
+
+@pytest.fixture
+def panel(qtbot):
+    widget = RegistrationPanel()
+    qtbot.addWidget(widget)
+    yield widget
+    widget.shutdown()
+
+
+def load_preop(qtbot, panel, nodes: NodeSet, path):
+    write_nodes(nodes, path)
+    panel.load_preop(path)
+    qtbot.waitUntil(lambda: not panel.busy and panel.preop_box.nodes is not None, timeout=TIMEOUT_MS)
+
+
+def click_run(qtbot, panel):
+    with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as blocker:
+        qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    assert not panel.busy_bar.isVisible() and panel.run_button.isEnabled()
+    return blocker.args[0]
+
+
+def table_column(table, column):
+    return [table.item(row, column).text() for row in range(table.rowCount())]
+
+
+@pytest.mark.parametrize("method", ["global", "icp", "cpd", "chamfer"])
+def test_run_pairs_the_nodes_and_shows_them(qtbot, panel, pelvic_nodes, tmp_path, method):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    assert not panel.preop_box.threshold_slider.isEnabled()          # a node file has no threshold
+    panel.set_intraop_nodes(intraop)
+    panel.method_combo.setCurrentText(method)
+    result = click_run(qtbot, panel)
+    assert result is panel.last_result and result.method == method
+    assert np.array_equal(result.pairing, truth)
+    assert result.rms_mm < 3.0
+    assert table_column(panel.pairing_table, 0) == intraop.ids
+    assert table_column(panel.pairing_table, 2) == [preop.ids[n] for n in truth]
+    assert table_column(panel.pairing_table, 3) == intraop.labels
+    assert f"RMS {result.rms_mm:.2f} mm" in panel.summary.text() and method in panel.summary.text()
+    scene = panel.view.scene_shown
+    assert np.allclose(scene.preop.xyz, geometry.apply(result.transform, preop.xyz))
+    assert len(scene.pair_segments()) == 2 * len(intraop)
+
+
+def test_three_view_draws_mapped_preop_intraop_pairs_and_labels(qtbot, pelvic_nodes, tmp_path, monkeypatch):
+    monkeypatch.setattr(node_views, "opengl_available", lambda: False)
+    panel = RegistrationPanel()
+    qtbot.addWidget(panel)
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    result = click_run(qtbot, panel)
+    view = panel.view
+    assert isinstance(view, ThreeViewPlot) and view.kind == "three-view"
+    moved = geometry.apply(result.transform, preop.xyz)
+    for k, (h, v) in enumerate([(0, 1), (0, 2), (1, 2)]):
+        x, y = view.preop_dots[k].getData()
+        assert np.allclose(np.c_[x, y], moved[:, [h, v]])
+        x, y = view.intraop_dots[k].getData()
+        assert np.allclose(np.c_[x, y], intraop.xyz[:, [h, v]])
+        x, y = view.pair_lines[k].getData()
+        assert len(x) == 2 * len(intraop)
+    assert view.preop_dots[0].opts["symbol"] != view.intraop_dots[0].opts["symbol"]
+    preop_texts, intraop_texts = view.label_texts(0)
+    assert preop_texts == [f"{i} {label}" for i, label in zip(preop.ids, preop.labels)]
+    assert intraop_texts == [f"{i} {label}" for i, label in zip(intraop.ids, intraop.labels)]
+    panel.shutdown()
+
+
+def test_wider_bounds_reach_a_far_rotation(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, truth = moved_case(pelvic_nodes, 120.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    assert not np.array_equal(click_run(qtbot, panel).pairing, truth)     # 120 deg is outside +-60 deg
+    panel.rotation_bound.setValue(150.0)
+    assert np.array_equal(click_run(qtbot, panel).pairing, truth)
+
+
+def test_labels_checkbox_forbids_side_crossings(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    swapped = [label.replace(" R", " x").replace(" L", " R").replace(" x", " L") for label in intraop.labels]
+    intraop = NodeSet(intraop.ids, swapped, intraop.xyz, frame="trocar")
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    assert np.array_equal(click_run(qtbot, panel).pairing, truth)          # geometry alone: the truth
+    panel.labels_check.setChecked(True)
+    pairing = click_run(qtbot, panel).pairing
+    paired = np.flatnonzero(pairing >= 0)
+    assert len(paired) > 0 and not np.array_equal(pairing, truth)
+    assert all(parse_label(preop.labels[pairing[m]])[1] == parse_label(swapped[m])[1] for m in paired)
+
+
+def test_manual_alignment_moves_the_preop_view_and_solves_a_far_case(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, truth = moved_case(pelvic_nodes, 120.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    assert not np.array_equal(click_run(qtbot, panel).pairing, truth)
+    align = panel.alignment
+    align.angle_spins["yaw"].setValue(120.0)
+    shown = panel.view.scene_shown
+    assert shown.pairing is None                                           # inputs changed: result no longer drawn
+    assert np.allclose(shown.preop.xyz.mean(axis=0), preop.xyz.mean(axis=0))   # turned about its own centroid
+    assert np.allclose(shown.preop.xyz - shown.preop.xyz.mean(axis=0),
+                       (preop.xyz - preop.xyz.mean(axis=0)) @ geometry.rotation_from_euler(120, 0, 0).T)
+    assert "run again" in panel.summary.text()
+    qtbot.mouseClick(align.centre_button, Qt.MouseButton.LeftButton)
+    assert np.allclose(panel.view.scene_shown.preop.xyz.mean(axis=0), intraop.xyz.mean(axis=0), atol=0.05)  # 0.1 mm steps
+    assert align.angles_deg == (120.0, 0.0, 0.0)
+    result = click_run(qtbot, panel)
+    assert np.array_equal(result.pairing, truth) and result.rms_mm < 3.0
+    qtbot.mouseClick(align.reset_button, Qt.MouseButton.LeftButton)
+    assert np.allclose(panel.view.scene_shown.preop.xyz, preop.xyz)
+
+
+def test_initial_transform_turns_about_the_centre_then_shifts():
+    centre, shift = np.array([10.0, -20.0, 30.0]), np.array([5.0, 6.0, -7.0])
+    transform = initial_transform(30.0, -10.0, 45.0, shift, centre)
+    assert np.allclose(geometry.apply(transform, centre[None]), centre + shift)
+    assert np.allclose(transform[:3, :3], geometry.rotation_from_euler(30.0, -10.0, 45.0))
+
+
+def test_spect_threshold_slider_changes_the_node_count(qtbot, panel, tmp_path):
+    # Two nodes 20 mm apart, the second at half the activity, and a third far away.
+    sources = np.array([[-20.0, 50.0, 55.0], [0.0, 50.0, 55.0], [40.0, 60.0, 40.0]])
+    counts, origin = spect_of_nodes(sources, activity=[1.0, 0.5, 1.0], shape=(40, 48, 48), seed=1)
+    path = write_nm(counts, origin, 4.795, tmp_path / "spect.dcm")[0]
+    box = panel.preop_box
+    panel.load_preop(path)
+    qtbot.waitUntil(lambda: not panel.busy and box.nodes is not None, timeout=TIMEOUT_MS)
+    assert len(box.nodes) == 3 and "3 nodes above 0.30" in box.status.text()
+    assert box.table.rowCount() == 3 and box.threshold_slider.isEnabled()
+    found = [min(np.linalg.norm(box.nodes.xyz - s, axis=1)) for s in sources]
+    assert max(found) < 5.0
+    emitted = []
+    box.nodes_changed.connect(emitted.append)
+    for percent in (40, 50, 60):                                           # a drag: one re-segmentation
+        box.threshold_slider.setValue(percent)
+    assert box.threshold_label.text() == "0.60 x max"
+    qtbot.waitUntil(lambda: not panel.busy and len(emitted) == 1, timeout=TIMEOUT_MS)
+    assert len(box.nodes) == 2 and "2 nodes above 0.60" in box.status.text()
+    assert min(np.linalg.norm(box.nodes.xyz - sources[1], axis=1)) > 10.0   # the weaker node is gone
+    box.threshold_slider.setValue(30)
+    box.count_spin.setValue(1)
+    qtbot.waitUntil(lambda: not panel.busy and len(box.nodes) == 1, timeout=TIMEOUT_MS)
+    assert len(emitted) == 2
+
+
+def test_unreadable_preop_is_one_sentence(qtbot, panel, tmp_path):
+    panel.load_preop(tmp_path / "missing.csv")
+    qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+    text = panel.preop_box.status.text()
+    assert "no such file" in text and text.endswith(".") and "\n" not in text
+
+
+def test_missing_or_too_few_nodes_give_a_sentence_not_a_crash(qtbot, panel, pelvic_nodes, tmp_path):
+    xyz, labels = pelvic_nodes
+    qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    assert panel.message.text().startswith("Load the preop nodes first")
+    load_preop(qtbot, panel, NodeSet.from_xyz(xyz[:2], labels[:2]), tmp_path / "two.csv")
+    qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    assert panel.message.text().startswith("There are no intraop nodes")
+    panel.set_intraop_nodes(NodeSet.from_xyz(xyz, labels))
+    qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+    assert panel.message.text() == "Registration needs at least 3 preop nodes; got 2."
+    assert panel.last_result is None and panel.run_button.isEnabled()
+    assert not any(button.isEnabled() for button in panel.export_buttons.values())
+
+
+def test_exports_are_written_and_read_back(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    extra = NodeSet(intraop.ids + ["I7"], intraop.labels + ["PR L"], np.vstack([intraop.xyz, [[250.0, 250, 250]]]))
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(extra)
+    result = click_run(qtbot, panel)
+    assert np.array_equal(result.pairing, np.append(truth, -1))
+    targets = {"pairs": tmp_path / "pairs.csv", "slicer": tmp_path / "preop_in_trocar.mrk.json",
+               "report": tmp_path / "report"}                             # no suffix: .png is added
+    for kind, target in targets.items():
+        monkeypatch.setattr(QFileDialog, "getSaveFileName", lambda *args, t=target: (str(t), ""))
+        qtbot.mouseClick(panel.export_buttons[kind], Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: not panel.busy and panel.message.text().startswith("Written"), timeout=TIMEOUT_MS)
+        panel.message.clear()
+    lines = targets["pairs"].read_text(encoding="utf-8").splitlines()
+    rows = list(csv.DictReader(line for line in lines if not line.startswith("#")))
+    assert [r["intraop_id"] for r in rows] == extra.ids
+    assert [r["preop_id"] for r in rows] == [preop.ids[n] for n in truth] + [EXTRA]
+    markups = read_nodes(targets["slicer"])
+    assert markups.ids == preop.ids and markups.labels == preop.labels
+    assert np.allclose(markups.xyz, geometry.apply(result.transform, preop.xyz))
+    png = (tmp_path / "report.png").read_bytes()
+    assert struct.unpack(">II", png[16:24]) == (round(REPORT_SIZE_IN[0] * REPORT_DPI), round(REPORT_SIZE_IN[1] * REPORT_DPI))
+
+
+def test_export_to_an_unwritable_place_is_one_sentence(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
+    preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    click_run(qtbot, panel)
+    monkeypatch.setattr(QFileDialog, "getSaveFileName", lambda *a: (str(tmp_path / "no" / "such" / "pairs.csv"), ""))
+    qtbot.mouseClick(panel.export_buttons["pairs"], Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: not panel.busy and "cannot write" in panel.message.text(), timeout=TIMEOUT_MS)
+    assert panel.message.text().endswith("choose another folder.")
+
+
+def test_writable_session_stores_preop_and_result_review_only_shows(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    path = tmp_path / "case.h5"
+    with Session.create(path, case_id="gui-reg-01") as session:
+        for k in range(len(intraop)):
+            session.add_intraop_node(intraop.ids[k], intraop.labels[k], intraop.xyz[k])
+        panel.set_session(session)
+        assert panel.intraop_table.rowCount() == len(intraop)
+        load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+        result = click_run(qtbot, panel)
+        assert panel.message.text() == "Stored in the session as registration 0."
+    stored = Session.open(path)
+    assert len(stored.registrations()) == 1
+    assert np.array_equal(stored.registrations()[0].pairing, truth)
+    assert np.allclose(stored.registrations()[0].transform, result.transform)
+    assert stored.preop_nodes().ids == preop.ids
+
+    review = RegistrationPanel()
+    qtbot.addWidget(review)
+    review.set_session(stored)
+    assert review.preop_box.nodes.ids == preop.ids
+    assert np.array_equal(review.last_result.pairing, truth)
+    assert table_column(review.pairing_table, 2) == [preop.ids[n] for n in truth]
+    click_run(qtbot, review)
+    assert review.message.text().startswith("Review session: the result is shown but not stored")
+    review.shutdown()
+    stored.close()
+    assert len(Session.open(path).registrations()) == 1
+
+
+def test_set_session_none_clears(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    click_run(qtbot, panel)
+    panel.set_session(None)
+    assert panel.last_result is None and panel.pairing_table.rowCount() == 0
+    assert panel.intraop_table.rowCount() == 0 and panel.view.scene_shown.intraop is None
+
+
+def test_offscreen_has_no_opengl_view(qtbot):
+    if QGuiApplication.platformName() != "offscreen":
+        pytest.skip("only the offscreen platform is known to lack OpenGL")
+    assert node_views.opengl_available() is False
+    view = make_node_view()
+    qtbot.addWidget(view)
+    assert view.kind == "three-view"
+
+
+def test_view_falls_back_to_three_views_when_opengl_breaks(qtbot, monkeypatch):
+    monkeypatch.setattr(node_views, "opengl_available", lambda: True)
+
+    def broken(*args):
+        raise RuntimeError("no OpenGL 2.0 context")
+
+    monkeypatch.setattr(node_views, "NodeView3D", broken)
+    view = make_node_view()
+    qtbot.addWidget(view)
+    assert view.kind == "three-view"

@@ -1,0 +1,105 @@
+"""The Qt-free registration outputs: pair rows, mapped preop nodes, pairing CSV and the PNG report."""
+
+import csv
+import struct
+
+import numpy as np
+import pytest
+
+from snreg import geometry
+from snreg.nodes import NodeSet, read_nodes, write_nodes
+from snreg.registration import CONFIDENT, RegistrationResult, register
+from snreg.registration.report import (EXTRA, REPORT_DPI, REPORT_SIZE_IN, VIEWS, mapped_preop, pair_rows,
+                                       registration_figure, save_report_png, write_pairs_csv)
+
+
+@pytest.fixture
+def case(pelvic_nodes):
+    """Six pelvic nodes, moved by 20 deg and 30 mm with 1 mm noise, shuffled, plus one extra intraop node far away."""
+    xyz, labels = pelvic_nodes
+    rng = np.random.default_rng(3)
+    truth = geometry.transform_from_euler(20.0, 5.0, -5.0, [30.0, -10.0, 5.0])
+    order = rng.permutation(len(xyz))
+    intraop_xyz = np.vstack([geometry.apply(truth, xyz)[order] + rng.normal(0, 1.0, (6, 3)), [[200.0, 200.0, 200.0]]])
+    preop = NodeSet.from_xyz(xyz, labels, prefix="P")
+    intraop = NodeSet.from_xyz(intraop_xyz, [labels[k] for k in order] + ["PR L"], prefix="I")
+    result = register(preop.xyz, intraop.xyz, method="global")
+    return preop, intraop, result, np.append(order, -1), truth
+
+
+def test_pair_rows_follow_the_pairing_with_extra_for_unpaired(case):
+    preop, intraop, result, truth_pairing, _ = case
+    assert np.array_equal(result.pairing, truth_pairing)
+    rows = pair_rows(preop, intraop, result)
+    assert [r.intraop_id for r in rows] == intraop.ids
+    assert [r.preop_id for r in rows] == [preop.ids[n] for n in truth_pairing[:-1]] + [EXTRA]
+    assert [r.preop_label for r in rows[:-1]] == [r.intraop_label for r in rows[:-1]]
+    assert np.allclose([r.distance_mm for r in rows], result.distances_mm)
+    assert [r.confident for r in rows] == list(result.confidence >= CONFIDENT)
+
+
+def test_pair_rows_refuse_node_sets_the_result_was_not_made_from(case):
+    preop, intraop, result, _, _ = case
+    with pytest.raises(ValueError, match="node sets the registration was run on"):
+        pair_rows(preop, NodeSet.from_xyz(intraop.xyz[:4]), result)
+    with pytest.raises(ValueError, match="node sets the registration was run on"):
+        pair_rows(NodeSet.from_xyz(preop.xyz[:2]), intraop, result)
+
+
+def test_mapped_preop_lands_on_the_true_positions_and_round_trips_through_slicer(case, tmp_path):
+    preop, _, result, _, truth = case
+    mapped = mapped_preop(preop, result)
+    assert mapped.ids == preop.ids and mapped.labels == preop.labels and mapped.frame == "trocar"
+    assert np.max(np.linalg.norm(mapped.xyz - geometry.apply(truth, preop.xyz), axis=1)) < 3.0
+    write_nodes(mapped, tmp_path / "mapped.mrk.json")
+    back = read_nodes(tmp_path / "mapped.mrk.json")
+    assert back.ids == preop.ids and back.labels == preop.labels
+    assert np.allclose(back.xyz, mapped.xyz)
+
+
+def test_pairs_csv_reads_back_with_comments_skipped(case, tmp_path):
+    preop, intraop, result, truth_pairing, _ = case
+    path = write_pairs_csv(tmp_path / "pairs.csv", preop, intraop, result)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    assert lines[0] == "# method: global" and lines[1].startswith("# rms_mm: ")
+    table = list(csv.DictReader(line for line in lines if not line.startswith("#")))
+    assert [row["intraop_id"] for row in table] == intraop.ids
+    assert [row["preop_id"] for row in table] == [preop.ids[n] for n in truth_pairing[:-1]] + [EXTRA]
+    assert np.allclose([float(row["distance_mm"]) for row in table], result.distances_mm, atol=1e-3)
+    transform = np.array(lines[2].split(":", 1)[1].split(), dtype=float).reshape(4, 4)
+    assert np.allclose(transform, result.transform, atol=1e-4)
+
+
+def test_figure_draws_both_sets_in_three_views_with_the_pairs(case):
+    preop, intraop, result, _, _ = case
+    figure = registration_figure(preop, intraop, result)
+    views, table = figure.axes[:3], figure.axes[3]
+    moved = geometry.apply(result.transform, preop.xyz)
+    for ax, (name, h, v) in zip(views, VIEWS):
+        assert ax.get_title().startswith(name)
+        preop_dots, intraop_dots = ax.collections[:2]
+        assert np.allclose(preop_dots.get_offsets(), moved[:, [h, v]])
+        assert np.allclose(intraop_dots.get_offsets(), intraop.xyz[:, [h, v]])
+        assert len(ax.lines) == int(np.sum(result.pairing >= 0))
+    assert f"RMS {result.rms_mm:.2f} mm" in figure.get_suptitle()
+    assert "global" in table.get_title()
+    cell_texts = {cell.get_text().get_text() for cell in table.tables[0].get_celld().values()}
+    assert EXTRA in cell_texts and set(intraop.ids) <= cell_texts
+
+
+def test_figure_shades_rows_below_the_confidence_threshold(case):
+    preop, intraop, result, _, _ = case
+    doubtful = RegistrationResult(result.method, result.transform, result.pairing, result.distances_mm,
+                                  result.rms_mm, np.where(np.arange(len(intraop)) == 1, 0.4, 1.0), result.pairing_rule)
+    cells = registration_figure(preop, intraop, doubtful).axes[3].tables[0].get_celld()
+    shaded = {row for (row, _), cell in cells.items() if row > 0 and cell.get_facecolor()[:3] != (1.0, 1.0, 1.0)}
+    assert shaded == {2}                     # table row 0 is the header; intraop node 1 is row 2
+
+
+def test_png_report_has_the_documented_size(case, tmp_path):
+    preop, intraop, result, _, _ = case
+    path = save_report_png(tmp_path / "report.png", preop, intraop, result)
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", data[16:24])
+    assert (width, height) == (round(REPORT_SIZE_IN[0] * REPORT_DPI), round(REPORT_SIZE_IN[1] * REPORT_DPI))
