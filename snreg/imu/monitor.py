@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snreg.imu import Fusion, ImuSample, SerialImuReader
+from snreg.imu.reader import DEFAULT_BAUD
 
 STALE_AFTER_S = 1.0
 KEPT_SAMPLES_S = 10.0     # raw samples wait this long for :meth:`ImuMonitor.take_samples` before the oldest go
@@ -39,15 +40,16 @@ class ImuSnapshot:
 
 
 class ImuMonitor:
-    """Reads ``port`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`; thread-safe :meth:`snapshot`."""
+    """Reads ``port`` at ``baudrate`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`;
+    thread-safe :meth:`snapshot`."""
 
-    def __init__(self, port: str, sample_rate_hz: float = 208.0):
+    def __init__(self, port: str, sample_rate_hz: float = 208.0, *, baudrate: int = DEFAULT_BAUD):
         self._lock = threading.Lock()
         self._fusion = Fusion(sample_rate_hz)
         self._arrivals: deque[int] = deque(maxlen=int(sample_rate_hz * 2))
         self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
         self._euler, self._rotation = (0.0, 0.0, 0.0), np.eye(3)
-        self._reader = SerialImuReader(port, on_sample=self._on_sample)
+        self._reader = SerialImuReader(port, baudrate, on_sample=self._on_sample)
 
     def start(self) -> "ImuMonitor":
         self._reader.start()
