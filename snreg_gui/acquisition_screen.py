@@ -1,7 +1,8 @@
 """The acquisition screen: both feeds with the probe overlay, stream health, IMU plot, trocar tip, Store SN, nodes.
 
 Why: the technician's one view while stored nodes are collected. It only displays what the
-:class:`AcquisitionWorker` emits and forwards requests back to it; nothing is computed here.
+:class:`AcquisitionWorker` emits and forwards requests (store, undo, window size) back to it; nothing is
+computed here. Auto-store only presses Store SN for the technician when the worker says its rule holds.
 """
 
 from __future__ import annotations
@@ -10,22 +11,26 @@ import time
 
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
-from PySide6.QtWidgets import (QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QPushButton,
-                               QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit,
+                               QPushButton, QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
-from snreg_gui.acquisition_worker import THESIS_FIXES_PER_NODE, FrameResult, StoreRequest
+from snreg.acquisition import THESIS_FIXES_PER_NODE
+from snreg_gui.acquisition_worker import FrameResult, StoreRequest
 from snreg_gui.feed_view import FeedView
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg_gui.orientation_plot import OrientationPlot
 
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send
+UNDO_SHORTCUT = "Ctrl+Z"
 _NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread mm", "frames")
 
 
 class AcquisitionScreen(QWidget):
-    """Emits ``store_requested(StoreRequest)`` and ``fixes_per_node_changed(int)``; fed by :meth:`show_result`."""
+    """Emits ``store_requested(StoreRequest)``, ``undo_requested()`` and ``fixes_per_node_changed(int)``; fed by
+    :meth:`show_result`, :meth:`add_node`, :meth:`remove_node`."""
 
     store_requested = Signal(object)
+    undo_requested = Signal()
     fixes_per_node_changed = Signal(int)
 
     def __init__(self, imu: ImuMonitor, fixes_per_node: int = THESIS_FIXES_PER_NODE):
@@ -33,6 +38,7 @@ class AcquisitionScreen(QWidget):
         self._imu = imu
         self._last_result: FrameResult | None = None
         self._last_arrival_ns: int | None = None
+        self._store_pending = False
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
         self.video_health, self.imu_health = QLabel("video: waiting"), QLabel("IMU: waiting")
@@ -42,7 +48,8 @@ class AcquisitionScreen(QWidget):
         self.store_status = QLabel("")
         self.undo_button = QPushButton("Undo last node")
         self.undo_button.setEnabled(False)
-        self.undo_button.setToolTip("Not available yet: the session file cannot remove a stored node.")
+        self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
+        self.auto_store = QCheckBox("auto-store when the probe is held still")
         self.label_edit = QLineEdit()
         self.label_edit.setPlaceholderText("station, e.g. OBT R")
         self.counts_edit = QLineEdit()
@@ -56,6 +63,8 @@ class AcquisitionScreen(QWidget):
         self.store_button.clicked.connect(self.request_store)
         for key in STORE_SHORTCUTS:
             QShortcut(QKeySequence(key), self, activated=self.request_store)
+        self.undo_button.clicked.connect(self.request_undo)
+        QShortcut(QKeySequence(UNDO_SHORTCUT), self, activated=self.request_undo)
         self.fixes_spin.valueChanged.connect(self.fixes_per_node_changed)
         self.fixes_spin.valueChanged.connect(lambda _: self._update_store_state())
         self._health_timer = QTimer(self, interval=250, timeout=self._show_health)
@@ -71,6 +80,7 @@ class AcquisitionScreen(QWidget):
         form.addRow("label", self.label_edit)
         form.addRow("counts", self.counts_edit)
         form.addRow("fixes per node", self.fixes_spin)
+        form.addRow(self.auto_store)
         form.addRow(self.store_button)
         form.addRow(self.store_reason)
         form.addRow(self.store_status)
@@ -89,30 +99,57 @@ class AcquisitionScreen(QWidget):
 
     # -- from the worker -----------------------------------------------------
     def show_result(self, result: FrameResult) -> None:
-        """Display one processed frame pair."""
+        """Display one processed frame pair; auto-store presses Store SN when the worker's rule holds."""
         self._last_result, self._last_arrival_ns = result, time.perf_counter_ns()
-        depth = float(result.fix.tip[2]) if result.fix is not None else None
+        outcome = result.outcome
+        depth = float(outcome.fix.tip[2]) if outcome.fix is not None else None
         self.left_feed.show_frame(result.left_rgb, result.overlay_left, depth)
         self.right_feed.show_frame(result.right_rgb, result.overlay_right, depth)
         self.orientation.append(result.imu.euler_deg)
-        if result.tip_trocar is None:
-            self.tip_trocar.setText(f"tip (trocar): no fix ({result.reason})")
+        if outcome.tip_trocar is None:
+            self.tip_trocar.setText(f"tip (trocar): no fix ({outcome.reason})")
         else:
-            x, y, z = result.tip_trocar
+            x, y, z = outcome.tip_trocar
             self.tip_trocar.setText(f"tip (trocar): {x:7.1f} {y:7.1f} {z:7.1f} mm")
         self._update_store_state()
+        if self.auto_store.isChecked() and outcome.auto_store_due and self.store_button.isEnabled():
+            self.request_store()
+
+    def set_nodes(self, nodes) -> None:
+        """Show the nodes already in the session (a continued session); replaces the table."""
+        self.nodes.setRowCount(0)
+        for node in nodes:
+            self._append_row(node)
+        self.undo_button.setEnabled(self.nodes.rowCount() > 0)
 
     def add_node(self, node) -> None:
         """Append a stored node (an :class:`~snreg.session.IntraopNode`) to the table."""
+        self._store_pending = False
+        self._append_row(node)
+        self.undo_button.setEnabled(True)
+        self.store_status.setText(f"stored {node.id} (spread {node.spread_mm:.2f} mm over {node.n_frames} fixes)")
+        self._update_store_state()
+
+    def remove_node(self, node) -> None:
+        """Drop an undone node from the table."""
+        for row in range(self.nodes.rowCount()):
+            if self.nodes.item(row, 0).text() == node.id:
+                self.nodes.removeRow(row)
+                break
+        self.undo_button.setEnabled(self.nodes.rowCount() > 0)
+        self.store_status.setText(f"undone: {node.id} (kept on record in the session journal)")
+
+    def _append_row(self, node) -> None:
         row = self.nodes.rowCount()
         self.nodes.insertRow(row)
         cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", str(node.n_frames))
         for column, text in enumerate(cells):
             self.nodes.setItem(row, column, QTableWidgetItem(text))
-        self.store_status.setText(f"stored {node.id} (spread {node.spread_mm:.2f} mm)")
 
     def show_store_problem(self, message: str) -> None:
+        self._store_pending = False
         self.store_status.setText(message)
+        self._update_store_state()
 
     # -- Store SN ------------------------------------------------------------
     def request_store(self) -> None:
@@ -124,19 +161,28 @@ class AcquisitionScreen(QWidget):
         except ValueError:
             self.store_status.setText("Gamma counts must be a number; correct it or leave it empty.")
             return
-        self.store_requested.emit(StoreRequest(f"SN{self.nodes.rowCount() + 1}", self.label_edit.text().strip(),
-                                               self.fixes_spin.value(), counts_value))
+        self._store_pending = True
+        self._set_store_enabled(False, "storing...")
+        self.store_requested.emit(StoreRequest(self.label_edit.text().strip(), counts_value))
+
+    def request_undo(self) -> None:
+        if self.undo_button.isEnabled():
+            self.undo_requested.emit()
 
     def _update_store_state(self) -> None:
-        result, needed = self._last_result, self.fixes_spin.value()
-        if result is None:
+        outcome, needed = (self._last_result.outcome if self._last_result else None), self.fixes_spin.value()
+        if self._store_pending:
+            self._set_store_enabled(False, "storing...")
+        elif outcome is None:
             self._set_store_enabled(False, "waiting for the first frame")
-        elif result.fix is None:
-            self._set_store_enabled(False, f"no valid fix: {result.reason}")
-        elif result.valid_fixes < needed:
-            self._set_store_enabled(False, f"collecting fixes: {result.valid_fixes} of {needed}")
+        elif outcome.fix is None:
+            self._set_store_enabled(False, f"no valid fix: {outcome.reason}")
+        elif outcome.valid_fixes < needed:
+            self._set_store_enabled(False, f"collecting fixes: {outcome.valid_fixes} of {needed}")
         else:
-            self._set_store_enabled(True, f"ready: median of the last {needed} fixes")
+            state = "held still" if outcome.still else "MOVING: hold the probe still on the node"
+            self._set_store_enabled(True, f"ready: median of the last {needed} fixes, spread "
+                                          f"{outcome.window_spread_mm:.1f} mm ({state})")
 
     def _set_store_enabled(self, enabled: bool, reason: str) -> None:
         self.store_button.setEnabled(enabled)
@@ -152,7 +198,7 @@ class AcquisitionScreen(QWidget):
             age_s = (time.perf_counter_ns() - self._last_arrival_ns) / 1e9
             stale = f"  STALE {age_s:.1f} s" if age_s > STALE_AFTER_S else ""
             self.video_health.setText(f"video: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
-                                      f"tracking {result.track_ms:.0f} ms{stale}")
+                                      f"tracking {result.outcome.track_ms:.0f} ms{stale}")
         imu = self._imu.snapshot()
         stale = "  STALE" if imu.stale else ""
         problem = f" ({imu.problem})" if imu.problem else ""

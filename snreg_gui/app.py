@@ -1,78 +1,277 @@
-"""``snreg-gui``: start the desktop app (``--demo`` for the hardware-free phantom demo)."""
+"""``snreg-gui``: the desktop app. Tabs for acquisition, registration and offline review; menus for sessions,
+devices and the calibration wizards.
+
+Why one window: in the operating room the technician records nodes, then registers them against the SPECT
+without leaving the app; offline, the same window reviews a saved session. The window owns the session
+and the rig (demo or hardware) and restarts the acquisition worker whenever either changes.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
+import time
+from pathlib import Path
 
-from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QApplication, QLabel, QMainWindow
+from PySide6.QtCore import QSettings, Qt
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, QMainWindow, QTabWidget, QVBoxLayout,
+                               QWidget)
 
 from snreg import __version__
-from snreg_gui.acquisition_screen import AcquisitionScreen
-from snreg_gui.acquisition_worker import THESIS_FIXES_PER_NODE, AcquisitionWorker, start_worker, stop_worker
+from snreg.acquisition import THESIS_FIXES_PER_NODE
 from snreg.demo.rig import DemoRig
+from snreg.session import Session, SessionError
+from snreg_gui.acquisition_screen import AcquisitionScreen
+from snreg_gui.acquisition_worker import AcquisitionWorker, start_worker, stop_worker
+from snreg_gui.demo_spect import DemoSpect
+from snreg_gui.recent import RecentSessions
+from snreg_gui.registration_panel import RegistrationPanel
+from snreg_gui.review_screen import ReviewScreen
+from snreg_gui.wizard_launcher import WizardLauncher
+
+NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IMU... for the real rig, "
+               "or start with --demo for the simulated one.")
 
 
 class MainWindow(QMainWindow):
-    """The main window: in demo mode the acquisition screen on the simulated rig.
+    """The app. ``demo``: the simulated rig and a new session (``session_path`` or a file in the temp folder).
+    Without ``demo``, an existing ``session_path`` opens for review and a new one is created for recording.
+    ``rig`` lets tests pass a rig with a shorter schedule; ``settings`` an isolated QSettings."""
 
-    Without ``--demo`` there is no device selection yet, so it says so. ``fixes_per_node`` is the
-    "Store SN" window (thesis: 60); ``rig`` lets tests pass a rig with a shorter schedule.
-    """
-
-    def __init__(self, session_path: str | None = None, demo: bool = False, *, rig: DemoRig | None = None,
-                 fixes_per_node: int = THESIS_FIXES_PER_NODE):
+    def __init__(self, session_path: str | None = None, demo: bool = False, *, rig=None,
+                 fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None):
         super().__init__()
-        mode = "demo" if demo else (session_path or "no session")
-        self.setWindowTitle(f"snreg {__version__} - {mode}")
-        self.resize(1400, 800)
-        self.rig = self.worker = self._thread = None
-        if not demo:
-            text = QLabel("snreg\n\nCamera and IMU selection is not built yet: start with --demo for the simulated rig.")
-            text.setAlignment(Qt.AlignmentFlag.AlignCenter)
-            self.setCentralWidget(text)
+        self.settings = settings or QSettings("snreg", "snreg")
+        self.recent = RecentSessions(self.settings)
+        self.demo, self.fixes_per_node = demo, fixes_per_node
+        self.rig = self.session = self.worker = self.acquisition = None
+        self._thread = None
+        self._waiting_for_frames = False
+        self.tabs = QTabWidget()
+        self._acquisition_tab = QWidget()
+        QVBoxLayout(self._acquisition_tab)
+        self.registration = RegistrationPanel()
+        self.review = ReviewScreen()
+        self.tabs.addTab(self._acquisition_tab, "Acquisition")
+        self.tabs.addTab(self.registration, "Registration")
+        self.tabs.addTab(self.review, "Review")
+        self.setCentralWidget(self.tabs)
+        self.wizards = WizardLauncher(self)
+        self._menus()
+        self.review.failed.connect(lambda message: self.statusBar().showMessage(message))
+        self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
+        self.resize(1500, 900)
+        self._restore_layout()
+        QApplication.instance().aboutToQuit.connect(self.shutdown)
+        self._show_placeholder(NO_RIG_TEXT)
+        if demo:
+            self.rig = rig or DemoRig()
+            path = session_path or Path(tempfile.gettempdir()) / f"snreg-demo-{time.strftime('%Y%m%d-%H%M%S')}.h5"
+            self.set_session(self._create(path, "phantom-demo"))
+            self.demo_spect = DemoSpect(self)
+            self.statusBar().showMessage("demo mode: no hardware; rendering the phantom")
+        elif session_path and Path(session_path).exists():
+            self.open_for_review(session_path)
+        elif session_path:
+            self.set_session(self._create(session_path, Path(session_path).stem))
+        else:
             self.statusBar().showMessage("ready")
+        self._update_title()
+
+    # -- menus ---------------------------------------------------------------
+    def _menus(self) -> None:
+        file = self.menuBar().addMenu("&File")
+        self._action(file, "&New session...", self.new_session, QKeySequence.StandardKey.New)
+        self._action(file, "&Continue session...", self.continue_session)
+        self._action(file, "&Open session for review...", self.choose_review, QKeySequence.StandardKey.Open)
+        self.recent_menu = file.addMenu("Recent sessions")
+        self.recent_menu.aboutToShow.connect(self._fill_recent)
+        file.addSeparator()
+        self._action(file, "&Quit", self.close, QKeySequence.StandardKey.Quit)
+        devices = self.menuBar().addMenu("&Devices")
+        self._action(devices, "Select cameras and IMU...", self.wizards.select_devices)
+        calibrate = self.menuBar().addMenu("&Calibrate")
+        self._action(calibrate, "Stereo cameras (checkerboard)...", self.wizards.stereo)
+        self._action(calibrate, "Trocar distance...", self.wizards.trocar)
+
+    def _action(self, menu, text, slot, shortcut=None) -> QAction:
+        action = menu.addAction(text)
+        action.triggered.connect(slot)
+        if shortcut is not None:
+            action.setShortcut(shortcut)
+        return action
+
+    def _fill_recent(self) -> None:
+        self.recent_menu.clear()
+        for path in self.recent.paths():
+            self.recent_menu.addAction(path).triggered.connect(lambda _=False, p=path: self.open_for_review(p))
+        if self.recent_menu.isEmpty():
+            self.recent_menu.addAction("(none)").setEnabled(False)
+
+    # -- sessions ------------------------------------------------------------
+    def new_session(self) -> None:
+        case_id, ok = QInputDialog.getText(self, "New session", "Pseudonymous case id (no patient names or dates):")
+        if not ok:
             return
-        self.rig = rig or DemoRig(session_path)
-        self.acquisition = AcquisitionScreen(self.rig.imu, fixes_per_node)
-        self.setCentralWidget(self.acquisition)
+        path, _ = QFileDialog.getSaveFileName(self, "New session file", f"{case_id}.h5", "snreg sessions (*.h5)")
+        if path:
+            self.set_session(self._create(path, case_id))
+
+    def continue_session(self, path: str | None = None) -> None:
+        """Reopen a session to record more nodes into it (after a restart or a crash)."""
+        path = path or QFileDialog.getOpenFileName(self, "Continue session", "", "snreg sessions (*.h5)")[0]
+        if not path:
+            return
+        try:
+            session = Session.resume(path)
+        except SessionError as err:
+            self.statusBar().showMessage(str(err))
+            return
+        self.set_session(session)
+
+    def choose_review(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open session for review", "", "snreg sessions (*.h5)")
+        if path:
+            self.open_for_review(path)
+
+    def open_for_review(self, path: str | Path) -> None:
+        self.recent.add(path)
+        self.review.load(str(path))
+        self.tabs.setCurrentWidget(self.review)
+
+    def _create(self, path, case_id: str) -> Session | None:
+        try:
+            session = Session.create(path, case_id=case_id)
+        except (SessionError, OSError) as err:
+            self.statusBar().showMessage(str(err))
+            return None
+        if self.rig is not None:
+            session.set_calibration(stereo=self.rig.calibration, chain=self.rig.chain)
+        return session
+
+    def set_session(self, session: Session | None) -> None:
+        """Record into ``session`` from now on (the previous one is closed)."""
+        if session is None:
+            return
+        self._stop_acquisition()
+        if self.session is not None:
+            self.session.close()
+        self.session = session
+        self.recent.add(session.path)
+        if self.rig is not None:
+            stored = session.calibration()
+            self.rig.chain = stored.get("chain", self.rig.chain)
+        self.registration.set_session(session)
+        self.statusBar().showMessage(f"recording into {session.path} (case {session.case_id})")
+        self._update_title()
+        self._start_acquisition()
+
+    # -- rig and acquisition -------------------------------------------------
+    def set_rig(self, rig) -> None:
+        """Use ``rig`` (demo or hardware) from now on; the previous one is closed."""
+        self._stop_acquisition()
+        if self.rig is not None:
+            self.rig.close()
+        self.rig = rig
+        if self.session is not None:
+            self.session.set_calibration(stereo=rig.calibration, chain=rig.chain)
+        self._start_acquisition()
+
+    def restart_acquisition(self) -> None:
+        """After a calibration changed the rig: the worker starts again with it."""
+        self._stop_acquisition()
+        self._start_acquisition()
+
+    def _start_acquisition(self) -> None:
+        if self.rig is None or self.session is None:
+            self._show_placeholder(NO_RIG_TEXT if self.rig is None else "No session: File > New session...")
+            return
+        self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node)
+        self.acquisition.set_nodes(self.session.intraop_records())
+        self._show_in_acquisition_tab(self.acquisition)
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
-                                        self.rig.imu, self.rig.session, self.rig.fps, fixes_per_node)
+                                        self.rig.imu, self.session, self.rig.fps, self.fixes_per_node)
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
         self.worker.frame_processed.connect(self.acquisition.show_result, queued)
         self.worker.node_stored.connect(self.acquisition.add_node, queued)
+        self.worker.node_removed.connect(self.acquisition.remove_node, queued)
+        self.worker.node_stored.connect(self.registration.refresh_intraop, queued)
+        self.worker.node_removed.connect(self.registration.refresh_intraop, queued)
         self.worker.store_failed.connect(self.acquisition.show_store_problem, queued)
         self.worker.source_stopped.connect(self.statusBar().showMessage, queued)
         self.acquisition.store_requested.connect(self.worker.store_node, queued)
-        self.acquisition.fixes_per_node_changed.connect(self.worker.set_max_fixes, queued)
+        self.acquisition.undo_requested.connect(self.worker.undo, queued)
+        self.acquisition.fixes_per_node_changed.connect(self.worker.set_fixes_per_node, queued)
         self.worker.frame_processed.connect(self._first_frame, queued)
-        QApplication.instance().aboutToQuit.connect(self.shutdown)
+        self._waiting_for_frames = True
         self._thread = start_worker(self.worker)
-        self.statusBar().showMessage("demo mode: no hardware; rendering the phantom")
+
+    def _stop_acquisition(self) -> None:
+        if self._thread is not None:
+            stop_worker(self.worker, self._thread)
+            self._thread = None
+            self.worker = None
 
     def _first_frame(self) -> None:
-        self.statusBar().showMessage("demo mode: no hardware")
-        self.worker.frame_processed.disconnect(self._first_frame)
+        if not self._waiting_for_frames:
+            return
+        self._waiting_for_frames = False
+        self.statusBar().showMessage("demo mode: no hardware" if self.demo else f"recording into {self.session.path}")
+
+    def _show_placeholder(self, text: str) -> None:
+        label = QLabel(text)
+        label.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self._show_in_acquisition_tab(label)
+
+    def _show_in_acquisition_tab(self, widget: QWidget) -> None:
+        layout = self._acquisition_tab.layout()
+        while layout.count():
+            old = layout.takeAt(0).widget()
+            if old is not None:
+                old.deleteLater()
+        layout.addWidget(widget)
+
+    # -- window --------------------------------------------------------------
+    def _update_title(self) -> None:
+        mode = "demo" if self.demo else (str(self.session.path) if self.session else "no session")
+        self.setWindowTitle(f"snreg {__version__} - {mode}")
+
+    def _restore_layout(self) -> None:
+        geometry = self.settings.value("window/geometry")
+        if geometry is not None:
+            self.restoreGeometry(geometry)
+        state = self.settings.value("window/state")
+        if state is not None:
+            self.restoreState(state)
+        self.tabs.setCurrentIndex(int(self.settings.value("window/tab", 0)))
 
     def closeEvent(self, event) -> None:
         self.shutdown()
         super().closeEvent(event)
 
     def shutdown(self) -> None:
-        """Stop the worker, then the devices, and close the session file; safe to call twice."""
-        if self._thread is not None:
-            stop_worker(self.worker, self._thread)
-            self._thread = None
+        """Remember the layout, stop the worker, then the devices, and close the session file; safe to call twice."""
+        self.settings.setValue("window/geometry", self.saveGeometry())
+        self.settings.setValue("window/state", self.saveState())
+        self.settings.setValue("window/tab", self.tabs.currentIndex())
+        self._stop_acquisition()
+        self.wizards.shutdown()
+        self.registration.shutdown()
         if self.rig is not None:
             self.rig.close()
             self.rig = None
+        if self.session is not None:
+            self.session.close()
+            self.session = None
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="snreg-gui", description="snreg acquisition app")
+    parser = argparse.ArgumentParser(prog="snreg-gui", description="snreg acquisition, registration and review app")
     parser.add_argument("--demo", action="store_true", help="simulated devices, no hardware")
-    parser.add_argument("session", nargs="?", help="session file to create (.h5); demo default: a new file in the temp folder")
+    parser.add_argument("session", nargs="?", help="session file: an existing one opens for review, a new name is "
+                        "created for recording (demo default: a new file in the temp folder)")
     args = parser.parse_args(argv)
     app = QApplication.instance() or QApplication(sys.argv[:1])
     window = MainWindow(args.session, demo=args.demo)

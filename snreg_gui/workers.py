@@ -15,7 +15,7 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable
 
-from PySide6.QtCore import QObject, QThread, Signal, Slot
+from PySide6.QtCore import QObject, Qt, QThread, Signal, Slot
 
 
 class Worker(QObject):
@@ -42,7 +42,8 @@ class Worker(QObject):
         self._thread = QThread()
         self.moveToThread(self._thread)
         self._thread.started.connect(self._run)
-        self.finished.connect(self._thread.quit)
+        # direct: the thread ends even when the GUI event loop is not running (shutdown, tests)
+        self.finished.connect(self._thread.quit, Qt.ConnectionType.DirectConnection)
         self._thread.start()
         return self
 

@@ -2,7 +2,11 @@
 
 import os
 
+import tempfile
+
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+# QSettings (recent files, window layout, devices) of the app under test never touch the user's own.
+os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="snreg-test-config-")
 
 import numpy as np
 import pytest

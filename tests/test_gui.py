@@ -17,7 +17,9 @@ def test_main_window_without_demo_says_what_to_do(qtbot):
     window = MainWindow()
     qtbot.addWidget(window)
     assert window.statusBar().currentMessage() == "ready"
-    assert "--demo" in window.centralWidget().text()
+    placeholder = window.tabs.widget(0).layout().itemAt(0).widget()
+    assert "--demo" in placeholder.text() and "Select cameras and IMU" in placeholder.text()
+    window.shutdown()
 
 
 def test_painting_does_not_run_down_the_reference_count_of_none(qtbot):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from PySide6.QtCore import Qt, QTimer
 
+from snreg.acquisition import FrameOutcome
 from snreg.session import Session
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import FrameResult
@@ -34,8 +35,8 @@ class Heartbeat:
 
 @pytest.fixture
 def demo_window(qtbot, tmp_path):
-    rig = DemoRig(tmp_path / "demo.h5", schedule=Schedule(rest_frames=45, move_frames=3))
-    window = MainWindow(demo=True, rig=rig, fixes_per_node=FIXES)
+    rig = DemoRig(schedule=Schedule(rest_frames=45, move_frames=3))
+    window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=rig, fixes_per_node=FIXES)
     qtbot.addWidget(window)
     window.show()
     qtbot.waitExposed(window)
@@ -46,9 +47,9 @@ def demo_window(qtbot, tmp_path):
 def settled_on_a_node(results, scene, screen, other_than=None):
     """The last FIXES frames were tracked resting on one node (not ``other_than``), with frames to spare before it moves."""
     recent = results[-FIXES:]
-    if len(recent) < FIXES or any(r.fix is None for r in recent):
+    if len(recent) < FIXES or any(r.outcome.fix is None for r in recent):
         return False
-    nodes = {scene.resting_node(r.index) for r in recent} | {scene.resting_node(recent[-1].index + 15)}
+    nodes = {scene.resting_node(r.outcome.index) for r in recent} | {scene.resting_node(recent[-1].outcome.index + 15)}
     return len(nodes) == 1 and nodes != {None} and nodes != {other_than} and screen.store_button.isEnabled()
 
 
@@ -56,7 +57,7 @@ def store_when_settled(qtbot, window, results, other_than=None) -> int:
     """Wait until the probe rests on a node, press Store SN, wait for the node in the table; returns the node index."""
     scene, screen = window.rig.scene, window.acquisition
     qtbot.waitUntil(lambda: settled_on_a_node(results, scene, screen, other_than), timeout=20_000)
-    node_index, rows = scene.resting_node(results[-1].index), screen.nodes.rowCount()
+    node_index, rows = scene.resting_node(results[-1].outcome.index), screen.nodes.rowCount()
     qtbot.mouseClick(screen.store_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == rows + 1, timeout=5_000)
     return node_index
@@ -74,9 +75,14 @@ def test_store_nodes_in_demo(qtbot, demo_window):
     heartbeat.timer.stop()
     assert [screen.nodes.item(row, 0).text() for row in range(2)] == ["SN1", "SN2"]
     gap = heartbeat.max_gap_ms()
+    qtbot.mouseClick(screen.undo_button, Qt.MouseButton.LeftButton)          # take SN2 back, then store it again
+    qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=5_000)
+    assert "undone: SN2" in screen.store_status.text()
+    second = store_when_settled(qtbot, window, results, other_than=first)
+    assert screen.nodes.item(1, 0).text() == "SN2"
     print(f"GUI thread max gap {gap:.1f} ms over {len(results)} frames, {len(heartbeat.ticks)} ticks")
     assert gap < MAX_GUI_GAP_MS
-    session_path = rig.session.path
+    session_path = window.session.path
     window.shutdown()
 
     with Session.open(session_path) as session:
@@ -89,6 +95,25 @@ def test_store_nodes_in_demo(qtbot, demo_window):
         assert np.linalg.norm(node.xyz_trocar - truth_trocar) < 2.0
         assert node.spread_mm < 1.0 and node.n_frames == FIXES
         assert len(node.left_jpeg) > 0 and len(node.right_jpeg) > 0
+
+
+def test_auto_store_stores_a_node_once_the_probe_is_held_still(qtbot, demo_window):
+    window, rig = demo_window
+    screen = window.acquisition
+    results = []
+    window.worker.frame_processed.connect(results.append)
+    screen.label_edit.setText("EXT L")
+    screen.auto_store.setChecked(True)
+    qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=30_000)
+    stored_at = results[-1].outcome.index
+    node = window.session.intraop_records()[0]
+    node_index = rig.scene.resting_node(stored_at)
+    assert node.label == "EXT L" and node_index is not None
+    assert np.linalg.norm(node.xyz_camera - rig.scene.truth_tip(node_index)) < 1.5
+    assert node.spread_mm < 1.0                                     # stored only once the window was still
+    frames_later = stored_at + 20                                   # still resting there: no second node of it
+    qtbot.waitUntil(lambda: results[-1].outcome.index >= frames_later, timeout=10_000)
+    assert rig.scene.resting_node(frames_later) != node_index or screen.nodes.rowCount() == 1
 
 
 def test_store_is_disabled_with_a_reason_until_enough_fixes(qtbot, demo_window):
@@ -111,8 +136,8 @@ class StillImu:
 
 def frame_without_fix(reason: str) -> FrameResult:
     rgb = np.zeros((54, 96, 3), np.uint8)
-    return FrameResult(0, rgb, rgb, None, reason, None, None, None, StillImu().snapshot(), 0.0, 30.0, 5.0, 0,
-                       time.perf_counter_ns())
+    outcome = FrameOutcome(0, None, reason, None, 0, float("nan"), False, False, 5.0)
+    return FrameResult(outcome, rgb, rgb, None, None, StillImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
 
 
 def test_store_disabled_with_the_tracking_reason_and_stale_feed_flagged(qtbot):

@@ -18,7 +18,7 @@ import numpy as np
 from snreg.acquisition import Acquisition, ImuReading
 from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment, true_sources_lps, write_phantom_spect
 from snreg.demo.rig import DemoRig
-from snreg.demo.scene import NODE_CENTRES_MM, Schedule
+from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
@@ -75,7 +75,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             frames = _record(rig, session, fixes_per_node)
-            sources = true_sources_lps(np.array([rig.scene.truth_tip(k) for k in range(N_NODES)]), rig.chain)
+            sources = true_sources_lps(phantom_tips(rig.probe), rig.chain)
             spect = write_phantom_spect(sources, spect_path_for(session_path), seed=seed)
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes

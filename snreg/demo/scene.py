@@ -23,6 +23,12 @@ _AXIS = np.array([1.0, -0.35, 0.4])        # probe pointing right, up and away: 
 NODE_CENTRES_MM = np.array([[-18.0, -6.0, 85.0], [16.0, -4.0, 92.0], [14.0, 8.0, 118.0], [-16.0, 6.0, 110.0]])
 
 
+def phantom_tips(probe: ProbeModel) -> np.ndarray:
+    """(4, 3) probe tips (left camera frame, mm) resting on the four phantom nodes: where the sources are."""
+    axis = _AXIS / np.linalg.norm(_AXIS)
+    return NODE_CENTRES_MM - probe.band_centre_mm * axis
+
+
 @dataclass(frozen=True)
 class Schedule:
     """Frames spent resting on each node and moving to the next; ``noise_variants`` exposures per rest."""
@@ -44,7 +50,7 @@ class PhantomScene:
         self.schedule, self.noise_sigma, self.seed = schedule, noise_sigma, seed
         self.renderer = StereoRenderer(calibration, probe)
         axis = _AXIS / np.linalg.norm(_AXIS)
-        self.node_poses = [ProbePose.make(centre - probe.band_centre_mm * axis, axis) for centre in NODE_CENTRES_MM]
+        self.node_poses = [ProbePose.make(tip, axis) for tip in phantom_tips(probe)]
         self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def resting_node(self, index: int) -> int | None:

@@ -14,6 +14,8 @@ stored, so an undone node stays on record there.
 from __future__ import annotations
 
 import datetime
+import functools
+import threading
 import time
 from pathlib import Path
 
@@ -30,6 +32,16 @@ from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, Intraop
 __all__ = ["Session", "SessionError", "IntraopNode", "read_intraop_nodes", "validate_case_id"]
 
 
+def _serialised(method):
+    """Run a writing method under the session's lock: the acquisition worker (nodes, streams) and the
+    registration panel's worker (preop, results) may write at the same time from their own threads."""
+    @functools.wraps(method)
+    def locked(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    return locked
+
+
 class Session:
     """A session being recorded (:meth:`create`) or read (:meth:`open`); use it as a context manager."""
 
@@ -40,6 +52,7 @@ class Session:
         self._preop: dict | None = None
         self._registrations: list[dict] = []
         self._buffers: dict[str, writer.StreamBuffer] = {}
+        self._lock = threading.RLock()
 
     # -- opening -------------------------------------------------------------
     @classmethod
@@ -160,6 +173,7 @@ class Session:
                 known.add(data["n"])
 
     # -- writing -------------------------------------------------------------
+    @_serialised
     def add_intraop_node(self, node_id: str, label: str, xyz_trocar, *, xyz_camera=None, spread_mm: float = float("nan"),
                          n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
                          left_jpeg=b"", right_jpeg=b"") -> IntraopNode:
@@ -181,6 +195,7 @@ class Session:
         self._nodes[node_id] = node
         return node
 
+    @_serialised
     def remove_intraop_node(self, node_id: str) -> IntraopNode:
         """Take back a stored node (undo); durable when this returns. The journal keeps the node on record."""
         self._writable()
@@ -204,6 +219,7 @@ class Session:
     def writable(self) -> bool:
         return self._journal is not None
 
+    @_serialised
     def set_calibration(self, *, stereo=None, chain=None) -> None:
         """Store a :class:`~snreg.calibration.files.StereoCalibration` and/or a :class:`~snreg.chain.ChainCalibration`."""
         self._writable()
@@ -215,6 +231,7 @@ class Session:
             self._calibration[kind] = data
         self._h5.flush()
 
+    @_serialised
     def set_preop_nodes(self, nodes: NodeSet) -> None:
         self._writable()
         data = {"ids": nodes.ids, "labels": nodes.labels, "xyz": nodes.xyz.tolist(),
@@ -224,6 +241,7 @@ class Session:
         self._h5.flush()
         self._preop = data
 
+    @_serialised
     def add_registration(self, result) -> int:
         """Store a :class:`~snreg.registration.RegistrationResult` as ``registration/<n>``; returns n."""
         self._writable()
@@ -250,6 +268,7 @@ class Session:
         """Frame times (n,) ns and frame indices (n,)."""
         self._append("frames", t_host_ns=t_host_ns, t_device_ns=t_device_ns, index=index)
 
+    @_serialised
     def _append(self, name: str, **columns) -> None:
         self._writable()
         n = np.atleast_1d(columns["t_host_ns"]).shape[0]
@@ -327,6 +346,7 @@ class Session:
                 h5[f"streams/{name}"][:] = rows
 
     # -- closing -------------------------------------------------------------
+    @_serialised
     def close(self) -> None:
         """Flush buffered streams and close the files (idempotent)."""
         if self._h5 is not None and self._h5.id.valid:

@@ -1,0 +1,117 @@
+"""Opening the device dialog and the calibration wizards from the main window, and applying what they return.
+
+Why: a wizard needs the cameras to itself, so acquisition stops while it runs and starts again after, with
+the new calibration or chain. In demo mode the wizards get rendered scenes (a checkerboard tour, a pivot
+recording with its IMU); with hardware, the rig's own cameras and IMU. The code after the sources is the same.
+"""
+
+from __future__ import annotations
+
+import json
+
+from snreg.calibration.board_feed import THESIS_BOARD
+
+_DEVICES_KEY = "devices/config"
+
+
+class WizardLauncher:
+    """Owned by the main window; ``window`` gives ``rig``, ``session``, ``settings``, ``set_rig`` and the status bar."""
+
+    def __init__(self, window):
+        self._window = window
+        self.active = None          # the wizard or dialog now open
+
+    def stereo(self) -> None:
+        from snreg.calibration.board_feed import board_feed
+        from snreg_gui.stereo_wizard import StereoCalibrationWizard
+        window = self._window
+        if not self._have_rig():
+            return
+        if window.demo:
+            make_source = lambda: board_feed(window.rig.calibration)          # noqa: E731
+        else:       # no check against the calibration being replaced: the camera may run at a new resolution
+            from snreg.rig import open_frame_source
+            make_source = lambda: open_frame_source(window.rig.config)         # noqa: E731
+        wizard = StereoCalibrationWizard(make_source, THESIS_BOARD, parent=window)
+        wizard.calibrated.connect(self._stereo_done)
+        self._open(wizard)
+
+    def trocar(self) -> None:
+        from snreg.calibration.pivot_demo import PivotScene, SceneImu
+        from snreg_gui.trocar_wizard import TrocarWizard
+        window = self._window
+        if not self._have_rig():
+            return
+        if window.demo:
+            scene = PivotScene(window.rig.calibration, THESIS_BOARD)
+            imu = SceneImu(scene)
+
+            def make_source():
+                scene.prerender()
+                return scene.frame_source()
+        else:
+            make_source, imu = window.rig.frame_source, window.rig.imu
+        wizard = TrocarWizard(make_source, imu, window.rig.calibration, THESIS_BOARD, session=window.session,
+                              parent=window)
+        wizard.chain_calibrated.connect(self._chain_done)
+        self._open(wizard)
+
+    def select_devices(self) -> None:
+        from snreg.rig import HardwareRig, RigConfig
+        from snreg_gui.device_dialog import DeviceDialog
+        window = self._window
+        stored = window.settings.value(_DEVICES_KEY)
+        try:
+            config = RigConfig.from_dict(json.loads(stored)) if stored else None
+        except (ValueError, TypeError):
+            config = None
+        dialog = DeviceDialog(config, parent=window)
+        if not dialog.exec():
+            return
+        config = dialog.config()
+        try:
+            chain = window.session.calibration().get("chain") if window.session is not None else None
+            rig = HardwareRig(config, chain=chain)
+        except (ValueError, OSError) as err:
+            window.statusBar().showMessage(f"The devices could not be opened: {err}")
+            return
+        window.settings.setValue(_DEVICES_KEY, json.dumps(config.to_dict()))
+        window.demo = False
+        window.set_rig(rig)
+
+    def shutdown(self) -> None:
+        if self.active is not None:
+            self.active.reject()
+            self.active = None
+
+    # -- results -------------------------------------------------------------
+    def _stereo_done(self, calibration) -> None:
+        window = self._window
+        window.rig.calibration = calibration
+        if window.session is not None:
+            window.session.set_calibration(stereo=calibration)
+        window.statusBar().showMessage(f"stereo calibration applied: RMS {calibration.rms_reprojection_px:.3f} px, "
+                                       f"baseline {calibration.baseline_mm:.2f} mm")
+
+    def _chain_done(self, chain) -> None:
+        window = self._window
+        window.rig.chain = chain
+        window.statusBar().showMessage(f"trocar calibration applied: trocar-camera {chain.trocar_camera_mm:.1f} mm")
+
+    # -- helpers -------------------------------------------------------------
+    def _have_rig(self) -> bool:
+        if self._window.rig is None:
+            self._window.statusBar().showMessage("Choose the cameras first: Devices > Select cameras and IMU...")
+            return False
+        return True
+
+    def _open(self, wizard) -> None:
+        """Stop acquisition (the wizard needs the cameras), show the wizard, restart acquisition when it closes."""
+        self._window._stop_acquisition()
+        self.active = wizard
+        wizard.finished.connect(self._closed)
+        wizard.open()
+
+    def _closed(self, _result: int) -> None:
+        self.active = None
+        self._window.restart_acquisition()

@@ -1,0 +1,60 @@
+"""The shared worker (snreg_gui.workers.Worker): results, generators, errors and stopping, off the GUI thread."""
+
+import threading
+
+import pytest
+
+from snreg_gui.workers import Worker
+
+
+def run(qtbot, worker, timeout=5_000):
+    events = {"yielded": [], "returned": [], "errored": []}
+    for name, store in events.items():
+        getattr(worker, name).connect(store.append)
+    with qtbot.waitSignal(worker.finished, timeout=timeout):
+        worker.start()
+    assert worker.wait(2_000)
+    return events
+
+
+def test_a_function_returns_its_result_from_another_thread(qtbot):
+    seen = []
+    events = run(qtbot, Worker(lambda a, b: seen.append(threading.current_thread()) or a + b, 2, b=3))
+    assert events == {"yielded": [], "returned": [5], "errored": []}
+    assert seen[0] is not threading.main_thread()
+
+
+def test_a_generator_yields_then_returns(qtbot):
+    def count(n):
+        for k in range(n):
+            yield k
+        return "done"
+
+    events = run(qtbot, Worker(count, 4))
+    assert events["yielded"] == [0, 1, 2, 3] and events["returned"] == ["done"]
+
+
+def test_an_exception_becomes_one_sentence(qtbot):
+    def fail():
+        raise ValueError("the file is not a calibration; choose another")
+
+    events = run(qtbot, Worker(fail))
+    assert events["errored"] == ["the file is not a calibration; choose another"] and events["returned"] == []
+
+
+@pytest.mark.parametrize("ask_to_quit_after", [1, 3])
+def test_quit_stops_an_endless_generator(qtbot, ask_to_quit_after):
+    worker = None
+
+    def endless():
+        k = 0
+        while True:
+            if k == ask_to_quit_after:
+                worker.quit()
+            yield k
+            k += 1
+
+    worker = Worker(endless)
+    events = run(qtbot, worker)
+    assert events["yielded"] == list(range(ask_to_quit_after + 1)) and events["errored"] == []
+    assert not worker.running
