@@ -1,0 +1,211 @@
+"""The checkerboard stereo calibration wizard: set up the board, capture views live, calibrate, save.
+
+Why: before surgery the technician calibrates the Firefly stereo endoscope by showing it a
+checkerboard in many poses (thesis §3.3, §4.2: 30 views) and needs to see, while doing it, that the
+views are good and varied, and to judge and save the result (DESIGN.md §4, Calibration file). Pages:
+
+1. Setup: inner corners (cols x rows, as OpenCV counts them), square size, target number of views.
+2. Capture: both live feeds with the found corners, "Capture view" and auto-capture, a coverage map
+   per eye, warnings for repeated views (:mod:`snreg_gui.stereo_wizard_capture`).
+3. Calibrate: :func:`~snreg.calibration.stereo.calibrate_stereo` in a worker, RMS, per-view errors,
+   drop views and recalibrate (:mod:`snreg_gui.stereo_wizard_calibrate`).
+4. Save: :func:`~snreg.calibration.files.save_calibration` to a YAML file.
+
+The feed is read and searched in a worker thread (``make_source`` is called there), and every worker
+is stopped, and the source closed, when the wizard finishes, is cancelled or is closed.
+
+>>> from snreg.calibration.board_feed import board_feed
+>>> wizard = StereoCalibrationWizard(board_feed, Board(10, 7, 10.0), target_views=30)
+>>> wizard.calibrated.connect(lambda calibration: print(calibration.baseline_mm))
+>>> wizard.show()
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+from PySide6.QtCore import QCoreApplication, QEventLoop, Signal
+from PySide6.QtWidgets import (QDoubleSpinBox, QFileDialog, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton,
+                               QSpinBox, QVBoxLayout, QWizard, QWizardPage)
+
+from snreg.calibration.board_feed import THESIS_BOARD
+from snreg.calibration.checkerboard import Board
+from snreg.calibration.files import save_calibration
+from snreg.calibration.stereo import MIN_VIEWS
+from snreg.sources import FrameSource
+from snreg_gui.stereo_wizard_calibrate import CalibratePage
+from snreg_gui.stereo_wizard_capture import CapturePage
+from snreg_gui.workers import Worker
+
+__all__ = ["StereoCalibrationWizard"]
+
+DEFAULT_FILE = "calibration.yaml"
+_SHUTDOWN_WAIT_S = 120.0         # a running calibration cannot be interrupted; it ends within seconds
+_SHUTDOWN_POLL_MS = 10
+
+
+class SetupPage(QWizardPage):
+    """Board (inner corners and square size) and the target number of views; complete when the board is valid."""
+
+    def __init__(self, board: Board, target_views: int):
+        super().__init__()
+        self.setTitle("Checkerboard")
+        self.setSubTitle("Count the inner corners as OpenCV does: a board of 11 x 8 squares has 10 x 7.")
+        self.cols, self.rows = QSpinBox(), QSpinBox()
+        for spin, value in ((self.cols, board.cols), (self.rows, board.rows)):
+            spin.setRange(2, 60)
+            spin.setValue(value)
+        self.square_mm = QDoubleSpinBox()
+        self.square_mm.setRange(0.1, 500.0)
+        self.square_mm.setDecimals(2)
+        self.square_mm.setSuffix(" mm")
+        self.square_mm.setValue(board.square_mm)
+        self.target_views = QSpinBox()
+        self.target_views.setRange(MIN_VIEWS, 500)
+        self.target_views.setValue(target_views)
+        self.problem = QLabel("")
+        self.problem.setStyleSheet("color: red")
+        form = QFormLayout(self)
+        form.addRow("inner corners across (cols)", self.cols)
+        form.addRow("inner corners down (rows)", self.rows)
+        form.addRow("square size", self.square_mm)
+        form.addRow("target number of views", self.target_views)
+        form.addRow(self.problem)
+        for spin in (self.cols, self.rows, self.square_mm):
+            spin.valueChanged.connect(self._check)
+        self._check()
+
+    def board(self) -> Board:
+        return Board(self.cols.value(), self.rows.value(), self.square_mm.value())
+
+    def isComplete(self) -> bool:
+        return not self.problem.text()
+
+    def _check(self) -> None:
+        try:
+            self.board()
+            self.problem.setText("")
+        except ValueError:
+            self.problem.setText("Columns and rows must differ (so the board's orientation is known); "
+                                 "check the inner-corner count.")
+        self.completeChanged.emit()
+
+
+class SavePage(QWizardPage):
+    """Where to write the calibration; Finish writes it (``saved_path``), or says why it cannot."""
+
+    def __init__(self, calibrate_page: CalibratePage):
+        super().__init__()
+        self.setTitle("Save")
+        self.setSubTitle("Finish writes the calibration file (OpenCV YAML) and hands the calibration to the app.")
+        self.setFinalPage(True)
+        self._calibrate_page = calibrate_page
+        self.saved_path: Path | None = None
+        self.path_edit = QLineEdit(DEFAULT_FILE)
+        self.browse_button = QPushButton("Browse ...")
+        self.summary, self.status = QLabel(""), QLabel("")
+        self.status.setStyleSheet("color: red")
+        row = QHBoxLayout()
+        row.addWidget(self.path_edit)
+        row.addWidget(self.browse_button)
+        layout = QVBoxLayout(self)
+        layout.addWidget(self.summary)
+        layout.addLayout(row)
+        layout.addWidget(self.status)
+        self.browse_button.clicked.connect(self._browse)
+
+    def initializePage(self) -> None:
+        result = self._calibrate_page.result
+        self.summary.setText(f"{result.n_views} views, RMS {result.rms_px:.3f} px, "
+                             f"baseline {result.calibration.baseline_mm:.3f} mm")
+        self.status.setText("")
+
+    def validatePage(self) -> bool:
+        text = self.path_edit.text().strip()
+        if not text:
+            self.status.setText("Enter a file name for the calibration, e.g. calibration.yaml.")
+            return False
+        path = Path(text).expanduser().resolve()
+        if not path.parent.is_dir():
+            self.status.setText(f"The folder {path.parent} does not exist; choose another place.")
+            return False
+        if path.is_dir():
+            self.status.setText(f"{path} is a folder; enter a file name such as calibration.yaml.")
+            return False
+        try:
+            save_calibration(self._calibrate_page.result.calibration, path)
+        except (cv2.error, OSError):
+            pass
+        if not path.is_file():
+            self.status.setText(f"Cannot write {path}; choose a folder you may write to.")
+            return False
+        self.saved_path = path
+        return True
+
+    def _browse(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(self, "Save calibration", self.path_edit.text(), "Calibration (*.yaml *.yml)")
+        if path:
+            self.path_edit.setText(path)
+
+
+class StereoCalibrationWizard(QWizard):
+    """Checkerboard stereo calibration on a live feed; emits ``calibrated(StereoCalibration)`` on Finish.
+
+    ``make_source`` builds the stereo :class:`~snreg.sources.FrameSource` (called in a worker thread);
+    ``board`` gives the setup page's defaults (thesis board 10 x 7 inner corners of 10 mm when None).
+    """
+
+    calibrated = Signal(object)
+
+    def __init__(self, make_source: Callable[[], FrameSource], board: Board | None = None, *,
+                 target_views: int = 30, parent=None):
+        super().__init__(parent)
+        self.setWindowTitle("Stereo calibration")
+        self._workers: list[Worker] = []
+        self.setup_page = SetupPage(board or THESIS_BOARD, target_views)
+        self.capture_page = CapturePage(make_source, self.setup_page.board, self.setup_page.target_views.value,
+                                        self._run_worker)
+        self.calibrate_page = CalibratePage(lambda: self.capture_page.views, self.setup_page.board, self._run_worker)
+        self.save_page = SavePage(self.calibrate_page)
+        for page in (self.setup_page, self.capture_page, self.calibrate_page, self.save_page):
+            self.addPage(page)
+        self.currentIdChanged.connect(self._page_changed)
+        self.resize(1200, 800)
+
+    def has_running_workers(self) -> bool:
+        """Whether any of the wizard's threads (feed, calibration) is still running."""
+        return any(worker.running for worker in self._workers)
+
+    def shutdown(self) -> None:
+        """Stop the feed (closing its source) and wait for every worker; safe to call twice.
+
+        A Worker's thread is ended by a call queued to this (GUI) thread, so events are let through
+        (user input excluded) while waiting.
+        """
+        self.capture_page.stop_feed()
+        for worker in self._workers:
+            worker.quit()
+        deadline = time.monotonic() + _SHUTDOWN_WAIT_S
+        for worker in self._workers:
+            while not worker.wait(_SHUTDOWN_POLL_MS) and time.monotonic() < deadline:
+                QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.ExcludeUserInputEvents)
+
+    def done(self, result: int) -> None:
+        """Finish, Cancel, Escape and closing the window all end here."""
+        self.shutdown()
+        calibration = self.calibrate_page.result
+        if result == QWizard.DialogCode.Accepted and calibration is not None:
+            self.calibrated.emit(calibration.calibration)
+        super().done(result)
+
+    def _run_worker(self, worker: Worker) -> None:
+        """Start ``worker`` (signals already connected) and keep it until it has ended."""
+        self._workers = [w for w in self._workers if w.running]
+        self._workers.append(worker)
+        worker.start()
+
+    def _page_changed(self, _page_id: int) -> None:
+        self.capture_page.pause_feed(self.currentPage() is not self.capture_page)
