@@ -13,15 +13,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
-import numpy as np
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (QLabel, QProgressBar, QPushButton, QTableWidget, QTableWidgetItem, QVBoxLayout,
                                QWizardPage)
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.command import _SUSPECT_FACTOR
-from snreg.calibration.stereo import StereoResult, calibrate_stereo, drop_views
+from snreg.calibration.stereo import SUSPECT_FACTOR, StereoResult, calibrate_stereo, drop_views
 from snreg_gui.stereo_wizard_capture import CapturedView
 from snreg_gui.workers import Worker
 
@@ -144,14 +142,14 @@ class CalibratePage(QWizardPage):
         else:
             self.summary.setText(_summary(result))
             errors = result.view_errors_px
-            suspect = errors.max(axis=1) > _SUSPECT_FACTOR * np.median(errors)
+            suspect = result.suspect_views
             self.table.setRowCount(result.n_views)
             for row, view in enumerate(result.view_ids):
                 drop = QTableWidgetItem(f"view {view + 1}")
                 drop.setFlags(Qt.ItemFlag.ItemIsEnabled | Qt.ItemFlag.ItemIsUserCheckable)
                 drop.setCheckState(Qt.CheckState.Unchecked)
                 cells = [drop] + [QTableWidgetItem(f"{v:.3f}") for v in (*errors[row], result.view_reconstruction_mm[row])]
-                cells.append(QTableWidgetItem("check: error over 2x the median" if suspect[row] else ""))
+                cells.append(QTableWidgetItem(f"check: error over {SUSPECT_FACTOR:g}x the median" if suspect[row] else ""))
                 for column, item in enumerate(cells):
                     if column:
                         item.setFlags(Qt.ItemFlag.ItemIsEnabled)

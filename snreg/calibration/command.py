@@ -11,16 +11,12 @@ import argparse
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from snreg.calibration.checkerboard import Board
 from snreg.calibration.files import save_calibration
 from snreg.calibration.stereo import StereoResult, calibrate_stereo, drop_views, load_image_pairs
 
 __all__ = ["add_calibrate_parser"]
-
-_SUSPECT_FACTOR = 2.0  # views with an error above this many times the median are flagged in the table
-
 
 def add_calibrate_parser(subparsers) -> argparse._SubParsersAction:
     """Add ``calibrate`` (with ``stereo``) to the ``snreg`` subparsers; returns its own subparsers."""
@@ -81,7 +77,7 @@ def _report(result: StereoResult, left_paths: list[str], right_paths: list[str])
               f"focal length (px): left {calib.K1[0, 0]:.1f} {calib.K1[1, 1]:.1f}, right {calib.K2[0, 0]:.1f} {calib.K2[1, 1]:.1f}",
               "",
               f"{'view':>4}  {'left':<24} {'right':<24} {'left px':>8} {'right px':>8} {'recon mm':>9}"]
-    suspect = result.view_errors_px.max(axis=1) > _SUSPECT_FACTOR * np.median(result.view_errors_px)
+    suspect = result.suspect_views
     for k, view in enumerate(result.view_ids):
         mark = "  <- check; --drop to leave out" if suspect[k] else ""
         lines.append(f"{view:>4}  {Path(left_paths[view]).name:<24} {Path(right_paths[view]).name:<24} "

@@ -24,10 +24,11 @@ import numpy as np
 from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.files import StereoCalibration
 
-__all__ = ["MIN_VIEWS", "MonoCalibration", "StereoResult", "ImagePairs", "calibrate_mono", "calibrate_stereo",
+__all__ = ["MIN_VIEWS", "SUSPECT_FACTOR", "MonoCalibration", "StereoResult", "ImagePairs", "calibrate_mono", "calibrate_stereo",
            "drop_views", "load_image_pairs"]
 
 MIN_VIEWS = 3
+SUSPECT_FACTOR = 2.0      # a view whose worse eye's error is above this many times the median error is suspect
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 
 
@@ -74,6 +75,11 @@ class StereoResult:
     @property
     def n_views(self) -> int:
         return len(self.view_ids)
+
+    @property
+    def suspect_views(self) -> np.ndarray:
+        """(n,) bool: views worth checking (and perhaps dropping), by ``SUSPECT_FACTOR`` x the median error."""
+        return self.view_errors_px.max(axis=1) > SUSPECT_FACTOR * np.median(self.view_errors_px)
 
 
 @dataclass(frozen=True)
