@@ -22,7 +22,7 @@ from snreg.calibration.pivot import GOOD_TILT_DEG
 from snreg.geometry import euler_from_rotation
 from snreg.sources import FrameSource
 from snreg_gui.feed_view import FeedView
-from snreg_gui.trocar_wizard_pages import ChainChoice, PageId, release_finished, start_worker
+from snreg_gui.trocar_wizard_pages import ChainChoice, PageId, release_finished
 from snreg_gui.trocar_wizard_samples import (MIN_ARC_PAIRS, MIN_SAMPLE_TURN_DEG, ArcFit, BoardFrame, PivotFit,
                                              PivotSample, capture_samples, fit_arc, fit_pivot)
 from snreg_gui.workers import Worker
@@ -62,7 +62,7 @@ class LiveCapture(QObject):
             worker.returned.connect(self._ended)
             worker.errored.connect(self._failed)
             worker.finished.connect(self._finished)
-            self._worker = start_worker(worker)
+            self._worker = worker.start()
 
     def stop(self) -> None:
         self._wanted = False
@@ -135,7 +135,7 @@ class FitRunner(QObject):
         worker.returned.connect(self._returned)
         worker.errored.connect(self.failed)
         worker.finished.connect(self._finished)
-        self._worker = start_worker(worker)
+        self._worker = worker.start()
 
     def _returned(self, fit) -> None:
         if self._running_generation == self._generation:

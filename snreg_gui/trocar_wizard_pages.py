@@ -11,7 +11,6 @@ import enum
 import math
 from dataclasses import dataclass
 
-from PySide6.QtCore import Qt, QThread
 from PySide6.QtWidgets import QButtonGroup, QFormLayout, QLabel, QLineEdit, QRadioButton, QVBoxLayout, QWizardPage
 
 from snreg.calibration.trocar_command import THESIS_IMU_TROCAR_MM
@@ -37,17 +36,6 @@ class ChainChoice:
     chain: ChainCalibration
     method: str
     quality: str
-
-
-def start_worker(worker: Worker) -> Worker:
-    """Start ``worker`` so that its thread also ends while the GUI thread is blocked in ``wait()``.
-
-    Worker connects ``finished`` to its thread's ``quit`` across threads, so that quit waits for the GUI
-    event loop and a ``wait()`` on the GUI thread (closing the wizard) would time out; quitting the
-    thread's own event loop from the worker thread as ``finished`` is emitted ends it at once.
-    """
-    worker.finished.connect(lambda: QThread.currentThread().quit(), Qt.ConnectionType.DirectConnection)
-    return worker.start()
 
 
 def release_finished(current: Worker | None, finished: Worker) -> bool:
@@ -190,7 +178,7 @@ class SummaryPage(QWizardPage):
             saver.returned.connect(self._save_done)
             saver.errored.connect(self._save_failed)
             saver.finished.connect(self._saver_finished)
-            self._saver = start_worker(saver)
+            self._saver = saver.start()
         return False
 
     def shutdown(self) -> None:
