@@ -1,0 +1,220 @@
+"""A saved session made ready for offline review: everything copied out of the file, streams as plot-ready arrays.
+
+Why: the review screen must show an hour of recording (750k IMU rows at 208 Hz) without blocking and
+without holding the file open, so the reading and the fusing live here, Qt-free and testable: the GUI
+runs :func:`load_review` and then :func:`fuse_imu_blocks` in workers and only plots what they return.
+
+All times are seconds on the host clock (``time.perf_counter_ns``, DESIGN.md §3) from the review
+origin ``t0_ns``: the first sample of any stream (the first node when there are no streams).
+
+>>> review = load_review("s.h5")      # SessionError in one sentence when the file cannot be read
+>>> euler = fuse_imu(review.imu)      # (N, 3) yaw, pitch, roll in degrees, as the live filter computed them
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+
+from snreg.imu.fusion import Fusion
+from snreg.imu.protocol import DEFAULT_ODR_HZ, ImuSample
+from snreg.session import Session, SessionError
+from snreg.session.reader import readable_rows
+
+__all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
+           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "GAP_PERIODS"]
+
+GAP_PERIODS = 3.0          # an interval longer than this many median frame periods is a gap (>= 2 frames lost)
+FUSION_BLOCK = 8192        # samples fused between progress reports (~2 s of work at the filter's ~0.2 ms/sample)
+
+
+@dataclass(frozen=True, eq=False)
+class ImuSeries:
+    """Raw IMU samples: host time (N,) s from the origin; device clock (N,) us; accel (N, 3) g; gyro (N, 3) deg/s."""
+
+    t_s: np.ndarray
+    t_device_us: np.ndarray
+    accel_g: np.ndarray
+    gyro_dps: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ProbeSeries:
+    """Probe fixes: time (N,) s, tip (N, 3) mm in the left camera frame, tracking quality (N,)."""
+
+    t_s: np.ndarray
+    tip_mm: np.ndarray
+    quality: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class FrameSeries:
+    """Frame times (N,) s; the rate per whole second (``rate_edges_s`` (K + 1,), ``rate_hz`` (K,)), the median
+    rate, and the gaps (G, 2): start and duration in s of every interval over :data:`GAP_PERIODS` periods."""
+
+    t_s: np.ndarray
+    rate_edges_s: np.ndarray
+    rate_hz: np.ndarray
+    median_rate_hz: float
+    gaps_s: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ReviewNode:
+    """A stored node: positions mm (trocar, left camera), time s from the origin, snapshots RGB (H, W, 3) or None."""
+
+    id: str
+    label: str
+    t_s: float
+    xyz_trocar: np.ndarray
+    xyz_camera: np.ndarray
+    spread_mm: float
+    n_frames: int
+    counts: float
+    left_rgb: np.ndarray | None
+    right_rgb: np.ndarray | None
+
+
+@dataclass(frozen=True, eq=False)
+class ReviewRegistration:
+    """A stored registration and its pairing table, one row per intraop node it paired.
+
+    ``intraop_ids``/``preop_ids``: names of each row's nodes (``"#k"`` by index where the session's node
+    lists do not match the registration's length; ``""`` for a node judged extra); distances mm, confidence."""
+
+    n: int
+    method: str
+    rms_mm: float
+    n_paired: int
+    intraop_ids: list[str]
+    preop_ids: list[str]
+    distances_mm: np.ndarray
+    confidence: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SessionReview:
+    """What a session holds, in memory. ``stereo_rms_px``/``imu_trocar_mm``/``trocar_camera_mm`` are None when
+    that calibration was not stored; ``damaged``: the HDF5 file was unreadable and the journal was read instead."""
+
+    path: str
+    case_id: str
+    created_utc: str
+    snreg_version: str
+    format_version: int
+    damaged: bool
+    stereo_rms_px: float | None
+    imu_trocar_mm: float | None
+    trocar_camera_mm: float | None
+    t0_ns: int
+    imu: ImuSeries
+    probe: ProbeSeries
+    frames: FrameSeries
+    nodes: list[ReviewNode]
+    registrations: list[ReviewRegistration]
+
+
+def load_review(path: str | Path) -> SessionReview:
+    """Read a session once and close it; :class:`SessionError` in one sentence when it cannot be read."""
+    try:
+        with Session.open(path) as session:
+            streams = {name: _rows(session.stream(name)) for name in ("imu", "probe", "frames")}
+            records = session.intraop_records()
+            preop = session.preop_nodes()
+            registrations = session.registrations()
+            calibration = session.calibration()
+            header, damaged = dict(session.header), session.damaged
+    except SessionError:
+        raise
+    except (OSError, ValueError, KeyError, RuntimeError) as err:
+        raise SessionError(f"{path}: the session could not be read ({err}); check the file or run "
+                           "'snreg session recover'") from None
+    t0_ns = _origin(streams, [r.time_ns for r in records])
+    imu, probe, frames = streams["imu"], streams["probe"], streams["frames"]
+    stereo, chain = calibration.get("stereo"), calibration.get("chain")
+    node_ids = [r.id for r in records]
+    return SessionReview(
+        str(path), str(header.get("case_id", "")), str(header.get("created_utc", "")),
+        str(header.get("snreg_version", "")), int(header.get("format_version", 0)), bool(damaged),
+        None if stereo is None else float(stereo.rms_reprojection_px),
+        None if chain is None else chain.imu_trocar_mm, None if chain is None else chain.trocar_camera_mm, t0_ns,
+        ImuSeries(_seconds(imu["t_host_ns"], t0_ns), np.asarray(imu["t_device_ns"] // 1000, dtype=np.int64),
+                  np.ascontiguousarray(imu["acc_g"], dtype=float), np.ascontiguousarray(imu["gyro_dps"], dtype=float)),
+        ProbeSeries(_seconds(probe["t_host_ns"], t0_ns), np.ascontiguousarray(probe["tip_mm"], dtype=float),
+                    np.ascontiguousarray(probe["quality"], dtype=float)),
+        frame_series(_seconds(frames["t_host_ns"], t0_ns)),
+        [ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
+                    np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
+                    _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg)) for r in records],
+        [_registration(n, result, node_ids, None if preop is None else preop.ids)
+         for n, result in enumerate(registrations)])
+
+
+def frame_series(t_s: np.ndarray) -> FrameSeries:
+    """Rate per whole second and gaps of frame times ``t_s`` (N,) in seconds."""
+    t_s = np.sort(np.asarray(t_s, dtype=float))
+    if len(t_s) < 2:
+        return FrameSeries(t_s, np.zeros(1), np.zeros(0), float("nan"), np.zeros((0, 2)))
+    edges = np.arange(np.floor(t_s[0]), np.floor(t_s[-1]) + 2.0)
+    counts, _ = np.histogram(t_s, bins=edges)
+    steps = np.diff(t_s)
+    period = float(np.median(steps))
+    gap = steps > GAP_PERIODS * period
+    return FrameSeries(t_s, edges, counts.astype(float), 1.0 / period if period > 0 else float("inf"),
+                       np.column_stack([t_s[:-1][gap], steps[gap]]))
+
+
+def fuse_imu_blocks(imu: ImuSeries, block: int = FUSION_BLOCK) -> Iterator[np.ndarray]:
+    """(n, 3) yaw, pitch, roll (degrees) for consecutive blocks of ``imu``, in order.
+
+    The filter is the live one (:class:`~snreg.imu.fusion.Fusion` at the nominal 208 Hz with its default
+    settings), updated sample by sample as the acquisition does, so each step integrates over the device
+    clock (with its 32-bit wrap) and the review shows the angles the operator saw.
+    """
+    fusion = Fusion(DEFAULT_ODR_HZ)
+    for start in range(0, len(imu.t_s), block):
+        stop = min(start + block, len(imu.t_s))
+        yield np.array([fusion.update(ImuSample(0, int(t_us), accel, gyro))     # the filter reads no host time
+                        for t_us, accel, gyro in zip(imu.t_device_us[start:stop], imu.accel_g[start:stop],
+                                                     imu.gyro_dps[start:stop])]).reshape(-1, 3)
+
+
+def fuse_imu(imu: ImuSeries) -> np.ndarray:
+    """All of :func:`fuse_imu_blocks` at once: (N, 3) yaw, pitch, roll in degrees."""
+    return np.concatenate([np.zeros((0, 3)), *fuse_imu_blocks(imu)])
+
+
+def _rows(stream) -> np.ndarray:
+    """A stream table in memory, up to its first unreadable block."""
+    return readable_rows(stream) if isinstance(stream, h5py.Dataset) else np.asarray(stream)
+
+
+def _origin(streams: dict[str, np.ndarray], node_times_ns: list[int]) -> int:
+    firsts = [int(rows["t_host_ns"].min()) for rows in streams.values() if len(rows)]
+    return min(firsts) if firsts else min(node_times_ns, default=0)
+
+
+def _seconds(t_ns: np.ndarray, t0_ns: int) -> np.ndarray:
+    return (np.asarray(t_ns, dtype=np.int64) - t0_ns) / 1e9
+
+
+def _decode_rgb(jpeg: bytes) -> np.ndarray | None:
+    """A JPEG snapshot as RGB (H, W, 3) uint8; None when there is none or it does not decode."""
+    if not jpeg:
+        return None
+    bgr = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _registration(n: int, result, intraop_ids: list[str], preop_ids: list[str] | None) -> ReviewRegistration:
+    pairing = np.asarray(result.pairing, dtype=int)
+    rows = intraop_ids if len(intraop_ids) == len(pairing) else [f"#{k}" for k in range(len(pairing))]
+    names = preop_ids if preop_ids is not None and len(preop_ids) > pairing.max(initial=-1) else None
+    paired = ["" if k < 0 else (names[k] if names is not None else f"#{k}") for k in pairing]
+    return ReviewRegistration(n, result.method, float(result.rms_mm), int(np.sum(pairing >= 0)), list(rows), paired,
+                              np.asarray(result.distances_mm, dtype=float), np.asarray(result.confidence, dtype=float))

@@ -1,0 +1,144 @@
+"""The review screen's panels: the header text, the stored-nodes table, the snapshot pair and the registrations.
+
+Why: each shows one part of a :class:`~snreg.session.timeline.SessionReview` that is already in memory;
+nothing here reads files or computes more than a format string.
+
+>>> header.setText(header_text(review)); fill_node_table(table, review.nodes)
+>>> snapshots.show_pair(node.left_rgb, node.right_rgb)
+>>> registrations.show_registrations(review.registrations)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QLabel, QTableWidget, QTableWidgetItem, QVBoxLayout,
+                               QWidget)
+
+from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
+
+NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "spread (mm)", "frames",
+                "counts")
+REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired")
+PAIRING_COLUMNS = ("intraop node", "preop node", "distance (mm)", "confidence")
+
+
+def header_text(review: SessionReview) -> str:
+    """What the file is: case, creation, versions, intact or read from its journal, calibration, streams."""
+    lines = [f"file: {review.path}",
+             f"case {review.case_id}, created {review.created_utc or 'unknown'} (UTC), snreg {review.snreg_version}, "
+             f"format version {review.format_version}"]
+    if review.damaged:
+        lines.append("DAMAGED: the HDF5 file was unreadable in part; what it lost was read from its journal "
+                     "(streams may be missing); 'snreg session recover' rebuilds a clean file")
+    rms = review.stereo_rms_px
+    stereo = ("stereo not stored" if rms is None else
+              "stereo RMS not recorded" if math.isnan(rms) else f"stereo RMS {rms:.2f} px")
+    chain = ("chain not stored" if review.imu_trocar_mm is None else
+             f"chain IMU-trocar {review.imu_trocar_mm:.1f} mm, trocar-camera {review.trocar_camera_mm:.1f} mm")
+    lines.append(f"calibration: {stereo}; {chain}")
+    frames = review.frames
+    frame_text = f"frames {len(frames.t_s)}"
+    if len(frames.t_s) > 1:
+        gaps = len(frames.gaps_s)
+        longest = f", longest {frames.gaps_s[:, 1].max():.2f} s" if gaps else ""
+        frame_text += f" ({frames.median_rate_hz:.1f}/s median, {gaps} gap{'' if gaps == 1 else 's'}{longest})"
+    lines.append(f"streams: IMU {len(review.imu.t_s)} samples, probe {len(review.probe.t_s)} fixes, {frame_text}")
+    return "\n".join(lines)
+
+
+def read_only_table(columns: Sequence[str]) -> QTableWidget:
+    """A table of whole-row, single selections that the user cannot edit."""
+    table = QTableWidget(0, len(columns))
+    table.setHorizontalHeaderLabels(list(columns))
+    table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+    table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+    table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+    table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+    table.verticalHeader().hide()
+    return table
+
+
+def fill_table(table: QTableWidget, rows: Sequence[Sequence[str]]) -> None:
+    table.clearContents()
+    table.setRowCount(len(rows))
+    for r, row in enumerate(rows):
+        for c, text in enumerate(row):
+            table.setItem(r, c, QTableWidgetItem(text))
+
+
+def node_rows(nodes: Sequence[ReviewNode]) -> list[list[str]]:
+    return [[n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar), _xyz(n.xyz_camera), _number(n.spread_mm, 2),
+             str(n.n_frames), _number(n.counts, 0)] for n in nodes]
+
+
+def _xyz(v: np.ndarray) -> str:
+    return ", ".join(_number(c, 1) for c in v)
+
+
+def _number(value: float, decimals: int) -> str:
+    return "" if math.isnan(value) else f"{value:.{decimals}f}"
+
+
+class SnapshotPair(pg.GraphicsLayoutWidget):
+    """The left and right snapshots of one node, RGB (H, W, 3), each fitted to its half; a caption says when none."""
+
+    def __init__(self):
+        super().__init__()
+        self.captions, self.images = [], []
+        for col, side in enumerate(("left", "right")):
+            self.captions.append(self.addLabel(side, row=0, col=col))
+            view = self.addViewBox(row=1, col=col, lockAspect=True, invertY=True, enableMouse=False)
+            image = pg.ImageItem(axisOrder="row-major", levels=(0, 255))
+            view.addItem(image)
+            self.images.append(image)
+        self.left_image, self.right_image = self.images
+
+    def show_pair(self, left_rgb: np.ndarray | None, right_rgb: np.ndarray | None) -> None:
+        for side, caption, image, rgb in zip(("left", "right"), self.captions, self.images, (left_rgb, right_rgb)):
+            if rgb is None:
+                image.clear()
+                caption.setText(f"{side}: no snapshot")
+                continue
+            image.setImage(rgb, autoLevels=False)
+            image.getViewBox().autoRange(padding=0)
+            caption.setText(f"{side} ({rgb.shape[1]} x {rgb.shape[0]})")
+
+
+class RegistrationPanel(QWidget):
+    """The stored registrations (method, RMS, how many nodes paired) and the selected one's pairing table."""
+
+    def __init__(self):
+        super().__init__()
+        self.list = read_only_table(REGISTRATION_COLUMNS)
+        self.pairs = read_only_table(PAIRING_COLUMNS)
+        self.empty = QLabel("no registration stored")
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        for widget in (self.empty, self.list, self.pairs):
+            layout.addWidget(widget)
+        self._registrations: list[ReviewRegistration] = []
+        self.list.itemSelectionChanged.connect(self._show_selected)
+
+    def show_registrations(self, registrations: Sequence[ReviewRegistration]) -> None:
+        """List ``registrations`` and select the last (the newest)."""
+        self._registrations = list(registrations)
+        fill_table(self.list, [[str(r.n), r.method, f"{r.rms_mm:.2f}", f"{r.n_paired} of {len(r.intraop_ids)}"]
+                               for r in self._registrations])
+        self.empty.setVisible(not self._registrations)
+        fill_table(self.pairs, [])
+        if self._registrations:
+            self.list.selectRow(len(self._registrations) - 1)
+
+    def _show_selected(self) -> None:
+        rows = self.list.selectionModel().selectedRows()
+        if not rows:
+            fill_table(self.pairs, [])
+            return
+        reg = self._registrations[rows[0].row()]
+        fill_table(self.pairs, [[intraop, preop or "extra (unpaired)", _number(d, 2), _number(c, 2)]
+                                for intraop, preop, d, c in zip(reg.intraop_ids, reg.preop_ids, reg.distances_mm,
+                                                                reg.confidence)])

@@ -1,0 +1,172 @@
+"""The offline review screen: what a saved session recorded, when, and how well.
+
+Why: a research engineer reviews a session after the fact: its header and calibration, the IMU angles,
+probe tip, tracking quality and frame rate on one time axis with the stored nodes marked, each node's
+snapshots, and the stored registrations. Reading and fusing run in workers
+(:func:`snreg.session.timeline.load_review`, then :func:`~snreg.session.timeline.fuse_imu_blocks`,
+whose blocks are drawn as they come), so an hour-long session never blocks the GUI; the file is
+closed once read, so it can be opened elsewhere while it is shown.
+
+>>> screen = ReviewScreen()
+>>> screen.loaded.connect(lambda path: ...)      # everything is shown
+>>> screen.failed.connect(status_bar.showMessage)  # one sentence: corrupt, foreign or missing file
+>>> screen.load("session.h5")
+"""
+
+from __future__ import annotations
+
+from PySide6.QtCore import QCoreApplication, Qt, Signal
+from PySide6.QtWidgets import QGroupBox, QLabel, QSplitter, QVBoxLayout, QWidget
+
+from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
+from snreg_gui.review_panels import (NODE_COLUMNS, RegistrationPanel, SnapshotPair, fill_table, header_text, node_rows,
+                                     read_only_table)
+from snreg_gui.review_timelines import TimelinePlots
+from snreg_gui.workers import Worker
+
+
+class ReviewScreen(QWidget):
+    """Shows one session file at a time; :meth:`load` starts reading it in a worker.
+
+    Signals: ``loaded(path)`` once everything is shown, ``failed(sentence)`` when the file cannot be read
+    (the sentence is also shown in the screen). A :meth:`load` while another is running supersedes it.
+    ``node_table`` lists the stored nodes; selecting one shows its snapshots and puts the cursor at its time.
+    """
+
+    loaded = Signal(str)
+    failed = Signal(str)
+
+    def __init__(self, parent=None):
+        super().__init__(parent)
+        self.status = QLabel("no session loaded")
+        self.status.setWordWrap(True)
+        self.header = QLabel("")
+        self.header.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.node_table = read_only_table(NODE_COLUMNS)
+        self.snapshots = SnapshotPair()
+        self.registrations = RegistrationPanel()
+        self.timelines = TimelinePlots()
+        self._layout()
+        self.node_table.itemSelectionChanged.connect(self._show_selected_node)
+        self._review: SessionReview | None = None
+        self._worker: Worker | None = None          # the one loader or fuser running
+        self._pending: str | None = None            # a path asked for while a worker was running
+        self._path = ""
+        self._fuse_next = False
+        self._failed = False
+        self._stopped = False                       # closing: start nothing more
+        QCoreApplication.instance().aboutToQuit.connect(self.shutdown)
+
+    def _layout(self) -> None:
+        nodes = QGroupBox("stored nodes")
+        QVBoxLayout(nodes).addWidget(self.node_table)
+        registrations = QGroupBox("registrations")
+        QVBoxLayout(registrations).addWidget(self.registrations)
+        side = QSplitter(Qt.Orientation.Vertical)
+        for widget in (nodes, self.snapshots, registrations):
+            side.addWidget(widget)
+        body = QSplitter(Qt.Orientation.Horizontal)
+        body.addWidget(side)
+        body.addWidget(self.timelines)
+        body.setStretchFactor(1, 2)
+        layout = QVBoxLayout(self)
+        layout.addWidget(self.status)
+        layout.addWidget(self.header)
+        layout.addWidget(body, stretch=1)
+
+    # -- loading ---------------------------------------------------------------
+    def load(self, path) -> None:
+        """Read the session at ``path`` in a worker; ``loaded`` or ``failed`` tells how it went."""
+        self._pending, self._stopped = str(path), False
+        self.status.setText(f"loading {self._pending} ...")
+        if self._worker is None:
+            self._start_pending()
+        else:
+            self._worker.quit()                      # a fusion stops after its block; a read runs out, ignored
+
+    def _start_pending(self) -> None:
+        self._path, self._pending = self._pending, None
+        self._failed, self._fuse_next, self._review = False, False, None
+        self._clear()
+        self._run(Worker(load_review, self._path), returned=self._show_review)
+
+    def _run(self, worker: Worker, *, returned=None, yielded=None) -> None:
+        if returned is not None:
+            worker.returned.connect(returned)
+        if yielded is not None:
+            worker.yielded.connect(yielded)
+        worker.errored.connect(self._show_error)
+        worker.finished.connect(self._worker_finished)
+        self._worker = worker
+        worker.start()
+
+    def _show_review(self, review: SessionReview) -> None:
+        if self._pending is not None:
+            return
+        self._review = review
+        self.header.setText(header_text(review))
+        fill_table(self.node_table, node_rows(review.nodes))
+        self.registrations.show_registrations(review.registrations)
+        self.timelines.show_review(review)
+        self._fuse_next = len(review.imu.t_s) > 0
+        if self._fuse_next:
+            self.status.setText(f"fusing {len(review.imu.t_s)} IMU samples ...")
+
+    def _add_imu_block(self, euler_deg) -> None:
+        if self._pending is not None:
+            return
+        self.timelines.add_imu_block(euler_deg)
+        done = self.timelines.imu_shown / max(len(self._review.imu.t_s), 1)
+        self.status.setText(f"fusing IMU samples: {done:.0%}")
+
+    def _show_error(self, sentence: str) -> None:
+        if self._pending is not None:
+            return
+        self._failed = True
+        self.status.setText(sentence)
+        self.failed.emit(sentence)
+
+    def _worker_finished(self) -> None:
+        self._worker.wait()                         # its thread ends right after ``finished``
+        self._worker = None
+        if self._pending is not None:
+            self._start_pending()
+        elif self._stopped:
+            return
+        elif self._fuse_next and not self._failed:
+            self._fuse_next = False
+            self._run(Worker(fuse_imu_blocks, self._review.imu), yielded=self._add_imu_block)
+        elif not self._failed:
+            self.status.setText(f"{self._path}: {len(self._review.nodes)} nodes, "
+                                f"{len(self._review.registrations)} registrations")
+            self.loaded.emit(self._path)
+
+    def _clear(self) -> None:
+        self.header.setText("")
+        fill_table(self.node_table, [])
+        self.snapshots.show_pair(None, None)
+        self.registrations.show_registrations([])
+        self.timelines.clear_review()
+
+    # -- selection -------------------------------------------------------------
+    def _show_selected_node(self) -> None:
+        rows = self.node_table.selectionModel().selectedRows()
+        if not rows or self._review is None:
+            return
+        node = self._review.nodes[rows[0].row()]
+        self.snapshots.show_pair(node.left_rgb, node.right_rgb)
+        self.timelines.set_cursor(node.t_s)
+
+    # -- shutdown --------------------------------------------------------------
+    def shutdown(self) -> None:
+        """Stop a running fusion and wait for its thread (a read cannot be interrupted; it ends by itself).
+
+        Called on closing and when the application quits; safe to call twice; a later :meth:`load` works again."""
+        self._pending, self._stopped = None, True
+        if self._worker is not None:
+            self._worker.quit()
+            self._worker.wait()
+
+    def closeEvent(self, event) -> None:
+        self.shutdown()
+        super().closeEvent(event)

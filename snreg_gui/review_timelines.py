@@ -1,0 +1,140 @@
+"""The review screen's timelines: IMU angles, probe tip, tracking quality and frame rate on one linked time axis.
+
+Why: a reviewer reads what was recorded when, and how well, against the moments nodes were stored. An
+hour of IMU is 750k points per curve, so every curve is made once, drawn with pyqtgraph's peak
+downsampling clipped to the view, and only fed with ``setData``; the IMU angles arrive in blocks while
+the fusion runs in a worker (:meth:`TimelinePlots.add_imu_block`).
+
+>>> plots = TimelinePlots()
+>>> plots.show_review(review)            # a snreg.session.timeline.SessionReview
+>>> plots.add_imu_block(euler_block)     # (n, 3) yaw, pitch, roll, in order, until all are in
+>>> plots.set_cursor(12.5)               # seconds from the first sample
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyqtgraph as pg
+
+from snreg.session.timeline import SessionReview
+
+_XYZ_COLOURS = ("#e6550d", "#31a354", "#3182bd")        # yaw/x, pitch/y, roll/z
+_MARKER_PEN = pg.mkPen("#bbbbbb", width=1, style=pg.QtCore.Qt.PenStyle.DashLine)
+_CURSOR_PEN = pg.mkPen("#ffd700", width=2)
+_GAP_PEN = pg.mkPen("#de2d26", width=6)
+PROGRESS_POINTS = 20_000       # IMU points per curve drawn while the fusion is still running
+
+
+class TimelinePlots(pg.GraphicsLayoutWidget):
+    """Four stacked plots with linked x (seconds from the first sample); node markers and a cursor on each.
+
+    ``node_markers`` maps a node id to its vertical lines (one per plot, labelled on the top plot).
+    """
+
+    def __init__(self):
+        super().__init__()
+        self.angles = self._plot(0, "IMU (deg)")
+        self.tip = self._plot(1, "tip, camera (mm)")
+        self.quality = self._plot(2, "tracking quality")
+        self.frame_rate = self._plot(3, "frames (1/s)")
+        self.frame_rate.setLabel("bottom", "time since the first sample (s)")
+        self.plots = (self.angles, self.tip, self.quality, self.frame_rate)
+        for plot in self.plots[1:]:
+            plot.setXLink(self.angles)
+        self.imu_curves = [self._curve(self.angles, colour, name)
+                           for colour, name in zip(_XYZ_COLOURS, ("yaw", "pitch", "roll"))]
+        self.tip_curves = [self._curve(self.tip, colour, name) for colour, name in zip(_XYZ_COLOURS, "xyz")]
+        self.quality_curve = self._curve(self.quality, "#dddddd", None)
+        self.rate_curve = self.frame_rate.plot(pen=pg.mkPen("#dddddd", width=1), stepMode="center", name="frames per s")
+        self.gap_curve = self.frame_rate.plot(pen=_GAP_PEN, connect="pairs", name="gaps")
+        self.cursors = [pg.InfiniteLine(angle=90, pen=_CURSOR_PEN) for _ in self.plots]
+        for plot, cursor in zip(self.plots, self.cursors):
+            plot.addItem(cursor, ignoreBounds=True)
+            cursor.hide()
+        self.node_markers: dict[str, list[pg.InfiniteLine]] = {}
+        self._imu_t = np.zeros(0)
+        self._euler = np.zeros((0, 3))
+        self._imu_filled = 0
+
+    def _plot(self, row: int, label: str) -> pg.PlotItem:
+        plot = self.addPlot(row=row, col=0)
+        plot.setLabel("left", label)
+        if row < 2:
+            plot.addLegend(offset=(5, 5))
+        return plot
+
+    @staticmethod
+    def _curve(plot: pg.PlotItem, colour: str, name: str | None) -> pg.PlotDataItem:
+        curve = plot.plot(pen=pg.mkPen(colour, width=1), name=name, connect="finite")
+        curve.setDownsampling(auto=True, method="peak")
+        curve.setClipToView(True)
+        return curve
+
+    def clear_review(self) -> None:
+        """Empty every curve, remove the node markers, hide the cursor."""
+        for curve in (*self.imu_curves, *self.tip_curves, self.quality_curve, self.gap_curve):
+            curve.setData([], [])
+        self.rate_curve.setData([0.0], [], stepMode="center")
+        self._remove_markers()
+        for cursor in self.cursors:
+            cursor.hide()
+        self._imu_t, self._euler, self._imu_filled = np.zeros(0), np.zeros((0, 3)), 0
+
+    def show_review(self, review: SessionReview) -> None:
+        """Probe, frames and node markers of ``review``; the IMU curves wait for :meth:`add_imu_block`."""
+        self.clear_review()
+        for curve, column in zip(self.tip_curves, review.probe.tip_mm.T):
+            curve.setData(review.probe.t_s, column)
+        self.quality_curve.setData(review.probe.t_s, review.probe.quality)
+        frames = review.frames
+        self.rate_curve.setData(frames.rate_edges_s, frames.rate_hz, stepMode="center")
+        self.gap_curve.setData(np.column_stack([frames.gaps_s[:, 0], frames.gaps_s.sum(axis=1)]).ravel(),
+                               np.zeros(2 * len(frames.gaps_s)))
+        self._imu_t = review.imu.t_s
+        self._euler = np.full((len(review.imu.t_s), 3), np.nan)
+        for node in review.nodes:
+            self._add_marker(node.id, node.t_s)
+        ends = [t[[0, -1]] for t in (review.imu.t_s, review.probe.t_s, frames.t_s) if len(t)]
+        ends.append(np.array([node.t_s for node in review.nodes]))
+        span = np.concatenate(ends)
+        if len(span):
+            self.angles.setXRange(float(span.min()), float(span.max()), padding=0.02)
+
+    def add_imu_block(self, euler_deg: np.ndarray) -> None:
+        """The next (n, 3) yaw, pitch, roll values in degrees, in sample order; redraws the IMU curves.
+
+        Until the last block the curves show every k-th sample (at most ``PROGRESS_POINTS``), so a redraw
+        while the fusion runs stays cheap however long the session; the last block shows them all.
+        """
+        end = self._imu_filled + len(euler_deg)
+        self._euler[self._imu_filled:end] = euler_deg
+        self._imu_filled = end
+        step = 1 if end == len(self._imu_t) else max(1, end // PROGRESS_POINTS)
+        for curve, column in zip(self.imu_curves, self._euler[:end:step].T):
+            curve.setData(self._imu_t[:end:step], column)
+
+    @property
+    def imu_shown(self) -> int:
+        """How many IMU samples the angle curves show so far."""
+        return self._imu_filled
+
+    def set_cursor(self, t_s: float) -> None:
+        """Show the cursor at ``t_s`` seconds on every plot."""
+        for cursor in self.cursors:
+            cursor.setValue(t_s)
+            cursor.show()
+
+    def _add_marker(self, node_id: str, t_s: float) -> None:
+        escaped = node_id.replace("{", "{{").replace("}", "}}")         # InfiniteLine labels are format strings
+        lines = [pg.InfiniteLine(t_s, angle=90, pen=_MARKER_PEN, label=escaped if plot is self.angles else None,
+                                 labelOpts={"position": 0.92, "color": "#dddddd"})
+                 for plot in self.plots]
+        for plot, line in zip(self.plots, lines):
+            plot.addItem(line, ignoreBounds=True)
+        self.node_markers[node_id] = lines
+
+    def _remove_markers(self) -> None:
+        for lines in self.node_markers.values():
+            for plot, line in zip(self.plots, lines):
+                plot.removeItem(line)
+        self.node_markers = {}

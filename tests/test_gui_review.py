@@ -1,0 +1,140 @@
+"""The offline review screen (snreg_gui.review_screen), driven for real on a session recorded in the test."""
+
+import h5py
+import numpy as np
+import pytest
+from PySide6.QtCore import Qt
+
+from snreg_gui.review_screen import ReviewScreen
+from test_session_timeline import (CAMERA_LAG_S, DURATION_S, FRAME_RATE_HZ, LOST_FRAMES, PREOP_IDS, STEREO_RMS_PX,
+                                   YAW_TURN_DEG, damaged_copy, record_session)
+
+LOAD_TIMEOUT_MS = 20_000
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    path = tmp_path_factory.mktemp("review_gui") / "s.h5"
+    return path, record_session(path)
+
+
+@pytest.fixture
+def screen(qtbot):
+    widget = ReviewScreen()
+    qtbot.addWidget(widget)
+    widget.resize(1400, 900)
+    widget.show()
+    return widget
+
+
+def _load(qtbot, screen, path):
+    with qtbot.waitSignal(screen.loaded, timeout=LOAD_TIMEOUT_MS) as blocker:
+        screen.load(path)
+    assert blocker.args == [str(path)]
+
+
+def _click_row(qtbot, table, row):
+    rect = table.visualItemRect(table.item(row, 0))
+    qtbot.mouseClick(table.viewport(), Qt.MouseButton.LeftButton, pos=rect.center())
+
+
+def test_header_nodes_and_registrations(qtbot, screen, recorded):
+    path, truth = recorded
+    _load(qtbot, screen, path)
+    header = screen.header.text()
+    assert str(path) in header and "case review-01" in header and "format version 1" in header
+    assert f"stereo RMS {STEREO_RMS_PX:.2f} px" in header and "IMU-trocar 460.0 mm, trocar-camera 158.0 mm" in header
+    assert "DAMAGED" not in header and "1 gap, longest 0.53 s" in header
+    table = screen.node_table
+    assert table.rowCount() == 3
+    assert [table.item(r, 0).text() for r in range(3)] == truth.node_ids
+    assert [float(table.item(r, 2).text()) for r in range(3)] == pytest.approx(truth.node_times_s)
+    regs = screen.registrations
+    assert regs.list.rowCount() == 1
+    assert (regs.list.item(0, 1).text(), regs.list.item(0, 2).text()) == ("global", f"{truth.rms_mm:.2f}")
+    assert regs.list.item(0, 3).text() == "3 of 3"
+    assert [regs.pairs.item(r, 1).text() for r in range(3)] == PREOP_IDS[:3]
+    with h5py.File(path, "r+"):            # the screen holds nothing open
+        pass
+
+
+def test_selecting_a_node_shows_its_snapshots_and_moves_the_cursor(qtbot, screen, recorded):
+    path, truth = recorded
+    _load(qtbot, screen, path)
+    assert all(not cursor.isVisible() for cursor in screen.timelines.cursors)
+    for row in (1, 2):
+        _click_row(qtbot, screen.node_table, row)
+        left, right = truth.snapshot_shapes[row]
+        assert screen.snapshots.left_image.image.shape == left
+        assert screen.snapshots.right_image.image.shape == right
+        assert screen.snapshots.left_image.image.reshape(-1, 3).mean(0) == pytest.approx([255, 0, 0], abs=3)
+        for cursor in screen.timelines.cursors:
+            assert cursor.isVisible() and cursor.value() == pytest.approx(truth.node_times_s[row])
+
+
+def test_timelines_show_fused_yaw_node_markers_and_frames(qtbot, screen, recorded):
+    path, truth = recorded
+    _load(qtbot, screen, path)
+    timelines = screen.timelines
+    t, yaw = timelines.imu_curves[0].getOriginalDataset()
+    assert len(t) == len(yaw) == timelines.imu_shown == int(DURATION_S * 208)
+    assert yaw[-1] == pytest.approx(YAW_TURN_DEG, abs=0.5)
+    assert np.abs(yaw[t < 2.9]).max() < 0.3
+    assert sorted(timelines.node_markers) == truth.node_ids
+    for node_id, t_node in zip(truth.node_ids, truth.node_times_s):
+        lines = timelines.node_markers[node_id]
+        assert len(lines) == len(timelines.plots)
+        assert [line.value() for line in lines] == pytest.approx([t_node] * len(lines))
+    assert timelines.node_markers["SN2"][0].label.textItem.toPlainText() == "SN2"
+    gap_x, _ = timelines.gap_curve.getOriginalDataset()
+    edges = np.array([LOST_FRAMES[0] - 1, LOST_FRAMES[-1] + 1]) / FRAME_RATE_HZ + CAMERA_LAG_S
+    assert gap_x == pytest.approx(edges)             # one red bar from the last frame before the gap to the next
+    tip_t, tip_y = timelines.tip_curves[1].getOriginalDataset()
+    assert tip_y == pytest.approx(2 * (tip_t - CAMERA_LAG_S), abs=1e-4)
+
+
+def test_a_damaged_file_says_so_and_shows_its_journal(qtbot, screen, recorded, tmp_path):
+    path, truth = recorded
+    damaged = damaged_copy(path, tmp_path)
+    _load(qtbot, screen, damaged)
+    assert "DAMAGED" in screen.header.text() and "streams: IMU 0 samples" in screen.header.text()
+    assert screen.node_table.rowCount() == len(truth.node_ids) and screen.timelines.imu_shown == 0
+
+
+@pytest.mark.parametrize("kind", ["text renamed .h5", "foreign HDF5", "missing"])
+def test_unreadable_file_gives_one_sentence(qtbot, screen, recorded, tmp_path, kind):
+    good, _ = recorded
+    _load(qtbot, screen, good)
+    path = tmp_path / "notes.h5"
+    if kind == "text renamed .h5":
+        path.write_text("patient list, not a session\n")
+    elif kind == "foreign HDF5":
+        with h5py.File(path, "w") as f:
+            f["volume"] = np.zeros((4, 4))
+    with qtbot.waitSignal(screen.failed, timeout=LOAD_TIMEOUT_MS) as blocker:
+        screen.load(path)
+    (sentence,) = blocker.args
+    assert str(path) in sentence and "\n" not in sentence and "Traceback" not in sentence
+    assert screen.status.text() == sentence
+    assert screen.node_table.rowCount() == 0 and screen.registrations.list.rowCount() == 0
+    assert screen.timelines.node_markers == {} and screen.timelines.imu_shown == 0
+
+
+def test_a_new_load_supersedes_a_running_one(qtbot, screen, recorded, tmp_path):
+    path, truth = recorded
+    failures = []
+    screen.failed.connect(failures.append)
+    screen.load(tmp_path / "missing.h5")
+    _load(qtbot, screen, path)
+    assert failures == [] and screen.node_table.rowCount() == len(truth.node_ids)
+
+
+def test_closing_while_loading_waits_for_the_worker_and_a_later_load_works(qtbot, screen, recorded):
+    path, truth = recorded
+    emitted = []
+    screen.loaded.connect(emitted.append)
+    screen.load(path)
+    screen.close()                         # returns once the worker's thread has ended
+    screen.show()
+    _load(qtbot, screen, path)
+    assert emitted == [str(path)] and screen.node_table.rowCount() == len(truth.node_ids)

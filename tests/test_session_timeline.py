@@ -1,0 +1,186 @@
+"""Offline review data (snreg.session.timeline): a session read back as plot-ready arrays, against its ground truth."""
+
+import shutil
+from dataclasses import dataclass, replace
+
+import h5py
+import numpy as np
+import pytest
+
+from snreg.calibration.files import thesis_calibration
+from snreg.chain import ChainCalibration
+from snreg.imu import ImuSimulator, MotionProfile, rotate, still
+from snreg.nodes import NodeSet
+from snreg.registration import register
+from snreg.session import Session, SessionError
+from snreg.session.journal import journal_path
+from snreg.session.timeline import GAP_PERIODS, frame_series, fuse_imu, fuse_imu_blocks, load_review
+
+T0_NS = 5_000_000_000_000          # host clock at the first IMU sample
+YAW_TURN_DEG = 10.0
+DURATION_S = 7.0                   # still 3 s (the filter's start-up and bias estimate), turn 2 s, still 2 s
+PREOP = np.array([[0.0, 0.0, 0.0], [40.0, 5.0, 0.0], [5.0, 50.0, 10.0], [30.0, 40.0, 35.0]])
+PREOP_IDS = ["P1", "P2", "P3", "P4"]
+STEREO_RMS_PX = 0.42
+CAMERA_LAG_S = 0.003               # probe and frame rows start this long after the first IMU sample
+FRAME_RATE_HZ = 30
+LOST_FRAMES = range(120, 135)      # 4.0 s to 4.5 s at 30 Hz: one gap
+
+
+@dataclass
+class Recorded:
+    """Ground truth of a session written by :func:`record_session`."""
+
+    node_ids: list
+    node_times_s: list
+    snapshot_shapes: list          # (left (H, W, 3), right (H, W, 3)) per node
+    rms_mm: float
+    frame_times_s: np.ndarray
+
+
+def _host_ns(t_s):
+    return T0_NS + np.round(np.asarray(t_s) * 1e9).astype(np.int64)
+
+
+def _frame_times(n):
+    k = np.arange(n)
+    return k[~np.isin(k, LOST_FRAMES)] / FRAME_RATE_HZ
+
+
+def _snapshot(height, width, bgr):
+    return np.broadcast_to(np.array(bgr, np.uint8), (height, width, 3)).copy()
+
+
+def record_session(path) -> Recorded:
+    """A 7 s session: a 10 deg yaw turn on a simulated IMU whose clock wraps, 30 Hz probe and frames with one gap,
+    three nodes with snapshots of known sizes (left pure red, right pure blue), calibration and a registration."""
+    profile = MotionProfile([still(3.0), rotate((0.0, 0.0, 1.0), YAW_TURN_DEG, 5.0), still(2.0)])
+    n_imu = int(DURATION_S * 208)
+    imu = ImuSimulator(profile, seed=7, n_samples=n_imu, start_us=(1 << 32) - 2_000_000).readings(n_imu)
+    t_probe = np.arange(int(DURATION_S * FRAME_RATE_HZ)) / FRAME_RATE_HZ
+    frames = _frame_times(int(DURATION_S * FRAME_RATE_HZ))
+    tip = np.column_stack([t_probe, 2 * t_probe, 100 + t_probe])
+    node_times = [1.5, 4.2, 6.5]
+    shapes = [((48, 64, 3), (40, 56, 3)), ((30, 40, 3), (30, 40, 3)), ((24, 32, 3), (26, 36, 3))]
+    xyz = PREOP[:3] + [1.0, -0.5, 0.8] + np.diag([0.6, -0.8, 0.5])
+    with Session.create(path, case_id="review-01", stream_flush_s=0) as s:
+        s.set_calibration(stereo=replace(thesis_calibration(), rms_reprojection_px=STEREO_RMS_PX),
+                          chain=ChainCalibration.manual())
+        s.set_preop_nodes(NodeSet(PREOP_IDS, [""] * 4, PREOP, frame="LPS"))
+        s.append_imu(_host_ns(imu.t_s), imu.t_device_us * 1000, imu.accel_g, imu.gyro_dps)
+        host = _host_ns(t_probe + CAMERA_LAG_S)
+        s.append_probe(host, host, tip, tip + [0.0, 0.0, 30.0], np.tile([0.0, 0.0, 1.0], (len(host), 1)),
+                       np.full(len(host), 0.9))
+        frame_host = _host_ns(frames + CAMERA_LAG_S)
+        s.append_frames(frame_host, frame_host, np.arange(len(frames)))
+        for k, (t, (left, right)) in enumerate(zip(node_times, shapes)):
+            s.add_intraop_node(f"SN{k + 1}", "OBT R", xyz[k], xyz_camera=xyz[k] + 100, spread_mm=0.5, n_frames=60,
+                               counts=50.0 * k, time_ns=_host_ns(t), left_jpeg=_snapshot(*left[:2], (0, 0, 255)),
+                               right_jpeg=_snapshot(*right[:2], (255, 0, 0)))
+        result = register(PREOP, xyz, method="global", seed=0)
+        s.add_registration(result)
+    return Recorded(["SN1", "SN2", "SN3"], node_times, shapes, float(result.rms_mm), frames + CAMERA_LAG_S)
+
+
+def damaged_copy(path, folder):
+    """A copy of the session at ``path`` whose HDF5 file is truncated, its journal intact."""
+    copy = folder / "damaged.h5"
+    copy.write_bytes(path.read_bytes()[:2000])
+    shutil.copyfile(journal_path(path), journal_path(copy))
+    return copy
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    path = tmp_path_factory.mktemp("review") / "s.h5"
+    return path, record_session(path)
+
+
+def test_load_review_copies_header_nodes_and_snapshots(recorded):
+    path, truth = recorded
+    review = load_review(path)
+    assert (review.case_id, review.format_version, review.damaged) == ("review-01", 1, False)
+    assert review.created_utc.endswith("+00:00") and review.snreg_version
+    assert review.stereo_rms_px == pytest.approx(STEREO_RMS_PX)
+    assert (review.imu_trocar_mm, review.trocar_camera_mm) == pytest.approx((460.0, 158.0))
+    assert review.t0_ns == T0_NS
+    assert [n.id for n in review.nodes] == truth.node_ids
+    np.testing.assert_allclose([n.t_s for n in review.nodes], truth.node_times_s, atol=1e-9)
+    for node, (left, right) in zip(review.nodes, truth.snapshot_shapes):
+        assert node.left_rgb.shape == left and node.right_rgb.shape == right
+        np.testing.assert_allclose(node.left_rgb.reshape(-1, 3).mean(0), [255, 0, 0], atol=3)    # stored red (BGR)
+        np.testing.assert_allclose(node.right_rgb.reshape(-1, 3).mean(0), [0, 0, 255], atol=3)
+    np.testing.assert_allclose(review.nodes[1].xyz_camera - review.nodes[1].xyz_trocar, 100.0)
+    with h5py.File(path, "r+"):            # nothing of ours holds the file any more
+        pass
+
+
+def test_streams_share_the_time_axis(recorded):
+    path, truth = recorded
+    review = load_review(path)
+    np.testing.assert_allclose(review.imu.t_s[[0, -1]], [0.0, (len(review.imu.t_s) - 1) / 208], atol=1e-9)
+    np.testing.assert_allclose(review.probe.t_s[:2], [CAMERA_LAG_S, CAMERA_LAG_S + 1 / 30], atol=1e-9)
+    np.testing.assert_allclose(review.probe.tip_mm[:, 1], 2 * (review.probe.t_s - CAMERA_LAG_S), atol=1e-4)
+    np.testing.assert_allclose(review.probe.quality, 0.9, atol=1e-6)
+    np.testing.assert_allclose(review.frames.t_s, truth.frame_times_s, atol=1e-9)
+
+
+def test_frame_rate_and_gaps():
+    frames = frame_series(_frame_times(10 * FRAME_RATE_HZ))
+    assert frames.median_rate_hz == pytest.approx(FRAME_RATE_HZ)
+    first, after = LOST_FRAMES[0] - 1, LOST_FRAMES[-1] + 1
+    np.testing.assert_allclose(frames.gaps_s, [[first / FRAME_RATE_HZ, (after - first) / FRAME_RATE_HZ]])
+    times = _frame_times(10 * FRAME_RATE_HZ)
+    jittered = frame_series(times + 0.01 * (np.arange(len(times)) % 2))
+    assert len(jittered.gaps_s) == 1                     # late frames are not gaps; GAP_PERIODS periods are
+    assert frame_series(np.arange(10) * (GAP_PERIODS + 0.5)).gaps_s.shape == (0, 2)
+    assert len(frames.rate_edges_s) == len(frames.rate_hz) + 1
+    whole = frames.rate_edges_s[:-1] != 4.0
+    np.testing.assert_array_equal(frames.rate_hz[whole], FRAME_RATE_HZ)
+    assert frames.rate_hz[~whole] == [FRAME_RATE_HZ / 2]                # half of second 4 was lost
+
+
+def test_fused_yaw_follows_the_applied_turn(recorded):
+    path, _ = recorded
+    review = load_review(path)
+    euler = fuse_imu(review.imu)
+    assert euler.shape == (len(review.imu.t_s), 3)
+    assert euler[-1, 0] == pytest.approx(YAW_TURN_DEG, abs=0.5)
+    np.testing.assert_allclose(euler[-1, 1:], 0.0, atol=0.3)
+    assert abs(euler[review.imu.t_s < 2.9, 0]).max() < 0.3                 # still before the turn
+
+
+def test_fusion_blocks_continue_one_filter(recorded):
+    path, _ = recorded
+    review = load_review(path)
+    blocks = list(fuse_imu_blocks(review.imu, block=500))
+    assert [len(b) for b in blocks] == [500, 500, 456]
+    np.testing.assert_array_equal(np.concatenate(blocks), fuse_imu(review.imu))
+
+
+def test_registration_pairing_table(recorded):
+    path, truth = recorded
+    (reg,) = load_review(path).registrations
+    assert (reg.n, reg.method, reg.n_paired) == (0, "global", 3)
+    assert reg.rms_mm == pytest.approx(truth.rms_mm)
+    assert reg.intraop_ids == truth.node_ids and reg.preop_ids == PREOP_IDS[:3]
+    assert reg.distances_mm.shape == reg.confidence.shape == (3,)
+
+
+def test_a_damaged_file_is_reviewed_from_its_journal(recorded, tmp_path):
+    path, truth = recorded
+    review = load_review(damaged_copy(path, tmp_path))
+    assert review.damaged and review.case_id == "review-01" and review.stereo_rms_px == pytest.approx(STEREO_RMS_PX)
+    assert [n.id for n in review.nodes] == truth.node_ids and len(review.registrations) == 1
+    assert len(review.imu.t_s) == len(review.probe.t_s) == len(review.frames.t_s) == 0
+    np.testing.assert_allclose([n.t_s for n in review.nodes], np.subtract(truth.node_times_s, truth.node_times_s[0]))
+    assert fuse_imu(review.imu).shape == (0, 3)
+
+
+def test_unreadable_files_give_one_sentence(tmp_path):
+    text = tmp_path / "notes.h5"
+    text.write_text("not a session\n")
+    for path in (text, tmp_path / "missing.h5"):
+        with pytest.raises(SessionError, match=str(path.name)) as err:
+            load_review(path)
+        assert "\n" not in str(err.value)
