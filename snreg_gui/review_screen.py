@@ -65,10 +65,11 @@ class ReviewScreen(QWidget):
         side = QSplitter(Qt.Orientation.Vertical)
         for widget in (nodes, self.snapshots, registrations):
             side.addWidget(widget)
+        side.setSizes([300, 300, 250])               # proportions; the user moves the handles
         body = QSplitter(Qt.Orientation.Horizontal)
         body.addWidget(side)
         body.addWidget(self.timelines)
-        body.setStretchFactor(1, 2)
+        body.setSizes([600, 900])
         layout = QVBoxLayout(self)
         layout.addWidget(self.status)
         layout.addWidget(self.header)
@@ -137,8 +138,9 @@ class ReviewScreen(QWidget):
             self._fuse_next = False
             self._run(Worker(fuse_imu_blocks, self._review.imu), yielded=self._add_imu_block)
         elif not self._failed:
-            self.status.setText(f"{self._path}: {len(self._review.nodes)} nodes, "
-                                f"{len(self._review.registrations)} registrations")
+            nodes, registrations = len(self._review.nodes), len(self._review.registrations)
+            self.status.setText(f"{self._path}: {nodes} stored node{'' if nodes == 1 else 's'}, "
+                                f"{registrations} registration{'' if registrations == 1 else 's'}")
             self.loaded.emit(self._path)
 
     def _clear(self) -> None:
