@@ -12,7 +12,7 @@ import time
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit,
-                               QPushButton, QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
+                               QPushButton, QSizePolicy, QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
 from snreg.acquisition import THESIS_FIXES_PER_NODE
 from snreg_gui.acquisition_worker import FrameResult, StoreRequest
@@ -22,7 +22,18 @@ from snreg_gui.orientation_plot import OrientationPlot
 
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send
 UNDO_SHORTCUT = "Ctrl+Z"
+DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
+PLOT_EVERY = 3               # the IMU plot at a third of that
 _NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread mm", "frames")
+
+
+def _status_label(text: str) -> QLabel:
+    """A label whose text changes at video rate: its width never drives the layout (a relayout per frame would
+    resize the feeds and stall the GUI thread); long text is cut, and the tooltip shows it whole."""
+    label = QLabel(text)
+    label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
+    label.setMinimumWidth(200)
+    return label
 
 
 class AcquisitionScreen(QWidget):
@@ -41,11 +52,11 @@ class AcquisitionScreen(QWidget):
         self._store_pending = False
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
-        self.video_health, self.imu_health = QLabel("video: waiting"), QLabel("IMU: waiting")
-        self.tip_trocar = QLabel("tip (trocar): no fix")
+        self.video_health, self.imu_health = _status_label("video: waiting"), _status_label("IMU: waiting")
+        self.tip_trocar = _status_label("tip (trocar): no fix")
         self.store_button = QPushButton("Store SN")
-        self.store_reason = QLabel("waiting for the first frame")
-        self.store_status = QLabel("")
+        self.store_reason = _status_label("waiting for the first frame")
+        self.store_status = _status_label("")
         self.undo_button = QPushButton("Undo last node")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
@@ -69,6 +80,10 @@ class AcquisitionScreen(QWidget):
         self.fixes_spin.valueChanged.connect(lambda _: self._update_store_state())
         self._health_timer = QTimer(self, interval=250, timeout=self._show_health)
         self._health_timer.start()
+        self._undrawn: FrameResult | None = None
+        self._draws = 0
+        self._draw_timer = QTimer(self, interval=DRAW_INTERVAL_MS, timeout=self._draw)
+        self._draw_timer.start()
         self._set_store_enabled(False, "waiting for the first frame")
 
     def _layout(self) -> None:
@@ -99,21 +114,31 @@ class AcquisitionScreen(QWidget):
 
     # -- from the worker -----------------------------------------------------
     def show_result(self, result: FrameResult) -> None:
-        """Display one processed frame pair; auto-store presses Store SN when the worker's rule holds."""
+        """Take one processed frame pair: store state and auto-store now, pictures at the next display tick."""
         self._last_result, self._last_arrival_ns = result, time.perf_counter_ns()
+        self._undrawn = result
+        self._update_store_state()
+        outcome = result.outcome
+        if self.auto_store.isChecked() and outcome.auto_store_due and self.store_button.isEnabled():
+            self.request_store()
+
+    def _draw(self) -> None:
+        """Draw the newest result, if any came since the last tick; older ones are skipped, so a slow paint
+        never builds a backlog of frames on the GUI thread. The IMU plot redraws every ``PLOT_EVERY`` ticks."""
+        result, self._undrawn = self._undrawn, None
+        if result is None:
+            return
         outcome = result.outcome
         depth = float(outcome.fix.tip[2]) if outcome.fix is not None else None
         self.left_feed.show_frame(result.left_rgb, result.overlay_left, depth)
         self.right_feed.show_frame(result.right_rgb, result.overlay_right, depth)
-        self.orientation.append(result.imu.euler_deg)
+        self._draws += 1
+        self.orientation.append(result.imu.euler_deg, redraw=self._draws % PLOT_EVERY == 0)
         if outcome.tip_trocar is None:
             self.tip_trocar.setText(f"tip (trocar): no fix ({outcome.reason})")
         else:
             x, y, z = outcome.tip_trocar
             self.tip_trocar.setText(f"tip (trocar): {x:7.1f} {y:7.1f} {z:7.1f} mm")
-        self._update_store_state()
-        if self.auto_store.isChecked() and outcome.auto_store_due and self.store_button.isEnabled():
-            self.request_store()
 
     def set_nodes(self, nodes) -> None:
         """Show the nodes already in the session (a continued session); replaces the table."""
@@ -188,6 +213,7 @@ class AcquisitionScreen(QWidget):
         self.store_button.setEnabled(enabled)
         self.store_button.setToolTip(reason)
         self.store_reason.setText(reason)
+        self.store_reason.setToolTip(reason)
 
     # -- health --------------------------------------------------------------
     def _show_health(self) -> None:

@@ -31,6 +31,11 @@ from snreg_gui.registration_panel import RegistrationPanel
 from snreg_gui.review_screen import ReviewScreen
 from snreg_gui.wizard_launcher import WizardLauncher
 
+# The GUI thread shares the GIL with the tracking worker and the IMU reader. At Python's default 5 ms switch
+# interval a paint, which re-enters Python many times, can wait 5 ms at each entry; 1 ms keeps the GUI thread's
+# stalls short (measured with the heartbeat in tests/test_gui_acquisition.py).
+GIL_SWITCH_INTERVAL_S = 0.001
+
 NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IMU... for the real rig, "
                "or start with --demo for the simulated one.")
 
@@ -43,12 +48,14 @@ class MainWindow(QMainWindow):
     def __init__(self, session_path: str | None = None, demo: bool = False, *, rig=None,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None):
         super().__init__()
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.settings = settings or QSettings("snreg", "snreg")
         self.recent = RecentSessions(self.settings)
         self.demo, self.fixes_per_node = demo, fixes_per_node
         self.rig = self.session = self.worker = self.acquisition = None
         self._thread = None
         self._waiting_for_frames = False
+        self._registration_stale = False
         self.tabs = QTabWidget()
         self._acquisition_tab = QWidget()
         QVBoxLayout(self._acquisition_tab)
@@ -58,6 +65,7 @@ class MainWindow(QMainWindow):
         self.tabs.addTab(self.registration, "Registration")
         self.tabs.addTab(self.review, "Review")
         self.setCentralWidget(self.tabs)
+        self.tabs.currentChanged.connect(self._refresh_registration)
         self.wizards = WizardLauncher(self)
         self._menus()
         self.review.failed.connect(lambda message: self.statusBar().showMessage(message))
@@ -197,8 +205,8 @@ class MainWindow(QMainWindow):
         self.worker.frame_processed.connect(self.acquisition.show_result, queued)
         self.worker.node_stored.connect(self.acquisition.add_node, queued)
         self.worker.node_removed.connect(self.acquisition.remove_node, queued)
-        self.worker.node_stored.connect(self.registration.refresh_intraop, queued)
-        self.worker.node_removed.connect(self.registration.refresh_intraop, queued)
+        self.worker.node_stored.connect(self._nodes_changed, queued)
+        self.worker.node_removed.connect(self._nodes_changed, queued)
         self.worker.store_failed.connect(self.acquisition.show_store_problem, queued)
         self.worker.source_stopped.connect(self.statusBar().showMessage, queued)
         self.acquisition.store_requested.connect(self.worker.store_node, queued)
@@ -207,6 +215,16 @@ class MainWindow(QMainWindow):
         self.worker.frame_processed.connect(self._first_frame, queued)
         self._waiting_for_frames = True
         self._thread = start_worker(self.worker)
+
+    def _nodes_changed(self, *_) -> None:
+        """The registration panel follows the stored nodes, redrawn only when it is shown (not during acquisition)."""
+        self._registration_stale = True
+        self._refresh_registration()
+
+    def _refresh_registration(self, *_) -> None:
+        if self._registration_stale and self.tabs.currentWidget() is self.registration:
+            self._registration_stale = False
+            self.registration.refresh_intraop()
 
     def _stop_acquisition(self) -> None:
         if self._thread is not None:
@@ -259,6 +277,7 @@ class MainWindow(QMainWindow):
         self._stop_acquisition()
         self.wizards.shutdown()
         self.registration.shutdown()
+        self.review.shutdown()
         if self.rig is not None:
             self.rig.close()
             self.rig = None

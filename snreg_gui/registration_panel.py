@@ -149,6 +149,10 @@ class RegistrationPanel(QWidget):
         right = QSplitter(Qt.Orientation.Vertical)
         right.addWidget(self.view)
         right.addWidget(results)
+        right.setChildrenCollapsible(False)
+        self.view.setMinimumHeight(250)            # a GL view hints no size: without this the splitter hides it
+        right.setStretchFactor(0, 3)
+        right.setStretchFactor(1, 2)
         main = QSplitter(Qt.Orientation.Horizontal)
         main.addWidget(left)
         main.addWidget(right)

@@ -21,7 +21,7 @@ from snreg.calibration.checkerboard import Board
 from snreg.calibration.coverage import Coverage, coverage_map, is_still, similar_view
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.sources import FrameSource
-import snreg_gui.feed_view  # noqa: F401 - sets pyqtgraph's row-major image order, which the views here assume
+
 from snreg_gui.stereo_wizard_feed import LiveBoardFeed, LiveView
 from snreg_gui.workers import Worker
 
@@ -78,7 +78,7 @@ class BoardFeedView(pg.GraphicsLayoutWidget):
         self.image.setImage(rgb, autoLevels=False)
         if self._extent is None:
             self._extent = QRectF(0, 0, rgb.shape[1], rgb.shape[0])
-            self.view.autoRange(padding=0)
+            self.view.setRange(self._extent, padding=0)      # not autoRange: text bounds are NaN before layout
             self.message.setPos(rgb.shape[1] / 2, rgb.shape[0] / 2)
         if corners is None:
             self.corners.setData([], [])

@@ -12,6 +12,7 @@ import json
 from snreg.calibration.board_feed import THESIS_BOARD
 
 _DEVICES_KEY = "devices/config"
+WIZARD_SIZE = (1200, 800)        # live feeds and tables need room
 
 
 class WizardLauncher:
@@ -110,6 +111,7 @@ class WizardLauncher:
         self._window._stop_acquisition()
         self.active = wizard
         wizard.finished.connect(self._closed)
+        wizard.resize(max(wizard.width(), WIZARD_SIZE[0]), max(wizard.height(), WIZARD_SIZE[1]))
         wizard.open()
 
     def _closed(self, _result: int) -> None:

@@ -18,12 +18,50 @@ from collections.abc import Callable
 from PySide6.QtCore import QObject, Qt, QThread, Signal, Slot
 
 
+class _Job(QObject):
+    """The part that moves to the worker thread and runs there; its signals are relayed by :class:`Worker`."""
+
+    yielded = Signal(object)
+    returned = Signal(object)
+    errored = Signal(str)
+    finished = Signal()
+
+    def __init__(self, fn: Callable, args: tuple, kwargs: dict):
+        super().__init__()
+        self.fn, self.args, self.kwargs = fn, args, kwargs
+        self.quit_requested = False
+
+    @Slot()
+    def run(self) -> None:
+        try:
+            result = self.fn(*self.args, **self.kwargs)
+            if inspect.isgenerator(result):
+                result = self._drain(result)
+            if not self.quit_requested or result is not None:
+                self.returned.emit(result)
+        except Exception as err:          # noqa: BLE001 - every failure must reach the user, never kill the app
+            self.errored.emit(str(err) or type(err).__name__)
+        finally:
+            self.finished.emit()
+
+    def _drain(self, generator):
+        try:
+            while not self.quit_requested:
+                self.yielded.emit(next(generator))
+        except StopIteration as stop:
+            return stop.value
+        generator.close()
+        return None
+
+
 class Worker(QObject):
     """Runs ``fn(*args, **kwargs)`` once in a new thread. If it returns a generator, its items are emitted as
     ``yielded`` until it ends (its return value is ``returned``) or :meth:`quit` is called.
 
-    ``errored`` carries one sentence (the exception's message, prefixed by its type only when the message
-    is empty); ``finished`` always comes last, after which the thread is gone.
+    ``errored`` carries one sentence (the exception's message, or its type when the message is empty);
+    ``finished`` always comes last. Every signal is emitted in the thread that made the Worker (the GUI
+    thread), so any slot, lambda or plain function connected to it runs there and may touch widgets.
+    Keep a reference to the Worker while it runs.
     """
 
     yielded = Signal(object)
@@ -33,50 +71,31 @@ class Worker(QObject):
 
     def __init__(self, fn: Callable, *args, **kwargs):
         super().__init__()
-        self._fn, self._args, self._kwargs = fn, args, kwargs
-        self._quit = False
+        self._job = _Job(fn, args, kwargs)
         self._thread: QThread | None = None
 
     def start(self) -> "Worker":
-        """Move to a new thread and run there; connect the signals before calling this."""
+        """Run in a new thread; connect the signals before calling this."""
         self._thread = QThread()
-        self.moveToThread(self._thread)
-        self._thread.started.connect(self._run)
+        self._job.moveToThread(self._thread)
+        self._thread.started.connect(self._job.run)
         # direct: the thread ends even when the GUI event loop is not running (shutdown, tests)
-        self.finished.connect(self._thread.quit, Qt.ConnectionType.DirectConnection)
+        self._job.finished.connect(self._thread.quit, Qt.ConnectionType.DirectConnection)
+        queued = Qt.ConnectionType.QueuedConnection      # re-emitted in this object's (the GUI) thread
+        for name in ("yielded", "returned", "errored", "finished"):
+            getattr(self._job, name).connect(getattr(self, name), queued)
         self._thread.start()
         return self
 
     def quit(self) -> None:
         """Ask a generator to stop after its current item (thread-safe; a plain function runs to its end)."""
-        self._quit = True
+        self._job.quit_requested = True
 
     @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.isRunning()
 
     def wait(self, timeout_ms: int = 10_000) -> bool:
-        """Block until the thread has ended (for shutdown and tests); True when it has."""
+        """Block until the thread has ended (for shutdown and tests); True when it has. Signals still queued for
+        this thread are delivered when its event loop next runs."""
         return self._thread is None or self._thread.wait(timeout_ms)
-
-    @Slot()
-    def _run(self) -> None:
-        try:
-            result = self._fn(*self._args, **self._kwargs)
-            if inspect.isgenerator(result):
-                result = self._drain(result)
-            if not self._quit or result is not None:
-                self.returned.emit(result)
-        except Exception as err:          # noqa: BLE001 - every failure must reach the user, never kill the app
-            self.errored.emit(str(err) or type(err).__name__)
-        finally:
-            self.finished.emit()
-
-    def _drain(self, generator):
-        try:
-            while not self._quit:
-                self.yielded.emit(next(generator))
-        except StopIteration as stop:
-            return stop.value
-        generator.close()
-        return None

@@ -239,7 +239,7 @@ def test_the_source_ending_or_failing_is_said_in_its_sentence_and_next_reopens_i
     wizard = open_wizard(make)
     status = wizard.capture_page.feed_status
     to_capture(qtbot, wizard)
-    qtbot.waitUntil(lambda: made and made[0].state is SourceState.ENDED and bool(status.text()), timeout=10_000)
+    qtbot.waitUntil(lambda: bool(made) and made[0].state is SourceState.ENDED and bool(status.text()), timeout=10_000)
     assert status.text() == made[0].problem == "Synthetic source rendered all 3 frames."
     assert not wizard.capture_page.capture_button.isEnabled()
     click(qtbot, wizard, QWizard.WizardButton.BackButton)

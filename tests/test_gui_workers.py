@@ -17,11 +17,14 @@ def run(qtbot, worker, timeout=5_000):
     return events
 
 
-def test_a_function_returns_its_result_from_another_thread(qtbot):
-    seen = []
-    events = run(qtbot, Worker(lambda a, b: seen.append(threading.current_thread()) or a + b, 2, b=3))
+def test_a_function_runs_in_another_thread_and_its_result_arrives_in_this_one(qtbot):
+    ran_in, received_in = [], []
+    worker = Worker(lambda a, b: ran_in.append(threading.current_thread()) or a + b, 2, b=3)
+    worker.returned.connect(lambda _: received_in.append(threading.current_thread()))   # a lambda, not a slot
+    events = run(qtbot, worker)
     assert events == {"yielded": [], "returned": [5], "errored": []}
-    assert seen[0] is not threading.main_thread()
+    assert ran_in[0] is not threading.main_thread()
+    assert received_in == [threading.main_thread()]          # widgets may be touched from any connected callable
 
 
 def test_a_generator_yields_then_returns(qtbot):

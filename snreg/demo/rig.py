@@ -10,6 +10,8 @@ distance along the shaft, which the tests use as ground truth.
 
 from __future__ import annotations
 
+import time
+
 from snreg.calibration import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, still
@@ -42,7 +44,8 @@ class DemoRig:
         scene = PhantomScene(self.calibration, self.probe, self.schedule, seed=self.seed)
         scene.prerender()
         self.scene = scene
-        return CallableSource(self.scene.render, self.fps, name="Demo phantom")
+        # frame times on the host clock of the IMU samples and stored nodes (DESIGN.md §3), from now at the nominal rate
+        return CallableSource(self.scene.render, self.fps, start_ns=time.perf_counter_ns(), name="Demo phantom")
 
     def close(self) -> None:
         """Stop the IMU; call after the worker has stopped."""

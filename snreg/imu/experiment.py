@@ -25,7 +25,6 @@ import numpy as np
 
 from snreg.geometry import rotation_distance_deg, rotation_from_euler
 from snreg.imu.fusion import Fusion
-from snreg.imu.protocol import ImuSample
 from snreg.imu.motion import MotionProfile, rotate, still
 from snreg.imu.simulator import ImuSimulator, SensorModel
 
@@ -69,12 +68,11 @@ class CaseResult:
 
 
 def fuse_simulation(simulator: ImuSimulator, n_samples: int, **fusion_settings) -> np.ndarray:
-    """(n_samples, 3) yaw, pitch, roll (degrees) from the simulator's readings, one ImuSample at a time."""
+    """(n_samples, 3) yaw, pitch, roll (degrees) from the simulator's readings, sample by sample on the device clock."""
     readings = simulator.readings(n_samples)
     fusion = Fusion(simulator.rate_hz, gyroscope_range_dps=float(simulator.sensor.gyro_range_dps or 0),
                     **fusion_settings)
-    return np.array([fusion.update(ImuSample(0, int(t_us), accel, gyro)) for t_us, accel, gyro
-                     in zip(readings.t_device_us, readings.accel_g, readings.gyro_dps)])
+    return fusion.update_block(readings.t_device_us, readings.accel_g, readings.gyro_dps)
 
 
 def run_protractor_experiment(seed: int = 0, *, angles=(1.0, 5.0, 10.0), repeats: int = 4,

@@ -139,33 +139,56 @@ class Fusion:
         self._initial_max = np.full(3, -np.inf)
         self._bias_calibrated = False
         self._last_device_us = None
-        self.euler = (0.0, 0.0, 0.0)           # (yaw, pitch, roll) in degrees after the last update
 
     def update(self, sample: ImuSample) -> tuple[float, float, float]:
-        """Fuse one sample; returns (yaw, pitch, roll) in degrees.
+        """Fuse one sample; returns (yaw, pitch, roll) in degrees (use :meth:`advance` when the angles are not needed)."""
+        self.advance(sample)
+        return self.euler
+
+    def advance(self, sample: ImuSample) -> None:
+        """Fuse one sample without computing angles (the live 208 Hz path: angles are read when shown).
 
         The integration step is the time since the previous sample on the device clock
         (microseconds, modulo 2**32). The first sample, a repeated stamp, or a step over 1 s
         (a device restart) integrate over the nominal period instead.
         """
+        self._advance(int(sample.t_device_us), sample.accel_g, sample.gyro_dps)
+
+    def _advance(self, t_device_us: int, accel_g, gyro_dps) -> None:
         if self._last_device_us is None:
             dt = 1.0 / self.sample_rate_hz
         else:
-            step_us = (int(sample.t_device_us) - self._last_device_us) % _WRAP_US
+            step_us = (t_device_us - self._last_device_us) % _WRAP_US
             dt = step_us * 1e-6 if 0 < step_us <= _MAX_GAP_US else 1.0 / self.sample_rate_hz
-        self._last_device_us = int(sample.t_device_us)
-        return self.step(sample.gyro_dps, sample.accel_g, dt)
+        self._last_device_us = t_device_us
+        self._step(gyro_dps, accel_g, dt)
+
+    def update_block(self, t_device_us, accel_g, gyro_dps) -> np.ndarray:
+        """Fuse samples in order (device times (n,) us, accel (n, 3) g, gyro (n, 3) deg/s) exactly as :meth:`update`
+        would one by one; returns (n, 3) yaw, pitch, roll in degrees, converted in one batch (recordings)."""
+        quaternions = np.empty((len(t_device_us), 4))
+        for k, (t_us, accel, gyro) in enumerate(zip(t_device_us, accel_g, gyro_dps)):
+            self._advance(int(t_us), accel, gyro)
+            quaternions[k] = self._ahrs.get_quaternion()
+        return _euler_of_wxyz(quaternions)
 
     def step(self, gyro_dps: np.ndarray, accel_g: np.ndarray, dt_s: float) -> tuple[float, float, float]:
-        """Fuse one reading (gyro (3,) deg/s, accel (3,) g) taken ``dt_s`` seconds after the last."""
+        """Fuse one reading (gyro (3,) deg/s, accel (3,) g) taken ``dt_s`` seconds after the last; returns the angles."""
+        self._step(gyro_dps, accel_g, dt_s)
+        return self.euler
+
+    def _step(self, gyro_dps, accel_g, dt_s: float) -> None:
         gyro = np.asarray(gyro_dps, dtype=float)
         if self._bias is not None:
             self._calibrate_initial(gyro)
             gyro = self._bias.update(gyro)
         self._ahrs.set_sample_period(dt_s)
         self._ahrs.update_no_magnetometer(gyro, np.asarray(accel_g, dtype=float))
-        self.euler = euler_from_rotation(self.earth_from_sensor)
-        return self.euler
+
+    @property
+    def euler(self) -> tuple[float, float, float]:
+        """(yaw, pitch, roll) in degrees now (DESIGN.md §3 convention)."""
+        return euler_from_rotation(self.earth_from_sensor)
 
     def _calibrate_initial(self, gyro: np.ndarray) -> None:
         """Collect the first ``initial_bias_period_s`` of gyro; if it was still, its mean is the bias."""
@@ -231,4 +254,15 @@ def fuse_arrays(t_s: np.ndarray, gyro_dps: np.ndarray, accel_g: np.ndarray, *,
         sample_rate_hz = 1.0 / float(np.median(np.diff(t_s)))
     fusion = Fusion(sample_rate_hz, **settings)
     dt = np.diff(t_s, prepend=t_s[0] - 1.0 / sample_rate_hz)
-    return np.array([fusion.step(g, a, d) for g, a, d in zip(gyro_dps, accel_g, dt)])
+    quaternions = np.empty((len(t_s), 4))
+    for k, (g, a, d) in enumerate(zip(gyro_dps, accel_g, dt)):
+        fusion._step(g, a, d)
+        quaternions[k] = fusion._ahrs.get_quaternion()
+    return _euler_of_wxyz(quaternions)
+
+
+def _euler_of_wxyz(quaternions: np.ndarray) -> np.ndarray:
+    """(n, 3) yaw, pitch, roll in degrees of imufusion quaternions (n, 4) given as w, x, y, z."""
+    if len(quaternions) == 0:
+        return np.zeros((0, 3))
+    return Rotation.from_quat(np.asarray(quaternions)[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)

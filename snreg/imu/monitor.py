@@ -13,7 +13,9 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from snreg.geometry import euler_from_rotation
 from snreg.imu import Fusion, ImuSample, SerialImuReader
 from snreg.imu.reader import DEFAULT_BAUD
 
@@ -48,7 +50,7 @@ class ImuMonitor:
         self._fusion = Fusion(sample_rate_hz)
         self._arrivals: deque[int] = deque(maxlen=int(sample_rate_hz * 2))
         self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
-        self._euler, self._rotation = (0.0, 0.0, 0.0), np.eye(3)
+        self._rotation = Rotation.identity()
         self._reader = SerialImuReader(port, baudrate, on_sample=self._on_sample)
 
     def start(self) -> "ImuMonitor":
@@ -59,10 +61,10 @@ class ImuMonitor:
         self._reader.stop()
 
     def _on_sample(self, sample: ImuSample) -> None:
-        euler = self._fusion.update(sample)
-        rotation = self._fusion.earth_from_sensor
+        self._fusion.advance(sample)            # angles only when a snapshot asks: 208 Hz stays cheap
+        rotation = self._fusion.rotation
         with self._lock:
-            self._euler, self._rotation = euler, rotation
+            self._rotation = rotation
             self._arrivals.append(sample.t_host_ns)
             self._pending.append(sample)
 
@@ -77,10 +79,11 @@ class ImuMonitor:
         now = time.perf_counter_ns()
         with self._lock:
             arrivals = list(self._arrivals)
-            euler, rotation = self._euler, self._rotation
+            rotation = self._rotation
         recent = [t for t in arrivals if now - t <= 1_000_000_000]
         age_s = (now - arrivals[-1]) / 1e9 if arrivals else float("inf")
         state = self._reader.state
         counts = self._reader.counts
-        return ImuSnapshot(state.value, self._reader.problem, float(len(recent)), age_s, tuple(euler), rotation,
-                           counts.samples, counts.corrupt)
+        earth_from_imu = rotation.as_matrix()
+        return ImuSnapshot(state.value, self._reader.problem, float(len(recent)), age_s,
+                           euler_from_rotation(earth_from_imu), earth_from_imu, counts.samples, counts.corrupt)
