@@ -23,7 +23,7 @@ from snreg_gui.orientation_plot import OrientationPlot
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send
 UNDO_SHORTCUT = "Ctrl+Z"
 DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
-PLOT_EVERY = 3               # the IMU plot at a third of that
+PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
 _NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread mm", "frames")
 
 

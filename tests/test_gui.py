@@ -6,8 +6,8 @@ from snreg_gui.app import MainWindow
 def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True)
     qtbot.addWidget(window)
-    window.show()
-    qtbot.waitExposed(window)
+    with qtbot.waitExposed(window):
+        window.show()
     assert "demo" in window.windowTitle()
     assert window.statusBar().currentMessage().startswith("demo mode: no hardware")
     window.shutdown()

@@ -1,36 +1,25 @@
-"""The demo acquisition screen end to end, offscreen: rendered feeds tracked in a worker, a node stored
-durably near the rendered truth, and the GUI thread never blocked for more than 50 ms."""
+"""The demo acquisition screen end to end, offscreen: rendered feeds tracked in a worker, nodes stored
+durably near the rendered truth, undo, auto-store, and no gross stall of the GUI thread."""
 
 import time
 
 import numpy as np
 import pytest
-from PySide6.QtCore import Qt, QTimer
+from PySide6.QtCore import Qt
 
 from snreg.acquisition import FrameOutcome
 from snreg.session import Session
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import FrameResult
 from snreg_gui.app import MainWindow
+from snreg_gui.bench import Heartbeat
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
 from snreg.imu.monitor import ImuSnapshot
 
 FIXES = 20                      # a short store window keeps the test quick (thesis: 60)
-MAX_GUI_GAP_MS = 50.0
-
-
-class Heartbeat:
-    """A 10 ms timer on the GUI thread; the longest gap between its ticks is how long the thread was blocked."""
-
-    def __init__(self):
-        self.ticks: list[float] = []
-        self.timer = QTimer(interval=10, timeout=lambda: self.ticks.append(time.perf_counter()))
-        self.timer.setTimerType(Qt.TimerType.PreciseTimer)
-        self.timer.start()
-
-    def max_gap_ms(self) -> float:
-        return float(np.max(np.diff(self.ticks)) * 1e3)
+GROSS_STALL_MS = 250.0          # a guard against blocking work on the GUI thread; the 50 ms figure is measured by
+                                # 'python -m snreg_gui.bench' (numbers live in benchmarks, not timed tests)
 
 
 @pytest.fixture
@@ -38,8 +27,8 @@ def demo_window(qtbot, tmp_path):
     rig = DemoRig(schedule=Schedule(rest_frames=45, move_frames=3))
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=rig, fixes_per_node=FIXES)
     qtbot.addWidget(window)
-    window.show()
-    qtbot.waitExposed(window)
+    with qtbot.waitExposed(window):
+        window.show()
     yield window, rig
     window.shutdown()
 
@@ -72,16 +61,14 @@ def test_store_nodes_in_demo(qtbot, demo_window):
     heartbeat = Heartbeat()
     first = store_when_settled(qtbot, window, results)
     second = store_when_settled(qtbot, window, results, other_than=first)
-    heartbeat.timer.stop()
+    heartbeat.stop()
+    assert heartbeat.max_gap_ms() < GROSS_STALL_MS
     assert [screen.nodes.item(row, 0).text() for row in range(2)] == ["SN1", "SN2"]
-    gap = heartbeat.max_gap_ms()
     qtbot.mouseClick(screen.undo_button, Qt.MouseButton.LeftButton)          # take SN2 back, then store it again
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=5_000)
     assert "undone: SN2" in screen.store_status.text()
     second = store_when_settled(qtbot, window, results, other_than=first)
     assert screen.nodes.item(1, 0).text() == "SN2"
-    print(f"GUI thread max gap {gap:.1f} ms over {len(results)} frames, {len(heartbeat.ticks)} ticks")
-    assert gap < MAX_GUI_GAP_MS
     session_path = window.session.path
     window.shutdown()
 

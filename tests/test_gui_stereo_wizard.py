@@ -51,8 +51,8 @@ def open_wizard(qtbot):
     def open_(make_source, board=THESIS_BOARD, **kwargs):
         wizard = StereoCalibrationWizard(make_source, board, **kwargs)
         qtbot.addWidget(wizard)
-        wizard.show()
-        qtbot.waitExposed(wizard)
+        with qtbot.waitExposed(wizard):
+            wizard.show()
         wizards.append(wizard)
         return wizard
 

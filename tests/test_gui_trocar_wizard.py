@@ -49,8 +49,8 @@ def open_wizard(qtbot, scene):
         sources = Sources(scene)
         wizard = TrocarWizard(sources, scene.imu, scene.calibration, BOARD, session=session)
         qtbot.addWidget(wizard)
-        wizard.show()
-        qtbot.waitExposed(wizard)
+        with qtbot.waitExposed(wizard):
+            wizard.show()
         return wizard, sources
     return open_
 

@@ -10,6 +10,7 @@ from the operator's rough set-up alignment (:mod:`snreg.demo.phantom`).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,10 +94,10 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int) -> int:
     """Run the tour until every node is auto-stored; returns the frames read."""
+    source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node)
-    source = rig.frame_source()
     limit = 2 * rig.schedule.cycle
     with source:
         for frame in source:
@@ -115,7 +116,6 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int) -> int:
 
 
 def _wait_for_imu(rig: DemoRig) -> bool:
-    import time
     deadline = time.monotonic() + _IMU_WAIT_S
     while time.monotonic() < deadline:
         if rig.imu.snapshot().samples > 0:

@@ -2,52 +2,80 @@
 
 Why: the demo and the GUI tests must exercise what a phantom session runs (a frame source read and
 tracked, an IMU on a serial port read by :class:`SerialImuReader` and fused, the camera-to-trocar
-chain), only with rendered frames and a simulated IMU on a pseudo-terminal. The session file is not the
-rig's: whoever runs it (the app, the headless demo) creates it.
+chain), only with rendered frames and a simulated IMU. The IMU simulator runs as its own process
+(``snreg imu simulate --still``) on a pseudo-terminal, as a real device is outside the app: its work
+does not compete with the GUI for the interpreter. The session file is not the rig's: whoever runs
+it (the app, the headless demo) creates it.
 The IMU is held still and level, so the trocar frame is the camera frame shifted by the trocar-camera
 distance along the shaft, which the tests use as ground truth.
 """
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 from snreg.calibration import thesis_calibration
 from snreg.chain import ChainCalibration
-from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, still
-from snreg.sources import CallableSource, FrameSource
-from snreg.tracking import default_probe_model
 from snreg.demo.scene import PhantomScene, Schedule
 from snreg.imu.monitor import ImuMonitor
+from snreg.sources import CallableSource, FrameSource
+from snreg.tracking import default_probe_model
 
 DEMO_FPS = 30.0
+IMU_START_TIMEOUT_S = 20.0
 
 
 class DemoRig:
-    """Calibration, chain, simulated IMU (started); :meth:`frame_source` builds the rendered feed.
+    """Calibration, chain, simulated IMU; :meth:`frame_source` starts the IMU reader and builds the rendered feed.
 
     scale: the thesis 1920x1080 cameras at this fraction of their resolution (rendering speed).
     """
 
-    def __init__(self, *, scale: float = 0.5,
-                 schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0):
+    def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0):
         self.calibration = thesis_calibration().scaled(scale)
         self.probe = default_probe_model()
         self.chain = ChainCalibration.manual()
         self.schedule, self.fps, self.seed = schedule, fps, seed
         self.scene: PhantomScene | None = None
-        self._port = SimulatedPort(ImuSimulator(MotionProfile([still(1.0)]), seed=seed)).start()
-        self.imu = ImuMonitor(self._port.port).start()
+        self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")
+        self._link = Path(self._folder.name) / "imu"
+        self._simulator = subprocess.Popen(
+            [sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--seed", str(seed),
+             "--port-link", str(self._link)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.imu = ImuMonitor(str(self._link))
 
     def frame_source(self) -> FrameSource:
-        """The rendered stereo feed; call it in the worker thread (building and pre-rendering the scene takes seconds)."""
+        """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
+        pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
+        self._start_imu()
         scene = PhantomScene(self.calibration, self.probe, self.schedule, seed=self.seed)
         scene.prerender()
         self.scene = scene
         # frame times on the host clock of the IMU samples and stored nodes (DESIGN.md §3), from now at the nominal rate
         return CallableSource(self.scene.render, self.fps, start_ns=time.perf_counter_ns(), name="Demo phantom")
 
+    def _start_imu(self) -> None:
+        if self.imu.started:
+            return
+        deadline = time.monotonic() + IMU_START_TIMEOUT_S
+        while not self._link.exists():
+            if self._simulator.poll() is not None or time.monotonic() > deadline:
+                raise OSError(f"the IMU simulator did not start (exit status {self._simulator.poll()}); "
+                              "try 'snreg imu simulate --still' to see why")
+            time.sleep(0.02)
+        self.imu.start()
+
     def close(self) -> None:
-        """Stop the IMU; call after the worker has stopped."""
+        """Stop the IMU reader and its simulator process; call after the worker has stopped."""
         self.imu.stop()
-        self._port.stop()
+        self._simulator.terminate()
+        try:
+            self._simulator.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._simulator.kill()
+            self._simulator.wait()
+        self._folder.cleanup()

@@ -10,7 +10,7 @@ import time
 
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
 from snreg.imu.reader import DEFAULT_BAUD, ImuPortError, SerialImuReader
-from snreg.imu.motion import protractor_profile
+from snreg.imu.motion import MotionProfile, protractor_profile, still
 from snreg.imu.simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 
 __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
@@ -39,6 +39,8 @@ def add_imu_parser(subparsers) -> None:
     s.add_argument("--seed", type=int, default=0, help="seed for noise, bias and faults")
     s.add_argument("--garbage", type=float, default=0.0, help="fraction of samples that come with a corrupt line")
     s.add_argument("--dropout", type=float, default=0.0, help="fraction of samples skipped")
+    s.add_argument("--still", action="store_true", help="hold the sensor still and level instead of the protractor "
+                   "moves (the demo rig's endoscope)")
     s.set_defaults(func=cmd_imu_simulate)
 
 
@@ -135,8 +137,10 @@ def cmd_imu_simulate(args) -> int:
             what = f"replaying {args.replay} ({len(source.readings.t_s)} samples at {source.rate_hz:.1f} Hz)"
         else:
             rate = 208.0 if args.rate is None else args.rate
-            source = ImuSimulator(protractor_profile(repeat=True), rate_hz=rate, faults=faults, seed=args.seed)
-            what = f"protractor moves (1, 5, 10 deg about y and z) at {rate:g} Hz"
+            motion = MotionProfile([still(1.0)]) if args.still else protractor_profile(repeat=True)
+            source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed)
+            what = ("held still and level" if args.still else "protractor moves (1, 5, 10 deg about y and z)") + \
+                f" at {rate:g} Hz"
         port = SimulatedPort(source, port_link=args.port_link)
     except (ValueError, OSError) as err:
         raise UserError(str(err)) from None

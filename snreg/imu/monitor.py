@@ -52,9 +52,11 @@ class ImuMonitor:
         self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
         self._rotation = Rotation.identity()
         self._reader = SerialImuReader(port, baudrate, on_sample=self._on_sample)
+        self.started = False
 
     def start(self) -> "ImuMonitor":
         self._reader.start()
+        self.started = True
         return self
 
     def stop(self) -> None:

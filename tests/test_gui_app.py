@@ -1,0 +1,189 @@
+"""The main window's orchestration (issue 6): sessions (recent files, layout, continue, refusals), the hardware rig
+chosen in the device dialog, calibration results applied, and the Store SN / undo keys a foot pedal can send."""
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+from PySide6.QtCore import QSettings, Qt
+from PySide6.QtWidgets import QDialog
+
+from snreg.acquisition import FrameOutcome
+from snreg.calibration import thesis_calibration
+from snreg.calibration.files import save_calibration
+from snreg.chain import ChainCalibration
+from snreg.demo.rig import DemoRig
+from snreg.demo.scene import Schedule
+from snreg.imu.monitor import ImuSnapshot
+from snreg.rig import RigConfig
+from snreg.session import Session
+from snreg.sources import ProbePose, StereoRenderer
+from snreg.tracking import default_probe_model
+from snreg_gui.acquisition_screen import AcquisitionScreen
+from snreg_gui.acquisition_worker import FrameResult, StoreRequest
+from snreg_gui.app import MainWindow
+
+
+@pytest.fixture
+def settings(tmp_path):
+    return QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+
+
+def recorded_session(path, n_nodes=2):
+    with Session.create(path, case_id="phantom-07") as session:
+        for k in range(n_nodes):
+            session.add_intraop_node(f"SN{k + 1}", "OBT R", [float(k), 0.0, 250.0], spread_mm=0.2, n_frames=60)
+    return path
+
+
+def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, settings):
+    path = recorded_session(tmp_path / "old.h5")
+    first = MainWindow(settings=settings)
+    qtbot.addWidget(first)
+    with qtbot.waitExposed(first):
+        first.show()
+    first.open_for_review(str(path))
+    qtbot.waitSignal(first.review.loaded, timeout=10_000)
+    assert first.tabs.currentWidget() is first.review
+    first.resize(734, 577)
+    remembered = (first.width(), first.height())           # the width stops at the window's minimum
+    assert remembered[1] == 577
+    first.shutdown()
+
+    second = MainWindow(settings=settings)
+    qtbot.addWidget(second)
+    with qtbot.waitExposed(second):
+        second.show()
+    assert second.recent.paths() == [str(path.resolve())]
+    second._fill_recent()
+    assert [a.text() for a in second.recent_menu.actions()] == [str(path.resolve())]
+    assert (second.width(), second.height()) == remembered
+    assert second.tabs.currentWidget() is second.review                     # the tab last shown
+    path.unlink()                                                             # a file gone is no longer offered
+    assert second.recent.paths() == []
+    second.shutdown()
+
+
+def test_continue_session_shows_its_nodes_and_records_into_it(qtbot, tmp_path, settings):
+    path = recorded_session(tmp_path / "case.h5")
+    window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=30)),
+                        fixes_per_node=10, settings=settings)
+    qtbot.addWidget(window)
+    window.continue_session(str(path))
+    screen = window.acquisition
+    assert window.session.path == path and window.session.writable
+    assert [screen.nodes.item(r, 0).text() for r in range(screen.nodes.rowCount())] == ["SN1", "SN2"]
+    assert screen.undo_button.isEnabled()
+    qtbot.mouseClick(screen.undo_button, Qt.MouseButton.LeftButton)              # undo reaches the resumed session
+    qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=30_000)
+    window.shutdown()
+    with Session.open(path) as session:
+        assert session.intraop_nodes().ids == ["SN1"]
+
+
+def test_a_damaged_session_or_a_bad_case_id_is_refused_in_a_sentence(qtbot, tmp_path, settings):
+    path = recorded_session(tmp_path / "torn.h5")
+    path.write_bytes(path.read_bytes()[:1500])
+    window = MainWindow(settings=settings)
+    qtbot.addWidget(window)
+    window.continue_session(str(path))
+    assert window.session is None and "recover" in window.statusBar().currentMessage()
+    window.set_session(window._create(tmp_path / "new.h5", "Jane Doe"))
+    assert window.session is None and "pseudonymous" in window.statusBar().currentMessage()
+    assert not (tmp_path / "new.h5").exists()
+    window.shutdown()
+
+
+def test_the_hardware_rig_chosen_in_the_device_dialog_runs_the_same_acquisition(qtbot, tmp_path, settings, monkeypatch):
+    """Image folders stand in for the cameras; everything after the source is the real path."""
+    calibration = thesis_calibration().scaled(0.5)
+    renderer = StereoRenderer(calibration, default_probe_model())
+    left, right = renderer.render(ProbePose.make([-10.0, 0.0, 90.0], [0.9, -0.3, 0.4]))
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"left_{k}.png"), left)
+        cv2.imwrite(str(tmp_path / f"right_{k}.png"), right)
+    save_calibration(calibration, tmp_path / "calib.yaml")
+    config = RigConfig(mode="folder", left=str(tmp_path / "left_*.png"), right=str(tmp_path / "right_*.png"),
+                       calibration_path=str(tmp_path / "calib.yaml"), fps=10.0)
+
+    class ChosenDialog:
+        def __init__(self, stored, parent=None):
+            self.stored = stored
+
+        def exec(self):
+            return QDialog.DialogCode.Accepted
+
+        def config(self):
+            return config
+
+    monkeypatch.setattr("snreg_gui.device_dialog.DeviceDialog", ChosenDialog)
+    window = MainWindow(str(tmp_path / "case.h5"), settings=settings)
+    qtbot.addWidget(window)
+    assert window.session is not None and window.acquisition is None           # a session, no devices yet
+    results = []
+    window.wizards.select_devices()
+    window.worker.frame_processed.connect(results.append)
+    qtbot.waitUntil(lambda: len(results) >= 3 or "rendered all" in window.statusBar().currentMessage()
+                    or "ended" in window.statusBar().currentMessage(), timeout=20_000)
+    qtbot.waitUntil(lambda: len(results) == 3, timeout=5_000)
+    assert all(r.outcome.fix is not None for r in results)
+    assert window.acquisition.imu_health is not None
+    qtbot.waitUntil(lambda: "absent" in window.acquisition.imu_health.text(), timeout=2_000)
+    assert RigConfig.from_dict(__import__("json").loads(settings.value("devices/config"))) == config
+    window.shutdown()
+
+
+def test_calibration_results_reach_the_rig_and_the_session(qtbot, tmp_path, settings):
+    window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=30)),
+                        settings=settings)
+    qtbot.addWidget(window)
+    window.wizards.stereo()
+    wizard = window.wizards.active
+    assert window.worker is None                                              # acquisition pauses for the wizard
+    new = thesis_calibration().scaled(0.5)
+    wizard.calibrated.emit(new)
+    wizard.reject()
+    qtbot.waitUntil(lambda: window.worker is not None, timeout=10_000)         # and comes back after it
+    assert window.rig.calibration is new
+    np.testing.assert_allclose(window.session.calibration()["stereo"].K1, new.K1)
+    chain = ChainCalibration.manual(trocar_camera_mm=150.0)
+    window.wizards._chain_done(chain)
+    assert window.rig.chain is chain and "150.0 mm" in window.statusBar().currentMessage()
+    window.shutdown()
+
+
+class LevelImu:
+    def snapshot(self):
+        return ImuSnapshot("streaming", "", 208.0, 0.0, (0.0, 0.0, 0.0), np.eye(3), 1, 0)
+
+
+def ready_result(fixes: int) -> FrameResult:
+    from snreg.tracking import ProbeFix
+    fix = ProbeFix(np.array([0.0, 0.0, 90.0]), np.array([0.0, 0.0, 120.0]), np.array([0.0, 0.0, 1.0]), 1.0,
+                   "triangulation", 3)
+    outcome = FrameOutcome(0, fix, "", np.array([0.0, 0.0, 248.0]), fixes, 0.2, True, False, 5.0)
+    rgb = np.zeros((54, 96, 3), np.uint8)
+    return FrameResult(outcome, rgb, rgb, None, None, LevelImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
+
+
+def test_foot_pedal_and_undo_keys(qtbot):
+    screen = AcquisitionScreen(LevelImu(), fixes_per_node=5)
+    qtbot.addWidget(screen)
+    with qtbot.waitActive(screen):                                             # shortcuts act in the active window
+        screen.show()
+        screen.activateWindow()
+    screen.label_edit.setText("EXT L")
+    screen.counts_edit.setText("1520")
+    screen.show_result(ready_result(5))
+    assert screen.store_button.isEnabled() and "held still" in screen.store_reason.text()
+    with qtbot.waitSignal(screen.store_requested) as stored:
+        qtbot.keyClick(screen, Qt.Key.Key_F5)                                  # what a USB foot pedal sends
+    assert stored.args == [StoreRequest("EXT L", 1520.0)]
+    assert not screen.store_button.isEnabled() and screen.store_reason.text() == "storing..."
+    with qtbot.assertNotEmitted(screen.undo_requested):
+        qtbot.keyClick(screen, Qt.Key.Key_Z, Qt.KeyboardModifier.ControlModifier)   # nothing stored yet
+    screen.counts_edit.setText("many")
+    screen.show_store_problem("Not stored: only 3 of 5 valid fixes so far.")
+    screen.request_store()
+    assert "must be a number" in screen.store_status.text()
