@@ -29,7 +29,7 @@ class WizardLauncher:
         if not self._have_rig():
             return
         if window.demo:
-            make_source = lambda: board_feed(window.rig.calibration)          # noqa: E731
+            make_source = lambda: board_feed(window.rig.cameras)              # noqa: E731 - the true cameras
         else:       # no check against the calibration being replaced: the camera may run at a new resolution
             from snreg.rig import open_frame_source
             make_source = lambda: open_frame_source(window.rig.config)         # noqa: E731
@@ -44,7 +44,7 @@ class WizardLauncher:
         if not self._have_rig():
             return
         if window.demo:
-            scene = PivotScene(window.rig.calibration, THESIS_BOARD)
+            scene = PivotScene(window.rig.cameras, THESIS_BOARD)
             imu = SceneImu(scene)
 
             def make_source():

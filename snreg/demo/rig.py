@@ -36,7 +36,8 @@ class DemoRig:
     """
 
     def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0):
-        self.calibration = thesis_calibration().scaled(scale)
+        self.cameras = thesis_calibration().scaled(scale)     # the simulated cameras as they truly are
+        self.calibration = self.cameras                        # what tracking uses; a calibration wizard replaces it
         self.probe = default_probe_model()
         self.chain = ChainCalibration.manual()
         self.schedule, self.fps, self.seed = schedule, fps, seed
@@ -52,9 +53,10 @@ class DemoRig:
         """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
         pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
         self._start_imu()
-        scene = PhantomScene(self.calibration, self.probe, self.schedule, seed=self.seed)
-        scene.prerender()
-        self.scene = scene
+        if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
+            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed)
+            scene.prerender()
+            self.scene = scene
         # frame times on the host clock of the IMU samples and stored nodes (DESIGN.md §3), from now at the nominal rate
         return CallableSource(self.scene.render, self.fps, start_ns=time.perf_counter_ns(), name="Demo phantom")
 
