@@ -25,7 +25,7 @@ from snreg.imu.reader import DEFAULT_BAUD
 from snreg.rig import CAMERA_MODES, RigConfig, check_source
 from snreg.sources.capture import LAYOUTS
 from snreg.sources.devices import list_cameras, list_serial_ports
-from snreg_gui.workers import Worker
+from snreg_gui.workers import Worker, WorkerSet
 
 MODE_TEXTS = {"pair": "Two cameras, one per eye", "stacked": "One camera delivering both eyes",
               "video": "Two video files (replay)", "folder": "Two image folders (replay)"}
@@ -99,7 +99,7 @@ class DeviceDialog(QDialog):
         self.setWindowTitle("Cameras and IMU")
         self.setMinimumWidth(640)
         config = config or RigConfig()
-        self._workers: list[Worker] = []
+        self._workers = WorkerSet()
         self._tested: RigConfig | None = None      # the choice the last Test read
         self._test_worker: Worker | None = None
         self._build()
@@ -300,10 +300,7 @@ class DeviceDialog(QDialog):
         self._update()
 
     def _run(self, worker: Worker) -> None:
-        """Start ``worker`` (signals connected) and keep it until its thread has ended."""
-        self._workers = [w for w in self._workers if w.running]
-        self._workers.append(worker)
-        worker.start()
+        self._workers.run(worker)
 
     def _listing_failed(self, message: str) -> None:
         self._show_test_status(f"Listing the devices failed ({message}); type the device names in.", error=True)
@@ -374,7 +371,5 @@ class DeviceDialog(QDialog):
     # -- closing -------------------------------------------------------------
     def done(self, result: int) -> None:
         """OK, Cancel, Escape and closing all end here: wait for the listing or test still running."""
-        for worker in self._workers:
-            worker.wait(_WORKER_WAIT_MS)
-        self._workers = []
+        self._workers.shutdown(_WORKER_WAIT_MS)
         super().done(result)

@@ -22,12 +22,11 @@ is stopped, and the source closed, when the wizard finishes, is cancelled or is 
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import cv2
-from PySide6.QtCore import QCoreApplication, QEventLoop, Signal
+from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (QDoubleSpinBox, QFileDialog, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton,
                                QSpinBox, QVBoxLayout, QWizard, QWizardPage)
 
@@ -38,13 +37,12 @@ from snreg.calibration.stereo import MIN_VIEWS
 from snreg.sources import FrameSource
 from snreg_gui.stereo_wizard_calibrate import CalibratePage
 from snreg_gui.stereo_wizard_capture import CapturePage
-from snreg_gui.workers import Worker
+from snreg_gui.workers import WorkerSet
 
 __all__ = ["StereoCalibrationWizard"]
 
 DEFAULT_FILE = "calibration.yaml"
 _SHUTDOWN_WAIT_S = 120.0         # a running calibration cannot be interrupted; it ends within seconds
-_SHUTDOWN_POLL_MS = 10
 
 
 class SetupPage(QWizardPage):
@@ -164,11 +162,11 @@ class StereoCalibrationWizard(QWizard):
                  target_views: int = 30, parent=None):
         super().__init__(parent)
         self.setWindowTitle("Stereo calibration")
-        self._workers: list[Worker] = []
+        self._workers = WorkerSet()
         self.setup_page = SetupPage(board or THESIS_BOARD, target_views)
         self.capture_page = CapturePage(make_source, self.setup_page.board, self.setup_page.target_views.value,
-                                        self._run_worker)
-        self.calibrate_page = CalibratePage(lambda: self.capture_page.views, self.setup_page.board, self._run_worker)
+                                        self._workers.run)
+        self.calibrate_page = CalibratePage(lambda: self.capture_page.views, self.setup_page.board, self._workers.run)
         self.save_page = SavePage(self.calibrate_page)
         for page in (self.setup_page, self.capture_page, self.calibrate_page, self.save_page):
             self.addPage(page)
@@ -177,21 +175,12 @@ class StereoCalibrationWizard(QWizard):
 
     def has_running_workers(self) -> bool:
         """Whether any of the wizard's threads (feed, calibration) is still running."""
-        return any(worker.running for worker in self._workers)
+        return self._workers.running
 
     def shutdown(self) -> None:
-        """Stop the feed (closing its source) and wait for every worker; safe to call twice.
-
-        A Worker's thread is ended by a call queued to this (GUI) thread, so events are let through
-        (user input excluded) while waiting.
-        """
+        """Stop the feed (closing its source) and wait for every worker; safe to call twice."""
         self.capture_page.stop_feed()
-        for worker in self._workers:
-            worker.quit()
-        deadline = time.monotonic() + _SHUTDOWN_WAIT_S
-        for worker in self._workers:
-            while not worker.wait(_SHUTDOWN_POLL_MS) and time.monotonic() < deadline:
-                QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.ExcludeUserInputEvents)
+        self._workers.shutdown(round(_SHUTDOWN_WAIT_S * 1000))
 
     def done(self, result: int) -> None:
         """Finish, Cancel, Escape and closing the window all end here."""
@@ -201,11 +190,6 @@ class StereoCalibrationWizard(QWizard):
             self.calibrated.emit(calibration.calibration)
         super().done(result)
 
-    def _run_worker(self, worker: Worker) -> None:
-        """Start ``worker`` (signals already connected) and keep it until it has ended."""
-        self._workers = [w for w in self._workers if w.running]
-        self._workers.append(worker)
-        worker.start()
 
     def _page_changed(self, _page_id: int) -> None:
         self.capture_page.pause_feed(self.currentPage() is not self.capture_page)

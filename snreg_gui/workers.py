@@ -99,3 +99,41 @@ class Worker(QObject):
         """Block until the thread has ended (for shutdown and tests); True when it has. Signals still queued for
         this thread are delivered when its event loop next runs."""
         return self._thread is None or self._thread.wait(timeout_ms)
+
+
+class WorkerSet:
+    """The running Workers of one widget, kept referenced until their threads end.
+
+    >>> tasks = WorkerSet()
+    >>> tasks.start(read_nodes, path, returned=self._show_nodes, errored=self._show_problem)
+    >>> tasks.shutdown()                   # on close: ask generators to stop, wait for every thread
+    """
+
+    def __init__(self):
+        self._workers: list[Worker] = []
+
+    def run(self, worker: Worker) -> Worker:
+        """Start ``worker`` (its signals connected) and keep it until it has ended."""
+        self._workers = [w for w in self._workers if w.running]
+        self._workers.append(worker)
+        return worker.start()
+
+    def start(self, fn: Callable, *args, returned: Callable, errored: Callable) -> Worker:
+        """Run ``fn(*args)`` in a Worker; ``returned(value)`` or ``errored(sentence)`` follow on the GUI thread."""
+        worker = Worker(fn, *args)
+        worker.returned.connect(returned)
+        worker.errored.connect(errored)
+        return self.run(worker)
+
+    @property
+    def running(self) -> bool:
+        return any(worker.running for worker in self._workers)
+
+    def shutdown(self, timeout_ms: int = 10_000) -> None:
+        """Ask every generator to stop and wait for every thread (closing a window, tests); a worker still
+        running at the timeout stays referenced rather than being destroyed with its thread alive."""
+        for worker in self._workers:
+            worker.quit()
+        for worker in self._workers:
+            worker.wait(timeout_ms)
+        self._workers = [w for w in self._workers if w.running]

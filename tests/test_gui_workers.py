@@ -61,3 +61,21 @@ def test_quit_stops_an_endless_generator(qtbot, ask_to_quit_after):
     events = run(qtbot, worker)
     assert events["yielded"] == list(range(ask_to_quit_after + 1)) and events["errored"] == []
     assert not worker.running
+
+
+def test_a_worker_set_keeps_its_workers_until_shutdown_ends_them(qtbot):
+    from snreg_gui.workers import WorkerSet
+
+    def endless():
+        while True:
+            yield 0
+
+    results = []
+    tasks = WorkerSet()
+    tasks.start(lambda: 7, returned=results.append, errored=results.append)
+    live = Worker(endless)
+    tasks.run(live)
+    assert tasks.running
+    tasks.shutdown(5_000)
+    assert not tasks.running and not live.running
+    qtbot.waitUntil(lambda: results == [7], timeout=2_000)
