@@ -73,6 +73,8 @@ class Worker(QObject):
         super().__init__()
         self._job = _Job(fn, args, kwargs)
         self._thread: QThread | None = None
+        self._delivered = False
+        self.finished.connect(self._all_delivered)
 
     def start(self) -> "Worker":
         """Run in a new thread; connect the signals before calling this."""
@@ -93,7 +95,17 @@ class Worker(QObject):
 
     @property
     def running(self) -> bool:
+        """Its thread is still running."""
         return self._thread is not None and self._thread.isRunning()
+
+    @property
+    def pending(self) -> bool:
+        """Started, and ``finished`` not yet delivered here: results may still be on their way to the slots."""
+        return self._thread is not None and not self._delivered
+
+    @Slot()
+    def _all_delivered(self) -> None:
+        self._delivered = True
 
     def wait(self, timeout_ms: int = 10_000) -> bool:
         """Block until the thread has ended (for shutdown and tests); True when it has. Signals still queued for
@@ -102,7 +114,8 @@ class Worker(QObject):
 
 
 class WorkerSet:
-    """The running Workers of one widget, kept referenced until their threads end.
+    """The Workers of one widget, kept referenced until their last signal has been delivered (a Worker
+    dropped earlier would take its queued result with it).
 
     >>> tasks = WorkerSet()
     >>> tasks.start(read_nodes, path, returned=self._show_nodes, errored=self._show_problem)
@@ -114,7 +127,7 @@ class WorkerSet:
 
     def run(self, worker: Worker) -> Worker:
         """Start ``worker`` (its signals connected) and keep it until it has ended."""
-        self._workers = [w for w in self._workers if w.running]
+        self._workers = [w for w in self._workers if w.pending]
         self._workers.append(worker)
         return worker.start()
 
@@ -130,10 +143,9 @@ class WorkerSet:
         return any(worker.running for worker in self._workers)
 
     def shutdown(self, timeout_ms: int = 10_000) -> None:
-        """Ask every generator to stop and wait for every thread (closing a window, tests); a worker still
-        running at the timeout stays referenced rather than being destroyed with its thread alive."""
+        """Ask every generator to stop and wait for every thread (closing a window, tests). The workers stay
+        referenced, so their last signals are still delivered when the event loop next runs."""
         for worker in self._workers:
             worker.quit()
         for worker in self._workers:
             worker.wait(timeout_ms)
-        self._workers = [w for w in self._workers if w.running]

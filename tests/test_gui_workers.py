@@ -21,7 +21,9 @@ def test_a_function_runs_in_another_thread_and_its_result_arrives_in_this_one(qt
     ran_in, received_in = [], []
     worker = Worker(lambda a, b: ran_in.append(threading.current_thread()) or a + b, 2, b=3)
     worker.returned.connect(lambda _: received_in.append(threading.current_thread()))   # a lambda, not a slot
+    assert not worker.pending
     events = run(qtbot, worker)
+    assert not worker.pending                                # "finished" came, so everything before it did
     assert events == {"yielded": [], "returned": [5], "errored": []}
     assert ran_in[0] is not threading.main_thread()
     assert received_in == [threading.main_thread()]          # widgets may be touched from any connected callable
@@ -78,4 +80,4 @@ def test_a_worker_set_keeps_its_workers_until_shutdown_ends_them(qtbot):
     assert tasks.running
     tasks.shutdown(5_000)
     assert not tasks.running and not live.running
-    qtbot.waitUntil(lambda: results == [7], timeout=2_000)
+    qtbot.waitUntil(lambda: results == [7], timeout=2_000)   # a result queued before shutdown is not lost
