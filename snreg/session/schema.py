@@ -20,6 +20,9 @@ _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
 _DATE = re.compile(r"(19|20)\d{2}[-._]?\d{2}[-._]?\d{2}|\d{2}[-._]\d{2}[-._](19|20)\d{2}")
 
 # Stream tables: host time (time.perf_counter_ns, monotonic, as DESIGN.md §3) and device time, both ns.
+# imu: device time = the sensor's microsecond clock x 1000. probe and frames: the cameras have no device clock,
+# so t_host_ns is the left eye's grab time and t_device_ns the right eye's, both on the host clock (their
+# difference is the left/right skew).
 STREAM_DTYPES = {
     "imu": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("acc_g", "<f4", (3,)),
                      ("gyro_dps", "<f4", (3,))]),
