@@ -8,6 +8,8 @@ if the technician changes them while it runs. No widgets here.
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,17 +74,23 @@ def run_registration(request: RunRequest) -> RunRecord:
 
 
 def export_file(kind: str, path: str, record: RunRecord) -> Path:
-    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups or ``report`` PNG."""
+    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups or ``report`` PNG.
+
+    Written beside the target under a hidden name and then renamed, so a reader (3D Slicer, a script watching
+    the folder) never sees a half-written file and a failed export leaves no file."""
     suffixes = EXPORTS[kind][2]
     path = Path(path if str(path).lower().endswith(suffixes) else f"{path}{suffixes[0]}")
+    partial = path.with_name(f".~{path.name}")            # same ending: the writers choose the format by it
     try:
         if kind == "pairs":
-            write_pairs_csv(path, record.preop, record.intraop, record.result)
+            write_pairs_csv(partial, record.preop, record.intraop, record.result)
         elif kind == "slicer":
-            write_nodes(mapped_preop(record.preop, record.result), path)
+            write_nodes(mapped_preop(record.preop, record.result), partial)
         else:
-            save_report_png(path, record.preop, record.intraop, record.result)
+            save_report_png(partial, record.preop, record.intraop, record.result)
+        os.replace(partial, path)
     except OSError as err:
+        partial.unlink(missing_ok=True)
         raise ValueError(f"{path}: cannot write the {EXPORTS[kind][0]} ({err.strerror or err}); "
                          "choose another folder") from None
     return path

@@ -222,6 +222,7 @@ def test_exports_are_written_and_read_back(qtbot, panel, pelvic_nodes, tmp_path,
         qtbot.mouseClick(panel.export_buttons[kind], Qt.MouseButton.LeftButton)
         qtbot.waitUntil(lambda: not panel.busy and panel.message.text().startswith("Written"), timeout=TIMEOUT_MS)
         panel.message.clear()
+    assert not list(tmp_path.glob(".~*"))                          # written under a hidden name, then renamed
     lines = targets["pairs"].read_text(encoding="utf-8").splitlines()
     rows = list(csv.DictReader(line for line in lines if not line.startswith("#")))
     assert [r["intraop_id"] for r in rows] == extra.ids
