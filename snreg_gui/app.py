@@ -69,7 +69,7 @@ class MainWindow(QMainWindow):
         self.tabs.currentChanged.connect(self._refresh_registration)
         self.wizards = WizardLauncher(self)
         self._menus()
-        self.review.failed.connect(lambda message: self.statusBar().showMessage(message))
+        self.review.failed.connect(self.statusBar().showMessage)
         self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
         self.resize(1500, 900)
         self._restore_layout()
@@ -79,8 +79,9 @@ class MainWindow(QMainWindow):
             self.rig = rig or DemoRig()
             path = session_path or Path(tempfile.gettempdir()) / f"snreg-demo-{time.strftime('%Y%m%d-%H%M%S')}.h5"
             self.set_session(self._create(path, "phantom-demo"))
-            self.demo_spect = DemoSpect(self)
-            self.statusBar().showMessage("demo mode: no hardware; rendering the phantom")
+            if self.session is not None:               # else the status bar says why the file was refused
+                self.demo_spect = DemoSpect(self)
+                self.statusBar().showMessage("demo mode: no hardware; rendering the phantom")
         elif session_path and Path(session_path).exists():
             self.open_for_review(session_path)
         elif session_path:

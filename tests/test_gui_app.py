@@ -93,6 +93,10 @@ def test_a_damaged_session_or_a_bad_case_id_is_refused_in_a_sentence(qtbot, tmp_
     assert window.session is None and "pseudonymous" in window.statusBar().currentMessage()
     assert not (tmp_path / "new.h5").exists()
     window.shutdown()
+    demo = MainWindow(str(path), demo=True, settings=settings)                    # the demo never overwrites a file
+    qtbot.addWidget(demo)
+    assert demo.session is None and "already exists" in demo.statusBar().currentMessage()
+    demo.shutdown()
 
 
 def test_the_hardware_rig_chosen_in_the_device_dialog_runs_the_same_acquisition(qtbot, tmp_path, settings, monkeypatch):
