@@ -200,6 +200,8 @@ class AcquisitionScreen(QWidget):
             self._set_store_enabled(False, "storing...")
         elif outcome is None:
             self._set_store_enabled(False, "waiting for the first frame")
+        elif self._feed_age_s() > STALE_AFTER_S:
+            self._set_store_enabled(False, f"no frames for {self._feed_age_s():.0f} s: check the cameras")
         elif outcome.fix is None:
             self._set_store_enabled(False, f"no valid fix: {outcome.reason}")
         elif outcome.valid_fixes < needed:
@@ -216,12 +218,17 @@ class AcquisitionScreen(QWidget):
         self.store_reason.setToolTip(reason)
 
     # -- health --------------------------------------------------------------
+    def _feed_age_s(self) -> float:
+        return (time.perf_counter_ns() - self._last_arrival_ns) / 1e9 if self._last_arrival_ns else float("inf")
+
     def _show_health(self) -> None:
+        if self._last_result is not None:
+            self._update_store_state()           # a feed that stopped disables Store SN
         result = self._last_result
         if result is None:
             self.video_health.setText("video: waiting for frames")
         else:
-            age_s = (time.perf_counter_ns() - self._last_arrival_ns) / 1e9
+            age_s = self._feed_age_s()
             stale = f"  STALE {age_s:.1f} s" if age_s > STALE_AFTER_S else ""
             self.video_health.setText(f"video: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
                                       f"tracking {result.outcome.track_ms:.0f} ms{stale}")

@@ -135,3 +135,4 @@ def test_store_disabled_with_the_tracking_reason_and_stale_feed_flagged(qtbot):
     assert "no probe stripe found in the left image" in screen.store_reason.text()
     qtbot.waitUntil(lambda: "no fix (no probe stripe found in the left image)" in screen.tip_trocar.text(), timeout=1_000)
     qtbot.waitUntil(lambda: "STALE" in screen.video_health.text(), timeout=3_000)     # no frame for over 1 s
+    assert screen.store_reason.text().startswith("no frames for") and not screen.store_button.isEnabled()
