@@ -117,6 +117,7 @@ class AcquisitionScreen(QWidget):
         """Take one processed frame pair: store state and auto-store now, pictures at the next display tick."""
         self._last_result, self._last_arrival_ns = result, time.perf_counter_ns()
         self._undrawn = result
+        self.orientation.append(result.imu.euler_deg)
         self._update_store_state()
         outcome = result.outcome
         if self.auto_store.isChecked() and outcome.auto_store_due and self.store_button.isEnabled():
@@ -133,7 +134,8 @@ class AcquisitionScreen(QWidget):
         self.left_feed.show_frame(result.left_rgb, result.overlay_left, depth)
         self.right_feed.show_frame(result.right_rgb, result.overlay_right, depth)
         self._draws += 1
-        self.orientation.append(result.imu.euler_deg, redraw=self._draws % PLOT_EVERY == 0)
+        if self._draws % PLOT_EVERY == 0:
+            self.orientation.redraw()
         if outcome.tip_trocar is None:
             self.tip_trocar.setText(f"tip (trocar): no fix ({outcome.reason})")
         else:

@@ -36,11 +36,11 @@ class OrientationPlot(pg.PlotWidget):
         self._x = np.arange(-span + 1, 1)
         self._curves = [self.plot(name=name, pen=pg.mkPen(colour)) for name, colour in _COLOURS.items()]
 
-    def append(self, euler_deg, redraw: bool = True) -> None:
-        """Add one (yaw, pitch, roll) in degrees; redraw now or leave it to a later append."""
+    def append(self, euler_deg) -> None:
+        """Add one frame's (yaw, pitch, roll) in degrees; shown at the next :meth:`redraw`."""
         self._values = np.roll(self._values, -1, axis=0)
         self._values[-1] = euler_deg
-        if not redraw:
-            return
+
+    def redraw(self) -> None:
         for curve, column in zip(self._curves, self._values.T):
             curve.setData(self._x, column, connect="finite")

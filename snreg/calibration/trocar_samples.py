@@ -1,7 +1,8 @@
-"""The trocar wizard's live data and fits: board poses paired with IMU orientations, and what they give.
+"""Live trocar calibration data and fits: board poses paired with IMU orientations, and what they give.
 
-Why: corner detection (~80 ms a frame at half the thesis resolution) and the fits must stay off the GUI
-thread (DESIGN.md §5). :func:`capture_samples` is the generator the capture :class:`~snreg_gui.workers.Worker`
+Why: the trocar wizard (``snreg_gui.trocar_wizard``) runs these in worker threads, since corner detection
+(~80 ms a frame at half the thesis resolution) and the fits must stay off the GUI thread (DESIGN.md §5);
+they hold no Qt, so they live in the core. :func:`capture_samples` is the generator the capture worker
 runs; :func:`fit_pivot` and :func:`fit_arc` are what the fit Workers run on a copy of the samples. All the
 computing is in :mod:`snreg.calibration.pivot` and :mod:`snreg.calibration.trocar`; this module only feeds
 them, the same way ``snreg calibrate trocar`` does from image files.
