@@ -252,6 +252,7 @@ class MainWindow(QMainWindow):
         while layout.count():
             old = layout.takeAt(0).widget()
             if old is not None:
+                old.hide()                  # at once: deleteLater waits for the event loop to come round
                 old.deleteLater()
         layout.addWidget(widget)
 

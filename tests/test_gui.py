@@ -1,5 +1,7 @@
 """The app starts offscreen (pytest-qt), with and without the demo rig."""
 
+from PySide6.QtWidgets import QLabel
+
 from snreg_gui.app import MainWindow
 
 
@@ -10,6 +12,18 @@ def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
         window.show()
     assert "demo" in window.windowTitle()
     assert window.statusBar().currentMessage().startswith("demo mode: no hardware")
+    assert window.acquisition.isVisible()
+    window.shutdown()
+
+
+def test_a_screen_replaced_in_the_acquisition_tab_is_hidden_at_once(qtbot):
+    window = MainWindow()
+    qtbot.addWidget(window)
+    with qtbot.waitExposed(window):
+        window.show()
+    placeholder = window.tabs.widget(0).layout().itemAt(0).widget()
+    window._show_in_acquisition_tab(QLabel("the new screen"))
+    assert not placeholder.isVisible()              # before any event loop turn (deleteLater waits for one)
     window.shutdown()
 
 
