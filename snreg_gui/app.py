@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import argparse
 import gc
+import signal
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from PySide6.QtCore import QSettings, Qt
+from PySide6.QtCore import QSettings, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, QMainWindow, QTabWidget, QVBoxLayout,
                                QWidget)
@@ -298,6 +299,10 @@ def main(argv=None) -> int:
                         "created for recording (demo default: a new file in the temp folder)")
     args = parser.parse_args(argv)
     app = QApplication.instance() or QApplication(sys.argv[:1])
+    for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
+        signal.signal(signum, lambda *_: app.quit())
+    wake = QTimer(interval=200, timeout=lambda: None)      # lets Python run those handlers while Qt waits
+    wake.start()
     window = MainWindow(args.session, demo=args.demo)
     window.show()
     status = app.exec()

@@ -12,6 +12,7 @@ distance along the shaft, which the tests use as ground truth.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
@@ -46,7 +47,8 @@ class DemoRig:
         self._link = Path(self._folder.name) / "imu"
         self._simulator = subprocess.Popen(
             [sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--seed", str(seed),
-             "--port-link", str(self._link)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+             "--port-link", str(self._link), "--parent", str(os.getpid())],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         self.imu = ImuMonitor(str(self._link))
 
     def frame_source(self) -> FrameSource:

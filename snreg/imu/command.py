@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import _thread
 import json
+import os
 import queue
 import signal
 import sys
+import threading
 import time
 
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
@@ -41,6 +44,7 @@ def add_imu_parser(subparsers) -> None:
     s.add_argument("--dropout", type=float, default=0.0, help="fraction of samples skipped")
     s.add_argument("--still", action="store_true", help="hold the sensor still and level instead of the protractor "
                    "moves (the demo rig's endoscope)")
+    s.add_argument("--parent", type=int, metavar="PID", help="stop when process PID ends (the app that started it)")
     s.set_defaults(func=cmd_imu_simulate)
 
 
@@ -145,6 +149,8 @@ def cmd_imu_simulate(args) -> int:
     except (ValueError, OSError) as err:
         raise UserError(str(err)) from None
     previous = signal.signal(signal.SIGTERM, _interrupt)      # `kill` cleans up like Ctrl-C
+    if args.parent is not None:
+        threading.Thread(target=_stop_with_parent, args=(args.parent,), daemon=True).start()
     try:
         with port:
             link = f" (link {args.port_link})" if args.port_link else ""
@@ -160,3 +166,10 @@ def cmd_imu_simulate(args) -> int:
 
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
+
+
+def _stop_with_parent(pid: int) -> None:
+    """Interrupt the simulator once ``pid`` is no longer its parent (the app ended, even by SIGKILL)."""
+    while os.getppid() == pid:
+        time.sleep(0.5)
+    _thread.interrupt_main()

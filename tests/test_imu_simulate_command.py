@@ -1,0 +1,54 @@
+"""``snreg imu simulate --still --parent PID``: the demo rig's IMU process, and that it never outlives the app."""
+
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import serial
+
+from snreg.imu.protocol import StreamDecoder
+
+
+def wait_for(predicate, timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def ended(pid: int) -> bool:
+    """The process is gone or a zombie nobody has reaped yet."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+def test_the_still_simulator_streams_level_samples_and_stops_when_its_parent_ends(tmp_path):
+    link = tmp_path / "imu"
+    # a stand-in for the app: starts the simulator as its child, then ends (as a killed app would)
+    parent = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import os, subprocess, sys, time
+        child = subprocess.Popen([sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still",
+                                  "--port-link", {str(link)!r}, "--parent", str(os.getpid())],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        print(child.pid, flush=True)
+        time.sleep(float(sys.stdin.readline()))
+    """)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    child_pid = int(parent.stdout.readline())
+    assert wait_for(link.exists, 30.0)
+    with serial.Serial(str(link), 230400, timeout=0.2) as port:
+        decoder = StreamDecoder()
+        samples = []
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end and len(samples) < 20:
+            samples += [item for item in decoder.feed(port.read(4096), time.perf_counter_ns()) if hasattr(item, "accel_g")]
+    assert len(samples) >= 20
+    assert all(abs(s.accel_g[2] - 1.0) < 0.05 and max(abs(s.gyro_dps)) < 1.0 for s in samples)   # level and still
+    parent.communicate("0\n", timeout=10)                      # the "app" ends
+    assert wait_for(lambda: ended(child_pid), 10.0)
+    assert not link.exists()                                   # it cleaned up as on Ctrl-C
