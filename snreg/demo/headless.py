@@ -76,7 +76,8 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             frames = _record(rig, session, fixes_per_node)
-            sources = true_sources_lps(phantom_tips(rig.probe), rig.chain)
+            tips = phantom_tips(rig.probe)
+            sources = true_sources_lps(tips, rig.chain)
             spect = write_phantom_spect(sources, spect_path_for(session_path), seed=seed)
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
@@ -87,7 +88,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             session.add_registration(result)
     finally:
         rig.close()
-    truth = _true_pairing(preop.xyz, sources, rig.scene, intraop.ids, session)
+    truth = _true_pairing(preop.xyz, sources, tips, session.intraop_records())
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames)
 
@@ -124,12 +125,9 @@ def _wait_for_imu(rig: DemoRig) -> bool:
     return False
 
 
-def _true_pairing(preop_xyz, sources, scene, intraop_ids, session) -> np.ndarray:
-    """The preop index each stored node should pair with: its source's segmented node (nearest to the true source)."""
+def _true_pairing(preop_xyz, sources, tips, records) -> np.ndarray:
+    """The preop index each stored node should pair with: the segmented node nearest its source, the source being
+    the one whose rendered tip (camera frame) is nearest the node."""
     preop_of_source = np.argmin(np.linalg.norm(sources[:, None, :] - preop_xyz[None, :, :], axis=2), axis=1)
-    truth = []
-    tips = np.array([scene.truth_tip(k) for k in range(N_NODES)])
-    for node in session.intraop_records():
-        source = int(np.argmin(np.linalg.norm(tips - node.xyz_camera, axis=1)))
-        truth.append(preop_of_source[source])
-    return np.array(truth)
+    source_of_node = [int(np.argmin(np.linalg.norm(tips - node.xyz_camera, axis=1))) for node in records]
+    return preop_of_source[source_of_node]
