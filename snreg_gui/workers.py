@@ -100,11 +100,13 @@ class Worker(QObject):
 
     @property
     def pending(self) -> bool:
-        """Started, and ``finished`` not yet delivered here: results may still be on their way to the slots."""
+        """Started, and not yet both delivered ``finished`` here and ended its thread: while pending, a Worker must
+        stay referenced (results may be on their way to the slots; a QThread deleted while it runs aborts)."""
         return self._thread is not None and not self._delivered
 
     @Slot()
     def _all_delivered(self) -> None:
+        self._thread.wait()         # the thread ends right after emitting ``finished``: at most a moment here
         self._delivered = True
 
     def wait(self, timeout_ms: int = 10_000) -> bool:
