@@ -87,10 +87,11 @@ class Acquisition:
             tip_trocar = camera_to_trocar(self.chain, imu.earth_from_imu, fix.tip)
             self._fixes.append((fix.tip, tip_trocar))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)
-        spread = self._window_spread()
+        window = self._window_trocar()
+        spread = window.spread_mm if window is not None else float("nan")
         still = bool(spread <= STILL_SPREAD_MM)
         return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still,
-                            still and self._away_from_stored(), track_ms)
+                            still and self._away_from_stored(window.xyz), track_ms)
 
     def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"",
               right_jpeg=b"") -> IntraopNode:
@@ -117,16 +118,16 @@ class Acquisition:
             raise StoreError("there is no stored node to undo")
         return self.session.remove_intraop_node(target)
 
-    def _away_from_stored(self) -> bool:
-        """Auto-store rule, for a full and still window: its median is away from every stored node."""
-        here = np.median(np.array([f[1] for f in self._fixes]), axis=0)
-        stored = self.session.intraop_nodes().xyz
-        return len(stored) == 0 or float(np.min(np.linalg.norm(stored - here, axis=1))) > AUTO_STORE_SEPARATION_MM
+    def _away_from_stored(self, here: np.ndarray) -> bool:
+        """Auto-store rule, for a full and still window with median ``here``: away from every stored node."""
+        stored = [node.xyz_trocar for node in self.session.intraop_records()]
+        return not stored or float(np.min(np.linalg.norm(np.array(stored) - here, axis=1))) > AUTO_STORE_SEPARATION_MM
 
-    def _window_spread(self) -> float:
+    def _window_trocar(self):
+        """Median and spread of the full store window in the trocar frame (once per frame); None until full."""
         if len(self._fixes) < self.fixes_per_node:
-            return float("nan")
-        return summarise(np.array([f[1] for f in self._fixes])).spread_mm
+            return None
+        return summarise(np.array([f[1] for f in self._fixes]))
 
     def _record_imu(self, samples: Sequence[ImuSample]) -> None:
         if not samples:
