@@ -189,11 +189,11 @@ def cmd_bench(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from snreg.calibration.command import add_calibrate_parser
     from snreg.calibration.trocar_command import add_trocar_parser
+    from snreg.demo.command import add_demo_parser
     from snreg.imu.command import add_imu_parser
     from snreg.preop.command import add_preop_parser
-    from snreg.session.command import add_session_parser
-    from snreg.demo.command import add_demo_parser
     from snreg.registration import METHODS
+    from snreg.session.command import add_session_parser
     from snreg.simulation.study import DEFAULT_EXTRAS, DEFAULT_METHODS, DEFAULT_REPS, DEFAULT_SIGMAS
 
     parser = argparse.ArgumentParser(prog="snreg", description="Sentinel-node registration tools.")

@@ -15,9 +15,9 @@ from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, Q
                                QPushButton, QSizePolicy, QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
 from snreg.acquisition import THESIS_FIXES_PER_NODE
+from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg_gui.acquisition_worker import FrameResult, StoreRequest
 from snreg_gui.feed_view import FeedView
-from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg_gui.orientation_plot import OrientationPlot
 
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send

@@ -17,13 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from PySide6.QtCore import Qt, QTimer, Signal
-from PySide6.QtWidgets import (QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSlider,
-                               QSpinBox)
+from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSlider, QSpinBox
 
 from snreg.nodes import NodeSet, read_nodes
 from snreg.preop import Volume, load_volume, segment_nodes
-from snreg_gui.registration_tables import NodeTable
 from snreg_gui.registration_run import sentence
+from snreg_gui.registration_tables import NodeTable
 from snreg_gui.workers import WorkerSet
 
 DEFAULT_THRESHOLD_PERCENT = 30          # snreg preop's default, 0.3 x maximum

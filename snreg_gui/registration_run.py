@@ -9,7 +9,6 @@ if the technician changes them while it runs. No widgets here.
 from __future__ import annotations
 
 import os
-
 from dataclasses import dataclass
 from pathlib import Path
 

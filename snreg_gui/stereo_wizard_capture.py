@@ -21,7 +21,6 @@ from snreg.calibration.checkerboard import Board
 from snreg.calibration.coverage import Coverage, coverage_map, is_still, similar_view
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.sources import FrameSource
-
 from snreg_gui.stereo_wizard_feed import LiveBoardFeed, LiveView
 from snreg_gui.workers import Worker
 

@@ -19,12 +19,12 @@ from PySide6.QtWidgets import (QGridLayout, QHBoxLayout, QLabel, QPushButton, QT
 from snreg.calibration.checkerboard import Board
 from snreg.calibration.files import StereoCalibration
 from snreg.calibration.pivot import GOOD_TILT_DEG
+from snreg.calibration.trocar_samples import (MIN_ARC_PAIRS, MIN_SAMPLE_TURN_DEG, ArcFit, BoardFrame, PivotFit,
+                                              PivotSample, capture_samples, fit_arc, fit_pivot)
 from snreg.geometry import euler_from_rotation
 from snreg.sources import FrameSource
 from snreg_gui.feed_view import FeedView
 from snreg_gui.trocar_wizard_pages import ChainChoice, PageId, release_finished
-from snreg.calibration.trocar_samples import (MIN_ARC_PAIRS, MIN_SAMPLE_TURN_DEG, ArcFit, BoardFrame, PivotFit,
-                                             PivotSample, capture_samples, fit_arc, fit_pivot)
 from snreg_gui.workers import Worker
 
 _SAMPLE_COLUMNS = ("frame", "t (s)", "yaw", "pitch", "roll", "camera x", "camera y", "camera z")

@@ -1,7 +1,6 @@
 """Shared fixtures. Qt runs offscreen; every random process is seeded."""
 
 import os
-
 import tempfile
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")

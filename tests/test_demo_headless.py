@@ -4,10 +4,10 @@ import json
 
 import numpy as np
 
+from snreg.chain import ChainCalibration
 from snreg.cli import main
 from snreg.demo.phantom import rough_alignment, setup_patient_from_trocar, true_sources_lps
 from snreg.geometry import apply, invert, rotation_angle_deg
-from snreg.chain import ChainCalibration
 from snreg.session import Session
 
 

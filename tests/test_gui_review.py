@@ -4,10 +4,10 @@ import h5py
 import numpy as np
 import pytest
 from PySide6.QtCore import Qt
-
-from snreg_gui.review_screen import ReviewScreen
 from test_session_timeline import (CAMERA_LAG_S, DURATION_S, FRAME_RATE_HZ, LOST_FRAMES, PREOP_IDS, STEREO_RMS_PX,
                                    YAW_TURN_DEG, damaged_copy, record_session)
+
+from snreg_gui.review_screen import ReviewScreen
 
 LOAD_TIMEOUT_MS = 20_000
 

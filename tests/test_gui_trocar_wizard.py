@@ -3,6 +3,7 @@ against the true chain, the chain saved into a real session file, manual entry r
 thread or source left behind when the wizard is closed mid-run."""
 
 import math
+
 import numpy as np
 import pytest
 from PySide6.QtCore import Qt

@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from snreg.imu.experiment import EXPERIMENT_SENSOR, format_table, measure_yaw_drift, run_protractor_experiment
 from snreg.imu.fusion import Fusion, fuse_arrays
-from snreg.imu.protocol import ImuSample
 from snreg.imu.motion import MotionProfile, rotate, still
+from snreg.imu.protocol import ImuSample
 from snreg.imu.simulator import ImuSimulator, SensorModel
 
 RATE = 208.0

@@ -10,8 +10,7 @@ import pytest
 
 from snreg.calibration.files import CalibrationFileError, save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
-from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, still
-from snreg.imu import monitor
+from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, monitor, still
 from snreg.rig import ABSENT, AbsentImu, HardwareRig, RigConfig, check_source
 from snreg.sources import ProbePose, SourceState, StereoRenderer
 from snreg.tracking import default_probe_model

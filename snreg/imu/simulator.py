@@ -257,7 +257,7 @@ class SimulatedPort:
             raise ValueError(f"replay speed must be positive, got {speed}")
         if not hasattr(os, "openpty"):
             raise ValueError("the IMU simulator needs a POSIX pseudo-terminal (Linux or macOS)")
-        import tty                                    # POSIX only, like the pty itself
+        import tty  # POSIX only, like the pty itself
 
         self.source, self.speed, self.link = source, float(speed), port_link
         self.finished, self._stop = threading.Event(), threading.Event()

@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from snreg.registration import CONFIDENT
-from snreg.simulation.stats import (accuracy, calibration, column, extras_breakdown, paired_tests, select,
-                                    threshold_for)
+from snreg.simulation.stats import accuracy, calibration, column, extras_breakdown, paired_tests, select, threshold_for
 from snreg.simulation.study import StudyResult
 
 __all__ = ["markdown_report", "write_report"]

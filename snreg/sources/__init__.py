@@ -5,8 +5,7 @@ from ``read()``, and reports ``state`` (open, ended, lost) with a one-sentence `
 """
 
 from snreg.sources.capture import OpenCVPairSource, OpenCVStackedSource, VideoFilePairSource
-from snreg.sources.frames import (CallableSource, FrameSource, ImageFolderSource, SourceError, SourceState,
-                                  StereoFrame)
+from snreg.sources.frames import CallableSource, FrameSource, ImageFolderSource, SourceError, SourceState, StereoFrame
 from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
 
 __all__ = ["StereoFrame", "FrameSource", "SourceState", "SourceError", "OpenCVPairSource", "OpenCVStackedSource",
