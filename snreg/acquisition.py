@@ -17,6 +17,7 @@ import numpy as np
 
 from snreg.calibration.files import StereoCalibration
 from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.errors import StoreError
 from snreg.imu.protocol import ImuSample
 from snreg.session import IntraopNode, Session
 from snreg.sources import StereoFrame
@@ -25,10 +26,6 @@ from snreg.tracking import ProbeFix, ProbeModel, StereoTracker, TrackingError, s
 THESIS_FIXES_PER_NODE = 60
 STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below this spread (RMS about the median)
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
-
-
-class StoreError(ValueError):
-    """A node that cannot be stored now; the message says what to do."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,12 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from snreg import __version__
+from snreg.errors import UserError
 
 EXIT_BAD_INPUT = 2
-
-
-class UserError(Exception):
-    """Bad input: reported as one line on stderr with exit status 2."""
 
 
 def _floats(text: str) -> tuple[float, ...]:

@@ -15,16 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
+from snreg.errors import NodeFileError
+
 __all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes"]
 
 SLICER_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
     "Resources/Schema/markups-schema-v1.0.3.json#"
 )
-
-
-class NodeFileError(ValueError):
-    """A node file that cannot be read; the message says which file and what to fix."""
 
 
 @dataclass

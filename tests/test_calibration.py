@@ -15,7 +15,7 @@ from snreg.calibration.files import (CalibrationFileError, _thesis_values, load_
                                      thesis_calibration)
 from snreg.calibration.render_board import random_board_poses, render_stereo_board, right_from_left
 from snreg.calibration.stereo import calibrate_mono, calibrate_stereo, drop_views, load_image_pairs
-from snreg.cli import UserError
+from snreg.errors import UserError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "shared" / "data" / "stereo_calib"  # OpenCV's stereo samples: 640x480, 9x6 inner corners, no pair 10
 BOARD = Board(10, 7, 10.0)  # thesis §4.2: 11 x 8 squares of 10 mm

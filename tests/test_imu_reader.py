@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from snreg.cli import UserError
+from snreg.errors import UserError
 from snreg.imu import command
 from snreg.imu.command import add_imu_parser
 from snreg.imu.fusion import Fusion, fuse_arrays

@@ -7,7 +7,7 @@ import numpy as np
 import pydicom
 import pytest
 
-from snreg.cli import UserError
+from snreg.errors import UserError
 from snreg.nodes import read_nodes
 from snreg.preop.command import add_preop_parser
 from snreg.preop.synthetic import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm

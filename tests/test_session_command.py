@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from snreg.cli import UserError
+from snreg.errors import UserError
 from snreg.nodes import read_nodes
 from snreg.session import Session
 from snreg.session.command import add_session_parser

@@ -17,7 +17,7 @@ from snreg.calibration.render_board import render_stereo_board
 from snreg.calibration.trocar import arc_distance, known_spot_distance, manual_distance
 from snreg.calibration.trocar_command import add_trocar_parser
 from snreg.chain import ChainCalibration
-from snreg.cli import UserError
+from snreg.errors import UserError
 from snreg.geometry import euler_from_rotation, invert, make_transform, rotation_distance_deg
 
 TROCAR_CAMERA_MM = 158.0   # thesis Table 3

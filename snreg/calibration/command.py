@@ -15,6 +15,7 @@ import cv2
 from snreg.calibration.checkerboard import Board
 from snreg.calibration.files import save_calibration
 from snreg.calibration.stereo import StereoResult, calibrate_stereo, drop_views, load_image_pairs
+from snreg.errors import UserError
 
 __all__ = ["add_calibrate_parser"]
 
@@ -37,7 +38,6 @@ def add_calibrate_parser(subparsers) -> argparse._SubParsersAction:
 
 def cmd_calibrate_stereo(args) -> int:
     """Run ``snreg calibrate stereo``; bad input raises ``snreg.cli.UserError`` with one sentence."""
-    from snreg.cli import UserError  # here: snreg.cli imports this module
 
     try:
         drop = [int(v) for v in args.drop.split(",") if v.strip()]

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from snreg import __version__
+from snreg.errors import CalibrationFileError
 from snreg.storage import open_for_reading
 
 __all__ = ["StereoCalibration", "CalibrationFileError", "load_calibration", "save_calibration", "thesis_calibration",
@@ -24,10 +25,6 @@ __all__ = ["StereoCalibration", "CalibrationFileError", "load_calibration", "sav
 
 THESIS_CALIBRATION_PATH = Path(__file__).resolve().parents[2] / "resources" / "calibration" / "thesis_appendix_a.yaml"
 _MATRICES = ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q")
-
-
-class CalibrationFileError(ValueError):
-    """A calibration file that cannot be used; the message says which file and why."""
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from snreg.calibration.pivot import (MIN_POSES, PivotResult, board_from_camera_p
                                      imu_from_camera_transform, pivot_calibration)
 from snreg.calibration.stereo import expand_globs, read_grey
 from snreg.chain import ChainCalibration
+from snreg.errors import UserError
 from snreg.geometry import euler_from_rotation
 
 __all__ = ["add_trocar_parser"]
@@ -62,7 +63,6 @@ def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
 
 def cmd_trocar_manual(args) -> int:
     """Print (and with ``-o`` write) the thesis's manual chain as JSON; bad input raises ``UserError``."""
-    from snreg.cli import UserError  # here: snreg.cli imports the calibrate commands
 
     try:
         chain = ChainCalibration.manual(args.imu_trocar, args.trocar_camera)
@@ -77,7 +77,6 @@ def cmd_trocar_manual(args) -> int:
 
 def cmd_trocar_pivot(args) -> int:
     """Run the pivot calibration on image files and report it; bad input raises ``UserError``."""
-    from snreg.cli import UserError  # here: snreg.cli imports the calibrate commands
 
     output = Path(args.output) if args.output else None
     if output is not None and not output.parent.is_dir():
@@ -163,7 +162,6 @@ def _chain_json(chain: ChainCalibration, method: str) -> str:
 
 
 def _write(path: Path, text: str) -> None:
-    from snreg.cli import UserError
 
     try:
         path.write_text(text + "\n", encoding="utf-8")

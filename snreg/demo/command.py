@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from snreg.errors import UserError
+
 
 def add_demo_parser(subparsers) -> None:
     p = subparsers.add_parser("demo", help="the simulated phantom experiment end to end (no hardware)")
@@ -17,7 +19,6 @@ def add_demo_parser(subparsers) -> None:
 
 
 def cmd_demo(args) -> int:
-    from snreg.cli import UserError
     from snreg.demo.headless import DemoError, run_headless
     from snreg.session import SessionError
 

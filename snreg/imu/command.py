@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 
+from snreg.errors import UserError
 from snreg.imu.motion import MotionProfile, protractor_profile, still
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
 from snreg.imu.reader import DEFAULT_BAUD, ImuPortError, SerialImuReader
@@ -73,7 +74,6 @@ class _AngleLog:
 
 
 def cmd_imu_monitor(args) -> int:
-    from snreg.cli import UserError
     from snreg.imu.fusion import Fusion
 
     if args.seconds is not None and not args.seconds > 0:
@@ -130,7 +130,6 @@ def cmd_imu_monitor(args) -> int:
 
 
 def cmd_imu_simulate(args) -> int:
-    from snreg.cli import UserError
 
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)

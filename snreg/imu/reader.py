@@ -19,16 +19,13 @@ from collections.abc import Callable
 
 import serial
 
+from snreg.errors import ImuPortError
 from snreg.imu.protocol import CorruptLine, ImuSample, InfoLine, StreamCounts, StreamDecoder
 
 __all__ = ["SerialImuReader", "ImuState", "ImuPortError", "DEFAULT_BAUD"]
 
 DEFAULT_BAUD = 230400        # the firmware's rate: 208 lines/s of ~80 bytes need > 115200 baud
 _log = logging.getLogger(__name__)
-
-
-class ImuPortError(ValueError):
-    """The IMU port cannot be opened; the message says what to do."""
 
 
 class ImuState(enum.Enum):

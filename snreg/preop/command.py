@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from snreg.errors import UserError
 from snreg.nodes import write_nodes
 from snreg.preop.segment import read_station_table, segment_nodes
 from snreg.preop.volume import PreopError, load_volume
@@ -38,7 +39,6 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_preop(args) -> int:
     """Run ``snreg preop``; bad input raises ``snreg.cli.UserError`` with one sentence."""
-    from snreg.cli import UserError
 
     source = args.spect[0] if len(args.spect) == 1 else args.spect
     try:

@@ -17,13 +17,11 @@ import numpy as np
 import pydicom
 from pydicom.errors import InvalidDicomError
 
+from snreg.errors import PreopError
+
 __all__ = ["Volume", "PreopError", "load_volume"]
 
 _PROJECTION_TYPES = {"STATIC", "WHOLE BODY", "DYNAMIC", "GATED", "TOMO", "GATED TOMO"}
-
-
-class PreopError(ValueError):
-    """Input that cannot become a volume; the message is one sentence a user can act on."""
 
 
 @dataclass(frozen=True)

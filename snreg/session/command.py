@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from snreg.errors import UserError
 from snreg.session.schema import SessionError
 
 
@@ -59,7 +60,6 @@ def cmd_recover(args) -> int:
 
 def _guard(func, *args):
     """Run ``func``; a session or file error becomes a one-sentence :class:`snreg.cli.UserError`."""
-    from snreg.cli import UserError
     try:
         return func(*args)
     except SessionError as err:

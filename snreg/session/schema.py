@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from snreg.errors import SessionError
+
 FORMAT = "snreg-session"
 FORMAT_VERSION = 1
 JOURNAL_SUFFIX = ".journal"
@@ -30,10 +32,6 @@ STREAM_DTYPES = {
                        ("centre_mm", "<f4", (3,)), ("axis", "<f4", (3,)), ("quality", "<f4")]),
     "frames": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("index", "<i8")]),
 }
-
-
-class SessionError(ValueError):
-    """A session file that cannot be used; the message is one sentence naming the file and what to do."""
 
 
 def validate_case_id(case_id: str) -> str:

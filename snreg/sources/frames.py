@@ -23,12 +23,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from snreg.errors import SourceError
+
 __all__ = ["StereoFrame", "FrameSource", "SourceState", "SourceError", "CallableSource", "ImageFolderSource",
            "check_bgr"]
-
-
-class SourceError(ValueError):
-    """A source that cannot be opened or configured; the message says what to do."""
 
 
 class SourceState(enum.Enum):

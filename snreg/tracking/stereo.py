@@ -28,6 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from snreg.calibration.files import StereoCalibration
+from snreg.errors import TrackingError
 from snreg.tracking.markers import Stripes, find_stripes
 from snreg.tracking.probe_model import ProbeModel, default_probe_model
 
@@ -36,10 +37,6 @@ __all__ = ["ProbeFix", "SGBMParams", "StereoTracker", "TrackingError", "METHODS"
 METHODS = ("sgbm", "triangulation")
 _MAX_SURFACE_POINTS = 800
 _NEIGHBOURS = np.stack(np.meshgrid(np.arange(-2, 3), np.arange(-2, 3)), axis=-1).reshape(-1, 2)
-
-
-class TrackingError(ValueError):
-    """No usable probe position in this pair; the message says why."""
 
 
 @dataclass(frozen=True)

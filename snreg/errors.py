@@ -1,0 +1,47 @@
+"""The exceptions a user can cause: each carries one sentence saying what is wrong and what to do.
+
+Why one module: the command line turns every one of them into one line on stderr and exit status 2,
+the app into one line in its status bar, so they are defined once, below everything that raises them.
+All but :class:`UserError` are ``ValueError``s, so code that validates input may catch that alone.
+"""
+
+from __future__ import annotations
+
+__all__ = ["UserError", "NodeFileError", "CalibrationFileError", "SourceError", "ImuPortError", "PreopError",
+           "SessionError", "TrackingError", "StoreError"]
+
+
+class UserError(Exception):
+    """Bad input on the command line: reported as one line on stderr with exit status 2."""
+
+
+class NodeFileError(ValueError):
+    """A node file that cannot be read; the message says which file and what to fix."""
+
+
+class CalibrationFileError(ValueError):
+    """A calibration file that cannot be used; the message says which file and why."""
+
+
+class SourceError(ValueError):
+    """A frame source that cannot be opened or configured; the message says what to do."""
+
+
+class ImuPortError(ValueError):
+    """The IMU port cannot be opened; the message says what to do."""
+
+
+class PreopError(ValueError):
+    """Input that cannot become a preop volume or node set; one sentence a user can act on."""
+
+
+class SessionError(ValueError):
+    """A session file that cannot be used; the message is one sentence naming the file and what to do."""
+
+
+class TrackingError(ValueError):
+    """No usable probe position in this stereo pair; the message says why."""
+
+
+class StoreError(ValueError):
+    """A node that cannot be stored now; the message says what to do."""
