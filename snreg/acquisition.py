@@ -15,13 +15,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration, camera_to_trocar
 from snreg.errors import StoreError
 from snreg.imu.protocol import ImuSample
+from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session
 from snreg.sources import StereoFrame
-from snreg.tracking import ProbeFix, ProbeModel, StereoTracker, TrackingError, summarise
+from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
 
 THESIS_FIXES_PER_NODE = 60
 STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below this spread (RMS about the median)

@@ -32,8 +32,12 @@ from scipy.spatial.transform import Rotation
 
 from snreg.geometry import apply, make_transform
 
-__all__ = ["ChainCalibration", "reference_rotation", "trocar_from_imu", "trocar_from_camera", "trocar_from_probe",
-           "camera_to_trocar"]
+__all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "ChainCalibration", "reference_rotation", "trocar_from_imu",
+           "trocar_from_camera", "trocar_from_probe", "camera_to_trocar"]
+
+# thesis §4.1: the IMU-trocar distance measured by hand, and the trocar-camera distance it measured (mm)
+THESIS_IMU_TROCAR_MM = 460.0
+THESIS_TROCAR_CAMERA_MM = 158.0
 
 _TRANSFORMS = ("imu_from_camera", "trocar_from_earth")
 _ORTHONORMAL_TOL = 1e-6
@@ -66,7 +70,8 @@ class ChainCalibration:
         object.__setattr__(self, "imu_trocar_mm", float(self.imu_trocar_mm))
 
     @classmethod
-    def manual(cls, imu_trocar_mm: float = 460.0, trocar_camera_mm: float = 158.0) -> "ChainCalibration":
+    def manual(cls, imu_trocar_mm: float = THESIS_IMU_TROCAR_MM,
+               trocar_camera_mm: float = THESIS_TROCAR_CAMERA_MM) -> "ChainCalibration":
         """The thesis's chain (§4.1): axes aligned by eye (identity), the camera on the IMU's z axis.
 
         Defaults are the thesis's manual IMU-trocar measurement and its measured trocar-camera distance.

@@ -113,8 +113,9 @@ def cmd_simulate(args) -> int:
 def cmd_track(args) -> int:
     import cv2
 
-    from snreg.calibration.files import CalibrationFileError, load_calibration
-    from snreg.tracking import StereoTracker, TrackingError, load_probe_model
+    from snreg.camera import CalibrationFileError, load_calibration
+    from snreg.probe import load_probe_model
+    from snreg.tracking import StereoTracker, TrackingError
 
     try:
         calibration = load_calibration(args.calib)
@@ -144,9 +145,9 @@ def cmd_track(args) -> int:
 
 
 def cmd_experiment_tracking(args) -> int:
-    from snreg.calibration.files import thesis_calibration
+    from snreg.camera import thesis_calibration
+    from snreg.probe import default_probe_model
     from snreg.tracking.experiment import THESIS_BANDS, format_table, run_tracking_experiment
-    from snreg.tracking.probe_model import default_probe_model
 
     if args.frames < 2:
         raise UserError("--frames must be at least 2")

@@ -39,14 +39,14 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from snreg.calibration.files import StereoCalibration, load_calibration
+from snreg.camera import StereoCalibration, load_calibration
 from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.imu.reader import DEFAULT_BAUD
+from snreg.probe import default_probe_model, load_probe_model
 from snreg.sources import (FrameSource, ImageFolderSource, OpenCVPairSource, OpenCVStackedSource, SourceError,
                            SourceState, StereoFrame, VideoFilePairSource)
 from snreg.sources.capture import LAYOUTS
-from snreg.tracking.probe_model import default_probe_model, load_probe_model
 
 __all__ = ["RigConfig", "HardwareRig", "AbsentImu", "CAMERA_MODES", "ABSENT", "check_source", "open_frame_source"]
 

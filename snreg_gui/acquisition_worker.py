@@ -17,7 +17,7 @@ import numpy as np
 from PySide6.QtCore import QCoreApplication, QMetaObject, QObject, Qt, QThread, QTimer, Signal, Slot
 
 from snreg.acquisition import THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.session import Session, SessionError

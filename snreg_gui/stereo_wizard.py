@@ -9,7 +9,7 @@ views are good and varied, and to judge and save the result (DESIGN.md §4, Cali
    per eye, warnings for repeated views (:mod:`snreg_gui.stereo_wizard_capture`).
 3. Calibrate: :func:`~snreg.calibration.stereo.calibrate_stereo` in a worker, RMS, per-view errors,
    drop views and recalibrate (:mod:`snreg_gui.stereo_wizard_calibrate`).
-4. Save: :func:`~snreg.calibration.files.save_calibration` to a YAML file.
+4. Save: :func:`~snreg.camera.save_calibration` to a YAML file.
 
 The feed is read and searched in a worker thread (``make_source`` is called there), and every worker
 is stopped, and the source closed, when the wizard finishes, is cancelled or is closed.
@@ -32,8 +32,8 @@ from PySide6.QtWidgets import (QDoubleSpinBox, QFileDialog, QFormLayout, QHBoxLa
 
 from snreg.calibration.board_feed import THESIS_BOARD
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import save_calibration
 from snreg.calibration.stereo import MIN_VIEWS
+from snreg.camera import save_calibration
 from snreg.sources import FrameSource
 from snreg_gui.stereo_wizard_calibrate import CalibratePage
 from snreg_gui.stereo_wizard_capture import CapturePage

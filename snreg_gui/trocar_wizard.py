@@ -28,7 +28,7 @@ from PySide6.QtCore import Signal
 from PySide6.QtWidgets import QWizard
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
 from snreg.sources import FrameSource
 from snreg_gui.trocar_wizard_live import ArcPage, LiveCapture, LivePage, PivotPage
 from snreg_gui.trocar_wizard_pages import ChainChoice, ManualPage, MethodPage, PageId, SummaryPage

@@ -17,10 +17,10 @@ from PySide6.QtWidgets import (QGridLayout, QHBoxLayout, QLabel, QPushButton, QT
                                QVBoxLayout, QWizardPage)
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import StereoCalibration
 from snreg.calibration.pivot import GOOD_TILT_DEG
 from snreg.calibration.trocar_samples import (MIN_ARC_PAIRS, MIN_SAMPLE_TURN_DEG, ArcFit, BoardFrame, PivotFit,
                                               PivotSample, capture_samples, fit_arc, fit_pivot)
+from snreg.camera import StereoCalibration
 from snreg.geometry import euler_from_rotation
 from snreg.sources import FrameSource
 from snreg_gui.feed_view import FeedView

@@ -13,12 +13,9 @@ from dataclasses import dataclass
 
 from PySide6.QtWidgets import QButtonGroup, QFormLayout, QLabel, QLineEdit, QRadioButton, QVBoxLayout, QWizardPage
 
-from snreg.calibration.trocar_command import THESIS_IMU_TROCAR_MM
-from snreg.chain import ChainCalibration
+from snreg.chain import THESIS_IMU_TROCAR_MM, THESIS_TROCAR_CAMERA_MM, ChainCalibration
 from snreg.geometry import euler_from_rotation
 from snreg_gui.workers import Worker
-
-THESIS_TROCAR_CAMERA_MM = 158.0
 
 
 class PageId(enum.IntEnum):

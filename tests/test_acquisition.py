@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from snreg.acquisition import Acquisition, ImuReading, StoreError
-from snreg.calibration import thesis_calibration
+from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.scene import PhantomScene, Schedule
 from snreg.imu.protocol import ImuSample
+from snreg.probe import default_probe_model
 from snreg.session import Session
 from snreg.sources import StereoFrame
-from snreg.tracking import default_probe_model
 
 LEVEL = ImuReading(np.eye(3))
 

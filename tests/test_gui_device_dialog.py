@@ -6,7 +6,7 @@ import pytest
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QDialog, QFileDialog
 
-from snreg.calibration.files import save_calibration, thesis_calibration
+from snreg.camera import save_calibration, thesis_calibration
 from snreg.rig import RigConfig
 from snreg.sources.devices import CameraDevice, SerialPortInfo
 from snreg_gui import device_dialog

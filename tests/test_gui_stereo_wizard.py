@@ -11,8 +11,8 @@ import snreg_gui.stereo_wizard_feed as feed_module
 from snreg.calibration.board_feed import THESIS_BOARD, BoardSchedule, BoardTour, board_feed
 from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.coverage import similar_view
-from snreg.calibration.files import load_calibration, thesis_calibration
 from snreg.calibration.render_board import random_board_poses, render_stereo_board, right_from_left
+from snreg.camera import load_calibration, thesis_calibration
 from snreg.sources import CallableSource, SourceError, SourceState
 from snreg_gui.stereo_wizard import StereoCalibrationWizard
 from snreg_gui.stereo_wizard_capture import STILL_FRAMES

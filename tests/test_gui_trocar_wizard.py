@@ -10,8 +10,8 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QWizard
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import thesis_calibration
 from snreg.calibration.pivot_demo import PivotScene
+from snreg.camera import thesis_calibration
 from snreg.geometry import rotation_distance_deg
 from snreg.session import Session
 from snreg.sources import SourceError, SourceState

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from snreg.calibration.checkerboard import Board, find_corners
-from snreg.calibration.files import thesis_calibration
 from snreg.calibration.pivot import board_from_camera_pose, imu_camera_rotation, pivot_calibration
 from snreg.calibration.pivot_demo import DEFAULT_IMU_FROM_CAMERA, PivotScene
 from snreg.calibration.trocar import arc_distance
+from snreg.camera import thesis_calibration
 from snreg.chain import trocar_from_camera
 from snreg.geometry import invert, rotation_distance_deg
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from snreg import geometry
+from snreg.labels import parse_label
 from snreg.registration import CONFIDENT, METHODS, register
-from snreg.registration.labels import parse_label
 
 TRUTH = geometry.transform_from_euler(25.0, 15.0, 10.0)
 

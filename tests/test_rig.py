@@ -8,13 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from snreg.calibration.files import CalibrationFileError, save_calibration, thesis_calibration
+from snreg.camera import CalibrationFileError, save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, monitor, still
+from snreg.probe import default_probe_model, save_probe_model
 from snreg.rig import ABSENT, AbsentImu, HardwareRig, RigConfig, check_source
 from snreg.sources import ProbePose, SourceState, StereoRenderer
-from snreg.tracking import default_probe_model
-from snreg.tracking.probe_model import save_probe_model
 
 SCALE = 0.25                         # the thesis cameras at 480x270
 N_PAIRS = 3

@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
-from snreg.calibration.files import thesis_calibration
+from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.nodes import NodeSet
 from snreg.registration import register

@@ -6,13 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from snreg.calibration import thesis_calibration
-from snreg.calibration.files import THESIS_CALIBRATION_PATH
+from snreg.camera import THESIS_CALIBRATION_PATH, thesis_calibration
 from snreg.cli import main
+from snreg.probe import default_probe_model, load_probe_model, save_probe_model
 from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
-from snreg.tracking import FixFilter, StereoTracker, TrackingError, default_probe_model, load_probe_model, summarise
+from snreg.tracking import FixFilter, StereoTracker, TrackingError, summarise
 from snreg.tracking.experiment import run_tracking_experiment
-from snreg.tracking.probe_model import save_probe_model
 
 AXIS = np.array([1.0, -0.35, 0.4])
 

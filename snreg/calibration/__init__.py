@@ -1,5 +1,4 @@
-"""Camera and trocar calibration (thesis §3.5, §4.1-4.2) and the versioned calibration file."""
+"""Camera and trocar calibration (thesis §3.5, §4.1-4.2): checkerboards, stereo calibration, pivot and trocar methods.
 
-from snreg.calibration.files import CalibrationFileError, StereoCalibration, load_calibration, thesis_calibration
-
-__all__ = ["StereoCalibration", "CalibrationFileError", "load_calibration", "thesis_calibration"]
+The calibration file itself and :class:`~snreg.camera.StereoCalibration` are core types in :mod:`snreg.camera`.
+"""

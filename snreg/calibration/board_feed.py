@@ -24,8 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import StereoCalibration, thesis_calibration
 from snreg.calibration.render_board import random_board_poses, render_stereo_board
+from snreg.camera import StereoCalibration, thesis_calibration
 from snreg.sources import CallableSource
 
 __all__ = ["BoardSchedule", "BoardTour", "board_feed", "THESIS_BOARD"]

@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import save_calibration
 from snreg.calibration.stereo import StereoResult, calibrate_stereo, drop_views, load_image_pairs
+from snreg.camera import save_calibration
 from snreg.errors import UserError
 
 __all__ = ["add_calibrate_parser"]

@@ -29,9 +29,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import StereoCalibration
 from snreg.calibration.render_board import render_stereo_board
-from snreg.chain import ChainCalibration
+from snreg.camera import StereoCalibration
+from snreg.chain import THESIS_IMU_TROCAR_MM, THESIS_TROCAR_CAMERA_MM, ChainCalibration
 from snreg.geometry import euler_from_rotation, invert, make_transform
 from snreg.imu.monitor import ImuSnapshot
 from snreg.sources import CallableSource
@@ -53,8 +53,8 @@ class PivotScene:
     """
 
     def __init__(self, calibration: StereoCalibration, board: Board, *, frames_per_cycle: int = 90,
-                 tilt_deg: tuple[float, float] = (10.0, 6.0), trocar_camera_mm: float = 158.0,
-                 imu_trocar_mm: float = 460.0, board_distance_mm: float = 250.0,
+                 tilt_deg: tuple[float, float] = (10.0, 6.0), trocar_camera_mm: float = THESIS_TROCAR_CAMERA_MM,
+                 imu_trocar_mm: float = THESIS_IMU_TROCAR_MM, board_distance_mm: float = 250.0,
                  imu_from_camera: np.ndarray = DEFAULT_IMU_FROM_CAMERA,
                  earth_from_trocar: np.ndarray = DEFAULT_EARTH_FROM_TROCAR,
                  noise_sigma: float = 2.0, blur_sigma: float = 0.7, seed: int = 0):

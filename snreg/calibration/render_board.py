@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
 
 __all__ = ["render_stereo_board", "random_board_poses", "right_from_left"]
 

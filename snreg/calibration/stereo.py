@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from snreg.calibration.checkerboard import Board, find_corners
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
 
 __all__ = ["MIN_VIEWS", "SUSPECT_FACTOR", "MonoCalibration", "StereoResult", "ImagePairs", "calibrate_mono", "calibrate_stereo",
            "drop_views", "load_image_pairs"]

@@ -21,18 +21,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.calibration.checkerboard import Board, find_corners
-from snreg.calibration.files import load_calibration
 from snreg.calibration.pivot import (MIN_POSES, PivotResult, board_from_camera_pose, imu_camera_rotation,
                                      imu_from_camera_transform, pivot_calibration)
 from snreg.calibration.stereo import expand_globs, read_grey
-from snreg.chain import ChainCalibration
+from snreg.camera import load_calibration
+from snreg.chain import THESIS_IMU_TROCAR_MM, ChainCalibration
 from snreg.errors import UserError
 from snreg.geometry import euler_from_rotation
 
 __all__ = ["add_trocar_parser"]
-
-THESIS_IMU_TROCAR_MM = 460.0
-
 
 def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
     """Add ``trocar`` with its modes ``pivot`` and ``manual`` to the ``calibrate`` subparsers; returns its parser."""

@@ -23,12 +23,11 @@ import cv2
 import numpy as np
 
 from snreg.calibration.checkerboard import Board, find_corners
-from snreg.calibration.files import StereoCalibration
 from snreg.calibration.pivot import (HandEyeRotation, PivotResult, board_from_camera_pose, imu_camera_rotation,
                                      imu_from_camera_transform, pivot_calibration)
 from snreg.calibration.trocar import DistanceEstimate, arc_distance
-from snreg.calibration.trocar_command import THESIS_IMU_TROCAR_MM
-from snreg.chain import ChainCalibration
+from snreg.camera import StereoCalibration
+from snreg.chain import THESIS_IMU_TROCAR_MM, ChainCalibration
 from snreg.geometry import rotation_distance_deg
 from snreg.sources import FrameSource, SourceState
 

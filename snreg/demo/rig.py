@@ -19,12 +19,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from snreg.calibration import thesis_calibration
+from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.scene import PhantomScene, Schedule
 from snreg.imu.monitor import ImuMonitor
+from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
-from snreg.tracking import default_probe_model
 
 DEMO_FPS = 30.0
 IMU_START_TIMEOUT_S = 20.0

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from snreg.labels import parse_label
 from snreg.nodes import NodeSet
 from snreg.preop.volume import PreopError, Volume
-from snreg.registration.labels import parse_label
 
 __all__ = ["PreopNodes", "segment_nodes", "read_station_table", "side_labels"]
 

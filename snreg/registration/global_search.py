@@ -19,8 +19,8 @@ from itertools import combinations, permutations
 import numpy as np
 
 from snreg import geometry
+from snreg.labels import SIDE_CROSSING_NATS
 from snreg.registration.assignment import FLOOR_MM, Candidate, refine_many
-from snreg.registration.labels import SIDE_CROSSING_NATS
 from snreg.registration.problem import Problem
 
 __all__ = ["solve_global"]

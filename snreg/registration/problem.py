@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snreg import geometry
-from snreg.registration.labels import label_cost
+from snreg.labels import label_cost
 
 __all__ = ["Problem", "make_problem"]
 

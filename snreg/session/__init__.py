@@ -221,7 +221,7 @@ class Session:
 
     @_serialised
     def set_calibration(self, *, stereo=None, chain=None) -> None:
-        """Store a :class:`~snreg.calibration.files.StereoCalibration` and/or a :class:`~snreg.chain.ChainCalibration`."""
+        """Store a :class:`~snreg.camera.StereoCalibration` and/or a :class:`~snreg.chain.ChainCalibration`."""
         self._writable()
         items = ([("stereo", stereo_to_dict(stereo))] if stereo is not None else []) + \
                 ([("chain", chain.to_dict())] if chain is not None else [])

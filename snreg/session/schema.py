@@ -102,7 +102,7 @@ def jpeg_bytes(image) -> bytes:
 
 
 def stereo_to_dict(calib) -> dict:
-    """A :class:`~snreg.calibration.files.StereoCalibration` in JSON form: matrices as nested lists."""
+    """A :class:`~snreg.camera.StereoCalibration` in JSON form: matrices as nested lists."""
     out = {"image_size": [int(v) for v in calib.image_size]}
     for key in ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q"):
         out[key] = np.asarray(getattr(calib, key), dtype=float).tolist()
@@ -113,7 +113,7 @@ def stereo_to_dict(calib) -> dict:
 
 def stereo_from_dict(data: dict):
     """Inverse of :func:`stereo_to_dict`."""
-    from snreg.calibration.files import StereoCalibration
+    from snreg.camera import StereoCalibration
     data = dict(data)
     size = tuple(int(v) for v in data.pop("image_size"))
     return StereoCalibration(size, **{k: np.asarray(v) if isinstance(v, list) else v for k, v in data.items()})

@@ -21,9 +21,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from snreg import geometry
+from snreg.labels import STATIONS, parse_label
 from snreg.registration import register
 from snreg.registration.assignment import squared_distances
-from snreg.registration.labels import STATIONS, parse_label
 
 __all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "STATION_ERROR"]
 

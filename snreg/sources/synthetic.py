@@ -3,7 +3,7 @@
 Ground truth for tests, the tracking accuracy experiment and the demo. Every pixel of
 each eye is ray-cast in the left camera frame (mm; x right, y down, z forward): a
 textured tissue plane behind the probe, the probe (a cylinder with a hemispherical tip,
-stripes and body from the :class:`~snreg.tracking.probe_model.ProbeModel`), and an
+stripes and body from the :class:`~snreg.probe.ProbeModel`), and an
 optional tissue blob hiding part of one stripe. The endoscope light sits at the
 camera (inverse-square fall-off, Lambert shading, optional specular highlights);
 vignetting and a slow light gradient make the exposure uneven. Sensor noise and blur
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from snreg.calibration.files import StereoCalibration
-from snreg.tracking.probe_model import ProbeModel
+from snreg.camera import StereoCalibration
+from snreg.probe import ProbeModel
 
 __all__ = ["ProbePose", "RenderOptions", "StereoRenderer"]
 

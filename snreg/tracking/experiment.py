@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
+from snreg.probe import ProbeModel
 from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
-from snreg.tracking.probe_model import ProbeModel
 from snreg.tracking.stereo import StereoTracker, TrackingError
 
 __all__ = ["BandResult", "run_tracking_experiment", "format_table", "THESIS_BANDS"]

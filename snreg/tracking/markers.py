@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from snreg.tracking.probe_model import ProbeModel
+from snreg.probe import ProbeModel
 
 __all__ = ["Stripes", "find_stripes", "stripe_mask", "DETECT_SCALE"]
 

@@ -27,10 +27,10 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from snreg.calibration.files import StereoCalibration
+from snreg.camera import StereoCalibration
 from snreg.errors import TrackingError
+from snreg.probe import ProbeModel, default_probe_model
 from snreg.tracking.markers import Stripes, find_stripes
-from snreg.tracking.probe_model import ProbeModel, default_probe_model
 
 __all__ = ["ProbeFix", "SGBMParams", "StereoTracker", "TrackingError", "METHODS"]
 

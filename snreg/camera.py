@@ -18,12 +18,12 @@ import numpy as np
 
 from snreg import __version__
 from snreg.errors import CalibrationFileError
-from snreg.storage import open_for_reading
+from snreg.files import open_for_reading
 
 __all__ = ["StereoCalibration", "CalibrationFileError", "load_calibration", "save_calibration", "thesis_calibration",
            "THESIS_CALIBRATION_PATH"]
 
-THESIS_CALIBRATION_PATH = Path(__file__).resolve().parents[2] / "resources" / "calibration" / "thesis_appendix_a.yaml"
+THESIS_CALIBRATION_PATH = Path(__file__).resolve().parents[1] / "resources" / "calibration" / "thesis_appendix_a.yaml"
 _MATRICES = ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q")
 
 

@@ -13,11 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from snreg.storage import open_for_reading
+from snreg.files import open_for_reading
 
 __all__ = ["ProbeModel", "load_probe_model", "save_probe_model", "default_probe_model", "DEFAULT_PROBE_PATH"]
 
-DEFAULT_PROBE_PATH = Path(__file__).resolve().parents[2] / "resources" / "probe" / "drop_in_probe.yaml"
+DEFAULT_PROBE_PATH = Path(__file__).resolve().parents[1] / "resources" / "probe" / "drop_in_probe.yaml"
 
 
 @dataclass(frozen=True)
