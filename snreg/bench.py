@@ -140,8 +140,8 @@ class TrackingBench:
 def bench_tracking(pairs: int = 40, seed: int = 3) -> list[TrackingBench]:
     """Time 1920x1080 stereo pair -> probe position (thesis calibration, rendered probe at 80-280 mm)."""
     from snreg.camera import thesis_calibration
+    from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
     from snreg.probe import default_probe_model
-    from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
     from snreg.tracking.stereo import StereoTracker, TrackingError
 
     calibration, probe = thesis_calibration(), default_probe_model()

@@ -14,7 +14,7 @@ views are good and varied, and to judge and save the result (DESIGN.md §4, Cali
 The feed is read and searched in a worker thread (``make_source`` is called there), and every worker
 is stopped, and the source closed, when the wizard finishes, is cancelled or is closed.
 
->>> from snreg.calibration.board_feed import board_feed
+>>> from snreg.demo.board_tour import board_feed
 >>> wizard = StereoCalibrationWizard(board_feed, Board(10, 7, 10.0), target_views=30)
 >>> wizard.calibrated.connect(lambda calibration: print(calibration.baseline_mm))
 >>> wizard.show()
@@ -30,8 +30,7 @@ from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (QDoubleSpinBox, QFileDialog, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton,
                                QSpinBox, QVBoxLayout, QWizard, QWizardPage)
 
-from snreg.calibration.board_feed import THESIS_BOARD
-from snreg.calibration.checkerboard import Board
+from snreg.calibration.checkerboard import THESIS_BOARD, Board
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.camera import save_calibration
 from snreg.sources import FrameSource

@@ -9,7 +9,7 @@ entry (thesis: 460 mm and 158 mm); and a summary that saves the
 
 The feed runs only while a live page is shown; capture and fits run in worker threads; closing,
 cancelling or finishing closes the source and waits for every thread. Usage, with the simulated
-recording (:mod:`snreg.calibration.pivot_demo`; a camera source and an
+recording (:mod:`snreg.demo.pivot_scene`; a camera source and an
 :class:`~snreg.imu.monitor.ImuMonitor` go in the same places)::
 
     calibration = thesis_calibration().scaled(0.5)

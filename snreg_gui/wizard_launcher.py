@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 
-from snreg.calibration.board_feed import THESIS_BOARD
+from snreg.calibration.checkerboard import THESIS_BOARD
 
 _DEVICES_KEY = "devices/config"
 WIZARD_SIZE = (1200, 800)        # live feeds and tables need room
@@ -23,7 +23,7 @@ class WizardLauncher:
         self.active = None          # the wizard or dialog now open
 
     def stereo(self) -> None:
-        from snreg.calibration.board_feed import board_feed
+        from snreg.demo.board_tour import board_feed
         from snreg_gui.stereo_wizard import StereoCalibrationWizard
         window = self._window
         if not self._have_rig():
@@ -38,7 +38,7 @@ class WizardLauncher:
         self._open(wizard)
 
     def trocar(self) -> None:
-        from snreg.calibration.pivot_demo import PivotScene, SceneImu
+        from snreg.demo.pivot_scene import PivotScene, SceneImu
         from snreg_gui.trocar_wizard import TrocarWizard
         window = self._window
         if not self._have_rig():

@@ -11,9 +11,9 @@ import pytest
 
 from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.command import add_calibrate_parser
-from snreg.calibration.render_board import random_board_poses, render_stereo_board, right_from_left
 from snreg.calibration.stereo import calibrate_mono, calibrate_stereo, drop_views, load_image_pairs
 from snreg.camera import CalibrationFileError, _thesis_values, load_calibration, save_calibration, thesis_calibration
+from snreg.demo.board_render import random_board_poses, render_stereo_board, right_from_left
 from snreg.errors import UserError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "shared" / "data" / "stereo_calib"  # OpenCV's stereo samples: 640x480, 9x6 inner corners, no pair 10

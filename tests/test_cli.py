@@ -104,8 +104,8 @@ def test_experiment_imu_prints_the_protractor_table_and_drift(capsys):
 
 
 def test_preop_through_the_snreg_command_line(tmp_path, capsys):
+    from snreg.demo.spect import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
     from snreg.nodes import read_nodes
-    from snreg.preop.synthetic import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
 
     counts, origin = spect_of_nodes(THESIS_SOURCES, seed=2)
     write_nm(counts, origin, THESIS_VOXEL_MM, tmp_path / "phantom.dcm")

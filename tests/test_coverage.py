@@ -6,8 +6,8 @@ import pytest
 from snreg.calibration.checkerboard import Board
 from snreg.calibration.coverage import (SIMILAR_SHIFT_FRACTION, STILL_SHIFT_FRACTION, coverage_map, is_still,
                                         mean_corner_shift, similar_view)
-from snreg.calibration.render_board import random_board_poses
 from snreg.camera import thesis_calibration
+from snreg.demo.board_render import random_board_poses
 
 SIZE = (160, 90)                      # 16 x 9 cells of 10 px
 DIAGONAL = float(np.hypot(*SIZE))

@@ -12,13 +12,13 @@ from PySide6.QtWidgets import QDialog
 from snreg.acquisition import FrameOutcome
 from snreg.camera import save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
+from snreg.demo.renderer import ProbePose, StereoRenderer
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
 from snreg.imu.monitor import ImuSnapshot
 from snreg.probe import default_probe_model
 from snreg.rig import RigConfig
 from snreg.session import Session
-from snreg.sources import ProbePose, StereoRenderer
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow

@@ -10,9 +10,9 @@ from PySide6.QtGui import QGuiApplication
 from PySide6.QtWidgets import QFileDialog
 
 from snreg import geometry
+from snreg.demo.spect import spect_of_nodes, write_nm
 from snreg.labels import parse_label
 from snreg.nodes import NodeSet, read_nodes, write_nodes
-from snreg.preop.synthetic import spect_of_nodes, write_nm
 from snreg.registration.report import EXTRA, REPORT_DPI, REPORT_SIZE_IN
 from snreg.session import Session
 from snreg_gui import node_views

@@ -8,11 +8,11 @@ from PySide6.QtCore import QPoint, Qt
 from PySide6.QtWidgets import QWizard
 
 import snreg_gui.stereo_wizard_feed as feed_module
-from snreg.calibration.board_feed import THESIS_BOARD, BoardSchedule, BoardTour, board_feed
-from snreg.calibration.checkerboard import Board, find_corners
+from snreg.calibration.checkerboard import THESIS_BOARD, Board, find_corners
 from snreg.calibration.coverage import similar_view
-from snreg.calibration.render_board import random_board_poses, render_stereo_board, right_from_left
 from snreg.camera import load_calibration, thesis_calibration
+from snreg.demo.board_render import random_board_poses, render_stereo_board, right_from_left
+from snreg.demo.board_tour import BoardSchedule, BoardTour, board_feed
 from snreg.sources import CallableSource, SourceError, SourceState
 from snreg_gui.stereo_wizard import StereoCalibrationWizard
 from snreg_gui.stereo_wizard_capture import STILL_FRAMES

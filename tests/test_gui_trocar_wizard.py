@@ -1,4 +1,4 @@
-"""The trocar wizard offscreen on the rendered pivot recording (snreg.calibration.pivot_demo): pivot and arc methods
+"""The trocar wizard offscreen on the rendered pivot recording (snreg.demo.pivot_scene): pivot and arc methods
 against the true chain, the chain saved into a real session file, manual entry refusing a bad value, and no
 thread or source left behind when the wizard is closed mid-run."""
 
@@ -10,8 +10,8 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QWizard
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.pivot_demo import PivotScene
 from snreg.camera import thesis_calibration
+from snreg.demo.pivot_scene import PivotScene
 from snreg.geometry import rotation_distance_deg
 from snreg.session import Session
 from snreg.sources import SourceError, SourceState

@@ -1,6 +1,6 @@
 """IMU orientation (snreg.imu.fusion) and the protractor experiment (thesis §5.3, Fig 19).
 
-Simulated LSM6DSOX readings (snreg.imu.simulator, seeded) against their ground truth; the
+Simulated LSM6DSOX readings (snreg.demo.imu_simulator, seeded) against their ground truth; the
 x-io sample recording against imufusion driven directly.
 """
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from snreg.demo.imu_motion import MotionProfile, rotate, still
+from snreg.demo.imu_simulator import ImuSimulator, SensorModel
 from snreg.imu.experiment import EXPERIMENT_SENSOR, format_table, measure_yaw_drift, run_protractor_experiment
 from snreg.imu.fusion import Fusion, fuse_arrays
-from snreg.imu.motion import MotionProfile, rotate, still
 from snreg.imu.protocol import ImuSample
-from snreg.imu.simulator import ImuSimulator, SensorModel
 
 RATE = 208.0
 XIO_CSV = Path(__file__).resolve().parents[2] / "shared" / "data" / "imu" / "fusion_sensor_data.csv"

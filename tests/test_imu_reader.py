@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from snreg.demo.imu_motion import MotionProfile, protractor_profile, rotate, still
+from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SensorModel, SimulatedPort
 from snreg.errors import UserError
 from snreg.imu import command
 from snreg.imu.command import add_imu_parser
 from snreg.imu.fusion import Fusion, fuse_arrays
-from snreg.imu.motion import MotionProfile, protractor_profile, rotate, still
 from snreg.imu.protocol import ImuSample, StreamCounts, format_line, parse_line
 from snreg.imu.reader import ImuPortError, ImuState, SerialImuReader
-from snreg.imu.simulator import CsvReplay, Faults, ImuSimulator, SensorModel, SimulatedPort
 
 XIO_CSV = Path(__file__).resolve().parents[2] / "shared" / "data" / "imu" / "fusion_sensor_data.csv"
 EXACT = SensorModel(0.0, 0.0, 0.0, None, None)          # noise-free, unquantised, no bias

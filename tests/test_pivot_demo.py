@@ -5,10 +5,10 @@ import pytest
 
 from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.pivot import board_from_camera_pose, imu_camera_rotation, pivot_calibration
-from snreg.calibration.pivot_demo import DEFAULT_IMU_FROM_CAMERA, PivotScene
 from snreg.calibration.trocar import arc_distance
 from snreg.camera import thesis_calibration
 from snreg.chain import trocar_from_camera
+from snreg.demo.pivot_scene import DEFAULT_IMU_FROM_CAMERA, PivotScene
 from snreg.geometry import invert, rotation_distance_deg
 
 BOARD = Board(10, 7, 10.0)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
+from snreg.demo.spect import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
 from snreg.preop import PreopError, load_volume, segment_nodes
-from snreg.preop.synthetic import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
 from snreg.simulation.cohort import synthetic_cohort
 
 CENTRE_TOLERANCE_MM = 1.0

@@ -8,8 +8,8 @@ import pytest
 from pydicom.dataset import Dataset
 from pydicom.sequence import Sequence
 
+from snreg.demo.spect import write_nm
 from snreg.preop import PreopError, load_volume
-from snreg.preop.synthetic import write_nm
 
 DICOM_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dicom"
 HEART = DICOM_DIR / "NM-MONO2-16-13x-heart.dcm"

@@ -10,10 +10,13 @@ import pytest
 
 from snreg.camera import CalibrationFileError, save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
-from snreg.imu import ImuSimulator, MotionProfile, SimulatedPort, monitor, still
+from snreg.demo.imu_motion import MotionProfile, still
+from snreg.demo.imu_simulator import ImuSimulator, SimulatedPort
+from snreg.demo.renderer import ProbePose, StereoRenderer
+from snreg.imu import monitor
 from snreg.probe import default_probe_model, save_probe_model
 from snreg.rig import ABSENT, AbsentImu, HardwareRig, RigConfig, check_source
-from snreg.sources import ProbePose, SourceState, StereoRenderer
+from snreg.sources import SourceState
 
 SCALE = 0.25                         # the thesis cameras at 480x270
 N_PAIRS = 3

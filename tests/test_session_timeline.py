@@ -9,7 +9,8 @@ import pytest
 
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
-from snreg.imu import ImuSimulator, MotionProfile, rotate, still
+from snreg.demo.imu_motion import MotionProfile, rotate, still
+from snreg.demo.imu_simulator import ImuSimulator
 from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError

@@ -8,8 +8,8 @@ import pytest
 
 from snreg.camera import THESIS_CALIBRATION_PATH, thesis_calibration
 from snreg.cli import main
+from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
 from snreg.probe import default_probe_model, load_probe_model, save_probe_model
-from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
 from snreg.tracking import FixFilter, StereoTracker, TrackingError, summarise
 from snreg.tracking.experiment import run_tracking_experiment
 

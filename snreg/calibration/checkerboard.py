@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["Board", "find_corners"]
+__all__ = ["Board", "find_corners", "THESIS_BOARD"]
 
 _SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
@@ -70,6 +70,9 @@ class Board:
         points = np.zeros((self.n_corners, 3), np.float32)
         points[:, :2] = grid * self.square_mm
         return points
+
+
+THESIS_BOARD = Board(10, 7, 10.0)          # thesis §4.2: 11 x 8 squares of 10 mm
 
 
 def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:

@@ -20,8 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.demo.spect import spect_of_nodes, write_nm
 from snreg.geometry import apply, invert, make_transform
-from snreg.preop.synthetic import spect_of_nodes, write_nm
 
 # Labels of the four phantom nodes of snreg.demo.scene: sides from the phantom midline (the tips with camera
 # x below the mean lie on the patient's left), stations near (EXT) and far (OBT).

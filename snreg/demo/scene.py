@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from snreg.camera import StereoCalibration
+from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
 from snreg.probe import ProbeModel
-from snreg.sources import ProbePose, RenderOptions, StereoRenderer
 
 _AXIS = np.array([1.0, -0.35, 0.4])        # probe pointing right, up and away: a side view the tracker reads
 # stripe-band centres of the four phantom nodes, left camera frame (mm)

@@ -11,11 +11,11 @@ import sys
 import threading
 import time
 
+from snreg.demo.imu_motion import MotionProfile, protractor_profile, still
+from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 from snreg.errors import UserError
-from snreg.imu.motion import MotionProfile, protractor_profile, still
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
 from snreg.imu.reader import DEFAULT_BAUD, ImuPortError, SerialImuReader
-from snreg.imu.simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 
 __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
 

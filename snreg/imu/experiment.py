@@ -10,7 +10,7 @@ before and after the turn; error = |measured - protractor angle|. Thesis: 0.6 +-
 
 Here the motion is known exactly, so the error is the filter's and the sensor's alone (no
 protractor reading error, no misalignment, no gyro scale-factor error). The whole experiment
-is one recording of one sensor (one gyro bias) from :mod:`snreg.imu.simulator`, fused sample by
+is one recording of one sensor (one gyro bias) from :mod:`snreg.demo.imu_simulator`, fused sample by
 sample through :meth:`Fusion.update` on device timestamps that cross the 32-bit wrap:
 ``initial_still_s`` at rest (imufusion's 3 s startup and the initial bias estimate), then per
 rotation type, angle and repeat: hold ``hold_s``, turn at ``rate_dps`` on average (raised-cosine
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from snreg.demo.imu_motion import MotionProfile, rotate, still
+from snreg.demo.imu_simulator import ImuSimulator, SensorModel
 from snreg.geometry import rotation_distance_deg, rotation_from_euler
 from snreg.imu.fusion import Fusion
-from snreg.imu.motion import MotionProfile, rotate, still
-from snreg.imu.simulator import ImuSimulator, SensorModel
 
 __all__ = ["CaseResult", "fuse_simulation", "run_protractor_experiment", "format_table", "YawDrift", "measure_yaw_drift",
            "EXPERIMENT_SENSOR", "THESIS_FIG19"]

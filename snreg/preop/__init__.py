@@ -2,7 +2,7 @@
 
 ``load_volume`` -> :class:`Volume` (voxels (Z, Y, X), 4x4 patient_from_index, LPS mm);
 ``segment_nodes`` -> :class:`PreopNodes` (a NodeSet in LPS mm plus peak/total counts);
-:mod:`snreg.preop.synthetic` writes test SPECT as real NM DICOM; :mod:`snreg.preop.command`
+:mod:`snreg.demo.spect` writes test SPECT as real NM DICOM; :mod:`snreg.preop.command`
 is ``snreg preop``.
 """
 

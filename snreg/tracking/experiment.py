@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from snreg.camera import StereoCalibration
+from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
 from snreg.probe import ProbeModel
-from snreg.sources.synthetic import ProbePose, RenderOptions, StereoRenderer
 from snreg.tracking.stereo import StereoTracker, TrackingError
 
 __all__ = ["BandResult", "run_tracking_experiment", "format_table", "THESIS_BANDS"]

@@ -2,10 +2,10 @@
 
 Why: the calibration wizard's demo and tests need a video-rate feed with a known truth. A
 :class:`BoardTour` holds the board at each of ``n_poses`` seeded poses
-(:func:`~snreg.calibration.render_board.random_board_poses`) for ``dwell_frames`` frames, then glides
+(:func:`~snreg.demo.board_render.random_board_poses`) for ``dwell_frames`` frames, then glides
 to the next over ``move_frames`` frames (rotation slerped, centre moved on a straight line), and
 repeats. Every distinct pose is rendered once with
-:func:`~snreg.calibration.render_board.render_stereo_board` (first use or :meth:`BoardTour.prerender`)
+:func:`~snreg.demo.board_render.render_stereo_board` (first use or :meth:`BoardTour.prerender`)
 and replayed from memory, so the feed then costs only a colour conversion per frame; the cameras are
 a reduced-resolution calibration (default: thesis Appendix A at half size) to keep rendering cheap.
 Sources made by one tour share its renders.
@@ -23,14 +23,13 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from snreg.calibration.checkerboard import Board
-from snreg.calibration.render_board import random_board_poses, render_stereo_board
+from snreg.calibration.checkerboard import THESIS_BOARD, Board
 from snreg.camera import StereoCalibration, thesis_calibration
+from snreg.demo.board_render import random_board_poses, render_stereo_board
 from snreg.sources import CallableSource
 
-__all__ = ["BoardSchedule", "BoardTour", "board_feed", "THESIS_BOARD"]
+__all__ = ["BoardSchedule", "BoardTour", "board_feed"]
 
-THESIS_BOARD = Board(10, 7, 10.0)          # thesis §4.2: 11 x 8 squares of 10 mm
 _DISTANCE_MM = (110.0, 250.0)              # near enough that the squares stay over ~10 px in half-size detection
 
 

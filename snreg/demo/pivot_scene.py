@@ -29,9 +29,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.calibration.checkerboard import Board
-from snreg.calibration.render_board import render_stereo_board
 from snreg.camera import StereoCalibration
 from snreg.chain import THESIS_IMU_TROCAR_MM, THESIS_TROCAR_CAMERA_MM, ChainCalibration
+from snreg.demo.board_render import render_stereo_board
 from snreg.geometry import euler_from_rotation, invert, make_transform
 from snreg.imu.monitor import ImuSnapshot
 from snreg.sources import CallableSource

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from snreg.imu.motion import MotionProfile, still
+from snreg.demo.imu_motion import MotionProfile, still
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US, StreamCounts, format_info, format_line
 
 __all__ = ["SensorModel", "Faults",
