@@ -147,7 +147,7 @@ def cmd_track(args) -> int:
 def cmd_experiment_tracking(args) -> int:
     from snreg.camera import thesis_calibration
     from snreg.probe import default_probe_model
-    from snreg.tracking.experiment import THESIS_BANDS, format_table, run_tracking_experiment
+    from snreg.simulation.tracking import THESIS_BANDS, format_table, run_tracking_experiment
 
     if args.frames < 2:
         raise UserError("--frames must be at least 2")
@@ -163,7 +163,7 @@ def cmd_experiment_tracking(args) -> int:
 
 
 def cmd_experiment_imu(args) -> int:
-    from snreg.imu.experiment import format_table, measure_yaw_drift, run_protractor_experiment
+    from snreg.simulation.imu import format_table, measure_yaw_drift, run_protractor_experiment
 
     print(format_table(run_protractor_experiment(seed=args.seed)))
     with_bias = measure_yaw_drift(seed=args.seed)
@@ -175,7 +175,7 @@ def cmd_experiment_imu(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from snreg.bench import bench_registration, bench_tracking, format_rows, format_tracking
+    from snreg.simulation.bench import bench_registration, bench_tracking, format_rows, format_tracking
 
     print("registration (simulated cases, one process):")
     print(format_rows(bench_registration(reps=args.reps, compare=args.compare)))

@@ -13,9 +13,9 @@ from scipy.spatial.transform import Rotation
 
 from snreg.demo.imu_motion import MotionProfile, rotate, still
 from snreg.demo.imu_simulator import ImuSimulator, SensorModel
-from snreg.imu.experiment import EXPERIMENT_SENSOR, format_table, measure_yaw_drift, run_protractor_experiment
 from snreg.imu.fusion import Fusion, fuse_arrays
 from snreg.imu.protocol import ImuSample
+from snreg.simulation.imu import EXPERIMENT_SENSOR, format_table, measure_yaw_drift, run_protractor_experiment
 
 RATE = 208.0
 XIO_CSV = Path(__file__).resolve().parents[2] / "shared" / "data" / "imu" / "fusion_sensor_data.csv"

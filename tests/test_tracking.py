@@ -10,8 +10,8 @@ from snreg.camera import THESIS_CALIBRATION_PATH, thesis_calibration
 from snreg.cli import main
 from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
 from snreg.probe import default_probe_model, load_probe_model, save_probe_model
+from snreg.simulation.tracking import run_tracking_experiment
 from snreg.tracking import FixFilter, StereoTracker, TrackingError, summarise
-from snreg.tracking.experiment import run_tracking_experiment
 
 AXIS = np.array([1.0, -0.35, 0.4])
 

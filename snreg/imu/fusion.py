@@ -11,7 +11,7 @@ Pitch and roll are referenced to gravity through the accelerometer; yaw has no r
 without a magnetometer, starts at 0 and drifts at the residual gyro bias about the
 vertical. That residual is what the bias estimate is for: a constant 0.3 deg/s bias is
 18 deg/min of yaw; after the initial still-period estimate it is a few hundredths of a
-deg/min (``snreg.imu.experiment.measure_yaw_drift``).
+deg/min (``snreg.simulation.imu.measure_yaw_drift``).
 
 imufusion behaviours worth knowing here: for the first 3 s after start (or after a
 restart) the gain ramps down from 10 and ``update_no_magnetometer`` holds the heading at 0
