@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from snreg.calibration.checkerboard import Board, find_corners
-from snreg.calibration.command import add_calibrate_parser
 from snreg.calibration.stereo import calibrate_mono, calibrate_stereo, drop_views, load_image_pairs
 from snreg.camera import CalibrationFileError, _thesis_values, load_calibration, save_calibration, thesis_calibration
+from snreg.cli.calibrate import add_calibrate_parser
 from snreg.demo.board_render import random_board_poses, render_stereo_board, right_from_left
 from snreg.errors import UserError
 

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from snreg.cli import imu as imu_cli
+from snreg.cli.imu import add_imu_parser
 from snreg.demo.imu_motion import MotionProfile, protractor_profile, rotate, still
 from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SensorModel, SimulatedPort
 from snreg.errors import UserError
-from snreg.imu import command
-from snreg.imu.command import add_imu_parser
 from snreg.imu.fusion import Fusion, fuse_arrays
 from snreg.imu.protocol import ImuSample, StreamCounts, format_line, parse_line
 from snreg.imu.reader import ImuPortError, ImuState, SerialImuReader
@@ -261,7 +261,7 @@ def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, c
                 port.start()
                 return self
 
-        monkeypatch.setattr(command, "SerialImuReader", ReaderThatStartsTheSimulator)
+        monkeypatch.setattr(imu_cli, "SerialImuReader", ReaderThatStartsTheSimulator)
         out = tmp_path / "angles.csv"
         assert _run("imu", "monitor", port.port, "--seconds", "0.6", "--csv", str(out), *["--json"] * as_json) == 0
     printed = capsys.readouterr().out
@@ -305,7 +305,7 @@ def test_simulate_refuses_to_replace_a_regular_file(tmp_path):
 
 def test_simulate_command_streams_until_killed_and_cleans_up(tmp_path):
     link = tmp_path / "snreg-imu"
-    code = ("import argparse, sys\nfrom snreg.imu.command import add_imu_parser\n"
+    code = ("import argparse, sys\nfrom snreg.cli.imu import add_imu_parser\n"
             "p = argparse.ArgumentParser()\nadd_imu_parser(p.add_subparsers(dest='command', required=True))\n"
             "a = p.parse_args(sys.argv[1:])\nsys.exit(a.func(a))\n")
     proc = subprocess.Popen([sys.executable, "-c", code, "imu", "simulate", "--port-link", str(link), "--rate", "500",

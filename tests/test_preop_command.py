@@ -7,10 +7,10 @@ import numpy as np
 import pydicom
 import pytest
 
+from snreg.cli.preop import add_preop_parser
 from snreg.demo.spect import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
 from snreg.errors import UserError
 from snreg.nodes import read_nodes
-from snreg.preop.command import add_preop_parser
 
 DICOM_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dicom"
 FAKE_NAME, FAKE_ID, FAKE_BIRTH = "Quaxlebrook^Zenobia", "PID-4471-QX", "19370415"

@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
+from snreg.cli.session import add_session_parser
 from snreg.errors import UserError
 from snreg.nodes import read_nodes
 from snreg.session import Session
-from snreg.session.command import add_session_parser
 from snreg.session.journal import journal_path
 
 

@@ -13,9 +13,9 @@ from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.pivot import (board_from_camera_pose, imu_camera_rotation, imu_from_camera_transform,
                                      pivot_calibration, reference_trocar_from_camera)
 from snreg.calibration.trocar import arc_distance, known_spot_distance, manual_distance
-from snreg.calibration.trocar_command import add_trocar_parser
 from snreg.camera import save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
+from snreg.cli.trocar import add_trocar_parser
 from snreg.demo.board_render import render_stereo_board
 from snreg.errors import UserError
 from snreg.geometry import euler_from_rotation, invert, make_transform, rotation_distance_deg

@@ -59,7 +59,7 @@ def cmd_recover(args) -> int:
 
 
 def _guard(func, *args):
-    """Run ``func``; a session or file error becomes a one-sentence :class:`snreg.cli.UserError`."""
+    """Run ``func``; a session or file error becomes a one-sentence :class:`snreg.errors.UserError`."""
     try:
         return func(*args)
     except SessionError as err:

@@ -38,7 +38,7 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_preop(args) -> int:
-    """Run ``snreg preop``; bad input raises ``snreg.cli.UserError`` with one sentence."""
+    """Run ``snreg preop``; bad input raises ``snreg.errors.UserError`` with one sentence."""
 
     source = args.spect[0] if len(args.spect) == 1 else args.spect
     try:

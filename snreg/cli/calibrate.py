@@ -37,7 +37,7 @@ def add_calibrate_parser(subparsers) -> argparse._SubParsersAction:
 
 
 def cmd_calibrate_stereo(args) -> int:
-    """Run ``snreg calibrate stereo``; bad input raises ``snreg.cli.UserError`` with one sentence."""
+    """Run ``snreg calibrate stereo``; bad input raises ``snreg.errors.UserError`` with one sentence."""
 
     try:
         drop = [int(v) for v in args.drop.split(",") if v.strip()]
