@@ -14,8 +14,8 @@ from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit,
                                QPushButton, QSizePolicy, QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
-from snreg.acquisition import THESIS_FIXES_PER_NODE
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
+from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
 from snreg_gui.acquisition_worker import FrameResult, StoreRequest
 from snreg_gui.feed_view import FeedView
 from snreg_gui.orientation_plot import OrientationPlot

@@ -1,4 +1,4 @@
-"""The acquisition worker: reads frame pairs and runs :class:`snreg.acquisition.Acquisition` on them.
+"""The acquisition worker: reads frame pairs and runs :class:`snreg.workflow.acquisition.Acquisition` on them.
 
 Why: capture, tracking and session writes must never run on the GUI thread (DESIGN.md §5). The worker
 lives in its own QThread, paced by a timer there; every frame ends as one :class:`FrameResult` signal,
@@ -12,18 +12,17 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from PySide6.QtCore import QCoreApplication, QMetaObject, QObject, Qt, QThread, QTimer, Signal, Slot
 
-from snreg.acquisition import THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.session import Session, SessionError
 from snreg.sources import FrameSource, SourceError
+from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError
+from snreg.workflow.display import DISPLAY_SCALE, display_rgb
 
-DISPLAY_SCALE = 0.5          # feeds are shown at this fraction of the camera resolution: less work on the GUI thread
 _AXIS_DRAWN_MM = 50.0
 
 
@@ -53,12 +52,6 @@ class StoreRequest:
 
     label: str
     counts: float = float("nan")
-
-
-def _display_rgb(bgr: np.ndarray) -> np.ndarray:
-    """The frame as the feeds show it: RGB at ``DISPLAY_SCALE``."""
-    small = cv2.resize(bgr, None, fx=DISPLAY_SCALE, fy=DISPLAY_SCALE, interpolation=cv2.INTER_AREA)
-    return cv2.cvtColor(small, cv2.COLOR_BGR2RGB)
 
 
 class AcquisitionWorker(QObject):
@@ -156,7 +149,7 @@ class AcquisitionWorker(QObject):
             drawn = np.array([outcome.fix.tip, outcome.fix.tip + _AXIS_DRAWN_MM * outcome.fix.axis])
             tracker = self.acquisition.tracker
             overlay_left, overlay_right = (DISPLAY_SCALE * tracker.project(drawn, eye) for eye in (0, 1))
-        self.frame_processed.emit(FrameResult(outcome, _display_rgb(frame.left), _display_rgb(frame.right),
+        self.frame_processed.emit(FrameResult(outcome, display_rgb(frame.left), display_rgb(frame.right),
                                               overlay_left, overlay_right, imu, frame.skew_ms, self._fps_measured, now))
 
 

@@ -22,9 +22,9 @@ from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, 
                                QWidget)
 
 from snreg import __version__
-from snreg.acquisition import THESIS_FIXES_PER_NODE
 from snreg.demo.rig import DemoRig
 from snreg.session import Session, SessionError
+from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import AcquisitionWorker, start_worker, stop_worker
 from snreg_gui.demo_spect import DemoSpect

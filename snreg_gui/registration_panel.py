@@ -30,12 +30,12 @@ from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHODS
 from snreg.registration.report import mapped_preop, pair_rows, summary_line
+from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
 from snreg_gui.node_views import NodeScene, make_node_view
 from snreg_gui.registration_alignment import AlignmentBox
 from snreg_gui.registration_preop import PreopSourceBox
-from snreg_gui.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration, sentence
 from snreg_gui.registration_tables import NodeTable, PairingTable
-from snreg_gui.workers import WorkerSet
+from snreg_gui.workers import WorkerSet, sentence
 
 DEFAULT_METHOD = "global"
 

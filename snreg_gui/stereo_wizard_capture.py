@@ -2,7 +2,7 @@
 
 Why: the technician needs to see, while moving the board, whether both eyes find it, whether the
 current place is new, and where the image still lacks corners. The page only shows what the
-:class:`~snreg_gui.stereo_wizard_feed.LiveBoardFeed` worker found and asks :mod:`snreg.calibration.coverage`
+:class:`~snreg.workflow.stereo_capture.LiveBoardFeed` worker found and asks :mod:`snreg.calibration.coverage`
 what it means; a capture keeps the full-size grey images for the calibration.
 """
 
@@ -21,7 +21,7 @@ from snreg.calibration.checkerboard import Board
 from snreg.calibration.coverage import Coverage, coverage_map, is_still, similar_view
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.sources import FrameSource
-from snreg_gui.stereo_wizard_feed import LiveBoardFeed, LiveView
+from snreg.workflow.stereo_capture import LiveBoardFeed, LiveView
 from snreg_gui.workers import Worker
 
 STILL_FRAMES = 6                 # auto-capture once the board was found still in this many frames running

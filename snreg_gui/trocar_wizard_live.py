@@ -2,7 +2,7 @@
 
 Why: the technician pivots the endoscope in the trocar and must see, while doing it, whether the board is
 found, how many samples there are and what they give, and accept once it is good enough. Capture and fits
-run in :class:`~snreg_gui.workers.Worker` threads (:mod:`snreg.calibration.trocar_samples`); the pages only
+run in :class:`~snreg_gui.workers.Worker` threads (:mod:`snreg.workflow.trocar_capture`, :mod:`snreg.calibration.trocar_fit`); the pages only
 show what comes back. :class:`PivotPage` runs the pivot method (recommended), :class:`ArcPage` the
 thesis's arc method (eq. 14) on the same samples.
 """
@@ -18,11 +18,11 @@ from PySide6.QtWidgets import (QGridLayout, QHBoxLayout, QLabel, QPushButton, QT
 
 from snreg.calibration.checkerboard import Board
 from snreg.calibration.pivot import GOOD_TILT_DEG
-from snreg.calibration.trocar_samples import (MIN_ARC_PAIRS, MIN_SAMPLE_TURN_DEG, ArcFit, BoardFrame, PivotFit,
-                                              PivotSample, capture_samples, fit_arc, fit_pivot)
+from snreg.calibration.trocar_fit import MIN_ARC_PAIRS, ArcFit, PivotFit, fit_arc, fit_pivot
 from snreg.camera import StereoCalibration
 from snreg.geometry import euler_from_rotation
 from snreg.sources import FrameSource
+from snreg.workflow.trocar_capture import MIN_SAMPLE_TURN_DEG, BoardFrame, PivotSample, capture_samples
 from snreg_gui.feed_view import FeedView
 from snreg_gui.trocar_wizard_pages import ChainChoice, PageId, release_finished
 from snreg_gui.workers import Worker

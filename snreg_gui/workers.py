@@ -151,3 +151,12 @@ class WorkerSet:
             worker.quit()
         for worker in self._workers:
             worker.wait(timeout_ms)
+
+
+def sentence(message: str) -> str:
+    """A worker's error message as one sentence: capital first letter, full stop at the end."""
+    message = message.strip()
+    if not message:
+        return "Something went wrong; try again."
+    message = message[0].upper() + message[1:]
+    return message if message.endswith((".", "!", "?")) else message + "."

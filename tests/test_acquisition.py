@@ -1,9 +1,8 @@
-"""The acquisition core (snreg.acquisition) shared by the app and the headless demo: fixes, streams, store, undo, auto-store."""
+"""The acquisition core (snreg.workflow.acquisition) shared by the app and the headless demo: fixes, streams, store, undo, auto-store."""
 
 import numpy as np
 import pytest
 
-from snreg.acquisition import Acquisition, ImuReading, StoreError
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.scene import PhantomScene, Schedule
@@ -11,6 +10,7 @@ from snreg.imu.protocol import ImuSample
 from snreg.probe import default_probe_model
 from snreg.session import Session
 from snreg.sources import StereoFrame
+from snreg.workflow.acquisition import Acquisition, ImuReading, StoreError
 
 LEVEL = ImuReading(np.eye(3))
 

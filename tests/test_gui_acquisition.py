@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from PySide6.QtCore import Qt
 
-from snreg.acquisition import FrameOutcome
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
 from snreg.imu.monitor import ImuSnapshot
 from snreg.session import Session
+from snreg.workflow.acquisition import FrameOutcome
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import FrameResult
 from snreg_gui.app import MainWindow

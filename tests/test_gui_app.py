@@ -9,7 +9,6 @@ import pytest
 from PySide6.QtCore import QSettings, Qt
 from PySide6.QtWidgets import QDialog
 
-from snreg.acquisition import FrameOutcome
 from snreg.camera import save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.renderer import ProbePose, StereoRenderer
@@ -19,6 +18,7 @@ from snreg.imu.monitor import ImuSnapshot
 from snreg.probe import default_probe_model
 from snreg.rig import RigConfig
 from snreg.session import Session
+from snreg.workflow.acquisition import FrameOutcome
 from snreg_gui.acquisition_screen import AcquisitionScreen
 from snreg_gui.acquisition_worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow

@@ -7,7 +7,7 @@ import pytest
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtWidgets import QWizard
 
-import snreg_gui.stereo_wizard_feed as feed_module
+import snreg.workflow.stereo_capture as feed_module
 from snreg.calibration.checkerboard import THESIS_BOARD, Board, find_corners
 from snreg.calibration.coverage import similar_view
 from snreg.camera import load_calibration, thesis_calibration

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from snreg.acquisition import Acquisition, ImuReading
 from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment, true_sources_lps, write_phantom_spect
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
@@ -24,6 +23,7 @@ from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
 from snreg.session import Session
+from snreg.workflow.acquisition import Acquisition, ImuReading
 
 N_NODES = len(NODE_CENTRES_MM)
 _IMU_WAIT_S = 5.0

@@ -94,11 +94,3 @@ def export_file(kind: str, path: str, record: RunRecord) -> Path:
                          "choose another folder") from None
     return path
 
-
-def sentence(message: str) -> str:
-    """A worker's error message as one sentence: capital first letter, full stop at the end."""
-    message = message.strip()
-    if not message:
-        return "Something went wrong; try again."
-    message = message[0].upper() + message[1:]
-    return message if message.endswith((".", "!", "?")) else message + "."
