@@ -53,7 +53,7 @@ class MainWindow(QMainWindow):
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.settings = settings or QSettings("snreg", "snreg")
         self.recent = RecentSessions(self.settings)
-        self.demo, self.fixes_per_node = demo, fixes_per_node
+        self.fixes_per_node = fixes_per_node
         self.rig = self.session = self.worker = self.acquisition = None
         self._thread = None
         self._waiting_for_frames = False
@@ -190,12 +190,35 @@ class MainWindow(QMainWindow):
         self.rig = rig
         if self.session is not None:
             self.session.set_calibration(stereo=rig.calibration, chain=rig.chain)
+        self._update_title()
         self._start_acquisition()
+
+    @property
+    def demo(self) -> bool:
+        """Running on a simulated rig (for what the window says about itself)."""
+        return self.rig is not None and self.rig.simulated
+
+    def pause_acquisition(self) -> None:
+        """Stop the acquisition worker (a wizard needs the cameras); :meth:`restart_acquisition` resumes."""
+        self._stop_acquisition()
 
     def restart_acquisition(self) -> None:
         """After a calibration changed the rig: the worker starts again with it."""
         self._stop_acquisition()
         self._start_acquisition()
+
+    def apply_stereo_calibration(self, calibration) -> None:
+        """Track with ``calibration`` from now on and store it in the session."""
+        self.rig.calibration = calibration
+        if self.session is not None:
+            self.session.set_calibration(stereo=calibration)
+        self.statusBar().showMessage(f"stereo calibration applied: RMS {calibration.rms_reprojection_px:.3f} px, "
+                                     f"baseline {calibration.baseline_mm:.2f} mm")
+
+    def apply_chain(self, chain) -> None:
+        """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session)."""
+        self.rig.chain = chain
+        self.statusBar().showMessage(f"trocar calibration applied: trocar-camera {chain.trocar_camera_mm:.1f} mm")
 
     def _start_acquisition(self) -> None:
         if self.rig is None or self.session is None:

@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     _spin(1.0)
 
     path = window.session.path
-    window._stop_acquisition()
+    window.pause_acquisition()
     window.session.close()
     window.session = None
     window.open_for_review(path)

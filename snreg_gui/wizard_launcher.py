@@ -1,8 +1,9 @@
 """Opening the device dialog and the calibration wizards from the main window, and applying what they return.
 
-Why: a wizard needs the cameras to itself, so acquisition stops while it runs and starts again after, with
-the new calibration or chain. In demo mode the wizards get rendered scenes (a checkerboard tour, a pivot
-recording with its IMU); with hardware, the rig's own cameras and IMU. The code after the sources is the same.
+Why: a wizard needs the cameras to itself, so acquisition pauses while it runs and starts again after, with
+the new calibration or chain. The rig gives each wizard its feed (:meth:`~snreg.rig.protocols.Rig.board_source`,
+:meth:`~snreg.rig.protocols.Rig.pivot_source`): rendered scenes on the demo rig, the cameras and IMU on the
+hardware one. The code after the sources is the same.
 """
 
 from __future__ import annotations
@@ -16,45 +17,31 @@ WIZARD_SIZE = (1200, 800)        # live feeds and tables need room
 
 
 class WizardLauncher:
-    """Owned by the main window; ``window`` gives ``rig``, ``session``, ``settings``, ``set_rig`` and the status bar."""
+    """Owned by the main window; ``window`` gives ``rig``, ``session``, ``settings``, ``set_rig``, pausing and
+    restarting acquisition, applying a calibration, and the status bar."""
 
     def __init__(self, window):
         self._window = window
         self.active = None          # the wizard or dialog now open
 
     def stereo(self) -> None:
-        from snreg.demo.board_tour import board_feed
         from snreg_gui.stereo_wizard import StereoCalibrationWizard
         window = self._window
         if not self._have_rig():
             return
-        if window.demo:
-            make_source = lambda: board_feed(window.rig.cameras)              # noqa: E731 - the true cameras
-        else:       # no check against the calibration being replaced: the camera may run at a new resolution
-            from snreg.rig import open_frame_source
-            make_source = lambda: open_frame_source(window.rig.config)         # noqa: E731
-        wizard = StereoCalibrationWizard(make_source, THESIS_BOARD, parent=window)
-        wizard.calibrated.connect(self._stereo_done)
+        wizard = StereoCalibrationWizard(window.rig.board_source, THESIS_BOARD, parent=window)
+        wizard.calibrated.connect(window.apply_stereo_calibration)
         self._open(wizard)
 
     def trocar(self) -> None:
-        from snreg.demo.pivot_scene import PivotScene, SceneImu
         from snreg_gui.trocar_wizard import TrocarWizard
         window = self._window
         if not self._have_rig():
             return
-        if window.demo:
-            scene = PivotScene(window.rig.cameras, THESIS_BOARD)
-            imu = SceneImu(scene)
-
-            def make_source():
-                scene.prerender()
-                return scene.frame_source()
-        else:
-            make_source, imu = window.rig.frame_source, window.rig.imu
+        make_source, imu = window.rig.pivot_source()
         wizard = TrocarWizard(make_source, imu, window.rig.calibration, THESIS_BOARD, session=window.session,
                               parent=window)
-        wizard.chain_calibrated.connect(self._chain_done)
+        wizard.chain_calibrated.connect(window.apply_chain)
         self._open(wizard)
 
     def select_devices(self) -> None:
@@ -77,27 +64,12 @@ class WizardLauncher:
             window.statusBar().showMessage(f"The devices could not be opened: {err}")
             return
         window.settings.setValue(_DEVICES_KEY, json.dumps(config.to_dict()))
-        window.demo = False
         window.set_rig(rig)
 
     def shutdown(self) -> None:
         if self.active is not None:
             self.active.reject()
             self.active = None
-
-    # -- results -------------------------------------------------------------
-    def _stereo_done(self, calibration) -> None:
-        window = self._window
-        window.rig.calibration = calibration
-        if window.session is not None:
-            window.session.set_calibration(stereo=calibration)
-        window.statusBar().showMessage(f"stereo calibration applied: RMS {calibration.rms_reprojection_px:.3f} px, "
-                                       f"baseline {calibration.baseline_mm:.2f} mm")
-
-    def _chain_done(self, chain) -> None:
-        window = self._window
-        window.rig.chain = chain
-        window.statusBar().showMessage(f"trocar calibration applied: trocar-camera {chain.trocar_camera_mm:.1f} mm")
 
     # -- helpers -------------------------------------------------------------
     def _have_rig(self) -> bool:
@@ -108,7 +80,7 @@ class WizardLauncher:
 
     def _open(self, wizard) -> None:
         """Stop acquisition (the wizard needs the cameras), show the wizard, restart acquisition when it closes."""
-        self._window._stop_acquisition()
+        self._window.pause_acquisition()
         self.active = wizard
         wizard.finished.connect(self._closed)
         wizard.resize(max(wizard.width(), WIZARD_SIZE[0]), max(wizard.height(), WIZARD_SIZE[1]))

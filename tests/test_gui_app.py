@@ -151,7 +151,7 @@ def test_calibration_results_reach_the_rig_and_the_session(qtbot, tmp_path, sett
     assert window.rig.calibration is new
     np.testing.assert_allclose(window.session.calibration()["stereo"].K1, new.K1)
     chain = ChainCalibration.manual(trocar_camera_mm=150.0)
-    window.wizards._chain_done(chain)
+    window.apply_chain(chain)
     assert window.rig.chain is chain and "150.0 mm" in window.statusBar().currentMessage()
     window.shutdown()
 

@@ -8,14 +8,17 @@ import cv2
 import numpy as np
 import pytest
 
+from snreg.calibration.checkerboard import THESIS_BOARD, find_corners
 from snreg.camera import CalibrationFileError, save_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.imu_motion import MotionProfile, still
 from snreg.demo.imu_simulator import ImuSimulator, SimulatedPort
+from snreg.demo.pivot_scene import SceneImu
 from snreg.demo.renderer import ProbePose, StereoRenderer
+from snreg.demo.rig import DemoRig
 from snreg.imu import monitor
 from snreg.probe import default_probe_model, save_probe_model
-from snreg.rig import ABSENT, AbsentImu, HardwareRig, RigConfig, check_source
+from snreg.rig import ABSENT, AbsentImu, HardwareRig, Imu, Rig, RigConfig, check_source
 from snreg.sources import SourceState
 
 SCALE = 0.25                         # the thesis cameras at 480x270
@@ -226,3 +229,30 @@ def test_missing_names_what_each_mode_still_needs():
     uncalibrated = RigConfig(mode="folder", left="l/*.png", right="r/*.png")
     assert uncalibrated.missing.startswith("Choose the stereo calibration") and uncalibrated.source_missing == ""
     assert RigConfig(mode="pair", left="0", right="/dev/video2", **calib).missing == ""
+
+
+def test_hardware_and_demo_rigs_answer_the_rig_protocol_with_their_wizard_feeds(recording, imu_port):
+    root, pairs, _ = recording
+    hardware = HardwareRig(folder_config(root, serial_port=imu_port.port))
+    demo = DemoRig(scale=0.25)
+    try:
+        for rig in (hardware, demo):
+            assert isinstance(rig, Rig) and isinstance(rig.imu, Imu) and rig.description
+            make_source, imu = rig.pivot_source()
+            assert isinstance(imu, Imu)
+            with make_source() as source:
+                frame = next(iter(source))
+            assert frame.left.shape[1::-1] == rig.calibration.image_size
+            if rig is demo:                  # the pivot recording's IMU follows the frame just read
+                assert isinstance(imu, SceneImu) and imu.take_samples() == []
+                np.testing.assert_allclose(imu.snapshot().earth_from_imu, imu._scene.earth_from_imu(frame.index))
+        assert not hardware.simulated and demo.simulated
+        with hardware.board_source() as source:          # the cameras themselves, for the stereo wizard
+            np.testing.assert_array_equal(source.read().left, pairs[0][0])
+        with demo.board_source() as source:              # a rendered checkerboard seen by the true cameras
+            left = source.read().left
+        assert left.shape[1::-1] == demo.cameras.image_size and find_corners(left, THESIS_BOARD) is not None
+        assert isinstance(AbsentImu(), Imu)
+    finally:
+        hardware.close()
+        demo.close()

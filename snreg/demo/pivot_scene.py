@@ -115,14 +115,24 @@ class PivotScene:
 
 
 class SceneImu:
-    """The IMU stand-in: :meth:`snapshot` gives the orientation at the frame the scene rendered last.
+    """The IMU stand-in (a :class:`~snreg.rig.protocols.Imu`): :meth:`snapshot` gives the orientation at the frame
+    the scene rendered last.
 
-    It answers like :class:`~snreg.imu.monitor.ImuMonitor`, so a wizard that takes a snapshot right after
-    reading a frame pairs the two exactly, as it would a camera frame with the IMU at the frame's host time.
+    A wizard that takes a snapshot right after reading a frame pairs the two exactly, as it would a camera frame
+    with the IMU at the frame's host time. It has no raw samples to record.
     """
 
     def __init__(self, scene: PivotScene):
         self._scene = scene
+
+    def start(self) -> "SceneImu":
+        return self
+
+    def stop(self) -> None:
+        """Nothing to stop: the orientation comes from the scene."""
+
+    def take_samples(self) -> list:
+        return []
 
     def snapshot(self) -> ImuSnapshot:
         index = self._scene.shown_index

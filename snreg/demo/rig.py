@@ -17,10 +17,14 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
+from snreg.demo.board_tour import board_feed
+from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.scene import PhantomScene, Schedule
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
@@ -31,10 +35,15 @@ IMU_START_TIMEOUT_S = 20.0
 
 
 class DemoRig:
-    """Calibration, chain, simulated IMU; :meth:`frame_source` starts the IMU reader and builds the rendered feed.
+    """A :class:`~snreg.rig.protocols.Rig` of simulated devices: calibration, chain, simulated IMU;
+    :meth:`frame_source` starts the IMU reader and builds the rendered feed; the wizards get a rendered
+    checkerboard tour and a pivot recording with its own IMU.
 
     scale: the thesis 1920x1080 cameras at this fraction of their resolution (rendering speed).
     """
+
+    simulated = True
+    description = "demo: rendered phantom, simulated IMU"
 
     def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0):
         self.cameras = thesis_calibration().scaled(scale)     # the simulated cameras as they truly are
@@ -61,6 +70,15 @@ class DemoRig:
             self.scene = scene
         # frame times on the host clock of the IMU samples and stored nodes (DESIGN.md §3), from now at the nominal rate
         return CallableSource(self.scene.render, self.fps, start_ns=time.perf_counter_ns(), name="Demo phantom")
+
+    def board_source(self) -> FrameSource:
+        """A rendered checkerboard tour seen by the simulated cameras as they truly are (the calibration to find)."""
+        return board_feed(self.cameras)
+
+    def pivot_source(self) -> tuple[Callable[[], FrameSource], SceneImu]:
+        """A rendered pivot recording and the IMU that moves with it (frame and orientation belong together)."""
+        scene = PivotScene(self.cameras, THESIS_BOARD)
+        return scene.frame_source, SceneImu(scene)
 
     def _start_imu(self) -> None:
         if self.imu.started:

@@ -1,26 +1,16 @@
 """The hardware rig: the cameras, IMU port, calibration and probe model a technician chose, opened for acquisition.
 
-Why: the acquisition screen runs on a "rig" (calibration, probe model, chain, a started IMU monitor, a
-frame-source factory), the same interface as :class:`snreg.demo.rig.DemoRig`, so the code after the
-devices is the same with hardware as in the demo. :class:`RigConfig` is the choice itself, plain values
-that a device dialog fills in and the app keeps between runs (``to_dict``/``from_dict``);
-:class:`HardwareRig` opens it. Everything a user can get wrong (no calibration file, a calibration made
-at another image size, a serial port that does not exist) is a ``ValueError`` whose message is one
-sentence saying what to do (:class:`~snreg.sources.SourceError` and
-:class:`~snreg.calibration.CalibrationFileError` are ``ValueError`` too).
+Why: the app runs on a :class:`~snreg.rig.protocols.Rig`, the demo's or this one, so the code after the devices
+is the same with hardware as in the demo. Everything a user can get wrong (no calibration file, a calibration
+made at another image size, a serial port that does not exist) is a ``ValueError`` whose message is one sentence
+saying what to do (:class:`~snreg.errors.SourceError` and :class:`~snreg.errors.CalibrationFileError` are
+``ValueError`` too). The first frame pair a source delivers is checked against the calibration's image size
+before acquisition starts.
 
-Camera modes: ``pair`` (two devices, ``left``/``right``: an index such as ``"0"``, a device path or a
-URL), ``stacked`` (one ``device`` carrying both eyes, ``layout`` side_by_side or top_bottom), ``video``
-(``left``/``right`` video files) and ``folder`` (``left``/``right`` glob patterns of images).
-``frame_size`` (width, height) is asked of each capture device (for ``stacked`` the whole frame holding
-both eyes); None keeps the device's default. The first frame pair a source delivers is checked against
-the calibration's image size before acquisition starts.
-
-Without an IMU (``serial_port`` None) ``imu`` is an :class:`AbsentImu`: it answers like
-:class:`~snreg.imu.monitor.ImuMonitor` with state ``"absent"``, a one-sentence problem that the screen's
-IMU line shows, a level orientation (``earth_from_imu`` the identity) and no samples. Acquisition then
-runs unchanged and stores nodes in the trocar frame of the chain's reference pose, which is right only
-while the endoscope does not move.
+Without an IMU (``serial_port`` None) ``imu`` is an :class:`AbsentImu`: an :class:`~snreg.rig.protocols.Imu` with
+state ``"absent"``, a one-sentence problem that the screen's IMU line shows, a level orientation
+(``earth_from_imu`` the identity) and no samples. Acquisition then runs unchanged and stores nodes in the trocar
+frame of the chain's reference pose, which is right only while the endoscope does not move.
 
 >>> config = RigConfig(mode="folder", left="rec/left_*.png", right="rec/right_*.png",
 ...                    calibration_path="calib.yaml", serial_port="/dev/ttyACM0")
@@ -32,126 +22,24 @@ while the endoscope does not move.
 
 from __future__ import annotations
 
-import math
 import os
 import time
-from dataclasses import asdict, dataclass, fields
+from collections.abc import Callable
 
 import numpy as np
 
 from snreg.camera import StereoCalibration, load_calibration
 from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
-from snreg.imu.reader import DEFAULT_BAUD
 from snreg.probe import default_probe_model, load_probe_model
+from snreg.rig.config import RigConfig
 from snreg.sources import (FrameSource, ImageFolderSource, OpenCVPairSource, OpenCVStackedSource, SourceError,
                            SourceState, StereoFrame, VideoFilePairSource)
-from snreg.sources.capture import LAYOUTS
 
-__all__ = ["RigConfig", "HardwareRig", "AbsentImu", "CAMERA_MODES", "ABSENT", "check_source", "open_frame_source"]
+__all__ = ["HardwareRig", "AbsentImu", "ABSENT", "check_source", "open_frame_source"]
 
-CAMERA_MODES = ("pair", "stacked", "video", "folder")
 ABSENT = "absent"                 # the IMU state when no port was chosen
 FIRST_FRAME_TIMEOUT_S = 5.0       # a camera that has not delivered a pair by then is reported
-
-
-@dataclass(frozen=True)
-class RigConfig:
-    """The devices and files of a rig; see the module docstring for the camera modes. Checked on creation."""
-
-    mode: str = "pair"
-    left: str = ""
-    right: str = ""
-    device: str = ""
-    layout: str = "side_by_side"
-    frame_size: tuple[int, int] | None = None
-    fps: float = 30.0
-    serial_port: str | None = None
-    baudrate: int = DEFAULT_BAUD
-    calibration_path: str = ""
-    probe_path: str | None = None
-
-    def __post_init__(self):
-        if self.mode not in CAMERA_MODES:
-            raise ValueError(f"Unknown camera mode {self.mode!r}; use one of {', '.join(CAMERA_MODES)}.")
-        if self.layout not in LAYOUTS:
-            raise ValueError(f"Unknown stereo layout {self.layout!r}; use one of {', '.join(LAYOUTS)}.")
-        for name in ("left", "right", "device", "calibration_path"):
-            if not isinstance(getattr(self, name), str):
-                raise ValueError(f"The rig's {name} must be text, not {getattr(self, name)!r}.")
-        for name in ("serial_port", "probe_path"):
-            value = getattr(self, name)
-            if value is not None and not isinstance(value, str):
-                raise ValueError(f"The rig's {name} must be text or None, not {value!r}.")
-            object.__setattr__(self, name, value or None)
-        object.__setattr__(self, "fps", _positive(self.fps, "frame rate (fps)", float))
-        object.__setattr__(self, "baudrate", _positive(self.baudrate, "baud rate", int))
-        if self.frame_size is not None:
-            if not isinstance(self.frame_size, (tuple, list)) or len(self.frame_size) != 2:
-                raise ValueError(f"The frame size must be a width and a height, not {self.frame_size!r}.")
-            size = tuple(_positive(v, "frame width and height", int) for v in self.frame_size)
-            object.__setattr__(self, "frame_size", size)
-
-    @property
-    def source_missing(self) -> str:
-        """What the camera choice still lacks, in one sentence; empty when the frame source can be opened."""
-        if self.mode == "stacked":
-            return "" if self.device.strip() else "Choose the camera that delivers both eyes."
-        named = {"pair": ("left camera", "right camera"), "video": ("left video file", "right video file"),
-                 "folder": ("left image pattern", "right image pattern")}[self.mode]
-        lacking = [what for what, value in zip(named, (self.left, self.right)) if not value.strip()]
-        if lacking:
-            return f"Choose the {' and the '.join(lacking)}."
-        if self.mode == "pair" and self.left.strip() == self.right.strip():
-            return "The left and right cameras are the same device; choose two different ones."
-        return ""
-
-    @property
-    def missing(self) -> str:
-        """What the whole choice still lacks (cameras, then calibration), in one sentence; empty when complete."""
-        if self.source_missing:
-            return self.source_missing
-        if not self.calibration_path.strip():
-            return "Choose the stereo calibration file (from the calibration wizard or 'snreg calibrate stereo')."
-        return ""
-
-    def eye_size(self) -> tuple[int, int] | None:
-        """The (width, height) of each eye that ``frame_size`` gives, None when the frames decide it."""
-        if self.frame_size is None or self.mode not in ("pair", "stacked"):
-            return None
-        width, height = self.frame_size
-        if self.mode == "pair":
-            return width, height
-        return (width // 2, height) if self.layout == "side_by_side" else (width, height // 2)
-
-    def to_dict(self) -> dict:
-        """Plain values (text, numbers, a list, None) for QSettings or JSON; :meth:`from_dict` reads it back."""
-        data = asdict(self)
-        data["frame_size"] = list(self.frame_size) if self.frame_size is not None else None
-        return data
-
-    @classmethod
-    def from_dict(cls, data) -> "RigConfig":
-        """A config from :meth:`to_dict`'s values (missing keys take their defaults); ValueError says what is wrong."""
-        if not isinstance(data, dict):
-            raise ValueError(f"The stored device choice is not a table of settings ({type(data).__name__}); "
-                             "choose the devices again.")
-        unknown = sorted(set(data) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"The stored device choice has unknown settings ({', '.join(map(str, unknown))}); "
-                             "choose the devices again.")
-        return cls(**data)
-
-
-def _positive(value, what: str, kind: type):
-    """``value`` as ``kind`` if it is a finite positive number (numbers given as text are accepted)."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = math.nan
-    if isinstance(value, bool) or not (math.isfinite(number) and number > 0) or (kind is int and number != int(number)):
-        raise ValueError(f"The {what} must be a positive {'whole ' if kind is int else ''}number, not {value!r}.")
-    return kind(number)
 
 
 def _capture_device(text: str) -> int | str:
@@ -279,7 +167,8 @@ def _start_imu(config: RigConfig) -> ImuMonitor | AbsentImu:
 
 
 class HardwareRig:
-    """The chosen devices opened: ``calibration``, ``probe``, ``chain``, ``imu`` (started), ``fps``, :meth:`frame_source`.
+    """The chosen devices opened as a :class:`~snreg.rig.protocols.Rig`: ``calibration``, ``probe``, ``chain``,
+    ``imu`` (started), ``fps``, the sources.
 
     ``chain``: the session's calibrated chain, else the thesis's manual one. Raises ValueError (one
     sentence) when the choice is incomplete or a file or port cannot be used; nothing stays open then.
@@ -295,6 +184,7 @@ class HardwareRig:
         self.probe = load_probe_model(config.probe_path) if config.probe_path else default_probe_model()
         self.chain = chain if chain is not None else ChainCalibration.manual()
         self.fps = config.fps
+        self.simulated = False
         self.imu = _start_imu(config)
 
     def frame_source(self) -> FrameSource:
@@ -305,6 +195,21 @@ class HardwareRig:
         """
         source, _ = _checked_source(self.config, self.calibration, FIRST_FRAME_TIMEOUT_S)
         return source
+
+    def board_source(self) -> FrameSource:
+        """The cameras for the stereo calibration wizard, not checked against the calibration being replaced (the
+        cameras may run at a new resolution). Call it in the worker thread."""
+        return open_frame_source(self.config)
+
+    def pivot_source(self) -> tuple[Callable[[], FrameSource], ImuMonitor | AbsentImu]:
+        """The trocar wizard's feed factory (the rig's cameras) and the IMU that goes with it (the rig's own)."""
+        return self.frame_source, self.imu
+
+    @property
+    def description(self) -> str:
+        """The devices in a few words, for the title bar and the status line."""
+        cameras = self.config.device if self.config.mode == "stacked" else f"{self.config.left} / {self.config.right}"
+        return f"{self.config.mode} {cameras}, IMU {self.config.serial_port or 'none'}"
 
     def close(self) -> None:
         """Stop the IMU; call after the worker has stopped (and closed the frame source)."""
