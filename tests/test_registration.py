@@ -5,7 +5,7 @@ import pytest
 
 from snreg import geometry
 from snreg.labels import parse_label
-from snreg.registration import CONFIDENT, METHODS, register
+from snreg.registration import CONFIDENT, METHODS, register, solve_transform
 
 TRUTH = geometry.transform_from_euler(25.0, 15.0, 10.0)
 
@@ -183,3 +183,11 @@ def test_pairing_rule_can_be_chosen(pelvic_nodes):
     assert sorted(strict.pairing) == [-1, 0, 1, 2, 3, 4, 5]
     with pytest.raises(ValueError, match="unknown pairing rule"):
         register(xyz, both, pairing_rule="closest")
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_solve_transform_is_the_transform_register_returns(pelvic_nodes, method):
+    xyz, _ = pelvic_nodes
+    moved = geometry.apply(geometry.transform_from_euler(10.0, -5.0, 8.0, [4.0, -3.0, 6.0]), xyz)
+    np.testing.assert_allclose(solve_transform(xyz, moved, method=method),
+                               register(xyz, moved, method=method).transform, atol=1e-9)

@@ -19,15 +19,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snreg import geometry
-from snreg.registration.assignment import assign, evaluate, sigma2_of, squared_distances
-from snreg.registration.chamfer import solve_chamfer
-from snreg.registration.cpd import solve_cpd
-from snreg.registration.global_search import solve_global
-from snreg.registration.icp import solve_icp
-from snreg.registration.pairing import RULES, alternatives, pair, posterior_confidence
-from snreg.registration.problem import make_problem
+from snreg.registration._assignment import assign, evaluate, sigma2_of, squared_distances
+from snreg.registration._chamfer import solve_chamfer
+from snreg.registration._cpd import solve_cpd
+from snreg.registration._global import solve_global
+from snreg.registration._icp import solve_icp
+from snreg.registration._problem import make_problem
+from snreg.registration.confidence import alternatives, posterior_confidence
+from snreg.registration.pairing import RULES, pair
 
-__all__ = ["register", "RegistrationResult", "METHODS", "PAIRING_RULE", "CONFIDENT"]
+__all__ = ["register", "solve_transform", "RegistrationResult", "METHODS", "PAIRING_RULE", "CONFIDENT"]
 
 METHODS = ("icp", "cpd", "chamfer", "global")
 PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "assignment"}
@@ -75,14 +76,12 @@ def register(preop, intraop, method: str = "global", preop_labels=None, intraop_
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed)
 
-    n_pairs = min(len(problem.preop), len(problem.intraop))
+    correction, candidates = _solve(problem, method, options)
     if method == "global":
-        candidates = solve_global(problem, **options)
         base = candidates[0]
-        correction, assignment = base.correction, base.assignment
+        assignment = base.assignment
     else:
-        solver = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer}[method]
-        correction = solver(problem, **options)
+        n_pairs = min(len(problem.preop), len(problem.intraop))
         d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
         assignment = assign(problem, correction, sigma2_of(float(np.sort(d2.min(axis=0))[:n_pairs].sum()), n_pairs))
         base = evaluate(problem, assignment)
@@ -103,3 +102,25 @@ def register(preop, intraop, method: str = "global", preop_labels=None, intraop_
     return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
                               distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
                               pairings=pairings, score=base.score)
+
+
+def solve_transform(preop, intraop, method: str = "global", preop_labels=None, intraop_labels=None, initial=None,
+                    max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
+                    **options) -> np.ndarray:
+    """The method's transform estimate alone, (4, 4) ``intraop_from_preop``: the solver without the pairing and the
+    confidence that :func:`register` adds (what ``snreg bench`` times as "solver"). Arguments as :func:`register`."""
+    if method not in METHODS:
+        raise ValueError(f"unknown registration method {method!r}; choose one of {', '.join(METHODS)}")
+    problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
+                           initial=initial, max_rotation_deg=max_rotation_deg,
+                           max_translation_mm=max_translation_mm, seed=seed)
+    return _solve(problem, method, options)[0] @ problem.initial
+
+
+def _solve(problem, method: str, options: dict):
+    """(correction, candidates) of ``method``: the global search's refined candidates best first, else None."""
+    if method == "global":
+        candidates = solve_global(problem, **options)
+        return candidates[0].correction, candidates
+    solver = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer}[method]
+    return solver(problem, **options), None

@@ -16,12 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snreg.registration import METHODS, register
-from snreg.registration.chamfer import solve_chamfer
-from snreg.registration.cpd import solve_cpd
-from snreg.registration.global_search import solve_global
-from snreg.registration.icp import solve_icp
-from snreg.registration.problem import make_problem
+from snreg.registration import METHODS, register, solve_transform
 from snreg.simulation.cohort import synthetic_cohort
 from snreg.simulation.protocol import Trial, make_trial
 
@@ -62,15 +57,8 @@ def _row(name: str, cases: list[Trial], solve, total=None) -> BenchRow:
 
 
 def _solver_only(method: str):
-    solver = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer}.get(method)
-
     def solve(case: Trial) -> np.ndarray:
-        problem = make_problem(case.moved_preop, case.intraop)
-        if solver is None:
-            correction = solve_global(problem)[0].correction
-        else:
-            correction = solver(problem)
-        return _nearest_pairing(case, correction @ problem.initial)
+        return _nearest_pairing(case, solve_transform(case.moved_preop, case.intraop, method=method))
     return solve
 
 

@@ -19,11 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial.distance import cdist
 
 from snreg import geometry
 from snreg.labels import STATIONS, parse_label
 from snreg.registration import register
-from snreg.registration.assignment import squared_distances
 
 __all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "STATION_ERROR"]
 
@@ -91,7 +91,7 @@ class TrialOutcome:
 def oracle_success(trial: Trial) -> dict[str, bool]:
     """Pairing success with the true transform: nearest-neighbour, and one-to-one assignment."""
     true = trial.truth >= 0
-    d2 = squared_distances(trial.preop, trial.intraop)
+    d2 = cdist(trial.preop, trial.intraop, "sqeuclidean")
     nearest = np.argmin(d2, axis=0)
     rows, cols = linear_sum_assignment(d2)
     one_to_one = np.full(len(trial.intraop), -1)
@@ -104,7 +104,7 @@ def error_stats(trial: Trial) -> dict[str, float]:
     """Introduced errors and the max error ratio (thesis Fig. 22-23) of the true intraop nodes."""
     true = np.flatnonzero(trial.truth >= 0)
     partner = trial.truth[true]
-    d = np.sqrt(squared_distances(trial.preop, trial.intraop[true]))      # (N, T)
+    d = cdist(trial.preop, trial.intraop[true])      # (N, T)
     error = d[partner, np.arange(len(true))]
     d[partner, np.arange(len(true))] = np.inf
     ratio = error / d.min(axis=0)

@@ -6,7 +6,7 @@
    left/right labels, are dropped.
 3. The rest are ranked by a quick score (nearest-neighbour residual, prior, labels);
    the best few with distinct nearest-neighbour patterns are refined by alternating
-   one-to-one assignment and Kabsch (:func:`~snreg.registration.assignment.refine_many`).
+   one-to-one assignment and Kabsch (:func:`~snreg.registration._assignment.refine_many`).
 4. The refined pairing with the lowest score (fit, prior, labels) within the bounds wins;
    the runners-up feed the confidence. When noise pushes every fit out of the bounds
    (three nodes, sigma ~ 20 mm), the prior alone ranks them rather than failing.
@@ -20,8 +20,8 @@ import numpy as np
 
 from snreg import geometry
 from snreg.labels import SIDE_CROSSING_NATS
-from snreg.registration.assignment import FLOOR_MM, Candidate, refine_many
-from snreg.registration.problem import Problem
+from snreg.registration._assignment import FLOOR_MM, Candidate, refine_many
+from snreg.registration._problem import Problem
 
 __all__ = ["solve_global"]
 

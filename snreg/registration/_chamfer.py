@@ -19,7 +19,7 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from snreg import geometry
-from snreg.registration.problem import Problem
+from snreg.registration._problem import Problem
 
 __all__ = ["solve_chamfer", "NODE_DIAMETER_MM", "DEFAULT_PYRAMID_MM", "DEFAULT_FORM"]
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from snreg import geometry
-from snreg.registration.assignment import squared_distances
-from snreg.registration.problem import Problem
+from snreg.registration._assignment import squared_distances
+from snreg.registration._problem import Problem
 
 __all__ = ["solve_icp"]
 

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from snreg import geometry
-from snreg.registration.problem import Problem
+from snreg.registration._problem import Problem
 
 __all__ = ["Candidate", "assign", "constraint", "fit", "evaluate", "refine_many", "squared_distances", "FLOOR_MM"]
 
