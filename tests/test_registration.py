@@ -89,7 +89,7 @@ def test_cpd_outlier_weight_is_an_option(pelvic_nodes):
     xyz, _ = pelvic_nodes
     intraop, truth = moved_case(xyz)
     assert geometry.rotation_distance_deg(register(xyz, intraop, method="cpd", w=0.0).transform, truth) < 0.5
-    with pytest.raises(TypeError):
+    with pytest.raises(ValueError, match="not_an_option.*w, max_iter, tolerance"):
         register(xyz, intraop, method="cpd", not_an_option=1)
 
 
@@ -191,3 +191,24 @@ def test_solve_transform_is_the_transform_register_returns(pelvic_nodes, method)
     moved = geometry.apply(geometry.transform_from_euler(10.0, -5.0, 8.0, [4.0, -3.0, 6.0]), xyz)
     np.testing.assert_allclose(solve_transform(xyz, moved, method=method),
                                register(xyz, moved, method=method).transform, atol=1e-9)
+
+
+@pytest.mark.parametrize("method, options, words", [
+    ("icp", {"w": 0.1}, "unknown option 'w' for method 'icp'"),
+    ("cpd", {"w": 2.0}, "w must be a number in [0, 1)"),
+    ("cpd", {"w": "abc"}, "w must be a number"),
+    ("cpd", {"max_iter": 0}, "max_iter must be a number in [1, inf]"),
+    ("global", {"refine_top": 2.5}, "refine_top must be a whole number"),
+    ("chamfer", {"diameter_mm": -1.0}, "diameter_mm must be a number in (0, inf]"),
+])
+def test_solver_options_are_checked_with_a_value_error_naming_them(pelvic_nodes, method, options, words):
+    xyz, _ = pelvic_nodes
+    with pytest.raises(ValueError) as raised:
+        register(xyz, xyz + 1.0, method=method, **options)
+    assert words in str(raised.value)
+
+
+def test_tuning_parameters_are_keyword_only(pelvic_nodes):
+    xyz, labels = pelvic_nodes
+    with pytest.raises(TypeError):
+        register(xyz, xyz, "global", labels, labels)

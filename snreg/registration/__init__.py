@@ -14,6 +14,7 @@ least 99% of the time in ``snreg simulate`` (README, "Registration accuracy").
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,20 +56,20 @@ class RegistrationResult:
         return self.confidence >= CONFIDENT
 
 
-def register(preop, intraop, method: str = "global", preop_labels=None, intraop_labels=None, initial=None,
+def register(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None, initial=None,
              max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-             *, pairing_rule: str | None = None, **options) -> RegistrationResult:
+             pairing_rule: str | None = None, **options) -> RegistrationResult:
     """Register preop (N, 3) to intraop (M, 3) nodes in mm and pair every intraop node.
 
     ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
     within ``max_rotation_deg`` and ``max_translation_mm`` (displacement of the preop
     centroid) of it. Labels such as ``"OBT R"`` forbid left/right crossings and favour
     matching stations. ``pairing_rule`` overrides the method's rule; ``options`` go to
-    the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer).
-    Raises ValueError with a message a user understands on bad input.
+    the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer). Everything after ``method`` is
+    keyword-only. Raises ValueError with a message a user understands on bad input, an unknown
+    method or option included.
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown registration method {method!r}; choose one of {', '.join(METHODS)}")
+    _check_method(method, options)
     rule = pairing_rule or PAIRING_RULE[method]
     if rule not in RULES:
         raise ValueError(f"unknown pairing rule {rule!r}; choose one of {', '.join(RULES)}")
@@ -104,17 +105,31 @@ def register(preop, intraop, method: str = "global", preop_labels=None, intraop_
                               pairings=pairings, score=base.score)
 
 
-def solve_transform(preop, intraop, method: str = "global", preop_labels=None, intraop_labels=None, initial=None,
-                    max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
+def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,
+                    initial=None, max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
                     **options) -> np.ndarray:
     """The method's transform estimate alone, (4, 4) ``intraop_from_preop``: the solver without the pairing and the
     confidence that :func:`register` adds (what ``snreg bench`` times as "solver"). Arguments as :func:`register`."""
-    if method not in METHODS:
-        raise ValueError(f"unknown registration method {method!r}; choose one of {', '.join(METHODS)}")
+    _check_method(method, options)
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed)
     return _solve(problem, method, options)[0] @ problem.initial
+
+
+_SOLVERS = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer, "global": solve_global}
+
+
+def _check_method(method: str, options: dict) -> None:
+    """ValueError for a method that does not exist or an option its solver does not take."""
+    if method not in METHODS:
+        raise ValueError(f"unknown registration method {method!r}; choose one of {', '.join(METHODS)}")
+    known = [name for name, parameter in inspect.signature(_SOLVERS[method]).parameters.items()
+             if parameter.kind is inspect.Parameter.KEYWORD_ONLY]
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ValueError(f"unknown option{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} for method "
+                         f"{method!r}; its options are {', '.join(known)}")
 
 
 def _solve(problem, method: str, options: dict):
@@ -122,5 +137,4 @@ def _solve(problem, method: str, options: dict):
     if method == "global":
         candidates = solve_global(problem, **options)
         return candidates[0].correction, candidates
-    solver = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer}[method]
-    return solver(problem, **options), None
+    return _SOLVERS[method](problem, **options), None

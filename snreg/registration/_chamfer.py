@@ -19,7 +19,7 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from snreg import geometry
-from snreg.registration._problem import Problem
+from snreg.registration._problem import Problem, option_number
 
 __all__ = ["solve_chamfer", "NODE_DIAMETER_MM", "DEFAULT_PYRAMID_MM", "DEFAULT_FORM"]
 
@@ -82,6 +82,9 @@ def solve_chamfer(problem: Problem, *, form: str = DEFAULT_FORM, pyramid_mm=DEFA
     """The correction (4, 4) in the initial-aligned frame."""
     if form not in ("volume", "exact"):
         raise ValueError(f"chamfer form must be 'volume' or 'exact', not {form!r}")
+    diameter_mm = option_number("chamfer", "diameter_mm", diameter_mm, low=0.0, low_open=True)
+    pyramid_mm = tuple(option_number("chamfer", "pyramid_mm", v, low=0.0, low_open=True)
+                       for v in np.atleast_1d(np.asarray(pyramid_mm, dtype=object)))
     radius = diameter_mm / 2.0
     centre = problem.centre
     directions = np.vstack([np.eye(6), -np.eye(6)])

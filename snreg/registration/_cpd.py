@@ -13,7 +13,7 @@ import numpy as np
 
 from snreg import geometry
 from snreg.registration._assignment import squared_distances
-from snreg.registration._problem import Problem
+from snreg.registration._problem import Problem, option_count, option_number
 
 __all__ = ["solve_cpd", "DEFAULT_W"]
 
@@ -22,6 +22,9 @@ DEFAULT_W = 0.0
 
 def solve_cpd(problem: Problem, *, w: float = DEFAULT_W, max_iter: int = 150, tolerance: float = 1e-6) -> np.ndarray:
     """The correction (4, 4) in the initial-aligned frame."""
+    w = option_number("cpd", "w", w, low=0.0, high=1.0, high_open=True)
+    max_iter = option_count("cpd", "max_iter", max_iter)
+    tolerance = option_number("cpd", "tolerance", tolerance, low=0.0, low_open=True)
     x = problem.intraop            # data, (N_x, 3)
     y = problem.preop              # mixture centroids, (M_y, 3)
     n_x, m_y, dim = len(x), len(y), 3

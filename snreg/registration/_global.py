@@ -21,7 +21,7 @@ import numpy as np
 from snreg import geometry
 from snreg.labels import SIDE_CROSSING_NATS
 from snreg.registration._assignment import FLOOR_MM, Candidate, refine_many
-from snreg.registration._problem import Problem
+from snreg.registration._problem import Problem, option_count
 
 __all__ = ["solve_global"]
 
@@ -45,6 +45,8 @@ def _hypotheses(problem: Problem, max_hypotheses: int, rng: np.random.Generator)
 
 def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: int = 16) -> list[Candidate]:
     """Refined candidate pairings, best first. Raises ValueError when no hypothesis fits the bounds."""
+    max_hypotheses = option_count("global", "max_hypotheses", max_hypotheses)
+    refine_top = option_count("global", "refine_top", refine_top)
     rng = np.random.default_rng(problem.seed)
     pre, intra = _hypotheses(problem, max_hypotheses, rng)
     pre_idx = np.repeat(pre, len(intra), axis=0)

@@ -12,13 +12,15 @@ import numpy as np
 
 from snreg import geometry
 from snreg.registration._assignment import squared_distances
-from snreg.registration._problem import Problem
+from snreg.registration._problem import Problem, option_count, option_number
 
 __all__ = ["solve_icp"]
 
 
 def solve_icp(problem: Problem, *, max_iter: int = 100, tolerance_mm2: float = 1e-8) -> np.ndarray:
     """The correction (4, 4) in the initial-aligned frame."""
+    max_iter = option_count("icp", "max_iter", max_iter)
+    tolerance_mm2 = option_number("icp", "tolerance_mm2", tolerance_mm2, low=0.0, low_open=True)
     correction = np.eye(4)
     previous = np.inf
     for _ in range(max_iter):

@@ -9,7 +9,7 @@ import numpy as np
 from snreg import geometry
 from snreg.labels import label_cost
 
-__all__ = ["Problem", "make_problem"]
+__all__ = ["Problem", "make_problem", "option_number", "option_count"]
 
 
 @dataclass(frozen=True)
@@ -98,3 +98,26 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
         max_translation_mm=float(max_translation_mm),
         seed=int(seed),
     )
+
+
+def option_number(method: str, name: str, value, *, low: float = -np.inf, high: float = np.inf,
+                  low_open: bool = False, high_open: bool = False) -> float:
+    """A solver option as a finite float within [low, high] (an end excluded when ``*_open``); ValueError otherwise."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    inside = (np.isfinite(number) and (number > low if low_open else number >= low)
+              and (number < high if high_open else number <= high))
+    if not inside:
+        bounds = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+        raise ValueError(f"{method} option {name} must be a number in {bounds}, not {value!r}")
+    return number
+
+
+def option_count(method: str, name: str, value) -> int:
+    """A solver option that counts something: a whole number >= 1; ValueError otherwise."""
+    number = option_number(method, name, value, low=1.0)
+    if number != int(number):
+        raise ValueError(f"{method} option {name} must be a whole number of at least 1, not {value!r}")
+    return int(number)
