@@ -25,13 +25,13 @@ from snreg import __version__
 from snreg.demo.rig import DemoRig
 from snreg.session import Session, SessionError
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
-from snreg_gui.acquisition_screen import AcquisitionScreen
-from snreg_gui.acquisition_worker import AcquisitionWorker, start_worker, stop_worker
-from snreg_gui.demo_spect import DemoSpect
-from snreg_gui.recent import RecentSessions
-from snreg_gui.registration_panel import RegistrationPanel
-from snreg_gui.review_screen import ReviewScreen
-from snreg_gui.wizard_launcher import WizardLauncher
+from snreg_gui.acquisition.screen import AcquisitionScreen
+from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
+from snreg_gui.common.recent import RecentSessions
+from snreg_gui.registration.demo_spect import DemoSpect
+from snreg_gui.registration.panel import RegistrationPanel
+from snreg_gui.review.screen import ReviewScreen
+from snreg_gui.wizards.launcher import WizardLauncher
 
 # The GUI thread shares the GIL with the tracking worker and the IMU reader. At Python's default 5 ms switch
 # interval a paint, which re-enters Python many times, can wait 5 ms at each entry; 1 ms keeps the GUI thread's

@@ -12,10 +12,10 @@ from snreg.demo.scene import Schedule
 from snreg.imu.monitor import ImuSnapshot
 from snreg.session import Session
 from snreg.workflow.acquisition import FrameOutcome
-from snreg_gui.acquisition_screen import AcquisitionScreen
-from snreg_gui.acquisition_worker import FrameResult
+from snreg_gui.acquisition.screen import AcquisitionScreen
+from snreg_gui.acquisition.worker import FrameResult
 from snreg_gui.app import MainWindow
-from snreg_gui.bench import Heartbeat
+from snreg_gui.tools.bench import Heartbeat
 
 FIXES = 20                      # a short store window keeps the test quick (thesis: 60)
 GROSS_STALL_MS = 250.0          # a guard against blocking work on the GUI thread; the 50 ms figure is measured by

@@ -19,8 +19,8 @@ from snreg.probe import default_probe_model
 from snreg.rig import RigConfig
 from snreg.session import Session
 from snreg.workflow.acquisition import FrameOutcome
-from snreg_gui.acquisition_screen import AcquisitionScreen
-from snreg_gui.acquisition_worker import FrameResult, StoreRequest
+from snreg_gui.acquisition.screen import AcquisitionScreen
+from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow
 
 
@@ -120,7 +120,7 @@ def test_the_hardware_rig_chosen_in_the_device_dialog_runs_the_same_acquisition(
         def config(self):
             return config
 
-    monkeypatch.setattr("snreg_gui.device_dialog.DeviceDialog", ChosenDialog)
+    monkeypatch.setattr("snreg_gui.wizards.device_dialog.DeviceDialog", ChosenDialog)
     window = MainWindow(str(tmp_path / "case.h5"), settings=settings)
     qtbot.addWidget(window)
     assert window.session is not None and window.acquisition is None           # a session, no devices yet

@@ -9,8 +9,8 @@ from PySide6.QtWidgets import QDialog, QFileDialog
 from snreg.camera import save_calibration, thesis_calibration
 from snreg.rig import RigConfig
 from snreg.sources.devices import CameraDevice, SerialPortInfo
-from snreg_gui import device_dialog
-from snreg_gui.device_dialog import NO_IMU_TEXT, DeviceDialog
+from snreg_gui.wizards import device_dialog
+from snreg_gui.wizards.device_dialog import NO_IMU_TEXT, DeviceDialog
 
 CAMERAS = [CameraDevice("/dev/video0", "Firefly left"), CameraDevice("/dev/video2", "Firefly right")]
 PORTS = [SerialPortInfo("/dev/ttyACM0", "Arduino Nano Every")]

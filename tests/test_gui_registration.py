@@ -15,10 +15,10 @@ from snreg.labels import parse_label
 from snreg.nodes import NodeSet, read_nodes, write_nodes
 from snreg.registration.report import EXTRA, REPORT_DPI, REPORT_SIZE_IN
 from snreg.session import Session
-from snreg_gui import node_views
-from snreg_gui.node_views import ThreeViewPlot, make_node_view
-from snreg_gui.registration_alignment import initial_transform
-from snreg_gui.registration_panel import RegistrationPanel
+from snreg_gui.common import node_views
+from snreg_gui.common.node_views import ThreeViewPlot, make_node_view
+from snreg_gui.registration.alignment import initial_transform
+from snreg_gui.registration.panel import RegistrationPanel
 
 TIMEOUT_MS = 15_000
 

@@ -1,4 +1,4 @@
-"""The offline review screen (snreg_gui.review_screen), driven for real on a session recorded in the test."""
+"""The offline review screen (snreg_gui.review.screen), driven for real on a session recorded in the test."""
 
 import h5py
 import numpy as np
@@ -7,7 +7,7 @@ from PySide6.QtCore import Qt
 from test_session_timeline import (CAMERA_LAG_S, DURATION_S, FRAME_RATE_HZ, LOST_FRAMES, PREOP_IDS, STEREO_RMS_PX,
                                    YAW_TURN_DEG, damaged_copy, record_session)
 
-from snreg_gui.review_screen import ReviewScreen
+from snreg_gui.review.screen import ReviewScreen
 
 LOAD_TIMEOUT_MS = 20_000
 

@@ -14,8 +14,8 @@ from snreg.camera import load_calibration, thesis_calibration
 from snreg.demo.board_render import random_board_poses, render_stereo_board, right_from_left
 from snreg.demo.board_tour import BoardSchedule, BoardTour, board_feed
 from snreg.sources import CallableSource, SourceError, SourceState
-from snreg_gui.stereo_wizard import StereoCalibrationWizard
-from snreg_gui.stereo_wizard_capture import STILL_FRAMES
+from snreg_gui.wizards.stereo.capture import STILL_FRAMES
+from snreg_gui.wizards.stereo.wizard import StereoCalibrationWizard
 
 TRUTH = thesis_calibration().scaled(0.5)          # the rendered cameras: 960 x 540
 CLICKED_VIEWS = 10

@@ -15,8 +15,8 @@ from snreg.demo.pivot_scene import PivotScene
 from snreg.geometry import rotation_distance_deg
 from snreg.session import Session
 from snreg.sources import SourceError, SourceState
-from snreg_gui.trocar_wizard import TrocarWizard
-from snreg_gui.trocar_wizard_pages import PageId
+from snreg_gui.wizards.trocar.pages import PageId
+from snreg_gui.wizards.trocar.wizard import TrocarWizard
 
 BOARD = Board(10, 7, 10.0)            # thesis §4.2: 11 x 8 squares of 10 mm
 FRAMES_PER_CYCLE = 24                 # 1.6-2.6 degrees a frame: every frame is a sample

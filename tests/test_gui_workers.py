@@ -1,10 +1,10 @@
-"""The shared worker (snreg_gui.workers.Worker): results, generators, errors and stopping, off the GUI thread."""
+"""The shared worker (snreg_gui.common.workers.Worker): results, generators, errors and stopping, off the GUI thread."""
 
 import threading
 
 import pytest
 
-from snreg_gui.workers import Worker
+from snreg_gui.common.workers import Worker
 
 
 def run(qtbot, worker, timeout=5_000):
@@ -66,7 +66,7 @@ def test_quit_stops_an_endless_generator(qtbot, ask_to_quit_after):
 
 
 def test_a_worker_set_keeps_its_workers_until_shutdown_ends_them(qtbot):
-    from snreg_gui.workers import WorkerSet
+    from snreg_gui.common.workers import WorkerSet
 
     def endless():
         while True:

@@ -1,6 +1,6 @@
 """A simulated pivot recording with ground truth: the endoscope pivoting in its trocar in front of a still board.
 
-Why: the trocar wizard (``snreg_gui.trocar_wizard``) and its tests need live left/right frames of a
+Why: the trocar wizard (``snreg_gui.wizards.trocar.wizard``) and its tests need live left/right frames of a
 checkerboard together with an IMU whose orientation belongs to the frame on screen, with the true
 trocar-camera distance and IMU-camera rotation known. The wizard's code after the source and the IMU
 is the same as with a camera and an :class:`~snreg.imu.monitor.ImuMonitor`; only the devices differ.

@@ -30,8 +30,10 @@ from PySide6.QtWidgets import QWizard
 from snreg.calibration.checkerboard import Board
 from snreg.camera import StereoCalibration
 from snreg.sources import FrameSource
-from snreg_gui.trocar_wizard_live import ArcPage, LiveCapture, LivePage, PivotPage
-from snreg_gui.trocar_wizard_pages import ChainChoice, ManualPage, MethodPage, PageId, SummaryPage
+from snreg.workflow.trocar_capture import capture_samples
+from snreg_gui.common.workers import LiveLoop
+from snreg_gui.wizards.trocar.live import ArcPage, LivePage, PivotPage
+from snreg_gui.wizards.trocar.pages import ChainChoice, ManualPage, MethodPage, PageId, SummaryPage
 
 __all__ = ["TrocarWizard"]
 
@@ -48,7 +50,7 @@ class TrocarWizard(QWizard):
         super().__init__(parent)
         self.setWindowTitle("Trocar calibration")
         self.choice: ChainChoice | None = None
-        self._capture = LiveCapture(make_source, imu, calibration, board, self)
+        self._capture = LiveLoop(capture_samples, make_source, imu, calibration, board, parent=self)
         self.method_page, self.manual_page = MethodPage(), ManualPage()
         self.pivot_page, self.arc_page = PivotPage(self._capture), ArcPage(self._capture)
         self.summary_page = SummaryPage(session)

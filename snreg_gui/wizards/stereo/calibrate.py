@@ -20,8 +20,8 @@ from PySide6.QtWidgets import (QLabel, QProgressBar, QPushButton, QTableWidget, 
 
 from snreg.calibration.checkerboard import Board
 from snreg.calibration.stereo import SUSPECT_FACTOR, StereoResult, calibrate_stereo, drop_views
-from snreg_gui.stereo_wizard_capture import CapturedView
-from snreg_gui.workers import Worker
+from snreg_gui.common.workers import Worker
+from snreg_gui.wizards.stereo.capture import CapturedView
 
 COLUMNS = ("drop", "left px", "right px", "recon mm", "note")
 _SUSPECT_COLOUR = QColor(255, 220, 200)

@@ -25,7 +25,7 @@ from snreg.imu.reader import DEFAULT_BAUD
 from snreg.rig import CAMERA_MODES, RigConfig, check_source
 from snreg.sources.capture import LAYOUTS
 from snreg.sources.devices import list_cameras, list_serial_ports
-from snreg_gui.workers import Worker, WorkerSet
+from snreg_gui.common.workers import Worker, WorkerSet
 
 MODE_TEXTS = {"pair": "Two cameras, one per eye", "stacked": "One camera delivering both eyes",
               "video": "Two video files (replay)", "folder": "Two image folders (replay)"}

@@ -19,10 +19,10 @@ from PySide6.QtCore import QCoreApplication, Qt, Signal
 from PySide6.QtWidgets import QGroupBox, QLabel, QSplitter, QVBoxLayout, QWidget
 
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
-from snreg_gui.review_panels import (NODE_COLUMNS, RegistrationPanel, SnapshotPair, fill_table, header_text, node_rows,
-                                     read_only_table)
-from snreg_gui.review_timelines import TimelinePlots
-from snreg_gui.workers import Worker
+from snreg_gui.common.workers import Worker
+from snreg_gui.review.panels import (NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table, header_text,
+                                     node_rows, read_only_table)
+from snreg_gui.review.timelines import TimelinePlots
 
 
 class ReviewScreen(QWidget):
@@ -44,7 +44,7 @@ class ReviewScreen(QWidget):
         self.header.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.node_table = read_only_table(NODE_COLUMNS)
         self.snapshots = SnapshotPair()
-        self.registrations = RegistrationPanel()
+        self.registrations = StoredRegistrations()
         self.timelines = TimelinePlots()
         self._layout()
         self.node_table.itemSelectionChanged.connect(self._show_selected_node)

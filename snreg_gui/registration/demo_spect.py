@@ -13,7 +13,7 @@ from snreg import geometry
 from snreg.demo.headless import spect_path_for
 from snreg.demo.phantom import NOMINAL_TILT_DEG, setup_patient_from_trocar, true_sources_lps, write_phantom_spect
 from snreg.demo.scene import phantom_tips
-from snreg_gui.workers import Worker
+from snreg_gui.common.workers import Worker
 
 
 class DemoSpect:

@@ -6,9 +6,9 @@ views are good and varied, and to judge and save the result (DESIGN.md §4, Cali
 
 1. Setup: inner corners (cols x rows, as OpenCV counts them), square size, target number of views.
 2. Capture: both live feeds with the found corners, "Capture view" and auto-capture, a coverage map
-   per eye, warnings for repeated views (:mod:`snreg_gui.stereo_wizard_capture`).
+   per eye, warnings for repeated views (:mod:`snreg_gui.wizards.stereo.capture`).
 3. Calibrate: :func:`~snreg.calibration.stereo.calibrate_stereo` in a worker, RMS, per-view errors,
-   drop views and recalibrate (:mod:`snreg_gui.stereo_wizard_calibrate`).
+   drop views and recalibrate (:mod:`snreg_gui.wizards.stereo.calibrate`).
 4. Save: :func:`~snreg.camera.save_calibration` to a YAML file.
 
 The feed is read and searched in a worker thread (``make_source`` is called there), and every worker
@@ -34,9 +34,9 @@ from snreg.calibration.checkerboard import THESIS_BOARD, Board
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.camera import save_calibration
 from snreg.sources import FrameSource
-from snreg_gui.stereo_wizard_calibrate import CalibratePage
-from snreg_gui.stereo_wizard_capture import CapturePage
-from snreg_gui.workers import WorkerSet
+from snreg_gui.common.workers import WorkerSet
+from snreg_gui.wizards.stereo.calibrate import CalibratePage
+from snreg_gui.wizards.stereo.capture import CapturePage
 
 __all__ = ["StereoCalibrationWizard"]
 

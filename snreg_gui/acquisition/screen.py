@@ -16,9 +16,9 @@ from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, Q
 
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
-from snreg_gui.acquisition_worker import FrameResult, StoreRequest
-from snreg_gui.feed_view import FeedView
-from snreg_gui.orientation_plot import OrientationPlot
+from snreg_gui.acquisition.orientation_plot import OrientationPlot
+from snreg_gui.acquisition.worker import FrameResult, StoreRequest
+from snreg_gui.common.feed_view import FeedView
 
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send
 UNDO_SHORTCUT = "Ctrl+Z"

@@ -2,7 +2,7 @@
 
 Why: these pages only take the technician's choice and values and show the result; the values are checked
 by :class:`~snreg.chain.ChainCalibration` itself, and a bad one is named in one sentence that blocks Next.
-The summary stores the chain in the session in a :class:`~snreg_gui.workers.Worker` (the journal is fsynced).
+The summary stores the chain in the session in a :class:`~snreg_gui.common.workers.Worker` (the journal is fsynced).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from PySide6.QtWidgets import QButtonGroup, QFormLayout, QLabel, QLineEdit, QRad
 
 from snreg.chain import THESIS_IMU_TROCAR_MM, THESIS_TROCAR_CAMERA_MM, ChainCalibration
 from snreg.geometry import euler_from_rotation
-from snreg_gui.workers import Worker
+from snreg_gui.common.workers import Worker, release_finished
 
 
 class PageId(enum.IntEnum):
@@ -33,12 +33,6 @@ class ChainChoice:
     chain: ChainCalibration
     method: str
     quality: str
-
-
-def release_finished(current: Worker | None, finished: Worker) -> bool:
-    """On a Worker's ``finished``: True when it is ``current`` and its thread has ended, so the last reference
-    may go (a QThread deleted while running aborts); False for a worker already waited for by a shutdown."""
-    return current is not None and finished is current and current.wait()
 
 
 class MethodPage(QWizardPage):

@@ -21,8 +21,8 @@ from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, 
 
 from snreg.nodes import NodeSet, read_nodes
 from snreg.preop import Volume, load_volume, segment_nodes
-from snreg_gui.registration_tables import NodeTable
-from snreg_gui.workers import WorkerSet, sentence
+from snreg_gui.common.workers import WorkerSet, sentence
+from snreg_gui.registration.tables import NodeTable
 
 DEFAULT_THRESHOLD_PERCENT = 30          # snreg preop's default, 0.3 x maximum
 RESEGMENT_DELAY_MS = 250

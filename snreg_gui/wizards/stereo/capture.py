@@ -22,7 +22,7 @@ from snreg.calibration.coverage import Coverage, coverage_map, is_still, similar
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.sources import FrameSource
 from snreg.workflow.stereo_capture import LiveBoardFeed, LiveView
-from snreg_gui.workers import Worker
+from snreg_gui.common.workers import Worker
 
 STILL_FRAMES = 6                 # auto-capture once the board was found still in this many frames running
 _CORNER_COLOUR = (0, 230, 90)

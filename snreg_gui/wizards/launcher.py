@@ -25,7 +25,7 @@ class WizardLauncher:
         self.active = None          # the wizard or dialog now open
 
     def stereo(self) -> None:
-        from snreg_gui.stereo_wizard import StereoCalibrationWizard
+        from snreg_gui.wizards.stereo.wizard import StereoCalibrationWizard
         window = self._window
         if not self._have_rig():
             return
@@ -34,7 +34,7 @@ class WizardLauncher:
         self._open(wizard)
 
     def trocar(self) -> None:
-        from snreg_gui.trocar_wizard import TrocarWizard
+        from snreg_gui.wizards.trocar.wizard import TrocarWizard
         window = self._window
         if not self._have_rig():
             return
@@ -46,7 +46,7 @@ class WizardLauncher:
 
     def select_devices(self) -> None:
         from snreg.rig import HardwareRig, RigConfig
-        from snreg_gui.device_dialog import DeviceDialog
+        from snreg_gui.wizards.device_dialog import DeviceDialog
         window = self._window
         stored = window.settings.value(_DEVICES_KEY)
         try:

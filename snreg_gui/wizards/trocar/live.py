@@ -2,7 +2,7 @@
 
 Why: the technician pivots the endoscope in the trocar and must see, while doing it, whether the board is
 found, how many samples there are and what they give, and accept once it is good enough. Capture and fits
-run in :class:`~snreg_gui.workers.Worker` threads (:mod:`snreg.workflow.trocar_capture`, :mod:`snreg.calibration.trocar_fit`); the pages only
+run in :class:`~snreg_gui.common.workers.Worker` threads (:mod:`snreg.workflow.trocar_capture`, :mod:`snreg.calibration.trocar_fit`); the pages only
 show what comes back. :class:`PivotPage` runs the pivot method (recommended), :class:`ArcPage` the
 thesis's arc method (eq. 14) on the same samples.
 """
@@ -12,141 +12,19 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from PySide6.QtCore import QObject, Signal
 from PySide6.QtWidgets import (QGridLayout, QHBoxLayout, QLabel, QPushButton, QTableWidget, QTableWidgetItem,
                                QVBoxLayout, QWizardPage)
 
-from snreg.calibration.checkerboard import Board
 from snreg.calibration.pivot import GOOD_TILT_DEG
 from snreg.calibration.trocar_fit import MIN_ARC_PAIRS, ArcFit, PivotFit, fit_arc, fit_pivot
-from snreg.camera import StereoCalibration
 from snreg.geometry import euler_from_rotation
-from snreg.sources import FrameSource
-from snreg.workflow.trocar_capture import MIN_SAMPLE_TURN_DEG, BoardFrame, PivotSample, capture_samples
-from snreg_gui.feed_view import FeedView
-from snreg_gui.trocar_wizard_pages import ChainChoice, PageId, release_finished
-from snreg_gui.workers import Worker
+from snreg.workflow.trocar_capture import MIN_SAMPLE_TURN_DEG, BoardFrame, PivotSample
+from snreg_gui.common.feed_view import FeedView
+from snreg_gui.common.workers import FitRunner, LiveLoop
+from snreg_gui.wizards.trocar.pages import ChainChoice, PageId
 
 _SAMPLE_COLUMNS = ("frame", "t (s)", "yaw", "pitch", "roll", "camera x", "camera y", "camera z")
 _VERDICT_COLOURS = {"good": "#1a7f37", "check": "#b35900", "bad": "#c62828"}
-
-
-class LiveCapture(QObject):
-    """The capture Worker: :meth:`start` and :meth:`stop` it as pages come and go; frames arrive as ``frame_ready``.
-
-    Never blocks but in :meth:`shutdown`: a stop takes effect after the current frame, and a start asked
-    for meanwhile opens the source again only once the old one is closed (a camera opens only once).
-    ``stopped`` says why the feed ended by itself (the source's problem, or why it could not be opened).
-    """
-
-    frame_ready = Signal(object)     # BoardFrame
-    stopped = Signal(str)
-
-    def __init__(self, make_source: Callable[[], FrameSource], imu, calibration: StereoCalibration, board: Board,
-                 parent: QObject | None = None):
-        super().__init__(parent)
-        self._args = (make_source, imu, calibration, board)
-        self._worker: Worker | None = None
-        self._wanted = False
-        self._stopping = False
-
-    @property
-    def running(self) -> bool:
-        return self._worker is not None
-
-    def start(self) -> None:
-        self._wanted = True
-        if self._worker is None:
-            worker = Worker(capture_samples, *self._args)
-            worker.yielded.connect(self.frame_ready)
-            worker.returned.connect(self._ended)
-            worker.errored.connect(self._failed)
-            worker.finished.connect(self._finished)
-            self._worker = worker.start()
-
-    def stop(self) -> None:
-        self._wanted = False
-        if self._worker is not None:
-            self._stopping = True
-            self._worker.quit()
-
-    def shutdown(self) -> None:
-        """Stop and wait until the source is closed and the thread has ended."""
-        self.stop()
-        if self._worker is not None:
-            self._worker.wait()
-            self._worker = None
-
-    def _ended(self, problem: str) -> None:
-        self._wanted = False
-        self.stopped.emit(problem)
-
-    def _failed(self, message: str) -> None:
-        self._wanted = False
-        self.stopped.emit(message)
-
-    def _finished(self) -> None:
-        if not release_finished(self._worker, self.sender()):
-            return
-        self._worker, restart, self._stopping = None, self._wanted and self._stopping, False
-        if restart:
-            self.start()
-
-
-class FitRunner(QObject):
-    """Fits the latest samples in a Worker, one at a time; samples that arrive meanwhile wait for the next run.
-
-    ``fitted`` carries the fit of the newest samples given since :meth:`reset`; older results are dropped.
-    """
-
-    fitted = Signal(object)
-    failed = Signal(str)
-
-    def __init__(self, fit: Callable, parent: QObject | None = None):
-        super().__init__(parent)
-        self._fit = fit
-        self._worker: Worker | None = None
-        self._pending: tuple | None = None
-        self._generation = self._running_generation = 0
-
-    @property
-    def running(self) -> bool:
-        return self._worker is not None
-
-    def request(self, *args) -> None:
-        self._pending = args
-        if self._worker is None:
-            self._launch()
-
-    def reset(self) -> None:
-        self._pending = None
-        self._generation += 1
-
-    def shutdown(self) -> None:
-        self._pending = None
-        if self._worker is not None:
-            self._worker.wait()
-            self._worker = None
-
-    def _launch(self) -> None:
-        args, self._pending = self._pending, None
-        self._running_generation = self._generation
-        worker = Worker(self._fit, *args)
-        worker.returned.connect(self._returned)
-        worker.errored.connect(self.failed)
-        worker.finished.connect(self._finished)
-        self._worker = worker.start()
-
-    def _returned(self, fit) -> None:
-        if self._running_generation == self._generation:
-            self.fitted.emit(fit)
-
-    def _finished(self) -> None:
-        if not release_finished(self._worker, self.sender()):
-            return
-        self._worker = None
-        if self._pending is not None:
-            self._launch()
 
 
 class LivePage(QWizardPage):
@@ -156,7 +34,7 @@ class LivePage(QWizardPage):
     hands :meth:`choice` to the wizard. Entering it from the method page starts with no samples.
     """
 
-    def __init__(self, capture: LiveCapture, fit: Callable, title: str, subtitle: str,
+    def __init__(self, capture: LiveLoop, fit: Callable, title: str, subtitle: str,
                  details: tuple[QLabel, ...] = ()):
         super().__init__()
         self.setTitle(title)
@@ -292,7 +170,7 @@ class LivePage(QWizardPage):
 class PivotPage(LivePage):
     """The pivot method: trocar-camera distance, uncertainty, residual, verdict, and the IMU-camera rotation."""
 
-    def __init__(self, capture: LiveCapture):
+    def __init__(self, capture: LiveLoop):
         verdict, rotation = QLabel(""), QLabel("")
         super().__init__(capture, fit_pivot, "Pivot calibration",
                          "Keep the checkerboard still in view and pivot the endoscope about the trocar, left-right "
@@ -339,7 +217,7 @@ class PivotPage(LivePage):
 class ArcPage(LivePage):
     """The thesis's arc method (eq. 14) on the camera origin as it swings about the trocar: median and IQR."""
 
-    def __init__(self, capture: LiveCapture):
+    def __init__(self, capture: LiveLoop):
         super().__init__(capture, fit_arc, "Arc method (thesis eq. 14)",
                          "Keep the checkerboard still in view and swing the endoscope about the trocar without "
                          "rolling it about its axis (a roll biases the distance low). The IMU axes are taken as "

@@ -108,7 +108,7 @@ class SnapshotPair(pg.GraphicsLayoutWidget):
             caption.setText(f"{side} ({rgb.shape[1]} x {rgb.shape[0]})")
 
 
-class RegistrationPanel(QWidget):
+class StoredRegistrations(QWidget):
     """The stored registrations (method, RMS, how many nodes paired) and the selected one's pairing table."""
 
     def __init__(self):

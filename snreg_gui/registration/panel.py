@@ -7,7 +7,7 @@ makes the exports. With a writable session the preop set and each result are sto
 opened for reading (review) the stored preop set and latest registration are shown and nothing is written.
 
 The initial alignment turns the preop set about its own centroid and then shifts it
-(:mod:`snreg_gui.registration_alignment`); the view shows the preop nodes under that alignment until a
+(:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
 result exists, then under the result's ``intraop_from_preop``.
 
 >>> panel = RegistrationPanel()
@@ -31,11 +31,11 @@ from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHODS
 from snreg.registration.report import mapped_preop, pair_rows, summary_line
 from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
-from snreg_gui.node_views import NodeScene, make_node_view
-from snreg_gui.registration_alignment import AlignmentBox
-from snreg_gui.registration_preop import PreopSourceBox
-from snreg_gui.registration_tables import NodeTable, PairingTable
-from snreg_gui.workers import WorkerSet, sentence
+from snreg_gui.common.node_views import NodeScene, make_node_view
+from snreg_gui.common.workers import WorkerSet, sentence
+from snreg_gui.registration.alignment import AlignmentBox
+from snreg_gui.registration.preop import PreopSourceBox
+from snreg_gui.registration.tables import NodeTable, PairingTable
 
 DEFAULT_METHOD = "global"
 

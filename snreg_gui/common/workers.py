@@ -153,6 +153,132 @@ class WorkerSet:
             worker.wait(timeout_ms)
 
 
+def release_finished(current: Worker | None, finished: Worker) -> bool:
+    """On a Worker's ``finished``: True when it is ``current`` and its thread has ended, so the last reference
+    may go (a QThread deleted while running aborts); False for a worker already waited for by a shutdown."""
+    return current is not None and finished is current and current.wait()
+
+
+class LiveLoop(QObject):
+    """A generator ``loop(*args)`` run in a Worker that can be started and stopped as pages come and go (a live
+    capture); each item it yields arrives as ``frame_ready``.
+
+    Never blocks but in :meth:`shutdown`: a stop takes effect after the current item, and a start asked for
+    meanwhile runs the loop again only once the old one has ended (a camera opens only once). ``stopped`` says
+    why the loop ended by itself (what it returned, e.g. the source's problem, or why it failed).
+    """
+
+    frame_ready = Signal(object)
+    stopped = Signal(str)
+
+    def __init__(self, loop: Callable, *args, parent: QObject | None = None):
+        super().__init__(parent)
+        self._loop, self._args = loop, args
+        self._worker: Worker | None = None
+        self._wanted = False
+        self._stopping = False
+
+    @property
+    def running(self) -> bool:
+        return self._worker is not None
+
+    def start(self) -> None:
+        self._wanted = True
+        if self._worker is None:
+            worker = Worker(self._loop, *self._args)
+            worker.yielded.connect(self.frame_ready)
+            worker.returned.connect(self._ended)
+            worker.errored.connect(self._failed)
+            worker.finished.connect(self._finished)
+            self._worker = worker.start()
+
+    def stop(self) -> None:
+        self._wanted = False
+        if self._worker is not None:
+            self._stopping = True
+            self._worker.quit()
+
+    def shutdown(self) -> None:
+        """Stop and wait until the source is closed and the thread has ended."""
+        self.stop()
+        if self._worker is not None:
+            self._worker.wait()
+            self._worker = None
+
+    def _ended(self, problem: str) -> None:
+        self._wanted = False
+        self.stopped.emit(problem)
+
+    def _failed(self, message: str) -> None:
+        self._wanted = False
+        self.stopped.emit(message)
+
+    def _finished(self) -> None:
+        if not release_finished(self._worker, self.sender()):
+            return
+        self._worker, restart, self._stopping = None, self._wanted and self._stopping, False
+        if restart:
+            self.start()
+
+
+class FitRunner(QObject):
+    """Runs ``fit`` on the latest arguments in a Worker, one run at a time; arguments that arrive meanwhile wait for
+    the next run, and only the newest wait (a live fit that must keep up with its samples).
+
+    ``fitted`` carries the result of the newest arguments given since :meth:`reset`; older results are dropped.
+    """
+
+    fitted = Signal(object)
+    failed = Signal(str)
+
+    def __init__(self, fit: Callable, parent: QObject | None = None):
+        super().__init__(parent)
+        self._fit = fit
+        self._worker: Worker | None = None
+        self._pending: tuple | None = None
+        self._generation = self._running_generation = 0
+
+    @property
+    def running(self) -> bool:
+        return self._worker is not None
+
+    def request(self, *args) -> None:
+        self._pending = args
+        if self._worker is None:
+            self._launch()
+
+    def reset(self) -> None:
+        self._pending = None
+        self._generation += 1
+
+    def shutdown(self) -> None:
+        self._pending = None
+        if self._worker is not None:
+            self._worker.wait()
+            self._worker = None
+
+    def _launch(self) -> None:
+        args, self._pending = self._pending, None
+        self._running_generation = self._generation
+        worker = Worker(self._fit, *args)
+        worker.returned.connect(self._returned)
+        worker.errored.connect(self.failed)
+        worker.finished.connect(self._finished)
+        self._worker = worker.start()
+
+    def _returned(self, fit) -> None:
+        if self._running_generation == self._generation:
+            self.fitted.emit(fit)
+
+    def _finished(self) -> None:
+        if not release_finished(self._worker, self.sender()):
+            return
+        self._worker = None
+        if self._pending is not None:
+            self._launch()
+
+
+
 def sentence(message: str) -> str:
     """A worker's error message as one sentence: capital first letter, full stop at the end."""
     message = message.strip()

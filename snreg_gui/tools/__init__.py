@@ -1,0 +1,1 @@
+"""Developer tools around the app: the GUI-thread stall bench and the screenshot script."""
