@@ -22,7 +22,7 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     with Session.open(path) as session:
         assert session.intraop_nodes().ids == ["SN1", "SN2", "SN3", "SN4"]
         assert len(session.preop_nodes()) == 4
-        assert abs(session.registrations()[0].rms_mm - out["rms_mm"]) < 1e-3
+        assert abs(session.registrations()[0].result.rms_mm - out["rms_mm"]) < 1e-3
         assert len(session.stream("probe")) >= 4 * 20 and len(session.stream("frames")) == out["frames"]
         assert set(session.calibration()) == {"stereo", "chain"}
         assert all(len(node.left_jpeg) > 0 for node in session.intraop_records())

@@ -258,8 +258,8 @@ def test_writable_session_stores_preop_and_result_review_only_shows(qtbot, panel
         assert panel.message.text() == "Stored in the session as registration 0."
     stored = Session.open(path)
     assert len(stored.registrations()) == 1
-    assert np.array_equal(stored.registrations()[0].pairing, truth)
-    assert np.allclose(stored.registrations()[0].transform, result.transform)
+    assert np.array_equal(stored.registrations()[0].result.pairing, truth)
+    assert np.allclose(stored.registrations()[0].result.transform, result.transform)
     assert stored.preop_nodes().ids == preop.ids
 
     review = RegistrationPanel()

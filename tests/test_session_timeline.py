@@ -14,7 +14,7 @@ from snreg.demo.imu_simulator import ImuSimulator
 from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError
-from snreg.session.journal import journal_path
+from snreg.session.journal import Journal, journal_path, read_journal
 from snreg.session.timeline import GAP_PERIODS, frame_series, fuse_imu, fuse_imu_blocks, load_review
 
 T0_NS = 5_000_000_000_000          # host clock at the first IMU sample
@@ -79,7 +79,7 @@ def record_session(path) -> Recorded:
                                counts=50.0 * k, time_ns=_host_ns(t), left_jpeg=_snapshot(*left[:2], (0, 0, 255)),
                                right_jpeg=_snapshot(*right[:2], (255, 0, 0)))
         result = register(PREOP, xyz, method="global", seed=0)
-        s.add_registration(result)
+        s.add_registration(result, PREOP_IDS, [f"SN{k + 1}" for k in range(3)])
     return Recorded(["SN1", "SN2", "SN3"], node_times, shapes, float(result.rms_mm), frames + CAMERA_LAG_S)
 
 
@@ -185,3 +185,36 @@ def test_unreadable_files_give_one_sentence(tmp_path):
         with pytest.raises(SessionError, match=str(path.name)) as err:
             load_review(path)
         assert "\n" not in str(err.value)
+
+
+def test_a_registration_keeps_its_node_names_after_an_undo_and_a_new_preop_set(tmp_path):
+    path = tmp_path / "s.h5"
+    xyz = PREOP[:3] + [1.0, -0.5, 0.8]
+    with Session.create(path, case_id="review-02") as s:
+        s.set_preop_nodes(NodeSet(PREOP_IDS, [""] * 4, PREOP, frame="LPS"))
+        for k in range(3):
+            s.add_intraop_node(f"SN{k + 1}", "", xyz[k])
+        s.add_registration(register(PREOP, xyz, method="global"), PREOP_IDS, ["SN1", "SN2", "SN3"])
+        s.remove_intraop_node("SN3")                                   # undo
+        s.set_preop_nodes(NodeSet(["Q1", "Q2"], ["", ""], PREOP[:2], frame="LPS"))   # re-segmented
+    (reg,) = load_review(path).registrations
+    assert reg.intraop_ids == ["SN1", "SN2", "SN3"] and reg.preop_ids == ["P1", "P2", "P3"]
+
+
+def test_a_file_written_before_ids_were_stored_names_rows_from_its_node_lists(recorded, tmp_path):
+    path, truth = recorded
+    old = tmp_path / "old.h5"
+    shutil.copyfile(path, old)
+    with h5py.File(old, "r+") as h5:
+        for key in ("preop_ids", "intraop_ids", "initial"):
+            del h5["registration/0"][key]
+    entries = read_journal(journal_path(path)).entries
+    journal = Journal(journal_path(old))
+    for kind, data in entries:
+        journal.append(kind, {k: v for k, v in data.items() if k not in ("preop_ids", "intraop_ids", "initial")})
+    journal.close()
+    with Session.open(old) as s:
+        (stored,) = s.registrations()
+        assert stored.preop_ids is None and stored.intraop_ids is None and stored.result.initial is None
+    (reg,) = load_review(old).registrations
+    assert reg.intraop_ids == truth.node_ids and reg.preop_ids == PREOP_IDS[:3]

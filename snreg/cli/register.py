@@ -9,6 +9,7 @@ from snreg.cli.common import read_initial
 from snreg.errors import NodeFileError, UserError
 from snreg.nodes import read_nodes
 from snreg.registration import CONFIDENT, METHODS, register
+from snreg.registration.report import pair_rows
 from snreg.session import read_intraop_nodes
 
 __all__ = ["add_register_parser", "cmd_register"]
@@ -44,16 +45,10 @@ def cmd_register(args) -> int:
                           max_translation_mm=args.max_translation, seed=args.seed)
     except ValueError as err:
         raise UserError(str(err)) from None
-    nodes = []
-    for m in range(len(intraop)):
-        n = int(result.pairing[m])
-        nodes.append({"id": intraop.ids[m], "label": intraop.labels[m],
-                      "preop_id": preop.ids[n] if n >= 0 else None, "preop_label": preop.labels[n] if n >= 0 else None,
-                      "distance_mm": round(float(result.distances_mm[m]), 3),
-                      "confidence": round(float(result.confidence[m]), 4),
-                      "confident": bool(result.confidence[m] >= CONFIDENT)})
+    rows = pair_rows(preop, intraop, result)
     doc = {"method": result.method, "pairing_rule": result.pairing_rule, "rms_mm": result.rms_mm,
-           "confident_threshold": CONFIDENT, "intraop_from_preop": result.transform.tolist(), "nodes": nodes}
+           "confident_threshold": CONFIDENT, "intraop_from_preop": result.transform.tolist(),
+           "nodes": [row.as_json() for row in rows]}
     if args.output:
         Path(args.output).write_text(json.dumps(doc, indent=2), encoding="utf-8")
     if args.json:
@@ -61,8 +56,8 @@ def cmd_register(args) -> int:
         return 0
     print(f"method {result.method}, RMS {result.rms_mm:.2f} mm, pairing rule {result.pairing_rule}")
     print(f"{'intraop':<10} {'label':<10} {'preop':<10} {'label':<10} {'dist mm':>8} {'conf':>6}")
-    for node in nodes:
-        mark = "" if node["confident"] else "  (check)"
-        print(f"{node['id']:<10} {node['label']:<10} {node['preop_id'] or 'extra':<10} {node['preop_label'] or '':<10} "
-              f"{node['distance_mm']:>8.1f} {node['confidence']:>6.2f}{mark}")
+    for row in rows:
+        mark = "" if row.confident else "  (check)"
+        print(f"{row.intraop_id:<10} {row.intraop_label:<10} {row.preop_id:<10} {row.preop_label:<10} "
+              f"{row.distance_mm:>8.1f} {row.confidence:>6.2f}{mark}")
     return 0

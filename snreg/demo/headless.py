@@ -22,6 +22,7 @@ from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
+from snreg.registration.report import pair_table
 from snreg.session import Session
 from snreg.workflow.acquisition import Acquisition, ImuReading
 
@@ -49,14 +50,11 @@ class HeadlessResult:
 
     def to_json(self) -> dict:
         """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the API."""
-        nodes = []
-        for k, node_id in enumerate(self.intraop_ids):
-            paired = int(self.result.pairing[k])
-            nodes.append({"id": node_id, "label": self.intraop_labels[k],
-                          "xyz_trocar": [round(float(v), 3) for v in self.intraop_xyz[k]],
-                          "preop": self.preop_ids[paired] if paired >= 0 else None,
-                          "distance_mm": round(float(self.result.distances_mm[k]), 3),
-                          "confidence": round(float(self.result.confidence[k]), 4)})
+        rows = pair_table(self.result, self.preop_ids, self.intraop_ids, intraop_labels=self.intraop_labels)
+        nodes = [{"id": row.intraop_id, "label": row.intraop_label,
+                  "xyz_trocar": [round(float(v), 3) for v in self.intraop_xyz[k]],
+                  "preop": row.preop_id if row.paired else None, "distance_mm": round(row.distance_mm, 3),
+                  "confidence": round(row.confidence, 4)} for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
                 "frames": self.frames, "session": str(self.session_path), "spect": str(self.spect_path)}
@@ -85,7 +83,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             intraop = session.intraop_nodes()
             result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
                               intraop_labels=intraop.labels, initial=rough_alignment(preop.xyz, intraop.xyz), seed=seed)
-            session.add_registration(result)
+            session.add_registration(result, preop.ids, intraop.ids)
     finally:
         rig.close()
     truth = _true_pairing(preop.xyz, sources, tips, session.intraop_records())

@@ -49,6 +49,7 @@ class RegistrationResult:
     pairing_rule: str
     pairings: dict[str, np.ndarray] = field(default_factory=dict)
     score: float = float("nan")
+    initial: np.ndarray | None = None      # (4, 4) the rough intraop_from_preop the search started from
 
     @property
     def confident(self) -> np.ndarray:
@@ -102,7 +103,7 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     rms = float(np.sqrt(np.mean(distances[pairing >= 0] ** 2))) if np.any(pairing >= 0) else float("nan")
     return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
                               distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
-                              pairings=pairings, score=base.score)
+                              pairings=pairings, score=base.score, initial=problem.initial)
 
 
 def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,

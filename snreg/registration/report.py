@@ -23,8 +23,8 @@ from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, RegistrationResult
 
-__all__ = ["PairRow", "pair_rows", "mapped_preop", "summary_line", "write_pairs_csv", "registration_figure",
-           "save_report_png", "EXTRA", "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
+__all__ = ["PairRow", "pair_table", "pair_rows", "mapped_preop", "summary_line", "write_pairs_csv",
+           "registration_figure", "save_report_png", "EXTRA", "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
 
 EXTRA = "extra"                 # shown instead of a preop id for an intraop node judged extra (pairing -1)
 # The three orthogonal projections (name, horizontal axis, vertical axis): axial x-y, coronal x-z, sagittal y-z.
@@ -37,38 +37,60 @@ _CSV_COLUMNS = ("intraop_id", "intraop_label", "preop_id", "preop_label", "dista
 
 @dataclass(frozen=True)
 class PairRow:
-    """One intraop node and what it was paired with; ``preop_id`` is :data:`EXTRA` (label "") for pairing -1."""
+    """One intraop node and what it was paired with: ``preop_index`` into the preop set, -1 for a node judged extra,
+    whose ``preop_id`` is then :data:`EXTRA` and ``preop_label`` empty (screens, CSV) and null in JSON."""
 
     intraop_id: str
     intraop_label: str
+    preop_index: int
     preop_id: str
     preop_label: str
     distance_mm: float
     confidence: float
 
     @property
+    def paired(self) -> bool:
+        return self.preop_index >= 0
+
+    @property
     def confident(self) -> bool:
         return self.confidence >= CONFIDENT
 
+    def as_json(self) -> dict:
+        """The row for JSON output (``snreg register --json``): an extra node has ``preop_id`` and ``preop_label`` null."""
+        return {"id": self.intraop_id, "label": self.intraop_label,
+                "preop_id": self.preop_id if self.paired else None, "preop_label": self.preop_label if self.paired else None,
+                "distance_mm": round(self.distance_mm, 3), "confidence": round(self.confidence, 4),
+                "confident": self.confident}
 
-def _check(preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> None:
-    if len(result.pairing) != len(intraop):
-        raise ValueError(f"the result pairs {len(result.pairing)} intraop nodes but {len(intraop)} were given; "
+
+def pair_table(result: RegistrationResult, preop_ids, intraop_ids, preop_labels=None,
+               intraop_labels=None) -> list[PairRow]:
+    """One :class:`PairRow` per intraop node, in intraop order: the one place a pairing becomes a table.
+
+    ``preop_ids``/``intraop_ids`` (and the labels, "" when None) name the node sets the registration was run on;
+    ValueError when they cannot be (too few or too many names).
+    """
+    pairing = np.asarray(result.pairing, dtype=int)
+    if len(pairing) != len(intraop_ids):
+        raise ValueError(f"the result pairs {len(pairing)} intraop nodes but {len(intraop_ids)} were given; "
                          "use the node sets the registration was run on")
-    if len(result.pairing) and int(np.max(result.pairing)) >= len(preop):
-        raise ValueError(f"the result refers to preop node {int(np.max(result.pairing)) + 1} but only "
-                         f"{len(preop)} were given; use the node sets the registration was run on")
+    if len(pairing) and int(np.max(pairing)) >= len(preop_ids):
+        raise ValueError(f"the result refers to preop node {int(np.max(pairing)) + 1} but only "
+                         f"{len(preop_ids)} were given; use the node sets the registration was run on")
+    preop_labels = preop_labels if preop_labels is not None else [""] * len(preop_ids)
+    intraop_labels = intraop_labels if intraop_labels is not None else [""] * len(intraop_ids)
+    rows = []
+    for m, n in enumerate(pairing):
+        preop_id, preop_label = (EXTRA, "") if n < 0 else (preop_ids[n], preop_labels[n])
+        rows.append(PairRow(intraop_ids[m], intraop_labels[m], int(n), preop_id, preop_label,
+                            float(result.distances_mm[m]), float(result.confidence[m])))
+    return rows
 
 
 def pair_rows(preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> list[PairRow]:
-    """One :class:`PairRow` per intraop node, in intraop order."""
-    _check(preop, intraop, result)
-    rows = []
-    for m, n in enumerate(np.asarray(result.pairing, dtype=int)):
-        preop_id, preop_label = (EXTRA, "") if n < 0 else (preop.ids[n], preop.labels[n])
-        rows.append(PairRow(intraop.ids[m], intraop.labels[m], preop_id, preop_label,
-                            float(result.distances_mm[m]), float(result.confidence[m])))
-    return rows
+    """:func:`pair_table` of the node sets the registration was run on."""
+    return pair_table(result, preop.ids, intraop.ids, preop.labels, intraop.labels)
 
 
 def mapped_preop(preop: NodeSet, result: RegistrationResult) -> NodeSet:
@@ -96,7 +118,7 @@ def write_pairs_csv(path, preop: NodeSet, intraop: NodeSet, result: Registration
 
 def summary_line(result: RegistrationResult, rows: list[PairRow]) -> str:
     """One line: method, RMS, how many intraop nodes are paired and how many confidently."""
-    paired = sum(row.preop_id != EXTRA for row in rows)
+    paired = sum(row.paired for row in rows)
     confident = sum(row.confident for row in rows)
     return (f"{result.method}: RMS {result.rms_mm:.2f} mm, {paired} of {len(rows)} intraop nodes paired, "
             f"{confident} confident (>= {CONFIDENT:g})")

@@ -23,13 +23,14 @@ import h5py
 import numpy as np
 
 from snreg import __version__
+from snreg.chain import ChainCalibration
 from snreg.nodes import NodeSet
 from snreg.session import reader, writer
 from snreg.session.journal import Journal, journal_path, read_journal
-from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, jpeg_bytes,
-                                  position_mm, stereo_from_dict, stereo_to_dict, validate_case_id)
+from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, StoredRegistration,
+                                  jpeg_bytes, position_mm, stereo_from_dict, stereo_to_dict, validate_case_id)
 
-__all__ = ["Session", "SessionError", "IntraopNode", "read_intraop_nodes", "validate_case_id"]
+__all__ = ["Session", "SessionError", "IntraopNode", "StoredRegistration", "read_intraop_nodes", "validate_case_id"]
 
 
 def _serialised(method):
@@ -242,13 +243,23 @@ class Session:
         self._preop = data
 
     @_serialised
-    def add_registration(self, result) -> int:
-        """Store a :class:`~snreg.registration.RegistrationResult` as ``registration/<n>``; returns n."""
+    def add_registration(self, result, preop_ids, intraop_ids) -> int:
+        """Store a :class:`~snreg.registration.RegistrationResult` as ``registration/<n>`` with the ids of the preop
+        and intraop nodes it paired (so it stays readable after an undo or a re-segmentation) and the initial
+        alignment it started from; returns n."""
         self._writable()
+        preop_ids, intraop_ids = [str(i) for i in preop_ids], [str(i) for i in intraop_ids]
+        pairing = np.asarray(result.pairing, dtype=int)
+        if len(intraop_ids) != len(pairing) or int(pairing.max(initial=-1)) >= len(preop_ids):
+            raise SessionError(f"{self.path}: the registration pairs {len(pairing)} intraop nodes with preop indices "
+                               f"up to {int(pairing.max(initial=-1))}, but {len(intraop_ids)} intraop and "
+                               f"{len(preop_ids)} preop ids were given; give the ids of the node sets it was run on")
+        initial = getattr(result, "initial", None)
         data = {"n": len(self._registrations), "method": result.method, "rms_mm": float(result.rms_mm),
                 "pairing_rule": result.pairing_rule, "transform": np.asarray(result.transform).tolist(),
-                "pairing": np.asarray(result.pairing).tolist(), "distances_mm": np.asarray(result.distances_mm).tolist(),
-                "confidence": np.asarray(result.confidence).tolist()}
+                "pairing": pairing.tolist(), "distances_mm": np.asarray(result.distances_mm).tolist(),
+                "confidence": np.asarray(result.confidence).tolist(), "preop_ids": preop_ids,
+                "intraop_ids": intraop_ids, "initial": None if initial is None else np.asarray(initial).tolist()}
         self._journal.append("registration", data)
         writer.write_registration(self._h5, data)
         self._h5.flush()
@@ -303,7 +314,6 @@ class Session:
 
     def calibration(self) -> dict:
         """``{"stereo": StereoCalibration, "chain": ChainCalibration}`` for those stored."""
-        from snreg.chain import ChainCalibration
         out = {}
         if "stereo" in self._calibration:
             out["stereo"] = stereo_from_dict(self._calibration["stereo"])
@@ -311,12 +321,10 @@ class Session:
             out["chain"] = ChainCalibration.from_dict(self._calibration["chain"])
         return out
 
-    def registrations(self) -> list:
-        """Stored :class:`~snreg.registration.RegistrationResult` objects, in order."""
-        from snreg.registration import RegistrationResult
-        return [RegistrationResult(r["method"], np.asarray(r["transform"]), np.asarray(r["pairing"], dtype=int),
-                                   np.asarray(r["distances_mm"]), float(r["rms_mm"]), np.asarray(r["confidence"]),
-                                   r["pairing_rule"]) for r in self._registrations]
+    def registrations(self) -> list[StoredRegistration]:
+        """The stored registrations, in order: each :class:`~snreg.registration.RegistrationResult` with the ids of
+        the nodes it paired (None in files written before ids were stored)."""
+        return [StoredRegistration.from_json(r) for r in self._registrations]
 
     def stream(self, name: str):
         """The ``streams/<name>`` table, lazily (an h5py dataset); empty when the HDF5 file is unreadable."""

@@ -22,8 +22,8 @@ def session_info(path: str | Path) -> dict:
                 "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
                 "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
                 "calibration": sorted(session.calibration()),
-                "registrations": [{"n": n, "method": r.method, "rms_mm": r.rms_mm}
-                                  for n, r in enumerate(session.registrations())],
+                "registrations": [{"n": r.n, "method": r.result.method, "rms_mm": r.result.rms_mm}
+                                  for r in session.registrations()],
                 "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged}
 
 

@@ -12,7 +12,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from snreg.camera import StereoCalibration
 from snreg.errors import SessionError
+from snreg.registration import RegistrationResult
 
 FORMAT = "snreg-session"
 FORMAT_VERSION = 1
@@ -80,6 +82,26 @@ class IntraopNode:
                    bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]))
 
 
+@dataclass(frozen=True, eq=False)
+class StoredRegistration:
+    """A registration as the session keeps it: ``n`` (its number), the result, the ids of the preop and intraop nodes
+    it paired, in the order the result indexes them (None in files written before ids were stored)."""
+
+    n: int
+    result: RegistrationResult
+    preop_ids: list[str] | None
+    intraop_ids: list[str] | None
+
+    @classmethod
+    def from_json(cls, data: dict) -> "StoredRegistration":
+        initial = data.get("initial")
+        result = RegistrationResult(data["method"], np.asarray(data["transform"]), np.asarray(data["pairing"], dtype=int),
+                                    np.asarray(data["distances_mm"]), float(data["rms_mm"]),
+                                    np.asarray(data["confidence"]), data["pairing_rule"],
+                                    initial=None if initial is None else np.asarray(initial, dtype=float))
+        return cls(int(data["n"]), result, data.get("preop_ids"), data.get("intraop_ids"))
+
+
 def position_mm(value) -> np.ndarray:
     """A (3,) position in mm; :class:`SessionError` for anything else."""
     vec = np.asarray(value, dtype=float).reshape(-1)
@@ -113,7 +135,6 @@ def stereo_to_dict(calib) -> dict:
 
 def stereo_from_dict(data: dict):
     """Inverse of :func:`stereo_to_dict`."""
-    from snreg.camera import StereoCalibration
     data = dict(data)
     size = tuple(int(v) for v in data.pop("image_size"))
     return StereoCalibration(size, **{k: np.asarray(v) if isinstance(v, list) else v for k, v in data.items()})

@@ -23,7 +23,8 @@ import numpy as np
 
 from snreg.imu.fusion import Fusion
 from snreg.imu.protocol import DEFAULT_ODR_HZ
-from snreg.session import Session, SessionError
+from snreg.registration.report import PairRow, pair_table
+from snreg.session import Session, SessionError, StoredRegistration
 from snreg.session.reader import readable_rows
 
 __all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
@@ -82,19 +83,35 @@ class ReviewNode:
 
 @dataclass(frozen=True, eq=False)
 class ReviewRegistration:
-    """A stored registration and its pairing table, one row per intraop node it paired.
-
-    ``intraop_ids``/``preop_ids``: names of each row's nodes (``"#k"`` by index where the session's node
-    lists do not match the registration's length; ``""`` for a node judged extra); distances mm, confidence."""
+    """A stored registration and its pairing table (:func:`~snreg.registration.report.pair_table`), one row per
+    intraop node it paired, named by the ids stored with it (a file written before ids were stored: the session's
+    node lists when their lengths fit, else ``"#k"`` by index)."""
 
     n: int
     method: str
     rms_mm: float
-    n_paired: int
-    intraop_ids: list[str]
-    preop_ids: list[str]
-    distances_mm: np.ndarray
-    confidence: np.ndarray
+    rows: list[PairRow]
+
+    @property
+    def n_paired(self) -> int:
+        return sum(row.paired for row in self.rows)
+
+    @property
+    def intraop_ids(self) -> list[str]:
+        return [row.intraop_id for row in self.rows]
+
+    @property
+    def preop_ids(self) -> list[str]:
+        """The partner of each row (:data:`~snreg.registration.report.EXTRA` for a node judged extra)."""
+        return [row.preop_id for row in self.rows]
+
+    @property
+    def distances_mm(self) -> np.ndarray:
+        return np.array([row.distance_mm for row in self.rows])
+
+    @property
+    def confidence(self) -> np.ndarray:
+        return np.array([row.confidence for row in self.rows])
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,8 +168,7 @@ def load_review(path: str | Path) -> SessionReview:
         [ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
                     np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
                     _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg)) for r in records],
-        [_registration(n, result, node_ids, None if preop is None else preop.ids)
-         for n, result in enumerate(registrations)])
+        [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations])
 
 
 def frame_series(t_s: np.ndarray) -> FrameSeries:
@@ -209,10 +225,14 @@ def _decode_rgb(jpeg: bytes) -> np.ndarray | None:
     return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def _registration(n: int, result, intraop_ids: list[str], preop_ids: list[str] | None) -> ReviewRegistration:
+def _registration(stored: StoredRegistration, intraop_ids: list[str], preop_ids: list[str] | None) -> ReviewRegistration:
+    result = stored.result
     pairing = np.asarray(result.pairing, dtype=int)
-    rows = intraop_ids if len(intraop_ids) == len(pairing) else [f"#{k}" for k in range(len(pairing))]
-    names = preop_ids if preop_ids is not None and len(preop_ids) > pairing.max(initial=-1) else None
-    paired = ["" if k < 0 else (names[k] if names is not None else f"#{k}") for k in pairing]
-    return ReviewRegistration(n, result.method, float(result.rms_mm), int(np.sum(pairing >= 0)), list(rows), paired,
-                              np.asarray(result.distances_mm, dtype=float), np.asarray(result.confidence, dtype=float))
+    if stored.intraop_ids is None:          # written before ids were stored: the session's lists if they fit
+        intraop_ids = intraop_ids if len(intraop_ids) == len(pairing) else [f"#{k}" for k in range(len(pairing))]
+        fits = preop_ids is not None and len(preop_ids) > pairing.max(initial=-1)
+        preop_ids = preop_ids if fits else [f"#{k}" for k in range(int(pairing.max(initial=-1)) + 1)]
+    else:
+        intraop_ids, preop_ids = stored.intraop_ids, stored.preop_ids
+    return ReviewRegistration(stored.n, result.method, float(result.rms_mm),
+                              pair_table(result, preop_ids, intraop_ids))

@@ -81,10 +81,16 @@ def write_preop(h5: h5py.File, data: dict) -> None:
 
 
 def write_registration(h5: h5py.File, data: dict) -> None:
-    """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing, distances (mm), confidence; method, RMS."""
+    """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing, distances (mm), confidence, the ids of
+    the preop and intraop nodes paired, the initial alignment (4, 4) when known; method, RMS as attributes."""
     group = h5["registration"].create_group(str(data["n"]))
     for key in ("transform", "pairing", "distances_mm", "confidence"):
         group.create_dataset(key, data=np.asarray(data[key], dtype=int if key == "pairing" else float))
+    for key in ("preop_ids", "intraop_ids"):
+        if data.get(key) is not None:
+            group.create_dataset(key, data=np.array(data[key], dtype=object), dtype=_STR)
+    if data.get("initial") is not None:
+        group.create_dataset("initial", data=np.asarray(data["initial"], dtype=float))
     for key in ("method", "rms_mm", "pairing_rule"):
         group.attrs[key] = data[key]
 

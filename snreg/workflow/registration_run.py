@@ -62,7 +62,7 @@ def run_registration(request: RunRequest) -> RunRecord:
     try:
         if request.store_preop:
             request.session.set_preop_nodes(request.preop)
-        n = request.session.add_registration(result)
+        n = request.session.add_registration(result, request.preop.ids, request.intraop.ids)
     except SessionError:
         return RunRecord(request.preop, request.intraop, result,
                          "Review session: the result is shown but not stored (the file is open for reading).")

@@ -44,6 +44,17 @@ def _same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
     return a is not None and b is not None and a.ids == b.ids and np.allclose(a.xyz, b.xyz)
 
 
+def _made_from(stored, preop: NodeSet, intraop: NodeSet | None) -> bool:
+    """Whether a stored registration paired these very node sets (by their ids; by their counts in files written
+    before ids were stored)."""
+    if intraop is None:
+        return False
+    if stored.intraop_ids is not None:
+        return stored.preop_ids == preop.ids and stored.intraop_ids == intraop.ids
+    pairing = stored.result.pairing
+    return len(pairing) == len(intraop) and int(np.max(pairing, initial=-1)) < len(preop)
+
+
 def _has_nodes(nodes: NodeSet | None) -> bool:
     return nodes is not None and len(nodes) > 0
 
@@ -179,10 +190,8 @@ class RegistrationPanel(QWidget):
         self.refresh_intraop()
         stored = session.registrations()
         latest = stored[-1] if stored else None
-        if latest is not None and preop is not None and len(latest.pairing) == len(self._intraop) \
-                and int(np.max(latest.pairing, initial=-1)) < len(preop):
-            note = f"Registration {len(stored) - 1} from the session."
-            self._show_record(RunRecord(preop, self._intraop, latest, note))
+        if latest is not None and preop is not None and _made_from(latest, preop, self._intraop):
+            self._show_record(RunRecord(preop, self._intraop, latest.result, f"Registration {latest.n} from the session."))
 
     def refresh_intraop(self, *_) -> None:
         """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""

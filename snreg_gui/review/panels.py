@@ -139,6 +139,5 @@ class StoredRegistrations(QWidget):
             fill_table(self.pairs, [])
             return
         reg = self._registrations[rows[0].row()]
-        fill_table(self.pairs, [[intraop, preop or "extra (unpaired)", _number(d, 2), _number(c, 2)]
-                                for intraop, preop, d, c in zip(reg.intraop_ids, reg.preop_ids, reg.distances_mm,
-                                                                reg.confidence)])
+        fill_table(self.pairs, [[row.intraop_id, row.preop_id, _number(row.distance_mm, 2), _number(row.confidence, 2)]
+                                for row in reg.rows])
