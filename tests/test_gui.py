@@ -1,8 +1,10 @@
 """The app starts offscreen (pytest-qt), with and without the demo rig."""
 
+import numpy as np
 from PySide6.QtWidgets import QLabel
 
 from snreg_gui.app import MainWindow
+from snreg_gui.common.feed_view import FeedView
 
 
 def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
@@ -50,3 +52,30 @@ def test_painting_does_not_run_down_the_reference_count_of_none(qtbot):
         painter.setPen(QColor("red"))
     painter.end()
     assert sys.getrefcount(None) >= before - 10
+
+
+def test_the_feed_view_paints_the_frame_and_its_layers(qtbot):
+    view = FeedView("left")
+    qtbot.addWidget(view)
+    view.resize(400, 225)
+    frame = np.full((90, 160, 3), 40, np.uint8)
+    view.show_frame(frame)
+    scale = 400 / 160                                         # the frame fills the widget: same aspect
+
+    def pixel(x, y):                                          # image pixel (x, y) as painted, RGB
+        colour = view.grab().toImage().pixelColor(int((x + 0.5) * scale), int((y + 0.5) * scale))
+        return colour.red(), colour.green(), colour.blue()
+
+    assert pixel(80, 45) == (40, 40, 40) and view.frame is frame and view.image_size == (160, 90)
+    view.show_points(np.array([[20.0, 20.0], [120.0, 60.0]]))
+    red, green, _ = pixel(20, 20)
+    assert red > 200 and green < 100                         # the first point in red
+    red, green, _ = pixel(120, 60)
+    assert green > 200 and red < 50                           # the others in green
+    view.show_heat(np.dstack([np.zeros((2, 2, 2), np.uint8), np.full((2, 2), 255, np.uint8),
+                              np.array([[255, 0], [0, 0]], np.uint8)]))
+    assert pixel(140, 70)[2] == 40 and pixel(5, 80)[2] == 40  # transparent cells leave the frame alone
+    view.show_points(None)
+    assert pixel(20, 20)[2] > 200                             # an opaque cell covers its quarter of the frame
+    view.clear("left: no snapshot")
+    assert view.frame is None and view.title == "left: no snapshot" and pixel(80, 45) == (0, 0, 0)

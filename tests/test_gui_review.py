@@ -65,9 +65,9 @@ def test_selecting_a_node_shows_its_snapshots_and_moves_the_cursor(qtbot, screen
     for row in (1, 2):
         _click_row(qtbot, screen.node_table, row)
         left, right = truth.snapshot_shapes[row]
-        assert screen.snapshots.left_image.image.shape == left
-        assert screen.snapshots.right_image.image.shape == right
-        assert screen.snapshots.left_image.image.reshape(-1, 3).mean(0) == pytest.approx([255, 0, 0], abs=3)
+        assert screen.snapshots.left_view.frame.shape == left
+        assert screen.snapshots.right_view.frame.shape == right
+        assert screen.snapshots.left_view.frame.reshape(-1, 3).mean(0) == pytest.approx([255, 0, 0], abs=3)
         for cursor in screen.timelines.cursors:
             assert cursor.isVisible() and cursor.value() == pytest.approx(truth.node_times_s[row])
 

@@ -1,8 +1,9 @@
-"""One camera feed with the probe overlay: the image, the tip, the axis and the depth in mm.
+"""The one widget that shows a camera image: the frame with what lies on it (probe, board corners, coverage, a message).
 
 Why: at video rate the GUI thread must stay cheap. A pyqtgraph view re-enters Python for every item it
 paints (view box, image, markers, text), each time waiting for the GIL the tracking worker holds; this
-widget paints the image and the overlay in one call with QPainter, from pixels the worker has projected.
+widget paints the image and everything on it in one call with QPainter, from pixels the worker computed.
+The acquisition feeds, the wizards' feeds and the review's snapshots all use it.
 """
 
 from __future__ import annotations
@@ -13,10 +14,14 @@ from PySide6.QtGui import QColor, QImage, QPainter, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 _TIP_COLOUR = QColor(255, 220, 0)
+_POINT_COLOUR, _FIRST_POINT_COLOUR = QColor(0, 230, 90), QColor(255, 60, 60)
+_MESSAGE_COLOUR = QColor(255, 90, 90)
 
 
 class FeedView(QWidget):
-    """A titled image, scaled to fit with its aspect kept, with a tip marker, an axis line and a depth label."""
+    """A titled RGB image, scaled to fit with its aspect kept, and optional layers on it, in image pixels:
+    the probe (tip marker, axis line, depth label), points (the first one highlighted), an RGBA heat map
+    stretched over the whole image, and a message in the middle."""
 
     def __init__(self, title: str):
         super().__init__()
@@ -25,17 +30,53 @@ class FeedView(QWidget):
         self._image: QImage | None = None
         self._overlay: np.ndarray | None = None
         self._depth_mm: float | None = None
+        self._points: np.ndarray | None = None
+        self._heat: np.ndarray | None = None
+        self._heat_image: QImage | None = None
+        self.message = ""
         self.setMinimumSize(240, 135)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.setAttribute(Qt.WidgetAttribute.WA_OpaquePaintEvent)
 
-    def show_frame(self, rgb: np.ndarray, overlay: np.ndarray | None, depth_mm: float | None) -> None:
+    def show_frame(self, rgb: np.ndarray, overlay: np.ndarray | None = None, depth_mm: float | None = None) -> None:
         """Show an RGB (H, W, 3) uint8 frame; ``overlay`` (2, 2) is the tip and an axis point in its pixels, None to hide."""
         self._rgb = np.ascontiguousarray(rgb)
         height, width = self._rgb.shape[:2]
         self._image = QImage(self._rgb.data, width, height, 3 * width, QImage.Format.Format_RGB888)
         self._overlay, self._depth_mm = overlay, depth_mm
         self.update()
+
+    def show_points(self, points: np.ndarray | None) -> None:
+        """Mark points (N, 2) in the frame's pixels (the first in red), None to hide."""
+        self._points = None if points is None else np.asarray(points, dtype=float).reshape(-1, 2)
+        self.update()
+
+    def show_heat(self, rgba: np.ndarray | None) -> None:
+        """Lay an RGBA (h, w, 4) uint8 map over the whole frame (each cell stretched), None to hide."""
+        self._heat = None if rgba is None else np.ascontiguousarray(rgba, dtype=np.uint8)
+        self._heat_image = None if self._heat is None else QImage(
+            self._heat.data, self._heat.shape[1], self._heat.shape[0], 4 * self._heat.shape[1],
+            QImage.Format.Format_RGBA8888)
+        self.update()
+
+    def show_message(self, text: str) -> None:
+        """A short message in the middle of the frame ("" to hide)."""
+        self.message = text
+        self.update()
+
+    def clear(self, title: str | None = None) -> None:
+        """Show no frame (and nothing on it); ``title`` replaces the caption if given."""
+        self._rgb = self._image = self._overlay = self._points = None
+        self.show_heat(None)
+        self.message = ""
+        if title is not None:
+            self.title = title
+        self.update()
+
+    @property
+    def frame(self) -> np.ndarray | None:
+        """The RGB frame shown, None when there is none."""
+        return self._rgb
 
     @property
     def image_size(self) -> tuple[int, int] | None:
@@ -54,15 +95,36 @@ class FeedView(QWidget):
         if self._image is not None:
             target = self._target()
             painter.drawImage(target, self._image)
+            if self._heat_image is not None:
+                painter.drawImage(target, self._heat_image)
+            scale = target.width() / self._image.width()
+            if self._points is not None and len(self._points):
+                self._paint_points(painter, target, scale)
             if self._overlay is not None:
-                self._paint_overlay(painter, target)
+                self._paint_overlay(painter, target, scale)
+            if self.message:
+                painter.setPen(_MESSAGE_COLOUR)
+                painter.drawText(target, Qt.AlignmentFlag.AlignCenter, self.message)
         painter.setPen(Qt.GlobalColor.white)
         painter.drawText(QPointF(6, 16), self.title)
         painter.end()
 
-    def _paint_overlay(self, painter: QPainter, target: QRectF) -> None:
-        scale = target.width() / self._image.width()
-        tip, up = (QPointF(target.x() + x * scale, target.y() + y * scale) for x, y in self._overlay)
+    @staticmethod
+    def _at(target: QRectF, scale: float, x: float, y: float) -> QPointF:
+        """Widget position of image pixel coordinates (pixel centres at whole numbers)."""
+        return QPointF(target.x() + (x + 0.5) * scale, target.y() + (y + 0.5) * scale)
+
+    def _paint_points(self, painter: QPainter, target: QRectF, scale: float) -> None:
+        painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+        painter.setPen(Qt.PenStyle.NoPen)
+        painter.setBrush(_POINT_COLOUR)
+        for x, y in self._points[1:]:
+            painter.drawEllipse(self._at(target, scale, x, y), 2.0, 2.0)
+        painter.setBrush(_FIRST_POINT_COLOUR)
+        painter.drawEllipse(self._at(target, scale, *self._points[0]), 4.5, 4.5)
+
+    def _paint_overlay(self, painter: QPainter, target: QRectF, scale: float) -> None:
+        tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
         painter.setRenderHint(QPainter.RenderHint.Antialiasing)
         painter.setPen(QPen(_TIP_COLOUR, 2))
         painter.drawLine(tip, up)

@@ -14,11 +14,11 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-import pyqtgraph as pg
-from PySide6.QtWidgets import (QAbstractItemView, QHeaderView, QLabel, QTableWidget, QTableWidgetItem, QVBoxLayout,
-                               QWidget)
+from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel, QTableWidget, QTableWidgetItem,
+                               QVBoxLayout, QWidget)
 
 from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
+from snreg_gui.common.feed_view import FeedView
 
 NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "spread (mm)", "frames",
                 "counts")
@@ -83,29 +83,25 @@ def _number(value: float, decimals: int) -> str:
     return "" if math.isnan(value) else f"{value:.{decimals}f}"
 
 
-class SnapshotPair(pg.GraphicsLayoutWidget):
-    """The left and right snapshots of one node, RGB (H, W, 3), each fitted to its half; a caption says when none."""
+class SnapshotPair(QWidget):
+    """The left and right snapshots of one node, RGB (H, W, 3), side by side; each caption says its size or that
+    there is none."""
 
     def __init__(self):
         super().__init__()
-        self.captions, self.images = [], []
-        for col, side in enumerate(("left", "right")):
-            self.captions.append(self.addLabel(side, row=0, col=col))
-            view = self.addViewBox(row=1, col=col, lockAspect=True, invertY=True, enableMouse=False)
-            image = pg.ImageItem(axisOrder="row-major", levels=(0, 255))
-            view.addItem(image)
-            self.images.append(image)
-        self.left_image, self.right_image = self.images
+        self.left_view, self.right_view = FeedView("left"), FeedView("right")
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.left_view)
+        layout.addWidget(self.right_view)
 
     def show_pair(self, left_rgb: np.ndarray | None, right_rgb: np.ndarray | None) -> None:
-        for side, caption, image, rgb in zip(("left", "right"), self.captions, self.images, (left_rgb, right_rgb)):
+        for side, view, rgb in (("left", self.left_view, left_rgb), ("right", self.right_view, right_rgb)):
             if rgb is None:
-                image.clear()
-                caption.setText(f"{side}: no snapshot")
+                view.clear(f"{side}: no snapshot")
                 continue
-            image.setImage(rgb, autoLevels=False)
-            image.getViewBox().autoRange(padding=0)
-            caption.setText(f"{side} ({rgb.shape[1]} x {rgb.shape[0]})")
+            view.title = f"{side} ({rgb.shape[1]} x {rgb.shape[0]})"
+            view.show_frame(rgb)
 
 
 class StoredRegistrations(QWidget):

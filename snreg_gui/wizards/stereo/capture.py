@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QRectF, Qt
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QCheckBox, QGridLayout, QHBoxLayout, QLabel, QPushButton, QVBoxLayout, QWizardPage
 
 from snreg.calibration.checkerboard import Board
@@ -22,21 +22,21 @@ from snreg.calibration.coverage import Coverage, coverage_map, is_still, similar
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.sources import FrameSource
 from snreg.workflow.stereo_capture import LiveBoardFeed, LiveView
+from snreg_gui.common.feed_view import FeedView
 from snreg_gui.common.workers import Worker
 
 STILL_FRAMES = 6                 # auto-capture once the board was found still in this many frames running
-_CORNER_COLOUR = (0, 230, 90)
-_FIRST_CORNER_COLOUR = (255, 60, 60)
-_MESSAGE_COLOUR = (255, 90, 90)
 _HEAT_ALPHA = 120
+_HEAT_LUT = pg.colormap.get("viridis").getLookupTable(0.0, 1.0, 256, alpha=False)   # (256, 3) RGB
 
 
-def _heat_lut() -> np.ndarray:
-    """(256, 4) RGBA lookup table: transparent for no corners, then viridis, half see-through."""
-    lut = pg.colormap.get("viridis").getLookupTable(0.0, 1.0, 256, alpha=True)
-    lut[:, 3] = _HEAT_ALPHA
-    lut[0, 3] = 0
-    return lut
+def heat_rgba(counts: np.ndarray) -> np.ndarray:
+    """(rows, cols, 4) RGBA of corner counts: transparent where none, then viridis, half see-through."""
+    level = np.round(255.0 * counts / max(1, counts.max())).astype(int)
+    rgba = np.zeros(counts.shape + (4,), np.uint8)
+    rgba[..., :3] = _HEAT_LUT[level]
+    rgba[..., 3] = np.where(counts > 0, _HEAT_ALPHA, 0)
+    return rgba
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,44 +54,23 @@ class CapturedView:
         return np.vstack([self.left_corners, self.right_corners])
 
 
-class BoardFeedView(pg.GraphicsLayoutWidget):
-    """A titled, y-down feed with the found corners (corner 0 in red), a message, and a coverage heat map on top."""
+class BoardFeedView(FeedView):
+    """A feed with the found corners (corner 0 in red), a message when there are none, and the coverage heat map."""
 
     def __init__(self, title: str):
-        super().__init__()
-        self.addLabel(title, row=0, col=0)
-        self.view = self.addViewBox(row=1, col=0, lockAspect=True, invertY=True, enableMouse=False)
-        self.image = pg.ImageItem(levels=(0, 255))
-        self.heat = pg.ImageItem(lut=_heat_lut())
-        self.corners = pg.PlotDataItem(pen=pg.mkPen(_CORNER_COLOUR, width=1), symbol="o", symbolSize=4,
-                                       symbolBrush=pg.mkBrush(*_CORNER_COLOUR), symbolPen=None)
-        self.first_corner = pg.ScatterPlotItem(size=9, brush=pg.mkBrush(*_FIRST_CORNER_COLOUR), pen=pg.mkPen("k"))
-        self.message = pg.TextItem(color=_MESSAGE_COLOUR, anchor=(0.5, 0.5))
-        for z, item in enumerate((self.image, self.heat, self.corners, self.first_corner, self.message)):
-            item.setZValue(z)
-            self.view.addItem(item)
-        self._extent: QRectF | None = None
+        super().__init__(title)
+        self.heat_counts: np.ndarray | None = None
 
     def show_view(self, rgb: np.ndarray, corners: np.ndarray | None, message: str) -> None:
         """Show an RGB frame with ``corners`` (N, 2) in its pixels, or ``message`` when there are none."""
-        self.image.setImage(rgb, autoLevels=False)
-        if self._extent is None:
-            self._extent = QRectF(0, 0, rgb.shape[1], rgb.shape[0])
-            self.view.setRange(self._extent, padding=0)      # not autoRange: text bounds are NaN before layout
-            self.message.setPos(rgb.shape[1] / 2, rgb.shape[0] / 2)
-        if corners is None:
-            self.corners.setData([], [])
-            self.first_corner.setData([], [])
-        else:
-            self.corners.setData(corners[:, 0], corners[:, 1])
-            self.first_corner.setData([corners[0, 0]], [corners[0, 1]])
-        self.message.setText(message)
+        self.show_frame(rgb)
+        self.show_points(corners)
+        self.show_message(message)
 
     def show_coverage(self, counts: np.ndarray) -> None:
-        """Lay the (rows, cols) corner counts over the whole frame (only once a frame has been shown)."""
-        self.heat.setImage(counts.astype(np.float32), levels=(0.0, float(max(1, counts.max()))), autoLevels=False)
-        if self._extent is not None:
-            self.heat.setRect(self._extent)
+        """Lay the (rows, cols) corner counts over the whole frame."""
+        self.heat_counts = np.array(counts)
+        self.show_heat(heat_rgba(self.heat_counts))
 
 
 class CapturePage(QWizardPage):
