@@ -212,3 +212,20 @@ def test_tuning_parameters_are_keyword_only(pelvic_nodes):
     xyz, labels = pelvic_nodes
     with pytest.raises(TypeError):
         register(xyz, xyz, "global", labels, labels)
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda p, q, k: (np.vstack([p] * 9), q, k), "at most 50 preop nodes"),
+    (lambda p, q, k: (p, q * 1e300, k), "coordinates reach"),
+    (lambda p, q, k: (p, q, k | {"initial": np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 0]])}),
+     "last row must be 0 0 0 1"),
+    (lambda p, q, k: (p, q, k | {"initial": np.diag([1.0, 1, 1, 1]) + np.eye(4, k=3) * 1e9}), "translation"),
+    (lambda p, q, k: (p, q, k | {"max_rotation_deg": float("nan")}), "max_rotation_deg must lie in (0, 180]"),
+    (lambda p, q, k: (p, q, k | {"max_translation_mm": float("inf")}), "positive and finite"),
+])
+def test_inputs_beyond_what_registration_handles_are_refused_up_front(pelvic_nodes, change, words):
+    xyz, _ = pelvic_nodes
+    preop, intraop, kwargs = change(xyz, xyz + 1.0, {})
+    with pytest.raises(ValueError) as raised:
+        register(preop, intraop, **kwargs)
+    assert words in str(raised.value)

@@ -57,6 +57,10 @@ class Problem:
         return 0.5 * (2.0 * angle / self.max_rotation_deg) ** 2 + 0.5 * (2.0 * shift / self.max_translation_mm) ** 2
 
 
+MAX_NODES = 50                 # per node set: the hypothesis search and the confidence grow with N * M * hypotheses
+MAX_COORDINATE_MM = 1e5        # 100 m: anything larger is a unit or parsing error, and overflows the fits
+
+
 def _as_points(name: str, value, minimum: int) -> np.ndarray:
     try:
         points = np.asarray(value, dtype=float)
@@ -68,6 +72,12 @@ def _as_points(name: str, value, minimum: int) -> np.ndarray:
         raise ValueError(f"{name} nodes contain NaN or infinite coordinates; remove or re-measure those nodes")
     if len(points) < minimum:
         raise ValueError(f"registration needs at least {minimum} {name} nodes; got {len(points)}")
+    if len(points) > MAX_NODES:
+        raise ValueError(f"registration handles at most {MAX_NODES} {name} nodes (sentinel nodes number a few to a few "
+                         f"tens); got {len(points)}: pass the sentinel nodes only")
+    if np.abs(points).max() > MAX_COORDINATE_MM:
+        raise ValueError(f"{name} node coordinates reach {np.abs(points).max():.3g} mm; positions must be in mm "
+                         f"within {MAX_COORDINATE_MM:.0e} mm of the origin: check the units of the node file")
     return points
 
 
@@ -84,11 +94,17 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
     rot = initial[:3, :3]
     if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
         raise ValueError("initial must be a rigid transform: its 3x3 part is not a rotation")
+    if not np.allclose(initial[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError("initial must be a rigid transform: its last row must be 0 0 0 1")
+    if np.abs(initial[:3, 3]).max() > MAX_COORDINATE_MM:
+        raise ValueError(f"initial moves the preop nodes by {np.abs(initial[:3, 3]).max():.3g} mm; its translation "
+                         "must be in mm and within reach of the intraop nodes")
     for name, labels, n in (("preop", preop_labels, len(preop)), ("intraop", intraop_labels, len(intraop))):
         if labels is not None and len(labels) != n:
             raise ValueError(f"{name}_labels has {len(labels)} labels for {n} {name} nodes")
-    if not (max_rotation_deg > 0 and max_translation_mm > 0):
-        raise ValueError("max_rotation_deg and max_translation_mm must be positive")
+    if not (0 < max_rotation_deg <= 180 and 0 < max_translation_mm < np.inf):
+        raise ValueError(f"max_rotation_deg must lie in (0, 180] and max_translation_mm be positive and finite; got "
+                         f"{max_rotation_deg} and {max_translation_mm}")
     return Problem(
         preop=geometry.apply(initial, preop),
         intraop=intraop,
