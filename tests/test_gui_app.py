@@ -45,9 +45,9 @@ def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, s
     first.open_for_review(str(path))
     qtbot.waitSignal(first.review.loaded, timeout=10_000)
     assert first.tabs.currentWidget() is first.review
-    first.resize(734, 577)
-    remembered = (first.width(), first.height())           # the width stops at the window's minimum
-    assert remembered[1] == 577
+    first.resize(first.minimumWidth(), 640)                 # within the offscreen screen (800x800) and a 1024x700 one
+    remembered = (first.width(), first.height())
+    assert remembered[1] == 640
     first.shutdown()
 
     second = MainWindow(settings=settings)
