@@ -8,7 +8,7 @@ All but :class:`UserError` are ``ValueError``s, so code that validates input may
 from __future__ import annotations
 
 __all__ = ["UserError", "NodeFileError", "CalibrationFileError", "SourceError", "ImuPortError", "PreopError",
-           "SessionError", "TrackingError", "StoreError"]
+           "SessionError", "TrackingError", "StoreError", "NoFitError"]
 
 
 class UserError(Exception):
@@ -45,3 +45,7 @@ class TrackingError(ValueError):
 
 class StoreError(ValueError):
     """A node that cannot be stored now; the message says what to do."""
+
+
+class NoFitError(ValueError):
+    """No pairing of the node sets fits within the registration's bounds; the message names what to change."""

@@ -125,3 +125,51 @@ def test_register_takes_an_initial_alignment_file(node_files, tmp_path, capsys):
     (tmp_path / "bad.json").write_text(json.dumps([[1, 0], [0, 1]]))
     assert main(["register", str(preop), str(intraop), "--initial", str(tmp_path / "bad.json")]) == 2
     assert "must be 4x4" in capsys.readouterr().err
+
+
+def _session_with_a_far_pose(path, pelvic_nodes):
+    """A session whose intraop nodes are turned 120 degrees from the preop frame, with a registration that started
+    from a rough alignment (as the app stores it)."""
+    from snreg.registration import register
+    from snreg.session import Session
+
+    xyz, labels = pelvic_nodes
+    far = geometry.transform_from_euler(120.0, 10.0, -5.0, [40.0, -20.0, 30.0])
+    rough = far @ geometry.transform_from_euler(12.0, -6.0, 4.0, [6.0, 4.0, -3.0])
+    preop = NodeSet.from_xyz(xyz, labels, prefix="P")
+    with Session.create(path, case_id="phantom-02") as session:
+        session.set_preop_nodes(preop)
+        for k in [0, 1, 2, 4, 5]:                                  # P4 not found yet
+            session.add_intraop_node(f"SN{k + 1}", labels[k], geometry.apply(far, xyz[k:k + 1])[0])
+        intraop = session.intraop_nodes()
+        session.add_registration(register(xyz, intraop.xyz, initial=rough), preop.ids, intraop.ids)
+    return far
+
+
+def test_register_a_session_alone_reuses_its_initial_alignment_and_names_missing_nodes(tmp_path, capsys, pelvic_nodes):
+    far = _session_with_a_far_pose(tmp_path / "s.h5", pelvic_nodes)
+    assert main(["register", str(tmp_path / "s.h5"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [n["preop_id"] for n in doc["nodes"]] == ["P1", "P2", "P3", "P5", "P6"]
+    assert [m["preop_id"] for m in doc["missing"]] == ["P4"]
+    expected = geometry.apply(far, pelvic_nodes[0][3:4])[0]
+    assert np.linalg.norm(np.asarray(doc["missing"][0]["mapped_xyz"]) - expected) < 1e-3
+    assert all(n["leave_one_out_mm"] is not None for n in doc["nodes"])
+    # the exported files register the same way with --initial taken from the session
+    assert main(["session", "export", str(tmp_path / "s.h5"), "--format", "csv", "-o", str(tmp_path / "nodes.csv")]) == 0
+    capsys.readouterr()
+    xyz, labels = pelvic_nodes
+    preop_csv, intraop_csv = tmp_path / "preop.csv", tmp_path / "nodes.csv"
+    write_nodes(NodeSet.from_xyz(xyz, labels, prefix="P"), preop_csv)
+    assert main(["register", str(preop_csv), str(intraop_csv)]) == 2              # 120 degrees from identity
+    assert "--initial" in capsys.readouterr().err
+    assert main(["register", str(preop_csv), str(intraop_csv), "--initial", str(tmp_path / "s.h5"), "--json"]) == 0
+    assert [n["preop_id"] for n in json.loads(capsys.readouterr().out)["nodes"]] == ["P1", "P2", "P3", "P5", "P6"]
+
+
+def test_register_refuses_when_no_pairing_fits_the_bounds(tmp_path, capsys, pelvic_nodes):
+    _session_with_a_far_pose(tmp_path / "s.h5", pelvic_nodes)
+    (tmp_path / "identity.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+    assert main(["register", str(tmp_path / "s.h5"), "--initial", str(tmp_path / "identity.txt")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--initial" in err and "--labels" in err and "--max-rotation" in err

@@ -32,7 +32,7 @@ def _record(path, rng, pelvic_nodes):
         for k in range(3):
             s.add_intraop_node(f"SN{k + 1}", labels[k], xyz[k] + 1.0, xyz_camera=xyz[k], spread_mm=0.4 + k,
                                n_frames=30, counts=100.0 * k, left_jpeg=_image(rng), right_jpeg=_image(rng))
-        s.add_registration(register(xyz, xyz[:3] + 1.0, method="icp"), [f"SN{k + 1}" for k in range(len(xyz))],
+        s.add_registration(register(xyz, xyz[:3] + 1.0, method="cpd"), [f"SN{k + 1}" for k in range(len(xyz))],
                            ["SN1", "SN2", "SN3"])
         t = np.arange(2080, dtype=np.int64) * 4_807_692
         s.append_imu(t, t // 1000, rng.normal(size=(2080, 3)), rng.normal(size=(2080, 3)))
@@ -64,7 +64,9 @@ def test_round_trip(tmp_path, rng, pelvic_nodes):
         np.testing.assert_allclose(calib["chain"].imu_from_camera, ChainCalibration.manual().imu_from_camera)
         assert s.preop_nodes().labels == labels
         (reg,) = s.registrations()
-        assert reg.result.method == "icp" and reg.result.transform.shape == (4, 4) and len(reg.result.pairing) == 3
+        assert reg.result.method == "cpd" and reg.result.transform.shape == (4, 4) and len(reg.result.pairing) == 3
+        np.testing.assert_array_equal(reg.result.missing, [False] * 3 + [True] * 3)     # 3 of 6 found so far
+        assert reg.result.target_error_mm.shape == (6,) and reg.result.leave_one_out_mm.shape == (3,)
         assert reg.intraop_ids == ["SN1", "SN2", "SN3"] and reg.preop_ids == [f"SN{k + 1}" for k in range(6)]
         np.testing.assert_array_equal(reg.result.initial, np.eye(4))
         imu = s.stream("imu")

@@ -91,7 +91,7 @@ def test_small_study_is_reproducible_and_reports(tmp_path):
     assert len(study.rows) == 3 * 2 * 2 * 2 * 2
     parallel = run_study(patients, StudyConfig(**{**config.__dict__, "workers": 2}), progress=False)
     assert [r["success"] for r in parallel.rows] == [r["success"] for r in study.rows]
-    assert [r["rms_mm"] for r in parallel.rows] == [r["rms_mm"] for r in study.rows]
+    np.testing.assert_array_equal([r["rms_mm"] for r in parallel.rows], [r["rms_mm"] for r in study.rows])
     paths = write_report(study, tmp_path, "snreg simulate --reps 2")
     text = paths["markdown"].read_text()
     assert "Table 6 analogue" in text and "| 2 | 12 |" in text and "global - best oracle" in text
@@ -114,3 +114,24 @@ def test_intraop_labels_keep_the_side_and_sometimes_miss_the_station():
                 same += pre[0] == intra[0]
                 total += 1
     assert 0.6 < same / total < 0.8    # STATION_ERROR = 0.3
+
+
+def test_a_study_with_missing_nodes_reports_them_per_count_with_coverage_and_the_incremental_scenario(tmp_path):
+    patients = [p for p in synthetic_cohort() if len(p.nodes) >= 5][:2]
+    config = StudyConfig(methods=("global",), sigmas=(5.0,), extras=(0, 1), reps=1, seed=4, workers=1, missing=(0, 1))
+    study = run_study(patients, config, progress=False)
+    assert sorted({r["n_missing"] for r in study.rows}) == [0, 1]
+    claims = study.claims["global"]
+    expected_claims = sum(len(p.nodes) - k + e for p in patients for k in (0, 1) for e in (0, 1))
+    assert len(claims["confidence"]) == expected_claims and claims["extra"].sum() == 2 * 2
+    bounds = study.bounds["global"]
+    assert len(bounds["bound_mm"]) == 2 * 2 and np.all(bounds["bound_mm"] > 0)    # one left out per trial with missing
+    stored = {(r["patient"], r["stored"]) for r in study.incremental}
+    assert {s for _, s in stored} == set(range(3, max(len(p.nodes) for p in patients) + 1))   # rep 0: extras[0] = 0
+    text = write_report(study, tmp_path, "snreg simulate --missing 0,1")["markdown"].read_text()
+    for heading in ("With SPECT nodes not found", "target-error bound coverage", "Incremental", "Claims of every"):
+        assert heading in text
+    # the thesis protocol alone (missing 0) has no incremental scenario and Table 6 counts only its trials
+    plain = run_study(patients, StudyConfig(**{**config.__dict__, "missing": (0,)}), progress=False)
+    assert plain.incremental == [] and "Incremental" not in write_report(plain, tmp_path / "plain")["markdown"].read_text()
+    assert [r["success"] for r in plain.rows] == [r["success"] for r in study.rows if r["n_missing"] == 0]

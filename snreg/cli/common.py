@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snreg.errors import UserError
+from snreg.errors import SessionError, UserError
 
 __all__ = ["floats", "ints", "read_initial"]
 
@@ -30,9 +30,12 @@ def ints(text: str) -> tuple[int, ...]:
 
 
 def read_initial(path: str | None) -> np.ndarray | None:
-    """A 4x4 ``intraop_from_preop`` from a text or JSON file (``{"transform": ...}`` or a bare matrix); None if no path."""
+    """A 4x4 ``intraop_from_preop`` from a text or JSON file (``{"transform": ...}`` or a bare matrix), or the initial
+    alignment stored with a session's last registration (``.h5``); None if no path."""
     if path is None:
         return None
+    if Path(path).suffix.lower() in (".h5", ".hdf5"):
+        return session_initial(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
         data = json.loads(text) if path.endswith(".json") else np.loadtxt(path, delimiter=None if "," not in text else ",")
@@ -42,3 +45,17 @@ def read_initial(path: str | None) -> np.ndarray | None:
     if matrix.shape != (4, 4):
         raise UserError(f"{path}: the initial transform must be 4x4, got shape {matrix.shape}")
     return matrix
+
+
+def session_initial(path: str) -> np.ndarray:
+    """The initial alignment stored with the session's last registration that kept one."""
+    from snreg.session import Session  # h5py only when a session is read
+    try:
+        with Session.open(path) as session:
+            stored = [r.result.initial for r in session.registrations() if r.result.initial is not None]
+    except (SessionError, OSError) as err:
+        raise UserError(str(err)) from None
+    if not stored:
+        raise UserError(f"{path}: no registration in this session kept its initial alignment; give --initial as a "
+                        "4x4 text or JSON file")
+    return stored[-1]

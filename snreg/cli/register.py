@@ -1,4 +1,5 @@
-"""``snreg register PREOP.csv INTRAOP.(csv|h5)``: register the preop nodes to the intraop nodes and pair them."""
+"""``snreg register PREOP.csv INTRAOP.(csv|h5)`` or ``snreg register SESSION.h5``: register the preop nodes to the
+intraop nodes and pair them; with a session alone, both node sets and the initial alignment come from it."""
 
 from __future__ import annotations
 
@@ -6,58 +7,91 @@ import json
 from pathlib import Path
 
 from snreg.cli.common import read_initial
-from snreg.errors import NodeFileError, UserError
+from snreg.errors import NodeFileError, NoFitError, SessionError, UserError
 from snreg.nodes import read_nodes
 from snreg.registration import CONFIDENT, METHODS, register
-from snreg.registration.report import pair_rows
-from snreg.session import read_intraop_nodes
+from snreg.registration.report import missing_nodes, pair_rows
+from snreg.session import Session, read_intraop_nodes
 
 __all__ = ["add_register_parser", "cmd_register"]
 
 
 def add_register_parser(subparsers) -> None:
     p = subparsers.add_parser("register", help="register preop nodes to intraop nodes and pair them")
-    p.add_argument("preop", help="preop node file (.csv or .mrk.json)")
-    p.add_argument("intraop", help="intraop node file (.csv or .mrk.json) or session (.h5)")
-    p.add_argument("--method", choices=METHODS, default="global")
+    p.add_argument("preop", help="preop node file (.csv or .mrk.json), or a session (.h5) holding both node sets")
+    p.add_argument("intraop", nargs="?", help="intraop node file (.csv or .mrk.json) or session (.h5)")
+    p.add_argument("--method", choices=METHODS, default="global", help="default: global")
     p.add_argument("--labels", action="store_true", help="use the anatomical labels (e.g. 'OBT R')")
-    p.add_argument("--initial", help="rough intraop_from_preop: 4x4 text or JSON file")
-    p.add_argument("--max-rotation", type=float, default=60.0, help="degrees (default 60)")
-    p.add_argument("--max-translation", type=float, default=60.0, help="mm (default 60)")
+    p.add_argument("--initial", help="rough intraop_from_preop: 4x4 text or JSON file, or a session (.h5) whose last "
+                                     "registration's initial alignment is used (default: the session's, when the "
+                                     "preop nodes come from it)")
+    p.add_argument("--max-rotation", type=float, default=60.0, help="degrees from the initial alignment (default 60)")
+    p.add_argument("--max-translation", type=float, default=60.0, help="mm from the initial alignment (default 60)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", help="write the result as JSON")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=cmd_register)
 
 
+def _is_session(path: str) -> bool:
+    return Path(path).suffix.lower() in (".h5", ".hdf5")
+
+
+def _inputs(args):
+    """(preop, intraop, default initial path): from two files, or both node sets from one session."""
+    if args.intraop is None:
+        if not _is_session(args.preop):
+            raise UserError(f"{args.preop}: give the preop and the intraop node files, or one session (.h5)")
+        with Session.open(args.preop) as session:
+            preop, intraop = session.preop_nodes(), session.intraop_nodes()
+            has_initial = any(r.result.initial is not None for r in session.registrations())
+        if preop is None:
+            raise UserError(f"{args.preop}: the session holds no preop nodes; give PREOP.csv {args.preop}")
+        return preop, intraop, args.preop if has_initial else None
+    preop = read_nodes(args.preop)
+    intraop = read_intraop_nodes(args.intraop) if _is_session(args.intraop) else read_nodes(args.intraop)
+    return preop, intraop, None
+
+
 def cmd_register(args) -> int:
     try:
-        preop = read_nodes(args.preop)
-        is_session = Path(args.intraop).suffix.lower() in (".h5", ".hdf5")
-        intraop = read_intraop_nodes(args.intraop) if is_session else read_nodes(args.intraop)
-    except (NodeFileError, ValueError) as err:
+        preop, intraop, session_initial = _inputs(args)
+    except (NodeFileError, SessionError, ValueError, OSError) as err:
         raise UserError(str(err)) from None
+    initial = read_initial(args.initial or session_initial)
     try:
         result = register(preop.xyz, intraop.xyz, method=args.method,
                           preop_labels=preop.labels if args.labels else None,
                           intraop_labels=intraop.labels if args.labels else None,
-                          initial=read_initial(args.initial), max_rotation_deg=args.max_rotation,
+                          initial=initial, max_rotation_deg=args.max_rotation,
                           max_translation_mm=args.max_translation, seed=args.seed)
+    except NoFitError:
+        raise UserError(f"no pairing fits within {args.max_rotation:g} degrees and {args.max_translation:g} mm of the "
+                        f"{'given' if initial is not None else 'identity'} initial alignment: give a rough alignment "
+                        "with --initial (a 4x4 file or the session), add --labels, or widen --max-rotation and "
+                        "--max-translation") from None
     except ValueError as err:
         raise UserError(str(err)) from None
     rows = pair_rows(preop, intraop, result)
+    missing = missing_nodes(preop, result)
     doc = {"method": result.method, "pairing_rule": result.pairing_rule, "rms_mm": result.rms_mm,
            "confident_threshold": CONFIDENT, "intraop_from_preop": result.transform.tolist(),
-           "nodes": [row.as_json() for row in rows]}
+           "initial": result.initial.tolist(), "nodes": [row.as_json() for row in rows],
+           "missing": [node.as_json() for node in missing]}
     if args.output:
         Path(args.output).write_text(json.dumps(doc, indent=2), encoding="utf-8")
     if args.json:
         print(json.dumps(doc))
         return 0
     print(f"method {result.method}, RMS {result.rms_mm:.2f} mm, pairing rule {result.pairing_rule}")
-    print(f"{'intraop':<10} {'label':<10} {'preop':<10} {'label':<10} {'dist mm':>8} {'conf':>6}")
+    print(f"{'intraop':<10} {'label':<10} {'preop':<10} {'label':<10} {'dist mm':>8} {'loo mm':>7} {'conf':>6}")
     for row in rows:
         mark = "" if row.confident else "  (check)"
         print(f"{row.intraop_id:<10} {row.intraop_label:<10} {row.preop_id:<10} {row.preop_label:<10} "
-              f"{row.distance_mm:>8.1f} {row.confidence:>6.2f}{mark}")
+              f"{row.distance_mm:>8.1f} {row.leave_one_out_mm:>7.1f} {row.confidence:>6.2f}{mark}")
+    for node in missing:
+        x, y, z = node.mapped_xyz
+        print(f"missing {node.preop_id} ({node.preop_label or 'no label'}): expected at ({x:.1f}, {y:.1f}, {z:.1f}) mm, "
+              f"within {node.bound_mm:.1f} mm (90%)")
+    print("loo: the node's distance when the other pairs alone register (a large value flags a suspect node)")
     return 0

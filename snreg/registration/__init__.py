@@ -20,16 +20,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snreg import geometry
-from snreg.registration._assignment import assign, evaluate, sigma2_of, squared_distances
+from snreg.errors import NoFitError
 from snreg.registration._chamfer import solve_chamfer
 from snreg.registration._cpd import solve_cpd
-from snreg.registration._global import solve_global
+from snreg.registration._global import local_moves, solve_global
 from snreg.registration._icp import solve_icp
+from snreg.registration._model import MIN_PAIRS, Candidate, assign, evaluate, squared_distances
 from snreg.registration._problem import make_problem
-from snreg.registration.confidence import alternatives, posterior_confidence
+from snreg.registration.confidence import posterior_confidence, posterior_weights
 from snreg.registration.pairing import RULES, pair
+from snreg.registration.target import target_error_bound
 
-__all__ = ["register", "solve_transform", "RegistrationResult", "METHODS", "PAIRING_RULE", "CONFIDENT"]
+__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "METHODS", "PAIRING_RULE", "CONFIDENT"]
 
 METHODS = ("icp", "cpd", "chamfer", "global")
 PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "assignment"}
@@ -50,6 +52,9 @@ class RegistrationResult:
     pairings: dict[str, np.ndarray] = field(default_factory=dict)
     score: float = float("nan")
     initial: np.ndarray | None = None      # (4, 4) the rough intraop_from_preop the search started from
+    target_error_mm: np.ndarray | None = None   # (N,) per preop node: 90% bound on |mapped - where it really is|
+    missing: np.ndarray | None = None           # (N,) bool: preop nodes with no intraop partner
+    leave_one_out_mm: np.ndarray | None = None  # (M,) per paired node: its distance when the others alone register
 
     @property
     def confident(self) -> np.ndarray:
@@ -64,7 +69,8 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
 
     ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
     within ``max_rotation_deg`` and ``max_translation_mm`` (displacement of the preop
-    centroid) of it. Labels such as ``"OBT R"`` forbid left/right crossings and favour
+    centroid) of it, and a result outside them is never returned: :class:`NoFitError` says
+    that no pairing fits. Labels such as ``"OBT R"`` forbid left/right crossings and favour
     matching stations. ``pairing_rule`` overrides the method's rule; ``options`` go to
     the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer). Everything after ``method`` is
     keyword-only. Raises ValueError with a message a user understands on bad input, an unknown
@@ -77,33 +83,62 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed)
-
     correction, candidates = _solve(problem, method, options)
     if method == "global":
         base = candidates[0]
-        assignment = base.assignment
     else:
-        n_pairs = min(len(problem.preop), len(problem.intraop))
-        d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
-        assignment = assign(problem, correction, sigma2_of(float(np.sort(d2.min(axis=0))[:n_pairs].sum()), n_pairs))
-        base = evaluate(problem, assignment)
-        # The confidence weighs this pairing against the hypotheses of the global search.
-        candidates = [base] + solve_global(problem)
+        if not problem.within_bounds(correction):
+            angle, shift = problem.correction_size(correction)
+            raise NoFitError(f"{method} moved {float(angle):.0f} degrees and {float(shift):.0f} mm from the initial "
+                             f"alignment, beyond the bounds ({problem.max_rotation_deg:g} degrees, "
+                             f"{problem.max_translation_mm:g} mm): give an initial alignment closer to the truth, "
+                             "use the anatomical labels, or use the global method")
+        base = _candidate_at(problem, correction)
+        # The confidence weighs this pairing against the global search's hypotheses; when that search finds no
+        # pairing the bounds allow, this method's fit inside them is forced as well, and is refused the same way.
+        candidates = [base] + solve_global(problem) + local_moves(problem, base)
 
-    moved = geometry.apply(correction, problem.preop)
-    paired = np.flatnonzero(assignment >= 0)
-    sse = float(np.sum((moved[assignment[paired]] - problem.intraop[paired]) ** 2))
-    sigma2 = sigma2_of(sse, len(paired))
-    pairings = {r: pair(r, problem, correction, assignment, sigma2) for r in RULES}
+    pairings = {r: pair(r, problem, correction, base.assignment) for r in RULES}
     pairing = pairings[rule]
-    confidence = posterior_confidence(problem, pairing, candidates + alternatives(problem, base, pairing))
-
+    ranked, weights = posterior_weights(candidates)
+    confidence = posterior_confidence(pairing, ranked)
+    moved = geometry.apply(correction, problem.preop)
     d2 = squared_distances(moved, problem.intraop)
+    # an extra node's distance is to its nearest mapped preop node: a remark for screens, not a pairing
     distances = np.sqrt(np.where(pairing >= 0, d2[np.maximum(pairing, 0), np.arange(len(pairing))], d2.min(axis=0)))
     rms = float(np.sqrt(np.mean(distances[pairing >= 0] ** 2))) if np.any(pairing >= 0) else float("nan")
     return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
                               distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
-                              pairings=pairings, score=base.score, initial=problem.initial)
+                              pairings=pairings, score=base.score, initial=problem.initial,
+                              target_error_mm=target_error_bound(problem, correction, ranked, weights),
+                              missing=~np.isin(np.arange(len(problem.preop)), pairing),
+                              leave_one_out_mm=_leave_one_out(problem, pairing))
+
+
+def _candidate_at(problem, correction: np.ndarray) -> Candidate:
+    """The model's pairing at another method's correction (sigma from its nearest-neighbour residual), scored."""
+    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
+    k = min(len(problem.preop), len(problem.intraop))
+    sigma = float(np.sqrt(max(np.sort(d2.min(axis=0))[:k].sum() / max(3 * k - 6, 1), 1.0)))
+    assignment = assign(problem, correction, sigma)
+    if np.sum(assignment >= 0) < MIN_PAIRS:           # the nearest pairs then, one-to-one
+        assignment = pair("one_to_one", problem, correction, assignment)
+    return evaluate(problem, assignment)
+
+
+def _leave_one_out(problem, pairing: np.ndarray) -> np.ndarray:
+    """(M,) per paired intraop node: its distance from its preop node when the other pairs alone fit the correction
+    (NaN for a node judged extra, and when fewer than 3 other pairs remain)."""
+    out = np.full(len(pairing), np.nan)
+    cols = np.flatnonzero(pairing >= 0)
+    if len(cols) - 1 < MIN_PAIRS:
+        return out
+    for j in cols:
+        rest = cols[cols != j]
+        correction = geometry.kabsch(problem.preop[pairing[rest]], problem.intraop[rest])
+        out[j] = float(np.linalg.norm(geometry.apply(correction, problem.preop[pairing[j]][None])[0]
+                                      - problem.intraop[j]))
+    return out
 
 
 def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,

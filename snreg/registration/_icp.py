@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from snreg import geometry
-from snreg.registration._assignment import squared_distances
+from snreg.registration._model import squared_distances
 from snreg.registration._problem import Problem, option_count, option_number
 
 __all__ = ["solve_icp"]

@@ -3,36 +3,35 @@
 Rules (``RegistrationResult.pairing`` uses the one each method names):
 
 - ``"nearest"``: the thesis rule (§3.6.2): every intraop node to its nearest preop node.
-- ``"one_to_one"``: rectangular one-to-one assignment; nodes left over are -1 (extras).
-- ``"assignment"``: one-to-one, then each left-over node joins its nearest preop node when
-  within ``DUPLICATE_GATE_SIGMAS`` fitted error sigmas (an extra node removed from the same
-  SPECT hot spot), else -1. Chosen from ``snreg simulate`` measurements (see README).
+- ``"one_to_one"``: rectangular one-to-one assignment of min(N, M) pairs; nodes left over are -1.
+- ``"assignment"``: the partial one-to-one pairing of the model (:mod:`snreg.registration._model`): a node is
+  paired only when that is more likely than its being extra and its preop node's being missing, so the number of
+  pairs follows the evidence. An intraop node judged extra is -1 even when it lies near a preop node.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from snreg import geometry
-from snreg.registration._assignment import squared_distances
+from snreg.registration._model import squared_distances
 from snreg.registration._problem import Problem
 
-__all__ = ["RULES", "pair", "DUPLICATE_GATE_SIGMAS"]
+__all__ = ["RULES", "pair"]
 
 RULES = ("nearest", "one_to_one", "assignment")
-DUPLICATE_GATE_SIGMAS = 3.0
 
 
-def pair(rule: str, problem: Problem, correction: np.ndarray, assignment: np.ndarray, sigma2: float) -> np.ndarray:
-    """The pairing vector (one preop index or -1 per intraop node) under ``rule``."""
-    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
-    nearest = np.argmin(d2 + problem.label_nats * 2.0 * sigma2, axis=0)
-    if rule == "nearest":
-        return nearest
-    pairing = assignment.copy()
+def pair(rule: str, problem: Problem, correction: np.ndarray, assignment: np.ndarray) -> np.ndarray:
+    """The pairing vector (one preop index or -1 per intraop node) under ``rule``; ``assignment`` is the model's
+    partial pairing at ``correction`` (what the ``"assignment"`` rule reports)."""
     if rule == "assignment":
-        leftover = np.flatnonzero(pairing < 0)
-        gate2 = (DUPLICATE_GATE_SIGMAS**2) * 3.0 * sigma2
-        close = d2[nearest[leftover], leftover] <= gate2
-        pairing[leftover[close]] = nearest[leftover[close]]
+        return assignment.copy()
+    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
+    if rule == "nearest":
+        return np.argmin(d2 + 1e3 * problem.label_nats, axis=0)
+    rows, cols = linear_sum_assignment(d2 + 1e3 * problem.label_nats)
+    pairing = np.full(d2.shape[1], -1, dtype=int)
+    pairing[cols] = rows
     return pairing

@@ -23,7 +23,7 @@ from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, RegistrationResult
 
-__all__ = ["PairRow", "pair_table", "pair_rows", "mapped_preop", "summary_line", "write_pairs_csv",
+__all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line", "write_pairs_csv",
            "registration_figure", "save_report_png", "EXTRA", "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
 
 EXTRA = "extra"                 # shown instead of a preop id for an intraop node judged extra (pairing -1)
@@ -47,6 +47,7 @@ class PairRow:
     preop_label: str
     distance_mm: float
     confidence: float
+    leave_one_out_mm: float = float("nan")   # its distance when the other pairs alone register; NaN if not paired
 
     @property
     def paired(self) -> bool:
@@ -61,7 +62,8 @@ class PairRow:
         return {"id": self.intraop_id, "label": self.intraop_label,
                 "preop_id": self.preop_id if self.paired else None, "preop_label": self.preop_label if self.paired else None,
                 "distance_mm": round(self.distance_mm, 3), "confidence": round(self.confidence, 4),
-                "confident": self.confident}
+                "confident": self.confident,
+                "leave_one_out_mm": None if np.isnan(self.leave_one_out_mm) else round(self.leave_one_out_mm, 3)}
 
 
 def pair_table(result: RegistrationResult, preop_ids, intraop_ids, preop_labels=None,
@@ -80,12 +82,39 @@ def pair_table(result: RegistrationResult, preop_ids, intraop_ids, preop_labels=
                          f"{len(preop_ids)} were given; use the node sets the registration was run on")
     preop_labels = preop_labels if preop_labels is not None else [""] * len(preop_ids)
     intraop_labels = intraop_labels if intraop_labels is not None else [""] * len(intraop_ids)
+    loo = result.leave_one_out_mm if result.leave_one_out_mm is not None else np.full(len(pairing), np.nan)
     rows = []
     for m, n in enumerate(pairing):
         preop_id, preop_label = (EXTRA, "") if n < 0 else (preop_ids[n], preop_labels[n])
         rows.append(PairRow(intraop_ids[m], intraop_labels[m], int(n), preop_id, preop_label,
-                            float(result.distances_mm[m]), float(result.confidence[m])))
+                            float(result.distances_mm[m]), float(result.confidence[m]), float(loo[m])))
     return rows
+
+
+@dataclass(frozen=True)
+class MissingNode:
+    """A preop node with no intraop partner: where the registration maps it (trocar frame, mm) and the 90% bound
+    on how far from there it really is."""
+
+    preop_index: int
+    preop_id: str
+    preop_label: str
+    mapped_xyz: np.ndarray
+    bound_mm: float
+
+    def as_json(self) -> dict:
+        return {"preop_id": self.preop_id, "preop_label": self.preop_label,
+                "mapped_xyz": [round(float(v), 3) for v in self.mapped_xyz], "target_error_mm": round(self.bound_mm, 3)}
+
+
+def missing_nodes(preop: NodeSet, result: RegistrationResult) -> list[MissingNode]:
+    """The preop nodes the registration left unpaired (not removed yet, or never found), in preop order."""
+    if result.missing is None:
+        return []
+    mapped = geometry.apply(result.transform, preop.xyz)
+    bounds = result.target_error_mm if result.target_error_mm is not None else np.full(len(preop), np.nan)
+    return [MissingNode(k, preop.ids[k], preop.labels[k], mapped[k], float(bounds[k]))
+            for k in np.flatnonzero(result.missing)]
 
 
 def pair_rows(preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> list[PairRow]:

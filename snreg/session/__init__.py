@@ -254,12 +254,16 @@ class Session:
             raise SessionError(f"{self.path}: the registration pairs {len(pairing)} intraop nodes with preop indices "
                                f"up to {int(pairing.max(initial=-1))}, but {len(intraop_ids)} intraop and "
                                f"{len(preop_ids)} preop ids were given; give the ids of the node sets it was run on")
-        initial = getattr(result, "initial", None)
+        def optional(name):
+            value = getattr(result, name, None)
+            return None if value is None else np.asarray(value).tolist()
+
         data = {"n": len(self._registrations), "method": result.method, "rms_mm": float(result.rms_mm),
                 "pairing_rule": result.pairing_rule, "transform": np.asarray(result.transform).tolist(),
                 "pairing": pairing.tolist(), "distances_mm": np.asarray(result.distances_mm).tolist(),
                 "confidence": np.asarray(result.confidence).tolist(), "preop_ids": preop_ids,
-                "intraop_ids": intraop_ids, "initial": None if initial is None else np.asarray(initial).tolist()}
+                "intraop_ids": intraop_ids,
+                **{name: optional(name) for name in ("initial", "target_error_mm", "missing", "leave_one_out_mm")}}
         self._journal.append("registration", data)
         writer.write_registration(self._h5, data)
         self._h5.flush()

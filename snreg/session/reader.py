@@ -63,7 +63,8 @@ def read_registrations(h5: h5py.File) -> list[dict]:
         data.update({key: _plain(group.attrs[key]) for key in ("method", "rms_mm", "pairing_rule")}, n=int(name))
         for key in ("preop_ids", "intraop_ids"):       # absent in files written before they were stored
             data[key] = [_plain(v) for v in group[key][()]] if key in group else None
-        data["initial"] = group["initial"][()].tolist() if "initial" in group else None
+        for key in ("initial", "target_error_mm", "leave_one_out_mm", "missing"):   # absent in older files
+            data[key] = group[key][()].tolist() if key in group else None
         out.append(data)
     return out
 

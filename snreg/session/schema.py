@@ -94,11 +94,14 @@ class StoredRegistration:
 
     @classmethod
     def from_json(cls, data: dict) -> "StoredRegistration":
-        initial = data.get("initial")
+        def optional(key, dtype=float):
+            return None if data.get(key) is None else np.asarray(data[key], dtype=dtype)
+
         result = RegistrationResult(data["method"], np.asarray(data["transform"]), np.asarray(data["pairing"], dtype=int),
                                     np.asarray(data["distances_mm"]), float(data["rms_mm"]),
-                                    np.asarray(data["confidence"]), data["pairing_rule"],
-                                    initial=None if initial is None else np.asarray(initial, dtype=float))
+                                    np.asarray(data["confidence"]), data["pairing_rule"], initial=optional("initial"),
+                                    target_error_mm=optional("target_error_mm"), missing=optional("missing", bool),
+                                    leave_one_out_mm=optional("leave_one_out_mm"))
         return cls(int(data["n"]), result, data.get("preop_ids"), data.get("intraop_ids"))
 
 

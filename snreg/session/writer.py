@@ -82,15 +82,19 @@ def write_preop(h5: h5py.File, data: dict) -> None:
 
 def write_registration(h5: h5py.File, data: dict) -> None:
     """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing, distances (mm), confidence, the ids of
-    the preop and intraop nodes paired, the initial alignment (4, 4) when known; method, RMS as attributes."""
+    the preop and intraop nodes paired; when known the initial alignment (4, 4), the target-error bounds and missing
+    flags (per preop node) and the leave-one-out distances (per intraop node); method, RMS as attributes."""
     group = h5["registration"].create_group(str(data["n"]))
     for key in ("transform", "pairing", "distances_mm", "confidence"):
         group.create_dataset(key, data=np.asarray(data[key], dtype=int if key == "pairing" else float))
     for key in ("preop_ids", "intraop_ids"):
         if data.get(key) is not None:
             group.create_dataset(key, data=np.array(data[key], dtype=object), dtype=_STR)
-    if data.get("initial") is not None:
-        group.create_dataset("initial", data=np.asarray(data["initial"], dtype=float))
+    for key in ("initial", "target_error_mm", "leave_one_out_mm"):
+        if data.get(key) is not None:
+            group.create_dataset(key, data=np.asarray(data[key], dtype=float))
+    if data.get("missing") is not None:
+        group.create_dataset("missing", data=np.asarray(data["missing"], dtype=bool))
     for key in ("method", "rms_mm", "pairing_rule"):
         group.attrs[key] = data[key]
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snreg.registration import METHODS, register, solve_transform
+from snreg.registration import METHODS, NoFitError, register, solve_transform
 from snreg.simulation.cohort import synthetic_cohort
 from snreg.simulation.protocol import Trial, make_trial
 
@@ -98,10 +98,19 @@ def _external(cases: list[Trial]) -> list[BenchRow]:
     return rows
 
 
+def _registered(method: str):
+    """register()'s pairing; a refusal (no pairing fits the bounds) pairs nothing."""
+    def solve(case: Trial) -> np.ndarray:
+        try:
+            return register(case.moved_preop, case.intraop, method=method).pairing
+        except NoFitError:
+            return np.full(len(case.intraop), -1)
+    return solve
+
+
 def bench_registration(reps: int = 2, compare: bool = False, methods=METHODS) -> list[BenchRow]:
     cases = bench_cases(reps)
-    rows = [_row(m, cases, _solver_only(m), lambda case, m=m: register(case.moved_preop, case.intraop, method=m).pairing)
-            for m in methods]
+    rows = [_row(m, cases, _solver_only(m), _registered(m)) for m in methods]
     return rows + (_external(cases) if compare else [])
 
 

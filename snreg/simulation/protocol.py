@@ -6,6 +6,12 @@ shuffled; the preop set moved by a random rigid transform (yaw, pitch, roll unif
 [0, 30] degrees about its centroid, translation uniform in [-20, 20] mm per axis); then
 every method registers the moved preop set to the intraop set.
 
+Beyond the thesis (surgery is not like its protocol): ``n_missing`` true intraop nodes are then
+left out, chosen at random, so that many SPECT nodes have no intraop partner (not removed yet,
+or never found); at least 3 true nodes remain. Extra nodes hosted on a left-out node stay. The
+left-out nodes' would-be intraop positions are kept as the truth for the target error. With
+``n_missing = 0`` a trial is the thesis trial exactly (the leaving out draws from its own stream).
+
 Intraop labels (used only by ``+labels`` methods) copy the preop station and side; an
 extra node takes its host's label; each station is then wrong with probability
 ``STATION_ERROR`` (thesis Table 1: stations were revised in 11 of 13 patients), the side
@@ -15,7 +21,7 @@ never.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -23,7 +29,7 @@ from scipy.spatial.distance import cdist
 
 from snreg import geometry
 from snreg.labels import STATIONS, parse_label
-from snreg.registration import register
+from snreg.registration import NoFitError, register
 
 __all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "STATION_ERROR"]
 
@@ -32,7 +38,8 @@ STATION_ERROR = 0.3
 
 @dataclass(frozen=True)
 class Trial:
-    """One simulated case. ``truth[m]`` is intraop m's preop index, -1 for an extra node."""
+    """One simulated case. ``truth[m]`` is intraop m's preop index, -1 for an extra node; ``left_out`` the preop
+    indices without an intraop node and ``left_out_xyz`` (L, 3) where their intraop nodes would have been."""
 
     patient: str
     sigma: float
@@ -45,10 +52,17 @@ class Trial:
     preop_labels: list[str]
     intraop_labels: list[str]
     intraop_from_moved: np.ndarray
+    n_missing: int = 0
+    left_out: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    left_out_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float, n_extra: int, rep: int,
-               seed_words: tuple[int, ...]) -> Trial:
+               seed_words: tuple[int, ...], n_missing: int = 0) -> Trial:
+    """One trial; ValueError when ``n_missing`` would leave fewer than 3 true intraop nodes."""
+    if not 0 <= n_missing <= len(preop) - 3:
+        raise ValueError(f"{patient}: {len(preop)} preop nodes leave fewer than 3 true intraop nodes when "
+                         f"{n_missing} are left out")
     seeds = np.random.SeedSequence(seed_words)
     rng = np.random.default_rng(seeds)
     label_rng = np.random.default_rng(seeds.spawn(1)[0])   # label noise leaves the geometry's stream alone
@@ -68,8 +82,12 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     centre = preop.mean(axis=0)
     rotation = geometry.rotation_from_euler(yaw, pitch, roll)
     moved_from_original = geometry.make_transform(rotation, centre + shift - rotation @ centre)
+    missing_rng = np.random.default_rng(seeds.spawn(1)[0])
+    left_out = np.sort(missing_rng.choice(n, n_missing, replace=False)) if n_missing else np.zeros(0, dtype=int)
+    keep = ~np.isin(truth, left_out)
     return Trial(patient, float(sigma), int(n_extra), int(rep), preop, geometry.apply(moved_from_original, preop),
-                 intraop, truth, list(labels), intra_labels, geometry.invert(moved_from_original))
+                 intraop[keep], truth[keep], list(labels), [lab for lab, k in zip(intra_labels, keep) if k],
+                 geometry.invert(moved_from_original), int(n_missing), left_out, noisy[left_out])
 
 
 def _relabel(label: str, rng: np.random.Generator) -> str:
@@ -81,11 +99,20 @@ def _relabel(label: str, rng: np.random.Generator) -> str:
 
 @dataclass
 class TrialOutcome:
-    """What one method did on one trial (a row of the trial CSV) plus per-node confidences."""
+    """What one method did on one trial (a row of the trial CSV) plus per-node confidences.
+
+    ``confidence``/``correct``: per true intraop node; ``claim_confidence``/``claim_correct``: per intraop node, extras
+    included (a claim is the reported preop index or -1); ``bound_mm``/``left_out_error_mm``: per left-out preop node,
+    the reported 90% target-error bound and the actual distance of its mapped position from where it really is.
+    """
 
     row: dict
-    confidence: np.ndarray      # per true intraop node
-    correct: np.ndarray         # per true intraop node
+    confidence: np.ndarray
+    correct: np.ndarray
+    claim_confidence: np.ndarray
+    claim_correct: np.ndarray
+    bound_mm: np.ndarray
+    left_out_error_mm: np.ndarray
 
 
 def oracle_success(trial: Trial) -> dict[str, bool]:
@@ -112,16 +139,29 @@ def error_stats(trial: Trial) -> dict[str, float]:
 
 
 def run_trial(trial: Trial, method: str, use_labels: bool = False, **options) -> TrialOutcome:
+    """Register one trial with ``method``; a refusal (no pairing fits the bounds) counts as a failure."""
     start = time.perf_counter()
-    result = register(trial.moved_preop, trial.intraop, method=method,
-                      preop_labels=trial.preop_labels if use_labels else None,
-                      intraop_labels=trial.intraop_labels if use_labels else None, **options)
-    elapsed_ms = (time.perf_counter() - start) * 1e3
     true = trial.truth >= 0
+    try:
+        result = register(trial.moved_preop, trial.intraop, method=method,
+                          preop_labels=trial.preop_labels if use_labels else None,
+                          intraop_labels=trial.intraop_labels if use_labels else None, **options)
+    except NoFitError:
+        result = None
+    elapsed_ms = (time.perf_counter() - start) * 1e3
+    if result is None:
+        nan = float("nan")
+        row = {"success": False, "refused": True, "extras_flagged": 0, "rms_mm": nan, "tre_mm": nan,
+               "min_confidence": 0.0, "time_ms": elapsed_ms}
+        m = len(trial.intraop)
+        return TrialOutcome(row, np.zeros(int(true.sum())), np.zeros(int(true.sum()), bool), np.zeros(m),
+                            np.zeros(m, bool), np.full(len(trial.left_out), np.inf), np.full(len(trial.left_out), nan))
     correct = result.pairing[true] == trial.truth[true]
-    tre = np.sqrt(np.mean(np.sum((geometry.apply(result.transform, trial.moved_preop) - trial.preop) ** 2, axis=1)))
+    mapped = geometry.apply(result.transform, trial.moved_preop)
+    tre = np.sqrt(np.mean(np.sum((mapped - trial.preop) ** 2, axis=1)))
     row = {
         "success": bool(np.all(correct)),
+        "refused": False,
         **{f"success_{rule}": bool(np.all(p[true] == trial.truth[true])) for rule, p in result.pairings.items()},
         "extras_flagged": int(np.sum(result.pairing[~true] == -1)),
         "rms_mm": result.rms_mm,
@@ -129,4 +169,6 @@ def run_trial(trial: Trial, method: str, use_labels: bool = False, **options) ->
         "min_confidence": float(result.confidence[true].min()),
         "time_ms": elapsed_ms,
     }
-    return TrialOutcome(row, result.confidence[true], correct)
+    left_out_error = np.linalg.norm(mapped[trial.left_out] - trial.left_out_xyz, axis=1)
+    return TrialOutcome(row, result.confidence[true], correct, result.confidence, result.pairing == trial.truth,
+                        result.target_error_mm[trial.left_out], left_out_error)

@@ -11,7 +11,8 @@ from snreg.registration import CONFIDENT
 from snreg.simulation.stats import accuracy, calibration, column, extras_breakdown, paired_tests, select, threshold_for
 from snreg.simulation.study import StudyResult
 
-__all__ = ["markdown_report", "write_report"]
+__all__ = ["markdown_report", "write_report", "table6", "missing_table", "claims_table", "coverage_table",
+           "incremental_table"]
 
 ORACLES = ("oracle_nearest", "oracle_one_to_one")
 
@@ -27,15 +28,19 @@ def _pm(values: np.ndarray) -> str:
 
 
 def table6(study: StudyResult) -> str:
+    """The thesis' protocol: every preop node present intraop (trials with missing nodes are in :func:`missing_table`)."""
     methods = list(study.config.methods)
+    protocol = select(study.rows, n_missing=0)
     header = ["sigma (mm)", "trials", "avg max error (mm)", "avg error (mm)", "oracle NN", "oracle 1-1"] + methods
     best = "global" if "global" in methods else methods[-1]
     header.append(f"{best} - best oracle (pp)")
     lines = []
     for sigma in study.config.sigmas:
-        rows = select(study.rows, sigma=sigma, method=methods[0])
+        rows = select(protocol, sigma=sigma, method=methods[0])
+        if not rows:
+            continue
         oracles = [accuracy(column(rows, o)) for o in ORACLES]
-        accs = [accuracy(column(select(study.rows, sigma=sigma, method=m), "success")) for m in methods]
+        accs = [accuracy(column(select(protocol, sigma=sigma, method=m), "success")) for m in methods]
         gap = 100 * (accs[methods.index(best)].rate - max(o.rate for o in oracles))
         lines.append([f"{sigma:g}", str(len(rows)), _pm(column(rows, "max_error_mm")), _pm(column(rows, "mean_error_mm"))]
                      + [str(o) for o in oracles] + [str(a) for a in accs] + [f"{gap:+.1f}"])
@@ -106,13 +111,90 @@ def calibration_table(study: StudyResult) -> str:
     return _table(header, lines)
 
 
+def missing_table(study: StudyResult) -> str:
+    """Pairing accuracy per sigma and number of SPECT nodes left out; ``(nearest)``: the method's transform with
+    nearest-neighbour pairing, where an extra beside a true node may claim the same preop node (DESIGN §4 forbids it
+    in ``pairing``), which is what the nearest oracle measures."""
+    methods = list(study.config.methods)
+    nearest = [m for m in methods if m.startswith("global")]
+    header = (["sigma (mm)", "missing", "trials", "oracle NN", "oracle 1-1"] + methods
+              + [f"{m} (nearest)" for m in nearest])
+    lines = []
+    for sigma in study.config.sigmas:
+        for n_missing in study.config.missing:
+            rows = select(study.rows, sigma=sigma, n_missing=n_missing, method=methods[0])
+            if not rows:
+                continue
+            cells = [str(accuracy(column(rows, o))) for o in ORACLES]
+            cells += [str(accuracy(column(select(study.rows, sigma=sigma, n_missing=n_missing, method=m), "success")))
+                      for m in methods]
+            cells += [str(accuracy(column(select(study.rows, sigma=sigma, n_missing=n_missing, method=m),
+                                          "success_nearest"))) for m in nearest]
+            lines.append([f"{sigma:g}", str(n_missing), str(len(rows))] + cells)
+    return _table(header, lines)
+
+
+def claims_table(study: StudyResult) -> str:
+    """Every intraop node's claim (a preop node, or extra) by number of missing SPECT nodes: how many are confident and
+    how often a confident claim is right, extras included."""
+    header = ["method", "missing", "claims", f"confident (>= {CONFIDENT})", "confident right",
+              "confident wrong: extras / true nodes"]
+    lines = []
+    for method in study.config.methods:
+        claims = study.claims[method]
+        for n_missing in study.config.missing:
+            sel = claims["n_missing"] == n_missing
+            confident = sel & (claims["confidence"] >= CONFIDENT)
+            wrong = confident & ~claims["correct"]
+            right = f"{100 * claims['correct'][confident].mean():.2f}%" if confident.any() else "-"
+            lines.append([method, str(n_missing), str(int(sel.sum())),
+                          f"{int(confident.sum())} ({100 * confident.sum() / max(sel.sum(), 1):.1f}%)", right,
+                          f"{int((wrong & claims['extra']).sum())} / {int((wrong & ~claims['extra']).sum())}"])
+    return _table(header, lines)
+
+
+def coverage_table(study: StudyResult) -> str:
+    """Left-out SPECT nodes: how often the reported 90% target-error bound covers the distance between the node's
+    mapped position and where it really is (a refused registration counts as not covered)."""
+    header = ["method", "sigma (mm)", "left-out nodes", "covered by the 90% bound", "median bound (mm)",
+              "median error (mm)", "bound / error"]
+    lines = []
+    for method in study.config.methods:
+        bounds = study.bounds[method]
+        for sigma in study.config.sigmas:
+            sel = bounds["sigma"] == sigma
+            if not sel.any():
+                continue
+            bound, error = bounds["bound_mm"][sel], bounds["error_mm"][sel]
+            covered = np.nan_to_num(error, nan=np.inf) <= bound
+            median_bound, median_error = np.median(bound[np.isfinite(bound)]), np.nanmedian(error)
+            lines.append([method, f"{sigma:g}", str(int(sel.sum())), f"{100 * covered.mean():.1f}%",
+                          f"{median_bound:.1f}", f"{median_error:.1f}", f"{median_bound / median_error:.2f}"])
+    return _table(header, lines)
+
+
+def incremental_table(study: StudyResult) -> str:
+    """Nodes stored one by one, registered after each store from the third on: how often the stored true nodes are
+    all paired right, and every stored node's claim is right, by the number stored so far."""
+    header = ["method", "stored", "registrations", "stored true nodes all right", "every claim right"]
+    lines = []
+    for method in study.config.methods:
+        rows = [r for r in study.incremental if r["method"] == method]
+        for stored in sorted({r["stored"] for r in rows}):
+            at = [r for r in rows if r["stored"] == stored]
+            lines.append([method, str(stored), str(len(at)), str(accuracy(column(at, "success"))),
+                          str(accuracy(column(at, "all_claims_right")))])
+    return _table(header, lines)
+
+
 def markdown_report(study: StudyResult, command: str = "") -> str:
     cfg = study.config
     parts = [
         "# snreg simulation study",
         f"`{command}`" if command else "",
         f"Methods {', '.join(cfg.methods)}; sigma {', '.join(f'{s:g}' for s in cfg.sigmas)} mm; extras "
-        f"{', '.join(map(str, cfg.extras))}; {cfg.reps} repetitions per patient and condition; seed {cfg.seed}.",
+        f"{', '.join(map(str, cfg.extras))}; SPECT nodes missing {', '.join(map(str, cfg.missing))}; "
+        f"{cfg.reps} repetitions per patient and condition; seed {cfg.seed}.",
         "## Pairing accuracy (Table 6 analogue)",
         "All true intraop nodes paired with their own preop node; 95% Wilson intervals. Oracles use the true transform.",
         table6(study),
@@ -126,7 +208,21 @@ def markdown_report(study: StudyResult, command: str = "") -> str:
         error_ratio(study),
         "## Confidence calibration (true intraop nodes)",
         calibration_table(study),
+        "## Claims of every intraop node, extras included",
+        claims_table(study),
     ]
+    if study.config.incremental:
+        parts += [
+            "## With SPECT nodes not found (missing)",
+            "Success: every remaining true intraop node paired with its own preop node. Oracles use the true "
+            "transform; one-to-one pairing (DESIGN §4: an extra is never paired) cannot reach the nearest oracle "
+            "where an extra lies closer to a mapped node than the true node does.",
+            missing_table(study),
+            "## Where the missing nodes are: target-error bound coverage",
+            coverage_table(study),
+            "## Incremental: registering after each store",
+            incremental_table(study),
+        ]
     return "\n\n".join(p for p in parts if p) + "\n"
 
 

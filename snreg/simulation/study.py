@@ -1,4 +1,4 @@
-"""Run the simulation study: every patient x sigma x extras x repetition, every method, in parallel.
+"""Run the simulation study: every patient x sigma x missing x extras x repetition, every method, in parallel.
 
 A method spec is ``name[+labels][:key=value,...]``: ``global+labels`` is given the station
 labels (an extra node takes the label of the node it sits beside); ``cpd:w=0.1`` or
@@ -10,12 +10,12 @@ from __future__ import annotations
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from snreg.simulation.cohort import Patient
-from snreg.simulation.protocol import error_stats, make_trial, oracle_success, run_trial
+from snreg.simulation.protocol import Trial, error_stats, make_trial, oracle_success, run_trial
 
 __all__ = ["parse_method", "StudyConfig", "StudyResult", "run_study", "DEFAULT_METHODS", "DEFAULT_SIGMAS", "DEFAULT_EXTRAS"]
 
@@ -33,14 +33,28 @@ class StudyConfig:
     reps: int = DEFAULT_REPS
     seed: int = 0
     workers: int = 0            # 0: one per core
+    missing: tuple[int, ...] = (0,)   # true intraop nodes left out (0: the thesis protocol)
+
+    @property
+    def incremental(self) -> bool:
+        """The incremental scenario runs with a study of missing nodes (never in the thesis protocol alone)."""
+        return any(k > 0 for k in self.missing)
 
 
 @dataclass
 class StudyResult:
+    """Trial rows (one per trial and method) and, per method, node-level arrays: ``confidence``/``correct`` of the
+    true intraop nodes; ``claims`` (every intraop node's claim: confidence, correct, sigma, n_missing, extra);
+    ``bounds`` (every left-out preop node: bound_mm, error_mm, sigma); ``incremental`` rows (one per registration of
+    the incremental scenario)."""
+
     config: StudyConfig
-    rows: list[dict]                                   # one per trial and method
-    confidence: dict[str, np.ndarray]                  # method -> per-node confidence (true nodes)
-    correct: dict[str, np.ndarray]                     # method -> per-node correctness
+    rows: list[dict]
+    confidence: dict[str, np.ndarray]
+    correct: dict[str, np.ndarray]
+    claims: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    bounds: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    incremental: list[dict] = field(default_factory=list)
 
 
 def parse_method(spec: str) -> tuple[str, bool, dict]:
@@ -61,29 +75,83 @@ def parse_method(spec: str) -> tuple[str, bool, dict]:
     return name, flag == "labels", options
 
 
-def _run_block(patient: Patient, patient_index: int, sigma_index: int, config: StudyConfig):
-    rows, conf, corr = [], {m: [] for m in config.methods}, {m: [] for m in config.methods}
-    sigma = config.sigmas[sigma_index]
-    for n_extra in config.extras:
-        for rep in range(config.reps):
-            trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, sigma, n_extra, rep,
-                               (config.seed, patient_index, sigma_index, n_extra, rep))
-            common = {"patient": patient.name, "n_nodes": len(patient.nodes), "sigma": sigma,
-                      "n_extra": n_extra, "rep": rep, **oracle_success(trial), **error_stats(trial)}
+class _Collected:
+    """What one block of trials gives, per method."""
+
+    def __init__(self, methods):
+        self.rows: list[dict] = []
+        self.nodes = {m: {k: [] for k in ("confidence", "correct")} for m in methods}
+        self.claims = {m: {k: [] for k in ("confidence", "correct", "sigma", "n_missing", "extra")} for m in methods}
+        self.bounds = {m: {k: [] for k in ("bound_mm", "error_mm", "sigma")} for m in methods}
+        self.incremental: list[dict] = []
+
+    def add(self, trial: Trial, method: str, outcome, common: dict) -> None:
+        self.rows.append({**common, "method": method, **outcome.row})
+        self.nodes[method]["confidence"].append(outcome.confidence)
+        self.nodes[method]["correct"].append(outcome.correct)
+        claims = self.claims[method]
+        claims["confidence"].append(outcome.claim_confidence)
+        claims["correct"].append(outcome.claim_correct)
+        claims["sigma"].append(np.full(len(trial.truth), trial.sigma))
+        claims["n_missing"].append(np.full(len(trial.truth), trial.n_missing))
+        claims["extra"].append(trial.truth < 0)
+        bounds = self.bounds[method]
+        bounds["bound_mm"].append(outcome.bound_mm)
+        bounds["error_mm"].append(outcome.left_out_error_mm)
+        bounds["sigma"].append(np.full(len(outcome.bound_mm), trial.sigma))
+
+
+def _trial(patient: Patient, patient_index: int, sigma_index: int, n_extra: int, rep: int, config: StudyConfig,
+           n_missing: int = 0) -> Trial:
+    return make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, config.sigmas[sigma_index], n_extra, rep,
+                      (config.seed, patient_index, sigma_index, n_extra, rep), n_missing=n_missing)
+
+
+def _run_block(patient: Patient, patient_index: int, sigma_index: int, config: StudyConfig) -> _Collected:
+    out = _Collected(config.methods)
+    for n_missing in config.missing:
+        if len(patient.nodes) - n_missing < 3:
+            continue                                   # at least 3 true nodes remain
+        for n_extra in config.extras:
+            for rep in range(config.reps):
+                trial = _trial(patient, patient_index, sigma_index, n_extra, rep, config, n_missing)
+                common = {"patient": patient.name, "n_nodes": len(patient.nodes), "sigma": trial.sigma,
+                          "n_missing": n_missing, "n_extra": n_extra, "rep": rep, **oracle_success(trial),
+                          **error_stats(trial)}
+                for method in config.methods:
+                    base, use_labels, options = parse_method(method)
+                    out.add(trial, method, run_trial(trial, base, use_labels=use_labels, **options), common)
+    if config.incremental:
+        out.incremental = _incremental(patient, patient_index, sigma_index, config)
+    return out
+
+
+def _incremental(patient: Patient, patient_index: int, sigma_index: int, config: StudyConfig) -> list[dict]:
+    """Nodes stored one by one in a random order (the trial's shuffled order), registering after each store from the
+    third on: per registration, whether every stored true node and every stored node's claim was right."""
+    rows = []
+    for rep in range(config.reps):
+        n_extra = config.extras[rep % len(config.extras)]
+        trial = _trial(patient, patient_index, sigma_index, n_extra, rep, config)
+        for stored in range(3, len(trial.intraop) + 1):
+            part = Trial(trial.patient, trial.sigma, trial.n_extra, trial.rep, trial.preop, trial.moved_preop,
+                         trial.intraop[:stored], trial.truth[:stored], trial.preop_labels,
+                         trial.intraop_labels[:stored], trial.intraop_from_moved)
+            true_stored = int(np.sum(part.truth >= 0))
             for method in config.methods:
                 base, use_labels, options = parse_method(method)
-                outcome = run_trial(trial, base, use_labels=use_labels, **options)
-                rows.append({**common, "method": method, **outcome.row})
-                conf[method].append(outcome.confidence)
-                corr[method].append(outcome.correct)
-    return rows, conf, corr
+                outcome = run_trial(part, base, use_labels=use_labels, **options)
+                rows.append({"patient": patient.name, "sigma": trial.sigma, "rep": rep, "method": method,
+                             "stored": stored, "true_stored": true_stored, "n_nodes": len(patient.nodes),
+                             "success": outcome.row["success"], "all_claims_right": bool(outcome.claim_correct.all())})
+    return rows
 
 
 def run_study(patients: list[Patient], config: StudyConfig, progress=True) -> StudyResult:
     """All trials of the study; deterministic under ``config.seed`` whatever the worker count."""
     blocks = [(p, k, s) for k, p in enumerate(patients) for s in range(len(config.sigmas))]
     workers = config.workers or os.cpu_count() or 1
-    results = [None] * len(blocks)
+    results: list[_Collected | None] = [None] * len(blocks)
     if workers == 1:
         for i, (p, k, s) in enumerate(blocks):
             results[i] = _run_block(p, k, s, config)
@@ -94,10 +162,22 @@ def run_study(patients: list[Patient], config: StudyConfig, progress=True) -> St
             for done, future in enumerate(as_completed(futures), start=1):
                 results[futures[future]] = future.result()
                 _progress(progress, done, len(blocks))
-    rows = [row for block in results for row in block[0]]
-    confidence = {m: np.concatenate([c for block in results for c in block[1][m]]) for m in config.methods}
-    correct = {m: np.concatenate([c for block in results for c in block[2][m]]) for m in config.methods}
-    return StudyResult(config, rows, confidence, correct)
+    rows = [row for block in results for row in block.rows]
+
+    def joined(part: str, method: str, key: str) -> np.ndarray:
+        arrays = [a for block in results for a in getattr(block, part)[method][key]]
+        return np.concatenate(arrays) if arrays else np.zeros(0)
+
+    methods = config.methods
+    confidence = {m: joined("nodes", m, "confidence") for m in methods}
+    correct = {m: joined("nodes", m, "correct").astype(bool) for m in methods}
+    claims = {m: {k: joined("claims", m, k) for k in ("confidence", "correct", "sigma", "n_missing", "extra")}
+              for m in methods}
+    for m in methods:
+        claims[m]["correct"], claims[m]["extra"] = claims[m]["correct"].astype(bool), claims[m]["extra"].astype(bool)
+    bounds = {m: {k: joined("bounds", m, k) for k in ("bound_mm", "error_mm", "sigma")} for m in methods}
+    incremental = [row for block in results for row in block.incremental]
+    return StudyResult(config, rows, confidence, correct, claims, bounds, incremental)
 
 
 def _progress(enabled: bool, done: int, total: int) -> None:
