@@ -226,6 +226,8 @@ class MainWindow(QMainWindow):
             return
         self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node)
         self.acquisition.set_nodes(self.session.intraop_records())
+        self.registration.missing_changed.connect(self.acquisition.show_missing)
+        self.acquisition.show_missing(self.registration.missing_nodes)
         self._show_in_acquisition_tab(self.acquisition)
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
                                         self.rig.imu, self.session, self.rig.fps, self.fixes_per_node)
@@ -245,7 +247,12 @@ class MainWindow(QMainWindow):
         self._thread = start_worker(self.worker)
 
     def _nodes_changed(self, *_) -> None:
-        """The registration panel follows the stored nodes, redrawn only when it is shown (not during acquisition)."""
+        """The registration panel follows the stored nodes: it registers again at once when it says so (the missing
+        nodes then update on the acquisition screen), else it is redrawn when next shown."""
+        if self.registration.auto_rerun.isChecked():
+            self._registration_stale = False
+            self.registration.rerun_after_store()
+            return
         self._registration_stale = True
         self._refresh_registration()
 

@@ -18,6 +18,7 @@ from snreg_gui.common import node_views
 from snreg_gui.common.node_views import ThreeViewPlot, make_node_view
 from snreg_gui.registration.alignment import initial_transform
 from snreg_gui.registration.panel import RegistrationPanel
+from snreg_gui.registration.tables import PAIR_COLUMNS
 
 TIMEOUT_MS = 15_000
 
@@ -308,3 +309,50 @@ def test_view_falls_back_to_three_views_when_opengl_breaks(qtbot, monkeypatch):
     view = make_node_view()
     qtbot.addWidget(view)
     assert view.kind == "three-view"
+
+
+def test_missing_nodes_leave_one_out_and_exclude_rerun(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    found = [m for m in range(len(intraop)) if truth[m] not in (2, 4)]      # P3 and P5 not found yet
+    partial = NodeSet([intraop.ids[m] for m in found], [intraop.labels[m] for m in found], intraop.xyz[found],
+                      frame="trocar")
+    panel.set_intraop_nodes(partial)
+    with qtbot.waitSignal(panel.missing_changed) as missing:
+        result = click_run(qtbot, panel)
+    assert [t.preop_id for t in missing.args[0]] == ["P3", "P5"]
+    assert "P3" in panel.missing_label.text() and "P5" in panel.missing_label.text()
+    loo_column = PAIR_COLUMNS.index("leave-one-out mm")
+    assert [float(v) for v in table_column(panel.pairing_table, loo_column)] == pytest.approx(
+        result.leave_one_out_mm, abs=0.051)
+    panel.pairing_table.selectRow(0)
+    excluded = partial.ids[0]
+    with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as rerun:
+        qtbot.mouseClick(panel.exclude_button, Qt.MouseButton.LeftButton)
+    assert len(rerun.args[0].pairing) == len(partial) - 1
+    assert table_column(panel.pairing_table, 0) == partial.ids[1:] and excluded in panel.message.text()
+    with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as back:
+        qtbot.mouseClick(panel.include_button, Qt.MouseButton.LeftButton)
+    assert len(back.args[0].pairing) == len(partial) and not panel.include_button.isEnabled()
+
+
+def test_the_panel_registers_again_after_each_stored_node_when_it_says_so(qtbot, panel, pelvic_nodes, tmp_path):
+    from snreg.session import Session
+
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    session = Session.create(tmp_path / "s.h5", case_id="phantom-03")
+    for m in range(3):
+        session.add_intraop_node(intraop.ids[m], intraop.labels[m], intraop.xyz[m])
+    panel.set_session(session)
+    assert panel.auto_rerun.isChecked()
+    session.add_intraop_node(intraop.ids[3], intraop.labels[3], intraop.xyz[3])
+    with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as first:
+        panel.rerun_after_store()
+    assert len(first.args[0].pairing) == 4 and len(panel.missing_nodes) == 2
+    panel.auto_rerun.setChecked(False)
+    session.add_intraop_node(intraop.ids[4], intraop.labels[4], intraop.xyz[4])
+    with qtbot.assertNotEmitted(panel.registered, wait=300):
+        panel.rerun_after_store()
+    assert panel.intraop_table.rowCount() == 5                                  # the nodes still follow the session
+    session.close()

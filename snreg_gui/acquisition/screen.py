@@ -16,6 +16,7 @@ from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, Q
 
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
+from snreg.workflow.guidance import guidance_line, targets_text
 from snreg_gui.acquisition.orientation_plot import OrientationPlot
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.common.feed_view import FeedView
@@ -54,6 +55,11 @@ class AcquisitionScreen(QWidget):
         self.orientation = OrientationPlot()
         self.video_health, self.imu_health = _status_label("video: waiting"), _status_label("IMU: waiting")
         self.tip_trocar = _status_label("tip (trocar): no fix")
+        self.missing_list = _status_label("")
+        self.missing_list.setToolTip("SPECT nodes the latest registration left unpaired: where they should be (trocar "
+                                     "frame) and the 90% bound on that position")
+        self.guidance = _status_label("")
+        self._missing: list = []
         self.store_button = QPushButton("Store SN")
         self.store_reason = _status_label("waiting for the first frame")
         self.store_status = _status_label("")
@@ -101,7 +107,8 @@ class AcquisitionScreen(QWidget):
         form.addRow(self.store_status)
         form.addRow(self.undo_button)
         side = QVBoxLayout()
-        for widget in (self.video_health, self.imu_health, self.tip_trocar, store, self.nodes):
+        for widget in (self.video_health, self.imu_health, self.tip_trocar, self.missing_list, self.guidance, store,
+                       self.nodes):
             side.addWidget(widget)
         grid = QGridLayout(self)
         grid.addLayout(feeds, 0, 0)
@@ -136,11 +143,19 @@ class AcquisitionScreen(QWidget):
         self._draws += 1
         if self._draws % PLOT_EVERY == 0:
             self.orientation.redraw()
+        self.guidance.setText(guidance_line(self._missing, outcome.tip_trocar))
         if outcome.tip_trocar is None:
             self.tip_trocar.setText(f"tip (trocar): no fix ({outcome.reason})")
         else:
             x, y, z = outcome.tip_trocar
             self.tip_trocar.setText(f"tip (trocar): {x:7.1f} {y:7.1f} {z:7.1f} mm")
+
+    def show_missing(self, missing: list) -> None:
+        """The SPECT nodes the latest registration left unpaired (:class:`~snreg.registration.report.MissingNode`)."""
+        self._missing = list(missing)
+        self.missing_list.setText("" if not missing else "not found yet:\n" + targets_text(missing))
+        if not missing:
+            self.guidance.setText("")
 
     def set_nodes(self, nodes) -> None:
         """Show the nodes already in the session (a continued session); replaces the table."""

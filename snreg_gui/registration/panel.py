@@ -29,7 +29,8 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHODS
-from snreg.registration.report import mapped_preop, pair_rows, summary_line
+from snreg.registration.report import mapped_preop, missing_nodes, pair_rows, summary_line
+from snreg.workflow.guidance import targets_text
 from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.workers import WorkerSet, sentence
@@ -55,6 +56,15 @@ def _made_from(stored, preop: NodeSet, intraop: NodeSet | None) -> bool:
     return len(pairing) == len(intraop) and int(np.max(pairing, initial=-1)) < len(preop)
 
 
+def _without(nodes: NodeSet, ids: set[str]) -> NodeSet:
+    """The node set without the nodes of these ids."""
+    keep = [k for k, i in enumerate(nodes.ids) if i not in ids]
+    if len(keep) == len(nodes):
+        return nodes
+    return NodeSet([nodes.ids[k] for k in keep], [nodes.labels[k] for k in keep], nodes.xyz[keep],
+                   None if nodes.counts is None else nodes.counts[keep], frame=nodes.frame)
+
+
 def _has_nodes(nodes: NodeSet | None) -> bool:
     return nodes is not None and len(nodes) > 0
 
@@ -67,16 +77,20 @@ class RegistrationPanel(QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
+    missing_changed = Signal(list)     # MissingNode per preop node left unpaired by the result shown ([] without one)
 
     def __init__(self, parent=None):
         super().__init__(parent)
         self.last_result = None
+        self.missing_nodes: list = []              # MissingNode of the result shown
         self._session = None
         self._intraop: NodeSet | None = None
         self._record: RunRecord | None = None       # the result shown, with its node sets
         self._record_current = False                 # do the inputs still match it?
         self._preop_stored = False
         self._registering = False
+        self._rerun_pending = False
+        self._excluded: set[str] = set()             # intraop ids left out of the next runs
         self._exporting = 0
         self._tasks = WorkerSet()
         self.preop_box = PreopSourceBox()
@@ -100,6 +114,15 @@ class RegistrationPanel(QWidget):
         self.summary = QLabel("no registration yet")
         self.summary.setWordWrap(True)
         self.pairing_table = PairingTable()
+        self.missing_label = QLabel("")
+        self.missing_label.setWordWrap(True)
+        self.exclude_button = QPushButton("Exclude selected and re-run")
+        self.exclude_button.setToolTip("leave the selected intraop nodes out of the registration (e.g. one whose "
+                                       "leave-one-out distance is large) and run it again")
+        self.include_button = QPushButton("Include all")
+        self.include_button.setEnabled(False)
+        self.auto_rerun = QCheckBox("register again after each stored node")
+        self.auto_rerun.setChecked(True)
         self.export_buttons = {kind: QPushButton(f"Export {name}...") for kind, (name, _, _) in EXPORTS.items()}
         self._layout()
         self._set_exports_enabled(False)
@@ -108,6 +131,8 @@ class RegistrationPanel(QWidget):
         self.alignment.changed.connect(self._inputs_changed)
         self.alignment.centre_button.clicked.connect(self._centre_preop)
         self.run_button.clicked.connect(self.run)
+        self.exclude_button.clicked.connect(self._exclude_selected)
+        self.include_button.clicked.connect(self._include_all)
         for kind, button in self.export_buttons.items():
             button.clicked.connect(lambda _=False, k=kind: self._choose_export(k))
 
@@ -133,6 +158,7 @@ class RegistrationPanel(QWidget):
         form.addRow(self.labels_check)
         form.addRow("max rotation", self.rotation_bound)
         form.addRow("max translation", self.translation_bound)
+        form.addRow(self.auto_rerun)
         controls = QWidget()
         column = QVBoxLayout(controls)
         for widget in (self.preop_box, intraop, settings, self.alignment):
@@ -152,6 +178,12 @@ class RegistrationPanel(QWidget):
         results_layout = QVBoxLayout(results)
         results_layout.addWidget(self.summary)
         results_layout.addWidget(self.pairing_table)
+        exclusion = QHBoxLayout()
+        exclusion.addWidget(self.exclude_button)
+        exclusion.addWidget(self.include_button)
+        exclusion.addStretch(1)
+        results_layout.addLayout(exclusion)
+        results_layout.addWidget(self.missing_label)
         exports = QHBoxLayout()
         for button in self.export_buttons.values():
             exports.addWidget(button)
@@ -216,7 +248,11 @@ class RegistrationPanel(QWidget):
             return self._say("Load the preop nodes first: a node file or a SPECT.")
         if not _has_nodes(intraop):
             return self._say("There are no intraop nodes yet: store nodes or open an intraop node file.")
-        store = self._session is not None and _same_nodes(intraop, self._session.intraop_nodes())
+        intraop = _without(intraop, self._excluded)
+        if len(intraop) < 3:
+            return self._say("Fewer than 3 intraop nodes are left once the excluded ones are taken out; include some.")
+        store = self._session is not None and _same_nodes(intraop, _without(self._session.intraop_nodes(),
+                                                                            self._excluded))
         request = RunRequest(preop, intraop, self.method_combo.currentText(), self.labels_check.isChecked(),
                              self.alignment.transform(preop.xyz), self.rotation_bound.value(),
                              self.translation_bound.value(), self._session if store else None,
@@ -224,9 +260,22 @@ class RegistrationPanel(QWidget):
         self._registering = True
         self.run_button.setEnabled(False)
         self.busy_bar.setVisible(True)
-        self._say(f"Registering {len(preop)} preop to {len(intraop)} intraop nodes ({request.method})...")
+        left_out = f", without {', '.join(sorted(self._excluded))}" if self._excluded else ""
+        self._say(f"Registering {len(preop)} preop to {len(intraop)} intraop nodes ({request.method}{left_out})...")
         self._tasks.start(run_registration, request,
                           returned=self._registration_done, errored=self._registration_failed)
+
+    def rerun_after_store(self) -> None:
+        """A node was stored: re-read the session's nodes and, when "register again" is ticked and both node sets
+        are there, register again (after the run under way, if any)."""
+        self.refresh_intraop()
+        if not (self.auto_rerun.isChecked() and _has_nodes(self.preop_box.nodes) and self._intraop is not None
+                and len(self._intraop) >= 3):
+            return
+        if self._registering:
+            self._rerun_pending = True
+        else:
+            self.run()
 
     def shutdown(self) -> None:
         """Wait for every worker of the panel (call when the window closes)."""
@@ -286,6 +335,8 @@ class RegistrationPanel(QWidget):
         if record.stored and record.preop is self.preop_box.nodes:
             self._preop_stored = True
         self._show_record(record)
+        if self._excluded:
+            self._say(f"{record.note} Left out of this registration: {', '.join(sorted(self._excluded))}.".strip())
         self.registered.emit(record.result)
 
     def _registration_failed(self, message: str) -> None:
@@ -296,6 +347,22 @@ class RegistrationPanel(QWidget):
         self._registering = False
         self.run_button.setEnabled(True)
         self.busy_bar.setVisible(False)
+        if self._rerun_pending:
+            self._rerun_pending = False
+            self.run()
+
+    def _exclude_selected(self) -> None:
+        chosen = self.pairing_table.selected_intraop_ids()
+        if not chosen:
+            return self._say("Select the intraop node(s) to leave out in the pairing table first.")
+        self._excluded |= set(chosen)
+        self.include_button.setEnabled(True)
+        self.run()
+
+    def _include_all(self) -> None:
+        self._excluded.clear()
+        self.include_button.setEnabled(False)
+        self.run()
 
     def _show_record(self, record: RunRecord | None) -> None:
         self._record, self._record_current = record, record is not None
@@ -303,6 +370,11 @@ class RegistrationPanel(QWidget):
         rows = [] if record is None else pair_rows(record.preop, record.intraop, record.result)
         self.pairing_table.show_rows(rows)
         self.summary.setText("no registration yet" if record is None else summary_line(record.result, rows))
+        missing = [] if record is None else missing_nodes(record.preop, record.result)
+        self.missing_label.setText("" if record is None else "Not found yet (expected position, trocar frame, 90% "
+                                   "bound):\n" + targets_text(missing) if missing else "")
+        self.missing_nodes = missing
+        self.missing_changed.emit(missing)
         self._say("" if record is None else record.note)
         self._set_exports_enabled(record is not None)
         self._refresh_view()

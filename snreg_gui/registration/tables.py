@@ -7,6 +7,7 @@ Why: both node sets and the pairing must be readable at a glance; a pairing whos
 
 from __future__ import annotations
 
+import numpy as np
 from PySide6.QtGui import QBrush, QColor
 from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QTableWidget, QTableWidgetItem
 
@@ -15,7 +16,8 @@ from snreg.registration import CONFIDENT
 from snreg.registration.report import DOUBT_COLOUR, PairRow
 
 NODE_COLUMNS = ("id", "label", "x mm", "y mm", "z mm")
-PAIR_COLUMNS = ("intraop id", "intraop label", "preop id", "preop label", "distance mm", "confidence")
+PAIR_COLUMNS = ("intraop id", "intraop label", "preop id", "preop label", "distance mm", "leave-one-out mm",
+                "confidence")
 
 
 class NodeTable(QTableWidget):
@@ -37,18 +39,28 @@ class NodeTable(QTableWidget):
 
 
 class PairingTable(QTableWidget):
-    """One row per intraop node: its preop partner ("extra" if none), distance and confidence, shaded when doubtful."""
+    """One row per intraop node: its preop partner ("extra" if none), distance, leave-one-out distance (the node's
+    distance when the other pairs alone register: large for a node the others disagree with) and confidence, shaded
+    when doubtful."""
 
     def __init__(self, parent=None):
         super().__init__(0, len(PAIR_COLUMNS), parent)
         _configure(self, PAIR_COLUMNS)
+        self.horizontalHeaderItem(PAIR_COLUMNS.index("leave-one-out mm")).setToolTip(
+            "the node's distance from its partner when the other pairs alone register")
+
+    def selected_intraop_ids(self) -> list[str]:
+        """The intraop ids of the selected rows."""
+        rows = sorted({index.row() for index in self.selectedIndexes()})
+        return [self.item(row, 0).text() for row in rows if self.item(row, 0) is not None]
 
     def show_rows(self, rows: list[PairRow]) -> None:
         self.setRowCount(len(rows))
         doubt = QBrush(QColor(DOUBT_COLOUR))
         for row, pair in enumerate(rows):
             cells = [pair.intraop_id, pair.intraop_label, pair.preop_id, pair.preop_label,
-                     f"{pair.distance_mm:.1f}", f"{pair.confidence:.2f}"]
+                     f"{pair.distance_mm:.1f}", "" if np.isnan(pair.leave_one_out_mm) else f"{pair.leave_one_out_mm:.1f}",
+                     f"{pair.confidence:.2f}"]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 if not pair.confident:
