@@ -135,3 +135,14 @@ def test_a_study_with_missing_nodes_reports_them_per_count_with_coverage_and_the
     plain = run_study(patients, StudyConfig(**{**config.__dict__, "missing": (0,)}), progress=False)
     assert plain.incremental == [] and "Incremental" not in write_report(plain, tmp_path / "plain")["markdown"].read_text()
     assert [r["success"] for r in plain.rows] == [r["success"] for r in study.rows if r["n_missing"] == 0]
+
+
+def test_a_refused_trial_is_a_failure_under_every_pairing_rule():
+    from snreg.registration.pairing import RULES
+    from snreg.simulation import protocol
+
+    patient = synthetic_cohort()[0]
+    trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 5.0, 1, 0, (1, 0, 0, 1, 0))
+    outcome = protocol.run_trial(trial, "global", max_rotation_deg=1.0, max_translation_mm=1.0)
+    assert outcome.row["refused"] and not outcome.row["success"]
+    assert all(outcome.row[f"success_{rule}"] is False for rule in RULES)

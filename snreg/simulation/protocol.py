@@ -30,6 +30,7 @@ from scipy.spatial.distance import cdist
 from snreg import geometry
 from snreg.labels import STATIONS, parse_label
 from snreg.registration import NoFitError, register
+from snreg.registration.pairing import RULES
 
 __all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "STATION_ERROR"]
 
@@ -151,8 +152,8 @@ def run_trial(trial: Trial, method: str, use_labels: bool = False, **options) ->
     elapsed_ms = (time.perf_counter() - start) * 1e3
     if result is None:
         nan = float("nan")
-        row = {"success": False, "refused": True, "extras_flagged": 0, "rms_mm": nan, "tre_mm": nan,
-               "min_confidence": 0.0, "time_ms": elapsed_ms}
+        row = {"success": False, "refused": True, **{f"success_{rule}": False for rule in RULES}, "extras_flagged": 0,
+               "rms_mm": nan, "tre_mm": nan, "min_confidence": 0.0, "time_ms": elapsed_ms}
         m = len(trial.intraop)
         return TrialOutcome(row, np.zeros(int(true.sum())), np.zeros(int(true.sum()), bool), np.zeros(m),
                             np.zeros(m, bool), np.full(len(trial.left_out), np.inf), np.full(len(trial.left_out), nan))
