@@ -42,7 +42,7 @@ MIN_POSES = 4
 MIN_ROTATION_DEG = 2.0       # the poses must turn at least this much, or nothing is determined
 GOOD_RMS_MM, BAD_RMS_MM = 1.0, 3.0          # verdict thresholds: RMS residual,
 GOOD_SD_MM, BAD_SD_MM = 0.5, 2.0            # standard error of the distance,
-GOOD_TILT_DEG, BAD_TILT_DEG = 15.0, 5.0     # tilt range of the shaft,
+GOOD_TILT_DEG = 15.0         # tilt range of the shaft (less is bad: PLUS/IGSIO's MinimumOrientationDifferenceDeg),
 BAD_INLIER_FRACTION = 0.5                   # and the share of poses that agree
 _RESIDUAL_FLOOR_MM = 0.1     # residuals below this are never called outliers
 _MAX_HAND_EYE_POSES = 200    # all pairs of at most this many poses (evenly chosen) enter the rotation fit
@@ -231,14 +231,15 @@ def _fit(system: np.ndarray, translation: np.ndarray, inliers: np.ndarray) -> tu
 
 def _verdict(rms_mm: float, tilt_deg: float, sd_mm: float, inlier_fraction: float) -> tuple[str, str]:
     """("good" | "check" | "bad", one sentence) from the GOOD_* and BAD_* thresholds."""
-    if tilt_deg < BAD_TILT_DEG:
-        return "bad", f"the shaft tilted only {tilt_deg:.1f} degrees; pivot it by {GOOD_TILT_DEG:g} degrees or more"
+    if tilt_deg < GOOD_TILT_DEG:
+        return "bad", (f"the shaft's orientation spread is only {tilt_deg:.1f} degrees, under the {GOOD_TILT_DEG:g} degrees "
+                       "a pivot calibration needs (as PLUS/IGSIO); pivot it further in two directions and record again")
     if rms_mm > BAD_RMS_MM or sd_mm > BAD_SD_MM:
         return "bad", (f"residual {rms_mm:.2f} mm, distance uncertainty {sd_mm:.2f} mm: the endoscope did not pivot "
                        "about one point or the board moved; record again")
     if inlier_fraction < BAD_INLIER_FRACTION:
         return "bad", f"only {inlier_fraction:.0%} of the poses agree on a pivot; keep the board still and record again"
-    if rms_mm > GOOD_RMS_MM or sd_mm > GOOD_SD_MM or tilt_deg < GOOD_TILT_DEG:
+    if rms_mm > GOOD_RMS_MM or sd_mm > GOOD_SD_MM:
         return "check", (f"residual {rms_mm:.2f} mm, uncertainty {sd_mm:.2f} mm, tilt range {tilt_deg:.1f} degrees: "
-                         f"usable, but more tilt (>= {GOOD_TILT_DEG:g} degrees) and a steadier board would help")
+                         "usable, but more tilt and a steadier board would help")
     return "good", f"residual {rms_mm:.2f} mm, uncertainty {sd_mm:.2f} mm over a tilt range of {tilt_deg:.1f} degrees"

@@ -7,21 +7,23 @@ default) left baseline errors of 0.2-1.0 % of the 4.3 mm baseline, the joint ref
 
 The reconstruction error triangulates every view's corners with the rectified projections ``P1, P2``
 and compares neighbouring-corner distances with the square size: a check in mm, independent of the
-reprojection RMS, of what the tracking will measure.
+reprojection RMS, of what the tracking will measure. With the epipolar error it is the calibration
+check of :mod:`snreg.calibration.check`, run here on the calibration's own views, which also flags
+near-identical views and a calibration from too few distinct views.
 """
 
 from __future__ import annotations
 
-import glob
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 
+from snreg.calibration.check import PROVISIONAL_VIEWS, CalibrationCheck, check_views, near_identical_views
 from snreg.calibration.checkerboard import Board, find_corners
+from snreg.calibration.coverage import SIMILAR_SHIFT_FRACTION
+from snreg.calibration.images import expand_globs, read_grey
 from snreg.camera import StereoCalibration
 
 __all__ = ["MIN_VIEWS", "SUSPECT_FACTOR", "MonoCalibration", "StereoResult", "ImagePairs", "calibrate_mono", "calibrate_stereo",
@@ -53,6 +55,10 @@ class StereoResult:
     and ``reconstruction_error_mm`` the mean absolute error of triangulated neighbouring-corner
     distances against the square size. ``left_corners``/``right_corners`` (n, cols * rows, 2) are the
     detections; ``skipped`` names, per skipped pair, an image in which the board was not found.
+    ``check``: :func:`~snreg.calibration.check.check_views` of the calibration on its own views (its epipolar
+    error shows a calibration that fits its views but not the cameras); ``distinct_views`` and
+    ``repeated_views`` ((view id, id of the earlier view it repeats), ...) from
+    :func:`~snreg.calibration.check.near_identical_views`.
     """
 
     calibration: StereoCalibration
@@ -66,6 +72,9 @@ class StereoResult:
     left_corners: np.ndarray
     right_corners: np.ndarray
     skipped: tuple[str, ...] = ()
+    check: CalibrationCheck | None = None
+    distinct_views: int = 0
+    repeated_views: tuple[tuple[int, int], ...] = ()
 
     @property
     def rms_px(self) -> float:
@@ -75,6 +84,21 @@ class StereoResult:
     @property
     def n_views(self) -> int:
         return len(self.view_ids)
+
+    def warnings(self) -> list[str]:
+        """Sentences about what makes this calibration doubtful: repeated views, too few distinct views, its check."""
+        notes = []
+        if self.repeated_views:
+            pairs = ", ".join(f"{a} repeats {b}" for a, b in self.repeated_views[:6])
+            more = f" and {len(self.repeated_views) - 6} more" if len(self.repeated_views) > 6 else ""
+            notes.append(f"near-identical views (corners within {100 * SIMILAR_SHIFT_FRACTION:g}% of the image diagonal): "
+                         f"view {pairs}{more}; a repeated view adds nothing, so move or tilt the board between views")
+        if self.distinct_views < PROVISIONAL_VIEWS:
+            notes.append(f"only {self.distinct_views} distinct view(s): this calibration is provisional; capture at least "
+                         f"{PROVISIONAL_VIEWS} distinct views (the thesis took 30) all over the image")
+        if self.check is not None and self.check.verdict != "good":
+            notes.append(f"check on its own views: {self.check.verdict}: {'; '.join(self.check.reasons)}")
+        return notes
 
     @property
     def suspect_views(self) -> np.ndarray:
@@ -127,9 +151,13 @@ def calibrate_stereo(left_images: Sequence[np.ndarray], right_images: Sequence[n
             left.append(corners_l)
             right.append(corners_r)
     if len(ids) < MIN_VIEWS:
-        raise ValueError(f"board {board.cols}x{board.rows} (inner corners) found in both images of only {len(ids)} of "
-                         f"{len(left_images)} pairs, need {MIN_VIEWS}; not found in {_first(skipped)}; "
-                         "check the board size (inner corners, e.g. 10x7 for 11 x 8 squares)")
+        found = f"board {board.cols}x{board.rows} (inner corners) found in both images of only {len(ids)} of {len(left_images)} pairs"
+        if not skipped:
+            raise ValueError(f"{found}, but a stereo calibration needs at least {MIN_VIEWS} pairs (and {PROVISIONAL_VIEWS} "
+                             "or more distinct views not to be provisional); give more pairs")
+        hint = ("check the board size (inner corners, e.g. 10x7 for 11 x 8 squares) and that the board is in view"
+                if not ids else "give more pairs showing the whole board in both images")
+        raise ValueError(f"{found}, need {MIN_VIEWS}; not found in {_first(skipped)}; {hint}")
     return _solve(np.array(ids), np.array(left), np.array(right), board, _size(left_images[0]), tuple(skipped))
 
 
@@ -175,32 +203,17 @@ def _solve(ids: np.ndarray, left: np.ndarray, right: np.ndarray, board: Board, s
                                               board_cols=board.cols, board_rows=board.rows,
                                               square_mm=float(board.square_mm), n_views=len(ids))
     per_view = np.asarray(per_view, dtype=float).reshape(-1, 2)
-    view_mm = _reconstruction_errors(calibration, left, right, board)
+    check = check_views(calibration, left, right, board)
+    distinct, repeats = near_identical_views(left, right, size)
     return StereoResult(calibration, board, ids, per_view, np.sqrt(np.mean(per_view ** 2, axis=0)),
-                        np.array([mono_l.rms_px, mono_r.rms_px]), view_mm, float(view_mm.mean()),
-                        left, right, skipped)
+                        np.array([mono_l.rms_px, mono_r.rms_px]), check.view_reconstruction_mm, check.reconstruction_mm,
+                        left, right, skipped, check, distinct, tuple((int(ids[a]), int(ids[b])) for a, b in repeats))
 
 
 def _mono(corners: list[np.ndarray], board: Board, size: tuple[int, int]) -> MonoCalibration:
     rms, K, D, _, _, _, _, per_view = cv2.calibrateCameraExtended(
         [board.object_points()] * len(corners), corners, size, None, None)
     return MonoCalibration(size, K, D.reshape(1, -1), float(rms), np.asarray(per_view, dtype=float).ravel())
-
-
-def _reconstruction_errors(calib: StereoCalibration, left: np.ndarray, right: np.ndarray, board: Board) -> np.ndarray:
-    """(n,) mean |neighbouring-corner distance - square| per view, mm, from rectified triangulation."""
-    errors = []
-    for corners_l, corners_r in zip(left, right):
-        rect_l = cv2.undistortPoints(corners_l.reshape(-1, 1, 2).astype(np.float64), calib.K1, calib.D1,
-                                     R=calib.R1, P=calib.P1, criteria=_UNDISTORT_CRITERIA).reshape(-1, 2)
-        rect_r = cv2.undistortPoints(corners_r.reshape(-1, 1, 2).astype(np.float64), calib.K2, calib.D2,
-                                     R=calib.R2, P=calib.P2, criteria=_UNDISTORT_CRITERIA).reshape(-1, 2)
-        homogeneous = cv2.triangulatePoints(calib.P1, calib.P2, rect_l.T, rect_r.T)
-        grid = (homogeneous[:3] / homogeneous[3]).T.reshape(board.rows, board.cols, 3)
-        steps = np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
-                                np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])
-        errors.append(np.abs(steps - board.square_mm).mean())
-    return np.array(errors)
 
 
 def _first(names: Sequence[str], n: int = 6) -> str:
@@ -228,24 +241,3 @@ def _check_pairs(left: Sequence[np.ndarray], right: Sequence[np.ndarray], left_n
     if len(left) != len(right):
         raise ValueError(f"{len(left)} left but {len(right)} right images; each left image needs its right partner")
     _check_sizes(list(left) + list(right), list(left_names) + list(right_names))
-
-
-def _natural_key(path: str) -> list:
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path)]
-
-
-def expand_globs(patterns: str | Sequence[str], side: str) -> list[str]:
-    """Files matching one or more glob patterns, in natural order; ValueError naming ``side`` if none."""
-    patterns = [patterns] if isinstance(patterns, str) else list(patterns)
-    paths = {p for pattern in patterns for p in glob.glob(str(Path(pattern).expanduser())) if Path(p).is_file()}
-    if not paths:
-        raise ValueError(f"no files match the {side} pattern {' '.join(patterns)!r}")
-    return sorted(paths, key=_natural_key)
-
-
-def read_grey(path: str) -> np.ndarray:
-    """An image file as 8-bit grey; ValueError when it is not a readable image."""
-    image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise ValueError(f"{path}: not a readable image")
-    return image

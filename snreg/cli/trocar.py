@@ -17,19 +17,12 @@ import csv
 import json
 from pathlib import Path
 
-import numpy as np
-from scipy.spatial.transform import Rotation
-
-from snreg.calibration.checkerboard import Board, find_corners
-from snreg.calibration.pivot import (MIN_POSES, PivotResult, board_from_camera_pose, imu_camera_rotation,
-                                     imu_from_camera_transform, pivot_calibration)
-from snreg.calibration.stereo import expand_globs, read_grey
-from snreg.camera import load_calibration
-from snreg.chain import THESIS_IMU_TROCAR_MM, ChainCalibration
+from snreg.cli.common import check_output_file, finite_float, positive_float, progress, write_text
 from snreg.errors import UserError
-from snreg.geometry import euler_from_rotation
 
 __all__ = ["add_trocar_parser"]
+
+THESIS_IMU_TROCAR_MM = 460.0    # snreg.chain.THESIS_IMU_TROCAR_MM (a test keeps them equal)
 
 def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
     """Add ``trocar`` with its modes ``pivot`` and ``manual`` to the ``calibrate`` subparsers; returns its parser."""
@@ -40,19 +33,20 @@ def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
                                      "taken while the endoscope pivots about the trocar in two directions.")
     p.add_argument("--images", required=True, nargs="+", metavar="GLOB", help="left images, e.g. 'pivot/left*.png' (quoted)")
     p.add_argument("--board", required=True, metavar="COLSxROWS", help="inner corners as OpenCV counts them, e.g. 10x7")
-    p.add_argument("--square", required=True, type=float, metavar="MM", help="square size, mm")
+    p.add_argument("--square", required=True, type=positive_float, metavar="MM", help="square size, mm")
     p.add_argument("--calib", required=True, help="stereo calibration file (.yaml); its left camera is used")
     p.add_argument("--imu-csv", metavar="CSV", help="IMU orientation per image: columns yaw,pitch,roll (degrees), "
                                                     "rows in sorted image order")
-    p.add_argument("--imu-trocar", type=float, default=THESIS_IMU_TROCAR_MM, metavar="MM",
+    p.add_argument("--imu-trocar", type=finite_float, default=THESIS_IMU_TROCAR_MM, metavar="MM",
                    help=f"IMU-trocar distance for the chain file, mm (default {THESIS_IMU_TROCAR_MM:g}, thesis manual; "
                         "it cancels out of the chain)")
     p.add_argument("-o", "--output", metavar="JSON", help="write the chain constants as JSON")
     p.set_defaults(func=cmd_trocar_pivot)
     p = modes.add_parser("manual", help="hand-measured distances (thesis §4.1)",
                          description="Chain constants from measured distances, IMU axes aligned with the camera's by eye.")
-    p.add_argument("--imu-trocar", required=True, type=float, metavar="MM", help="IMU-trocar distance, mm (thesis 460)")
-    p.add_argument("--trocar-camera", required=True, type=float, metavar="MM", help="trocar-camera distance, mm (thesis 158)")
+    p.add_argument("--imu-trocar", required=True, type=finite_float, metavar="MM", help="IMU-trocar distance, mm (thesis 460)")
+    p.add_argument("--trocar-camera", required=True, type=finite_float, metavar="MM",
+                   help="trocar-camera distance, mm (thesis 158)")
     p.add_argument("-o", "--output", metavar="JSON", help="also write the chain constants to this file")
     p.set_defaults(func=cmd_trocar_manual)
     return trocar
@@ -60,31 +54,44 @@ def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
 
 def cmd_trocar_manual(args) -> int:
     """Print (and with ``-o`` write) the thesis's manual chain as JSON; bad input raises ``UserError``."""
+    from snreg.chain import ChainCalibration
 
+    if args.output:
+        check_output_file(args.output, "chain file")
     try:
         chain = ChainCalibration.manual(args.imu_trocar, args.trocar_camera)
     except ValueError as err:
         raise UserError(str(err)) from None
     text = _chain_json(chain, "manual")
     if args.output:
-        _write(Path(args.output), text)
+        write_text(args.output, text + "\n", "chain file")
     print(text)
     return 0
 
 
 def cmd_trocar_pivot(args) -> int:
-    """Run the pivot calibration on image files and report it; bad input raises ``UserError``."""
+    """Run the pivot calibration on image files and report it; bad input raises ``UserError``, and so does a
+    recording judged bad (too little orientation spread, a large residual): then no chain file is written."""
+    import numpy as np
 
-    output = Path(args.output) if args.output else None
-    if output is not None and not output.parent.is_dir():
-        raise UserError(f"{output}: the folder {output.parent} does not exist")
+    from snreg.calibration.checkerboard import Board, find_corners
+    from snreg.calibration.images import expand_globs, read_grey
+    from snreg.calibration.pivot import (MIN_POSES, board_from_camera_pose, imu_camera_rotation,
+                                         imu_from_camera_transform, pivot_calibration)
+    from snreg.camera import CalibrationFileError, load_calibration
+    from snreg.chain import ChainCalibration
+    from snreg.geometry import euler_from_rotation
+
+    output = check_output_file(args.output, "chain file") if args.output else None
     try:
         board = Board.parse(args.board, args.square)
         calib = load_calibration(args.calib)
         paths = expand_globs(args.images, "image")
         imu = _read_orientations(args.imu_csv, len(paths)) if args.imu_csv else None
         found, poses = [], []
+        report = progress("pivot: images searched")
         for k, path in enumerate(paths):
+            report(k + 1, len(paths))
             image = read_grey(path)
             if (image.shape[1], image.shape[0]) != calib.image_size:
                 raise ValueError(f"{path} is {image.shape[1]}x{image.shape[0]} but the calibration is for "
@@ -101,7 +108,7 @@ def cmd_trocar_pivot(args) -> int:
         hand_eye = imu_camera_rotation(imu[found][pivot.inliers], poses[pivot.inliers]) if imu is not None else None
         rotation = hand_eye.imu_from_camera if hand_eye is not None else np.eye(3)
         chain = ChainCalibration(imu_from_camera_transform(rotation, pivot, args.imu_trocar), args.imu_trocar)
-    except ValueError as err:
+    except (ValueError, CalibrationFileError) as err:
         raise UserError(str(err)) from None
     lines = _report(pivot, board, paths, found)
     if hand_eye is not None:
@@ -111,13 +118,19 @@ def cmd_trocar_pivot(args) -> int:
     else:
         lines.append("IMU-camera rotation: identity assumed (no --imu-csv; the thesis aligned the axes by eye)")
     print("\n".join(lines))
+    if pivot.verdict == "bad":
+        raise UserError(f"pivot calibration refused ({pivot.advice}; orientation spread {pivot.tilt_range_deg:.1f} degrees, "
+                        f"residual {pivot.rms_mm:.2f} mm){'; no chain file written' if output else ''}")
     if output is not None:
-        _write(output, _chain_json(chain, "pivot"))
+        write_text(output, _chain_json(chain, "pivot") + "\n", "chain file")
         print(f"wrote {output}")
     return 0
 
 
-def _report(pivot: PivotResult, board: Board, paths: list[str], found: list[int]) -> list[str]:
+def _report(pivot, board, paths: list[str], found: list[int]) -> list[str]:
+    """The report lines of a pivot calibration (a ``PivotResult`` on a ``Board``)."""
+    import numpy as np
+
     x, y, z = pivot.pivot_camera_mm
     bx, by, bz = pivot.pivot_board_mm
     lines = [f"pivot calibration from {len(found)} of {len(paths)} images, board {board.cols}x{board.rows} inner corners "
@@ -136,13 +149,17 @@ def _report(pivot: PivotResult, board: Board, paths: list[str], found: list[int]
     return lines
 
 
-def _read_orientations(path: str, n_images: int) -> Rotation:
-    """``earth_from_imu`` per image from a CSV with ``yaw``, ``pitch``, ``roll`` columns (degrees; ``#`` lines skipped)."""
+def _read_orientations(path: str, n_images: int):
+    """``earth_from_imu`` per image (a scipy ``Rotation``) from a CSV with ``yaw``, ``pitch``, ``roll`` columns
+    (degrees; ``#`` lines skipped)."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
     try:
-        with open(path, newline="", encoding="utf-8") as stream:
+        with open(path, newline="", encoding="utf-8-sig") as stream:
             rows = list(csv.DictReader(line for line in stream if not line.lstrip().startswith("#")))
-    except OSError as err:
-        raise ValueError(f"{path}: cannot read the IMU file ({err.strerror})") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ValueError(f"{path}: cannot read the IMU file ({getattr(err, 'strerror', None) or 'not UTF-8 text'})") from None
     if not rows or not {"yaw", "pitch", "roll"} <= set(rows[0]):
         raise ValueError(f"{path}: the IMU file needs a header with the columns yaw,pitch,roll (degrees)")
     try:
@@ -154,13 +171,6 @@ def _read_orientations(path: str, n_images: int) -> Rotation:
     return Rotation.from_euler("ZYX", angles, degrees=True)
 
 
-def _chain_json(chain: ChainCalibration, method: str) -> str:
+def _chain_json(chain, method: str) -> str:
+    """A ``ChainCalibration`` as the chain file's JSON, with the method that made it."""
     return json.dumps({**chain.to_dict(), "method": method})
-
-
-def _write(path: Path, text: str) -> None:
-
-    try:
-        path.write_text(text + "\n", encoding="utf-8")
-    except OSError as err:
-        raise UserError(f"{path}: cannot write the chain file ({err.strerror})") from None

@@ -2,7 +2,9 @@
 
 Why: the technician must judge a calibration before saving it (thesis §4.2): overall RMS, each
 view's left/right reprojection and 3D reconstruction errors with the suspicious ones flagged as
-``snreg calibrate stereo`` flags them, the baseline and focal lengths; and rerun it without the
+``snreg calibrate stereo`` flags them, the check on its own views (epipolar and reconstruction
+errors, :mod:`snreg.calibration.check`), warnings about near-identical views and a provisional
+calibration from too few distinct views, the baseline and focal lengths; and rerun it without the
 views that spoil it. :func:`~snreg.calibration.stereo.calibrate_stereo` searches the captured
 full-size images again and may take seconds, so it runs in a Worker behind a busy bar.
 """
@@ -143,13 +145,17 @@ class CalibratePage(QWizardPage):
             self.summary.setText(_summary(result))
             errors = result.view_errors_px
             suspect = result.suspect_views
+            repeats = dict(result.repeated_views)
             self.table.setRowCount(result.n_views)
             for row, view in enumerate(result.view_ids):
                 drop = QTableWidgetItem(f"view {view + 1}")
                 drop.setFlags(Qt.ItemFlag.ItemIsEnabled | Qt.ItemFlag.ItemIsUserCheckable)
                 drop.setCheckState(Qt.CheckState.Unchecked)
                 cells = [drop] + [QTableWidgetItem(f"{v:.3f}") for v in (*errors[row], result.view_reconstruction_mm[row])]
-                cells.append(QTableWidgetItem(f"check: error over {SUSPECT_FACTOR:g}x the median" if suspect[row] else ""))
+                notes = [f"check: error over {SUSPECT_FACTOR:g}x the median"] if suspect[row] else []
+                if int(view) in repeats:
+                    notes.append(f"repeats view {repeats[int(view)] + 1}")
+                cells.append(QTableWidgetItem("; ".join(notes)))
                 for column, item in enumerate(cells):
                     if column:
                         item.setFlags(Qt.ItemFlag.ItemIsEnabled)
@@ -166,11 +172,14 @@ class CalibratePage(QWizardPage):
 
 
 def _summary(result: StereoResult) -> str:
+    """The figures of a calibration, its check on its own views, and the warnings ``snreg calibrate stereo`` prints."""
     calib = result.calibration
     skipped = (f"\nBoard not found at full size in {', '.join(result.skipped)}: left out." if result.skipped else "")
-    return (f"{result.n_views} views; RMS reprojection {result.rms_px:.3f} px "
+    warnings = "".join(f"\nWarning: {warning}." for warning in result.warnings())
+    return (f"{result.n_views} views ({result.distinct_views} distinct); RMS reprojection {result.rms_px:.3f} px "
             f"(left {result.eye_rms_px[0]:.3f}, right {result.eye_rms_px[1]:.3f} px)\n"
             f"reconstruction error {result.reconstruction_error_mm:.3f} mm "
             f"(mean |triangulated square side - {result.board.square_mm:g} mm|)\n"
+            f"check on its own views: {result.check.summary()}\n"
             f"baseline {calib.baseline_mm:.3f} mm; focal length left {calib.K1[0, 0]:.1f} x {calib.K1[1, 1]:.1f} px, "
-            f"right {calib.K2[0, 0]:.1f} x {calib.K2[1, 1]:.1f} px" + skipped)
+            f"right {calib.K2[0, 0]:.1f} x {calib.K2[1, 1]:.1f} px" + skipped + warnings)
