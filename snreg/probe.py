@@ -2,7 +2,8 @@
 
 Default (``resources/probe/drop_in_probe.yaml``): a cylinder 10 mm in diameter, tip on its
 axis at 0; three green stripes 4 mm wide centred 20, 30 and 40 mm from the tip; a dark
-grey body. The file is OpenCV ``FileStorage`` YAML like the calibration file.
+grey body; tracked 20-300 mm from the camera (the thesis measured up to 290 mm). The file is
+OpenCV ``FileStorage`` YAML like the calibration file; ``working_range_mm`` may be left out.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from snreg.files import open_for_reading
+from snreg.files import atomic_write, open_for_reading
 
 __all__ = ["ProbeModel", "load_probe_model", "save_probe_model", "default_probe_model", "DEFAULT_PROBE_PATH"]
 
@@ -32,6 +33,7 @@ class ProbeModel:
     body_bgr: tuple[int, int, int]
     hsv_low: tuple[int, int, int]
     hsv_high: tuple[int, int, int]
+    working_range_mm: tuple[float, float] = (20.0, 300.0)   # tip-to-camera depths it is tracked at (``--depth-range``)
 
     @property
     def radius_mm(self) -> float:
@@ -52,15 +54,16 @@ class ProbeModel:
 
 
 def save_probe_model(model: ProbeModel, path: str | Path) -> None:
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
-    try:
-        fs.write("diameter_mm", float(model.diameter_mm))
-        fs.write("length_mm", float(model.length_mm))
-        fs.write("stripe_width_mm", float(model.stripe_width_mm))
-        for key in ("stripe_centres_mm", "stripe_bgr", "body_bgr", "hsv_low", "hsv_high"):
-            fs.write(key, np.asarray(getattr(model, key), dtype=float).reshape(1, -1))
-    finally:
-        fs.release()
+    """Write ``model`` as a probe model file, atomically; ``OSError`` when it cannot be written."""
+    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    fs.write("diameter_mm", float(model.diameter_mm))
+    fs.write("length_mm", float(model.length_mm))
+    fs.write("stripe_width_mm", float(model.stripe_width_mm))
+    for key in ("stripe_centres_mm", "stripe_bgr", "body_bgr", "hsv_low", "hsv_high", "working_range_mm"):
+        fs.write(key, np.asarray(getattr(model, key), dtype=float).reshape(1, -1))
+    text = fs.releaseAndGetString()
+    with atomic_write(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
 
 
 def load_probe_model(path: str | Path | None = None) -> ProbeModel:
@@ -85,11 +88,16 @@ def load_probe_model(path: str | Path | None = None) -> ProbeModel:
 
         model = ProbeModel(number("diameter_mm"), number("length_mm"), tuple(float(v) for v in row("stripe_centres_mm")),
                            number("stripe_width_mm"),
-                           *(tuple(int(v) for v in row(k, 3)) for k in ("stripe_bgr", "body_bgr", "hsv_low", "hsv_high")))
+                           *(tuple(int(v) for v in row(k, 3)) for k in ("stripe_bgr", "body_bgr", "hsv_low", "hsv_high")),
+                           **({} if fs.getNode("working_range_mm").empty() else
+                              {"working_range_mm": tuple(float(v) for v in row("working_range_mm", 2))}))
     finally:
         fs.release()
     if model.diameter_mm <= 0 or len(model.stripe_centres_mm) < 2:
         raise ValueError(f"{path}: a probe needs a positive diameter and at least two stripes")
+    near, far = model.working_range_mm
+    if not 0 < near < far:
+        raise ValueError(f"{path}: working_range_mm must be two depths 0 < near < far (mm), got {near:g}, {far:g}")
     return model
 
 

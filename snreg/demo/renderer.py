@@ -8,6 +8,10 @@ optional tissue blob hiding part of one stripe. The endoscope light sits at the
 camera (inverse-square fall-off, Lambert shading, optional specular highlights);
 vignetting and a slow light gradient make the exposure uneven. Sensor noise and blur
 are drawn from a seed, so a render is deterministic.
+
+Distractors for the tracker, green things that are not the probe: round green fiducials on the
+tissue, specular highlights on the tissue with a greenish colour fringe (both in 3D, so they match
+in the two eyes), and greenish blobs cut by the image border.
 """
 
 from __future__ import annotations
@@ -24,6 +28,9 @@ __all__ = ["ProbePose", "RenderOptions", "StereoRenderer"]
 
 _TEXTURE_MM = 600.0       # side of the tissue texture patch
 _TEXTURE_PX = 2048
+_FIDUCIAL_BGR = np.array([70.0, 185.0, 75.0], np.float32)     # green: inside the probe model's stripe colour range
+_FRINGE_BGR = np.array([90.0, 200.0, 110.0], np.float32)
+_BORDER_BLOB_BGR = np.array([80.0, 170.0, 95.0], np.float32)
 
 
 @dataclass(frozen=True)
@@ -45,12 +52,19 @@ class ProbePose:
 
 @dataclass(frozen=True)
 class RenderOptions:
+    """How to render a pair; the distractors (green things that are not the probe) are placed by ``seed``
+    unless given."""
+
     noise_sigma: float = 0.0          # sensor noise, grey levels
     blur_sigma_px: float = 0.0
-    specular: bool = False
+    specular: bool = False            # highlights on the probe
     hide_stripe: int | None = None    # index of a stripe partly hidden by a tissue blob
     background_gap_mm: float = 60.0   # tissue plane this far behind the probe tip
     seed: int = 0
+    fiducials_mm: tuple[tuple[float, float], ...] = ()   # round green discs on the tissue at these (x, y), mm
+    fiducial_diameter_mm: float = 6.0
+    border_blobs: int = 0             # greenish blobs cut by the image border (a drape, a stained swab)
+    highlights: int = 0               # specular highlights on the tissue: white spots with a greenish fringe
 
 
 def _tissue_texture(seed: int) -> np.ndarray:
@@ -98,7 +112,10 @@ class StereoRenderer:
 
     def radiance(self, pose: ProbePose, options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
         """The noise-free float images; :meth:`expose` turns them into frames (for many noisy frames of one pose)."""
-        return tuple(self._shade(rays, origin, pose, options) for rays, origin in self._eyes)
+        images = tuple(self._shade(rays, origin, pose, options) for rays, origin in self._eyes)
+        if options.border_blobs:
+            self._border_blobs(images, options)
+        return images
 
     def expose(self, radiance: tuple[np.ndarray, np.ndarray], options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
         """Blur, sensor noise (seeded by ``options.seed``) and 8-bit quantisation of both eyes."""
@@ -139,6 +156,35 @@ class StereoRenderer:
         lambert = np.abs(rays @ normal)
         np.copyto(depth, t.astype(np.float32))
         np.copyto(colour, tex * lambert[..., None])
+        if options.fiducials_mm or options.highlights:
+            self._tissue_distractors(hit, z, options, colour)
+
+    def _tissue_distractors(self, hit, plane_z: float, options: RenderOptions, colour) -> None:
+        """Round green fiducials and specular highlights (white, with a greenish colour fringe) on the tissue."""
+        for x, y in options.fiducials_mm:
+            inside = np.hypot(hit[..., 0] - x, hit[..., 1] - y) <= options.fiducial_diameter_mm / 2.0
+            colour[inside] = _FIDUCIAL_BGR * np.clip(colour[inside].mean(axis=-1, keepdims=True) / 120.0, 0.6, 1.2)
+        if options.highlights:
+            rng = np.random.default_rng((options.seed, 1))
+            width, height = self.calibration.image_size
+            span = plane_z * np.array([width, height]) / 2.0 / np.diag(self.calibration.K1)[:2]
+            for centre in rng.uniform(-0.6, 0.6, (options.highlights, 2)) * span:
+                r = np.hypot(hit[..., 0] - centre[0], hit[..., 1] - centre[1])
+                ring = (r > 2.2) & (r < 3.2)
+                colour[ring] = 0.2 * colour[ring] + 0.8 * _FRINGE_BGR
+                colour += (250.0 * np.exp(-0.5 * (r / 1.2) ** 2))[..., None]
+
+    def _border_blobs(self, images, options: RenderOptions) -> None:
+        """Greenish discs centred on the image border (half of each cut off), at the same pixels in both eyes."""
+        rng = np.random.default_rng((options.seed, 2))
+        width, height = self.calibration.image_size
+        for _ in range(options.border_blobs):
+            side, along = int(rng.integers(4)), float(rng.uniform(0.15, 0.85))
+            radius = int(round(rng.uniform(0.015, 0.03) * width))
+            centre = [(int(along * width), 0), (width - 1, int(along * height)), (int(along * width), height - 1),
+                      (0, int(along * height))][side]
+            for image in images:
+                cv2.circle(image, centre, radius, tuple(float(v) for v in _BORDER_BLOB_BGR), -1, cv2.LINE_AA)
 
     def _probe(self, rays, origin, pose, options, depth, colour):
         probe, r = self.probe, self.probe.radius_mm

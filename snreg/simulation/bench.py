@@ -135,7 +135,8 @@ class TrackingBench:
 
 
 def bench_tracking(pairs: int = 40, seed: int = 3) -> list[TrackingBench]:
-    """Time 1920x1080 stereo pair -> probe position (thesis calibration, rendered probe at 80-280 mm)."""
+    """Time 1920x1080 stereo pair -> probe position (thesis calibration, ``pairs`` renders of the probe taking
+    turns at five depths from 80 to 280 mm)."""
     from snreg.camera import thesis_calibration
     from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
     from snreg.probe import default_probe_model
@@ -144,11 +145,13 @@ def bench_tracking(pairs: int = 40, seed: int = 3) -> list[TrackingBench]:
     calibration, probe = thesis_calibration(), default_probe_model()
     renderer = StereoRenderer(calibration, probe)
     axis = np.array([1.0, -0.35, 0.4])
-    frames = []
-    for k, depth in enumerate(np.linspace(80, 280, 5)):
-        radiance = renderer.radiance(ProbePose.make([-25.0, 5.0, depth], axis))
-        frames += [renderer.expose(radiance, RenderOptions(noise_sigma=3.0, seed=seed * 1000 + k * 100 + f))
-                   for f in range(max(pairs // 5, 1))]
+    if pairs < 1:
+        raise ValueError(f"the tracking bench needs at least 1 stereo pair, not {pairs}")
+    depths = np.linspace(80, 280, 5)
+    radiances = [renderer.radiance(ProbePose.make([-25.0, 5.0, depth], axis)) for depth in depths[:pairs]]
+    frames = [renderer.expose(radiances[i % len(radiances)],
+                              RenderOptions(noise_sigma=3.0, seed=seed * 1000 + (i % 5) * 100 + i // 5))
+              for i in range(pairs)]
     rows = []
     for method in ("triangulation", "sgbm"):
         tracker = StereoTracker(calibration, probe, method=method)

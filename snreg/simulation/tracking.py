@@ -75,8 +75,8 @@ def run_tracking_experiment(calibration: StereoCalibration, probe: ProbeModel, b
                     fix = _measure(trackers[name], name, left, right)
                     if fix is not None:
                         centres[name][p, f], tips[name][p, f] = fix.centre, fix.tip
-            if progress:
-                progress(b * len(poses) + p + 1, len(bands) * len(poses))
+                if progress:
+                    progress(((b * len(poses)) + p) * frames + f + 1, len(bands) * len(poses) * frames)
         truth_c = np.array([pose.point(probe.band_centre_mm) for pose in poses])
         truth_t = np.array([pose.tip for pose in poses])
         for name in TRACKERS:

@@ -1,12 +1,21 @@
 """Stripe-marker segmentation in one image (thesis §3.4): colour thresholds from the probe model.
 
-Detection runs on a downscaled copy (fast), then each stripe is segmented again at full
-resolution inside a padded box. Stripes are the largest colour blobs that lie close to
-one another; they are ordered along the probe axis in the image.
+Detection runs on a copy reduced to about ``DETECT_WIDTH`` pixels across (fast; full size for
+standard-definition images), then each candidate's stripes are segmented again at full resolution
+inside a padded box. Blobs that touch the image border are never stripes: they may be cut off, so
+their centroid is not the stripe's.
+
+A scene may hold other green things (fiducials, reflections), so the search yields candidate groups
+of blobs, best first: the largest blobs that lie close to one another (the probe in a clean view),
+then other groups of two or three nearby blobs ranked by how much they look like a row of equal,
+evenly spaced bands. The tracker keeps the first that passes its 3D checks
+(:mod:`snreg.tracking.plausibility`). Stripes are ordered along the probe axis in the image.
 """
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -14,10 +23,12 @@ import numpy as np
 
 from snreg.probe import ProbeModel
 
-__all__ = ["Stripes", "find_stripes", "stripe_mask", "DETECT_SCALE"]
+__all__ = ["Stripes", "find_stripes", "find_stripe_candidates", "stripe_mask", "detect_scale", "DETECT_WIDTH"]
 
-DETECT_SCALE = 0.25
-_MIN_AREA_PX = 6           # at DETECT_SCALE
+DETECT_WIDTH = 480          # coarse detection runs at about this many pixels across (1920 px: a quarter)
+_MIN_AREA_PX = 6            # at the detection scale
+_MAX_BLOBS = 8              # the largest blobs considered for candidate groups
+_NEAR_SIZES = 8             # blobs of one group lie within this many lead-blob sizes of the lead
 
 
 @dataclass(frozen=True)
@@ -39,6 +50,21 @@ class Stripes:
         return len(self.centroids)
 
 
+@dataclass(frozen=True)
+class _Blob:
+    """A coarse blob: bounding box (x0, y0, x1, y1) and centroid in full-resolution pixels, area at detection scale."""
+
+    box: tuple[int, int, int, int]
+    centroid: np.ndarray
+    area: float
+    size: float
+
+
+def detect_scale(width: int) -> float:
+    """The coarse detection scale for images ``width`` pixels across (1 for narrow images)."""
+    return min(1.0, DETECT_WIDTH / float(width))
+
+
 def stripe_mask(image_bgr: np.ndarray, probe: ProbeModel) -> np.ndarray:
     """uint8 mask (255 = stripe colour) of a BGR image, opened to drop speckle."""
     hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
@@ -46,48 +72,120 @@ def stripe_mask(image_bgr: np.ndarray, probe: ProbeModel) -> np.ndarray:
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
 
 
-def _coarse_boxes(image_bgr: np.ndarray, probe: ProbeModel, expected: int) -> list[tuple[int, int, int, int]]:
-    small = cv2.resize(image_bgr, None, fx=DETECT_SCALE, fy=DETECT_SCALE, interpolation=cv2.INTER_AREA)
-    n, _, stats, centroids = cv2.connectedComponentsWithStats(stripe_mask(small, probe), connectivity=8)
-    blobs = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= _MIN_AREA_PX]
-    if not blobs:
-        return []
-    blobs.sort(key=lambda k: -stats[k, cv2.CC_STAT_AREA])
-    lead = blobs[0]
-    size = max(stats[lead, cv2.CC_STAT_WIDTH], stats[lead, cv2.CC_STAT_HEIGHT])
-    near = [k for k in blobs if np.linalg.norm(centroids[k] - centroids[lead]) <= 8 * size
-            and stats[k, cv2.CC_STAT_AREA] >= 0.15 * stats[lead, cv2.CC_STAT_AREA]][:expected]
-    scale = 1.0 / DETECT_SCALE
-    return [(int(stats[k, 0] * scale), int(stats[k, 1] * scale),
-             int((stats[k, 0] + stats[k, 2]) * scale), int((stats[k, 1] + stats[k, 3]) * scale)) for k in near]
-
-
 def find_stripes(image_bgr: np.ndarray, probe: ProbeModel, search_box: tuple[int, int, int, int] | None = None) -> Stripes | None:
-    """The probe's stripes in an image, or None when no stripe colour is found.
+    """The best candidate of :func:`find_stripe_candidates`, or None when no stripe colour is found."""
+    return next(find_stripe_candidates(image_bgr, probe, search_box), None)
 
-    ``search_box`` (x0, y0, x1, y1) limits the search (e.g. the band of the other eye).
+
+def find_stripe_candidates(image_bgr: np.ndarray, probe: ProbeModel,
+                           search_box: tuple[int, int, int, int] | None = None) -> Iterator[Stripes]:
+    """Candidate stripe groups in an image, best first (module docstring); segmented lazily, one per step.
+
+    ``search_box`` (x0, y0, x1, y1) limits the search (e.g. the band of the other eye); blobs touching the
+    border of the whole image are left out either way.
     """
     height, width = image_bgr.shape[:2]
-    ox, oy = 0, 0
+    x0, y0, x1, y1 = 0, 0, width, height
     if search_box is not None:
         x0, y0, x1, y1 = (int(v) for v in search_box)
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
         if x1 - x0 < 8 or y1 - y0 < 8:
-            return None
-        image_bgr, ox, oy = image_bgr[y0:y1, x0:x1], x0, y0
-    boxes = _coarse_boxes(image_bgr, probe, len(probe.stripe_centres_mm))
-    if not boxes:
-        return None
-    pad = int(2 / DETECT_SCALE)
-    x0 = max(min(b[0] for b in boxes) - pad, 0)
-    y0 = max(min(b[1] for b in boxes) - pad, 0)
-    x1 = min(max(b[2] for b in boxes) + pad, image_bgr.shape[1])
-    y1 = min(max(b[3] for b in boxes) + pad, image_bgr.shape[0])
+            return
+    scale = detect_scale(width)
+    blobs = _coarse_blobs(image_bgr[y0:y1, x0:x1], probe, scale, (x0, y0), (width, height))
+    seen = set()
+    expected = len(probe.stripe_centres_mm)
+    for group in _groups(blobs, expected, scale):
+        stripes = _segment(image_bgr, probe, [blobs[k] for k in group], scale, expected)
+        key = None if stripes is None else tuple(np.round(stripes.centroids.ravel(), 3))
+        if stripes is not None and key not in seen:
+            seen.add(key)
+            yield stripes
+
+
+def _coarse_blobs(crop: np.ndarray, probe: ProbeModel, scale: float, offset: tuple[int, int],
+                  image_size: tuple[int, int]) -> list[_Blob]:
+    """The largest stripe-coloured blobs of ``crop`` (at most ``_MAX_BLOBS``, largest first), in full-image pixels,
+    without those touching the image border."""
+    small = crop if scale == 1.0 else cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    n, _, stats, centroids = cv2.connectedComponentsWithStats(stripe_mask(small, probe), connectivity=8)
+    width, height = image_size
+    blobs = []
+    for k in sorted(range(1, n), key=lambda k: -stats[k, cv2.CC_STAT_AREA]):
+        if stats[k, cv2.CC_STAT_AREA] < _MIN_AREA_PX:
+            break
+        x, y, w, h = (int(v) for v in stats[k, :4])
+        box = (int(x / scale) + offset[0], int(y / scale) + offset[1],
+               int((x + w) / scale) + offset[0], int((y + h) / scale) + offset[1])
+        if box[0] <= 0 or box[1] <= 0 or box[2] >= width or box[3] >= height:
+            continue                                   # touches the image border: may be cut off
+        blobs.append(_Blob(box, centroids[k] / scale + offset, float(stats[k, cv2.CC_STAT_AREA]), float(max(w, h))))
+        if len(blobs) == _MAX_BLOBS:
+            break
+    return blobs
+
+
+def _groups(blobs: list[_Blob], expected: int, scale: float) -> Iterator[tuple[int, ...]]:
+    """Indices of candidate groups: first, around the largest blob, the largest nearby ones (a clean view of the
+    probe); then every other group of 2..``expected`` blobs near one another, the most stripe-like first."""
+    if not blobs:
+        return
+    near = {}
+    for lead, blob in enumerate(blobs):
+        near[lead] = [k for k, other in enumerate(blobs)
+                      if np.linalg.norm(other.centroid - blob.centroid) <= _NEAR_SIZES * blob.size / scale
+                      and other.area >= 0.15 * blob.area]
+    first = tuple(near[0][:expected])
+    yield first
+    others = set()
+    for lead in range(len(blobs)):
+        for size in range(min(expected, len(near[lead])), 1, -1):
+            for group in itertools.combinations(near[lead], size):
+                if lead in group and group != first:
+                    others.add(tuple(sorted(group)))
+    yield from sorted(others, key=lambda g: (-len(g), _irregularity(blobs, g)))
+
+
+def _irregularity(blobs: list[_Blob], group: tuple[int, ...]) -> float:
+    """How unlike a row of equal, evenly spaced bands a group is (0 = perfectly like it)."""
+    centres = np.array([blobs[k].centroid for k in group])
+    areas = np.array([blobs[k].area for k in group])
+    centred = centres - centres.mean(axis=0)
+    direction = np.linalg.svd(centred, full_matrices=False)[2][0]
+    along = np.sort(centred @ direction)
+    gaps = np.diff(along)
+    off_line = np.abs(centred @ np.array([-direction[1], direction[0]])).max() / max(gaps.mean(), 1e-6)
+    uneven = np.ptp(gaps) / max(gaps.mean(), 1e-6) if len(gaps) > 1 else 0.0
+    return float(off_line + uneven + np.ptp(np.log(areas)))
+
+
+def _segment(image_bgr: np.ndarray, probe: ProbeModel, group: list[_Blob], scale: float,
+             expected: int) -> Stripes | None:
+    """The group's stripes segmented at full resolution: inside the padded union of its boxes, the ``expected``
+    largest components (at least 15% of the largest) whose centroid lies in one of its boxes, none touching the
+    image border."""
+    height, width = image_bgr.shape[:2]
+    pad = int(2 / scale)
+    x0 = max(min(b.box[0] for b in group) - pad, 0)
+    y0 = max(min(b.box[1] for b in group) - pad, 0)
+    x1 = min(max(b.box[2] for b in group) + pad, width)
+    y1 = min(max(b.box[3] for b in group) + pad, height)
     mask = stripe_mask(image_bgr[y0:y1, x0:x1], probe)
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    keep = sorted(range(1, n), key=lambda k: -stats[k, cv2.CC_STAT_AREA])[:len(probe.stripe_centres_mm)]
+    boxes = np.array([b.box for b in group], float) + [-pad, -pad, pad, pad]
+
+    def belongs(k: int) -> bool:
+        cx, cy = centroids[k] + (x0, y0)
+        left, top = stats[k, 0] + x0, stats[k, 1] + y0
+        right, bottom = left + stats[k, 2], top + stats[k, 3]
+        inside = np.any((boxes[:, 0] <= cx) & (cx <= boxes[:, 2]) & (boxes[:, 1] <= cy) & (cy <= boxes[:, 3]))
+        return bool(inside) and left > 0 and top > 0 and right < width and bottom < height
+
+    keep = [k for k in sorted(range(1, n), key=lambda k: -stats[k, cv2.CC_STAT_AREA]) if belongs(k)][:expected]
+    if not keep:
+        return None
     keep = [k for k in keep if stats[k, cv2.CC_STAT_AREA] >= 0.15 * stats[keep[0], cv2.CC_STAT_AREA]]
-    cents = centroids[keep] + np.array([x0 + ox, y0 + oy])
+    cents = centroids[keep] + np.array([x0, y0])
     areas = stats[keep, cv2.CC_STAT_AREA].astype(float)
     if len(keep) >= 2:
         ys, xs = np.nonzero(np.isin(labels, keep))
@@ -100,5 +198,4 @@ def find_stripes(image_bgr: np.ndarray, probe: ProbeModel, search_box: tuple[int
     relabel = np.zeros(n, dtype=np.int32)
     for rank, k in enumerate(np.array(keep)[order]):
         relabel[k] = rank + 1
-    return Stripes(cents[order], areas[order], direction, relabel[labels],
-                   (x0 + ox, y0 + oy, x1 + ox, y1 + oy))
+    return Stripes(cents[order], areas[order], direction, relabel[labels], (x0, y0, x1, y1))

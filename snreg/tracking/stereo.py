@@ -1,17 +1,19 @@
 """Probe position from a stereo pair (thesis §3.4.2, Appendix A): stripes, SGBM depth, triangulation.
 
-Per pair: find the stripes in the left image and, in the band of rows they occupy, in the
-right image; map their centroids into the rectified frame. Two measurements follow:
+Per pair: find candidate stripe groups in the left image and, on the rows they occupy and at a
+disparity the working depth range allows, in the right image; map their centroids into the
+rectified frame. A candidate becomes a fix only when its 3D stripe spacing, stripe width and band
+diameter agree with the probe model (:mod:`snreg.tracking.plausibility`); otherwise the next is
+tried, and with none left the pair has "no probe" (``TrackingError``). Three measurements:
 
 - ``triangulation``: the stripe centroids of both eyes (``cv2.triangulatePoints`` with the
-  rectified projections). A centroid of the visible band lies on the projection of the
-  axis, so the triangulated points are axis points.
+  rectified projections), corrected for the visible half-ring's offset from the axis.
 - ``sgbm``: the thesis method. The rectified pair is cropped around the stripes (only the
   crop is remapped), SGBM with the Appendix A parameters runs on it over a disparity
-  window centred on the triangulated disparity, the median disparity inside each stripe is
-  reprojected with Q. That is a point of the visible surface; the median visible surface
-  of a cylinder seen side-on lies sqrt(3)/2 radius in front of the axis, so the point is
-  moved back by that much, away from the camera and perpendicular to the axis.
+  window centred on the triangulated disparity and no wider than the working depth range
+  allows (the crop is padded on the left where the image is too narrow for the window),
+  and a cylinder of the probe's radius is fitted to the stripe surface points.
+- ``width``: the thesis' monocular baseline, depth from the probe's width in pixels.
 
 Stripe axis points and their known distances from the tip give the axis and the tip by
 least squares. Which end is the tip comes from the dark body: it runs on longer behind
@@ -21,6 +23,7 @@ the last stripe than in front of the first. Points leave in the left camera fram
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import cv2
@@ -30,11 +33,13 @@ from scipy.optimize import least_squares
 from snreg.camera import StereoCalibration
 from snreg.errors import TrackingError
 from snreg.probe import ProbeModel, default_probe_model
-from snreg.tracking.markers import Stripes, find_stripes
+from snreg.tracking.markers import Stripes, find_stripe_candidates
+from snreg.tracking.plausibility import ProbeTolerances, check_shape, measure_shape
 
 __all__ = ["ProbeFix", "SGBMParams", "StereoTracker", "TrackingError", "METHODS"]
 
-METHODS = ("sgbm", "triangulation")
+METHODS = ("triangulation", "sgbm", "width")
+MAX_CANDIDATES = 12            # candidate stripe groups tried per eye before "no probe"
 _MAX_SURFACE_POINTS = 800
 _NEIGHBOURS = np.stack(np.meshgrid(np.arange(-2, 3), np.arange(-2, 3)), axis=-1).reshape(-1, 2)
 
@@ -44,8 +49,8 @@ class SGBMParams:
     """StereoSGBM settings of thesis Appendix A; the block size is ours (the thesis does not give it)."""
 
     block_size: int = 5
-    num_disparities: int = 18 * 16     # thesis range, used when no triangulated disparity is available
-    window: int = 64                   # disparity window around the triangulated disparity (multiple of 16)
+    window: int = 64                   # disparity window around the triangulated disparity (multiple of 16),
+                                       # narrowed to what the working depth range allows
     prefilter_cap: int = 20
     uniqueness_ratio: int = 15
     speckle_window: int = 0
@@ -75,10 +80,15 @@ class StereoTracker:
     """Find the probe in stereo pairs of one calibrated camera; rectification maps made once."""
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel | None = None,
-                 params: SGBMParams = SGBMParams(), method: str = "triangulation"):
+                 params: SGBMParams = SGBMParams(), method: str = "triangulation", *,
+                 depth_range_mm: tuple[float, float] | None = None, tolerances: ProbeTolerances = ProbeTolerances()):
         if method not in METHODS:
             raise ValueError(f"tracking method must be one of {', '.join(METHODS)}")
         self.calibration, self.probe, self.params, self.method = calibration, probe or default_probe_model(), params, method
+        self.depth_range_mm = tuple(float(v) for v in (depth_range_mm or self.probe.working_range_mm))
+        if not 0 < self.depth_range_mm[0] < self.depth_range_mm[1]:
+            raise ValueError(f"the depth range must be 0 < near < far mm, got {self.depth_range_mm}")
+        self.tolerances = tolerances
         size = calibration.image_size
         self._maps = [cv2.initUndistortRectifyMap(K, D, R, P, size, cv2.CV_32FC1)
                       for K, D, R, P in ((calibration.K1, calibration.D1, calibration.R1, calibration.P1),
@@ -86,47 +96,114 @@ class StereoTracker:
         self._cam_from_rect = calibration.R1.T
         self._eye_poses = ((np.zeros(3), np.zeros(3), calibration.K1, calibration.D1),
                            (cv2.Rodrigues(calibration.R)[0].ravel(), calibration.T.ravel(), calibration.K2, calibration.D2))
-        fx = calibration.P1[0, 0]
-        self._max_disparity = int(np.ceil(fx * calibration.baseline_mm / 20.0))    # probe >= 20 mm away
+        fb = calibration.P1[0, 0] * calibration.baseline_mm          # disparity (px) x depth (mm)
+        self._disparity_range = (fb / self.depth_range_mm[1], fb / self.depth_range_mm[0])
+        self._max_disparity = int(np.ceil(self._disparity_range[1]))
 
     # -- public --------------------------------------------------------------
     def track(self, left: np.ndarray, right: np.ndarray) -> ProbeFix:
-        """The probe position in this pair; TrackingError says why there is none."""
+        """The probe position in this pair; TrackingError says why there is none ("no probe: ...").
+
+        Candidate stripe groups of the left image are tried best first (:mod:`snreg.tracking.markers`); the
+        first whose right-eye match and 3D shape agree with the probe model gives the fix
+        (:mod:`snreg.tracking.plausibility`). The ``width`` method uses the left image only.
+        """
         self._check(left, "left")
         self._check(right, "right")
-        stripes_left = find_stripes(left, self.probe)
-        if stripes_left is None:
+        if self.method == "width":
+            return self.marker_width(left)
+        reasons = []
+        for stripes_left in itertools.islice(find_stripe_candidates(left, self.probe), MAX_CANDIDATES):
+            try:
+                return self._track_candidate(left, right, stripes_left)
+            except TrackingError as err:
+                reasons.append(str(err))
+        if not reasons:
             raise TrackingError("no probe stripe found in the left image")
-        x0, y0, x1, y1 = stripes_left.box
-        stripes_right = find_stripes(right, self.probe, (x0 - self._max_disparity - 20, y0 - 40, x1 + 20, y1 + 40))
-        if stripes_right is None:
-            raise TrackingError("no probe stripe found in the right image")
-        if len(stripes_right) != len(stripes_left):
-            raise TrackingError(f"{len(stripes_left)} stripes in the left image but {len(stripes_right)} in the right")
-        rect_left = self._rectify_points(stripes_left.centroids, 0)
-        rect_right = self._rectify_points(stripes_right.centroids, 1)
+        others = f" ({len(reasons) - 1} other green group(s) rejected too)" if len(reasons) > 1 else ""
+        raise TrackingError(reasons[0] + others)
+
+    def _track_candidate(self, left: np.ndarray, right: np.ndarray, stripes_left: Stripes) -> ProbeFix:
+        """The fix from one left candidate, or TrackingError why it is not the probe."""
+        stripes_right, rect_left, rect_right = self._match_right(right, stripes_left)
         disparity = rect_left[:, 0] - rect_right[:, 0]
-        if np.any(disparity <= 0):
-            raise TrackingError("left and right stripes do not match (non-positive disparity)")
         points = self._triangulate_axis(stripes_left.centroids, stripes_right.centroids)
-        tip_first = self._tip_first(left, points) if len(points) >= 2 else None
+        s = self._stripe_positions(points)
+        shape = measure_shape(points, s, stripes_left, self.probe, lambda p: self.project(p, 0), self.calibration.P1[0, 0],
+                              self.calibration.baseline_mm, self.tolerances)
+        check_shape(shape, points, self.probe, self.depth_range_mm, self.tolerances)
+        verdicts = self._end_verdicts(left, points)
+        if len(points) == 2 and np.ptp(s) < np.ptp(self.probe.stripe_centres_mm) and False not in verdicts:
+            # two neighbouring stripes are the first two only when tissue shows where the tip must end
+            raise TrackingError("no probe: two neighbouring stripes seen, and which two cannot be told with the tip out "
+                                "of view; show more of the probe")
+        tip_first = self._tip_first(verdicts)
         if self.method == "sgbm":
             surface = self._sgbm_surface(left, right, stripes_left, float(np.median(disparity)))
             points = self._onto_cylinder(points, surface)
-        return self._fit_axis(points, tip_first)
+        return self._fit_axis(points, s, tip_first)
+
+    def _match_right(self, right: np.ndarray, stripes_left: Stripes) -> tuple[Stripes, np.ndarray, np.ndarray]:
+        """The right-eye candidate with as many stripes on the same rectified rows at a disparity the working range
+        allows; returns it with both eyes' rectified centroids."""
+        x0, y0, x1, y1 = stripes_left.box
+        rect_left = self._rectify_points(stripes_left.centroids, 0)
+        low, high = self._disparity_range
+        counts = []
+        for candidate in itertools.islice(find_stripe_candidates(right, self.probe, (x0 - self._max_disparity - 20, y0 - 40,
+                                                                                      x1 + 20, y1 + 40)), MAX_CANDIDATES):
+            counts.append(len(candidate))
+            if len(candidate) != len(stripes_left):
+                continue
+            rect_right = self._rectify_points(candidate.centroids, 1)
+            rows = np.abs(rect_left[:, 1] - rect_right[:, 1])
+            tolerance = np.maximum(2.0, 0.1 * np.sqrt(np.minimum(stripes_left.areas, candidate.areas)))
+            disparity = rect_left[:, 0] - rect_right[:, 0]
+            if np.all(rows <= tolerance) and np.all((disparity > 0.5 * low) & (disparity < 1.5 * high)):
+                return candidate, rect_left, rect_right
+        if not counts:
+            raise TrackingError("no probe stripe found in the right image")
+        if len(stripes_left) not in counts:
+            raise TrackingError(f"{len(stripes_left)} stripes in the left image but {counts[0]} in the right")
+        raise TrackingError(f"left and right stripes do not match (not on the same rectified rows, or at a disparity "
+                            f"outside the {low:.1f}-{high:.1f} px of the working depth range "
+                            f"{self.depth_range_mm[0]:g}-{self.depth_range_mm[1]:g} mm)")
 
     def marker_width(self, left: np.ndarray) -> ProbeFix:
-        """The thesis' marker-width baseline (§3.4.1): depth from the probe's width in pixels (pinhole)."""
+        """The thesis' marker-width baseline (§3.4.1): depth from the probe's width in pixels (pinhole).
+
+        Candidates are tried best first; one is the probe when its depth lies in the working range and its
+        stripes are no farther apart in the image than the model's spacing at that depth allows.
+        """
         self._check(left, "left")
-        stripes = find_stripes(left, self.probe)
-        if stripes is None:
+        reasons = []
+        for stripes in itertools.islice(find_stripe_candidates(left, self.probe), MAX_CANDIDATES):
+            try:
+                return self._width_fix(stripes)
+            except TrackingError as err:
+                reasons.append(str(err))
+        if not reasons:
             raise TrackingError("no probe stripe found in the left image")
+        raise TrackingError(reasons[0] + (f" ({len(reasons) - 1} other green group(s) rejected too)" if len(reasons) > 1 else ""))
+
+    def _width_fix(self, stripes: Stripes) -> ProbeFix:
         ys, xs = np.nonzero(stripes.labels)
         x0, y0 = stripes.box[:2]
         (cx, cy), (w, h), _ = cv2.minAreaRect(np.column_stack([xs + x0, ys + y0]).astype(np.float32))
         width_px = min(w, h) if len(stripes) > 1 else max(w, h)
         K = self.calibration.K1
         z = K[0, 0] * self.probe.diameter_mm / max(width_px, 1e-6)
+        near, far = self.depth_range_mm
+        if not near <= z <= far:
+            raise TrackingError(f"no probe: its width puts it {z:.0f} mm away, outside the working depth range "
+                                f"{near:g}-{far:g} mm")
+        if len(stripes) > 1:
+            gaps = np.diff(stripes.centroids @ stripes.direction)
+            spacing = np.diff(self.probe.stripe_centres_mm).max() * (1 if len(stripes) == len(self.probe.stripe_centres_mm) else 2)
+            allowed = K[0, 0] * spacing / z * (1.0 + self.tolerances.diameter)
+            if gaps.max() > allowed:
+                raise TrackingError(f"no probe: stripes {gaps.max() * z / K[0, 0]:.1f} mm apart at the depth their width "
+                                    f"gives, more than the probe's {spacing:g} mm")
         centre = np.array([(cx - K[0, 2]) * z / K[0, 0], (cy - K[1, 2]) * z / K[1, 1], z])
         ray2d = np.append(stripes.direction, 0.0)
         axis = ray2d / np.linalg.norm(ray2d)
@@ -195,14 +272,20 @@ class StereoTracker:
         pad = 8
         x0, y0 = int(max(rect[:, 0].min() - pad, 0)), int(max(rect[:, 1].min() - pad, 0))
         x1, y1 = int(min(rect[:, 0].max() + pad, width)), int(min(rect[:, 1].max() + pad, height))
-        min_disp = max(int(disparity_guess) - p.window // 2, 0)
-        num_disp = p.window
-        xa = max(x0 - min_disp - num_disp, 0)
+        low, high = self._disparity_range
+        num_disp = min(p.window, 16 * int(np.ceil((high - low) / 16.0)))      # no wider than the depth range allows
+        min_disp = max(int(disparity_guess) - num_disp // 2, 0)
+        # SGBM leaves the first min_disp + num_disp columns without a disparity: pad on the left when the image
+        # has fewer columns than that left of the stripes (narrow, e.g. standard-definition, images)
+        wanted = x0 - min_disp - num_disp
+        xa = max(wanted, 0)
+        extra = xa - wanted
         crops = []
         for eye, image in enumerate((left, right)):
             map_x, map_y = self._maps[eye]
-            crops.append(cv2.cvtColor(cv2.remap(image, map_x[y0:y1, xa:x1], map_y[y0:y1, xa:x1], cv2.INTER_LINEAR),
-                                      cv2.COLOR_BGR2GRAY))
+            crop = cv2.cvtColor(cv2.remap(image, map_x[y0:y1, xa:x1], map_y[y0:y1, xa:x1], cv2.INTER_LINEAR),
+                                cv2.COLOR_BGR2GRAY)
+            crops.append(cv2.copyMakeBorder(crop, 0, 0, extra, 0, cv2.BORDER_REPLICATE) if extra else crop)
         matcher = cv2.StereoSGBM_create(minDisparity=min_disp, numDisparities=num_disp, blockSize=p.block_size,
                                         P1=p.p1_factor * p.block_size**2, P2=p.p2_factor * p.block_size**2,
                                         preFilterCap=p.prefilter_cap, uniquenessRatio=p.uniqueness_ratio,
@@ -213,6 +296,8 @@ class StereoTracker:
         labels[by0:by1, bx0:bx1] = stripes.labels
         map_x, map_y = self._maps[0]
         rect_labels = cv2.remap(labels, map_x[y0:y1, xa:x1], map_y[y0:y1, xa:x1], cv2.INTER_NEAREST)
+        if extra:
+            rect_labels = cv2.copyMakeBorder(rect_labels, 0, 0, extra, 0, cv2.BORDER_CONSTANT, value=0)
         inner = cv2.erode((rect_labels > 0).astype(np.uint8), np.ones((3, 3), np.uint8))
         ys, xs = np.nonzero((inner > 0) & (disparity >= min_disp))
         if len(xs) < 20:
@@ -220,7 +305,7 @@ class StereoTracker:
         if len(xs) > _MAX_SURFACE_POINTS:
             keep = np.linspace(0, len(xs) - 1, _MAX_SURFACE_POINTS).astype(int)
             ys, xs = ys[keep], xs[keep]
-        homog = np.column_stack([xs + xa, ys + y0, disparity[ys, xs], np.ones(len(xs))]) @ self.calibration.Q.T
+        homog = np.column_stack([xs + xa - extra, ys + y0, disparity[ys, xs], np.ones(len(xs))]) @ self.calibration.Q.T
         return self._to_camera(homog[:, :3] / homog[:, 3:])
 
     def _onto_cylinder(self, axis_points: np.ndarray, surface: np.ndarray) -> np.ndarray:
@@ -252,17 +337,21 @@ class StereoTracker:
         c, u = line(fit.x)
         return c + ((axis_points - c) @ u)[:, None] * u
 
-    def _fit_axis(self, points: np.ndarray, tip_first: bool | None) -> ProbeFix:
+    def _stripe_positions(self, points: np.ndarray) -> np.ndarray:
+        """(k,) model positions (mm from the tip) of the k stripe points, in the image order: all stripes, or for
+        two the pair whose spacing is nearer the measured gap (neighbours, or the ends with the middle hidden)."""
+        s_all = np.array(self.probe.stripe_centres_mm)
+        n = len(points)
+        if n == len(s_all):
+            return s_all
+        if n == 2:
+            gap = np.linalg.norm(points[1] - points[0])
+            return s_all[[0, -1]] if abs(gap - (s_all[-1] - s_all[0])) < abs(gap - (s_all[1] - s_all[0])) else s_all[:2]
+        raise TrackingError(f"{n} stripe(s) seen; the axis needs at least two")
+
+    def _fit_axis(self, points: np.ndarray, s: np.ndarray, tip_first: bool | None) -> ProbeFix:
         probe = self.probe
         n = len(points)
-        s_all = np.array(probe.stripe_centres_mm)
-        if n == len(s_all):
-            s = s_all
-        elif n == 2:
-            gap = np.linalg.norm(points[1] - points[0])
-            s = s_all[[0, -1]] if abs(gap - (s_all[-1] - s_all[0])) < abs(gap - (s_all[1] - s_all[0])) else s_all[:2]
-        else:
-            raise TrackingError(f"{n} stripe(s) seen; the axis needs at least two")
         if tip_first is False:
             points = points[::-1]
         design = np.column_stack([np.ones(n), s])
@@ -271,11 +360,12 @@ class StereoTracker:
         tip = np.mean(points - s[:, None] * axis, axis=0)
         residual = points - (tip + s[:, None] * axis)
         rms = float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
-        quality = (n / len(s_all)) * float(np.exp(-0.5 * (rms / 1.5) ** 2)) * (0.5 if tip_first is None else 1.0)
+        quality = (n / len(probe.stripe_centres_mm)) * float(np.exp(-0.5 * (rms / 1.5) ** 2)) * (0.5 if tip_first is None else 1.0)
         return ProbeFix(tip, tip + probe.band_centre_mm * axis, axis, quality, self.method, n)
 
-    def _tip_first(self, left: np.ndarray, points: np.ndarray) -> bool | None:
-        """Is the first stripe point the one nearest the tip? None when the image cannot tell.
+    def _end_verdicts(self, left: np.ndarray, points: np.ndarray) -> tuple[bool | None, bool | None]:
+        """Is there grey probe body (True) or red tissue (False) beyond the first and the last stripe point?
+        None for an end whose samples leave the image.
 
         Behind the last stripe the dark body runs on for ``length - last stripe`` mm; in front
         of the first it ends after ``first stripe + radius`` mm. So look at the image 28-34 mm
@@ -296,6 +386,11 @@ class StereoTracker:
             bgr = left[near[..., 1], near[..., 0]].astype(np.float32).mean(axis=1)   # 5x5 mean beats sensor noise
             red, green = bgr[:, 2], bgr[:, 1]
             verdicts.append(bool(np.mean(red - green < 0.2 * red + 2.0) > 0.5))      # grey body, not red tissue
+        return verdicts[0], verdicts[1]
+
+    @staticmethod
+    def _tip_first(verdicts: tuple[bool | None, bool | None]) -> bool | None:
+        """Is the first stripe point the one nearest the tip, from :meth:`_end_verdicts`? None when they cannot tell."""
         before, after = verdicts
         if before is not None and after is not None and before != after:
             return after
