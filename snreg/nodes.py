@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from snreg.errors import NodeFileError
+from snreg.files import atomic_write
 
 __all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes"]
 
@@ -47,6 +48,8 @@ class NodeSet:
         if len(self.ids) != n or len(self.labels) != n:
             raise ValueError(f"a node set needs one id and one label per node: {n} positions, "
                              f"{len(self.ids)} ids, {len(self.labels)} labels")
+        if any(not i.strip() for i in self.ids):
+            raise ValueError(f"node {[i.strip() for i in self.ids].index('') + 1} has an empty id; every node needs one, e.g. SN1")
         if len(set(self.ids)) != n:
             dup = sorted({i for i in self.ids if self.ids.count(i) > 1})
             raise ValueError(f"node ids must be unique; repeated: {', '.join(dup)}")
@@ -86,8 +89,8 @@ class NodeSet:
 
     @classmethod
     def from_csv(cls, text: str, source: str = "node file") -> "NodeSet":
-        frame, comments, body = "", [], []
-        for line in text.split("\n"):
+        frame, comments, body, body_lines = "", [], [], []
+        for line_no, line in enumerate(text.removeprefix("\ufeff").split("\n"), start=1):
             line = line.rstrip("\r")
             stripped = line.strip()
             if stripped.startswith("#"):
@@ -98,6 +101,7 @@ class NodeSet:
                     comments.append(comment)
             elif stripped:
                 body.append(line)
+                body_lines.append(line_no)
         if not body:
             raise NodeFileError(f"{source}: no header line; expected 'id,label,x,y,z'")
         rows = list(csv.reader(body))
@@ -108,14 +112,21 @@ class NodeSet:
         col = {name: header.index(name) for name in header}
         ids, labels, xyz, counts = [], [], [], []
         has_counts = "counts" in col
-        for line_no, row in enumerate(rows[1:], start=2):
+        for row_no, row in enumerate(rows[1:], start=1):
+            where = f"data row {row_no} (line {body_lines[row_no]})"
             if len(row) < len(header):
-                raise NodeFileError(f"{source}: data row {line_no} has {len(row)} fields, header has {len(header)}")
+                raise NodeFileError(f"{source}: {where} has {len(row)} fields, the header has {len(header)}")
             try:
                 point = [float(row[col[a]]) for a in ("x", "y", "z")]
+            except ValueError:
+                raise NodeFileError(f"{source}: {where} has a coordinate (x, y, z) that is not a number") from None
+            try:
                 count = float(row[col["counts"]]) if has_counts and row[col["counts"]].strip() else math.nan
             except ValueError:
-                raise NodeFileError(f"{source}: data row {line_no} has a coordinate that is not a number") from None
+                raise NodeFileError(f"{source}: {where} has counts that are not a number "
+                                    f"({row[col['counts']].strip()!r}); leave the cell empty if unknown") from None
+            if not row[col["id"]].strip():
+                raise NodeFileError(f"{source}: {where} has an empty id; every node needs a unique id, e.g. SN1")
             ids.append(row[col["id"]].strip())
             labels.append(row[col["label"]].strip())
             xyz.append(point)
@@ -151,12 +162,17 @@ class NodeSet:
             markup = fiducials[0]
             system = markup.get("coordinateSystem", "LPS").upper()
             ids, labels, xyz = [], [], []
-            for k, point in enumerate(markup.get("controlPoints", [])):
+            points = markup.get("controlPoints", [])
+            for k, point in enumerate(points):
                 ids.append(point.get("label") or point.get("id") or f"F-{k + 1}")
                 labels.append(point.get("description", ""))
                 xyz.append([float(v) for v in point["position"]])
         except (KeyError, IndexError, TypeError, ValueError, AttributeError):
             raise NodeFileError(f"{source}: not a 3D Slicer fiducial list (.mrk.json with markups/controlPoints)") from None
+        ragged = [k + 1 for k, p in enumerate(xyz) if len(p) != 3]
+        if ragged:
+            raise NodeFileError(f"{source}: control point {ragged[0]} has a position of {len(xyz[ragged[0] - 1])} numbers; "
+                                "every position needs x, y, z (mm)")
         xyz = np.array(xyz, dtype=float).reshape(-1, 3)
         if system == "RAS":
             xyz[:, :2] *= -1.0
@@ -170,9 +186,13 @@ def read_nodes(path: str | Path) -> NodeSet:
     """Read a node CSV or a Slicer ``.mrk.json``; :class:`NodeFileError` says what is wrong."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")    # -sig: Excel's "CSV UTF-8" starts with a byte-order mark
     except FileNotFoundError:
         raise NodeFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise NodeFileError(f"{path} is a folder; give a node file (.csv or .mrk.json)") from None
+    except OSError as err:
+        raise NodeFileError(f"{path}: cannot read the node file ({err.strerror})") from None
     except UnicodeDecodeError:
         raise NodeFileError(f"{path}: not a text node file (expected UTF-8 CSV or .mrk.json)") from None
     if path.name.lower().endswith(".json"):
@@ -185,12 +205,12 @@ def read_nodes(path: str | Path) -> NodeSet:
 
 
 def write_nodes(nodes: NodeSet, path: str | Path) -> None:
-    """Write a node set as CSV, or as Slicer markups when the name ends in ``.json``."""
+    """Write a node set as CSV, or as Slicer markups when the name ends in ``.json``, atomically (``OSError`` if it
+    cannot be written; the previous file then stays as it was)."""
     path = Path(path)
-    if path.name.lower().endswith(".json"):
-        path.write_text(json.dumps(nodes.to_slicer(), indent=2), encoding="utf-8")
-    else:
-        path.write_text(nodes.to_csv(), encoding="utf-8")
+    text = json.dumps(nodes.to_slicer(), indent=2) if path.name.lower().endswith(".json") else nodes.to_csv()
+    with atomic_write(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
 
 
 def _fmt(value: float) -> str:

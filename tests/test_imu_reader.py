@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from snreg.cli import imu as imu_cli
+from snreg.cli import main
 from snreg.cli.imu import add_imu_parser
 from snreg.demo.imu_motion import MotionProfile, protractor_profile, rotate, still
 from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SensorModel, SimulatedPort
 from snreg.errors import UserError
+from snreg.imu import reader as imu_reader_module
 from snreg.imu.fusion import Fusion, fuse_arrays
 from snreg.imu.protocol import ImuSample, StreamCounts, format_line, parse_line
 from snreg.imu.reader import ImuPortError, ImuState, SerialImuReader
@@ -261,7 +262,7 @@ def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, c
                 port.start()
                 return self
 
-        monkeypatch.setattr(imu_cli, "SerialImuReader", ReaderThatStartsTheSimulator)
+        monkeypatch.setattr(imu_reader_module, "SerialImuReader", ReaderThatStartsTheSimulator)  # imported when run
         out = tmp_path / "angles.csv"
         assert _run("imu", "monitor", port.port, "--seconds", "0.6", "--csv", str(out), *["--json"] * as_json) == 0
     printed = capsys.readouterr().out
@@ -285,14 +286,18 @@ def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, c
     (["imu", "monitor", "/dev/null", "--seconds", "0"], "--seconds"),
     (["imu", "monitor", "/dev/null", "--baud", "0"], "--baud"),
     (["imu", "simulate", "--rate", "-5"], "positive"),
-    (["imu", "simulate", "--garbage", "1.5"], "fractions"),
+    (["imu", "simulate", "--garbage", "1.5"], "fraction"),
     (["imu", "simulate", "--replay", "/nonexistent.csv"], "not a readable IMU CSV"),
     (["imu", "simulate", "--replay", "x.csv", "--rate", "100"], "--rate does not apply"),
     (["imu", "simulate", "--port-link", "/nonexistent/dir/imu"], "cannot create the link"),
 ])
-def test_bad_input_is_one_user_error(argv, message):
-    with pytest.raises(UserError, match=message):
-        _run(*argv)
+def test_bad_input_is_one_line_and_exit_2(argv, message, capsys):
+    try:
+        status = main(argv)
+    except SystemExit as stop:                      # argparse's own checks (types, ranges)
+        status = stop.code
+    err = capsys.readouterr().err
+    assert status == 2 and message in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_simulate_refuses_to_replace_a_regular_file(tmp_path):

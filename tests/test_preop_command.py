@@ -90,7 +90,7 @@ def test_bad_input_is_a_user_error(phantom, tmp_path):
     ct.save_as(tmp_path / "ct.dcm")
     (tmp_path / "bad_stations.csv").write_text("id,station\nSN1,kidney\n")
     cases = [((tmp_path / "x.txt",), "not a readable DICOM"),
-             ((tmp_path / "ct.dcm",), "is CT, not NM"),
+             ((tmp_path / "ct.dcm",), "modality CT, not NM"),
              ((phantom, "--threshold", "1.2"), "between 0 and 1"),
              ((phantom, "--stations", tmp_path / "bad_stations.csv"), "not a known station"),
              ((phantom, "--stations", tmp_path / "missing.csv"), "cannot read the station table")]

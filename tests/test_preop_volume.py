@@ -113,7 +113,7 @@ def test_not_dicom(tmp_path):
     (tmp_path / "notes.txt").write_text("not an image")
     with pytest.raises(PreopError, match="not a readable DICOM file"):
         load_volume(tmp_path / "notes.txt")
-    with pytest.raises(PreopError, match="contains no DICOM files"):
+    with pytest.raises(PreopError, match="no DICOM file found in"):
         load_volume(tmp_path)
     with pytest.raises(PreopError, match="does not exist"):
         load_volume(tmp_path / "missing.dcm")
@@ -121,7 +121,7 @@ def test_not_dicom(tmp_path):
 
 def test_wrong_modality(tmp_path, counts):
     write_nm(counts, ORIGIN, VOXEL, tmp_path / "nm.dcm")
-    with pytest.raises(PreopError, match="is NM, not CT"):
+    with pytest.raises(PreopError, match="modality NM, not CT"):
         load_volume(tmp_path / "nm.dcm", modality="CT")
 
 

@@ -2,22 +2,31 @@
 
 from __future__ import annotations
 
-from snreg.simulation.bench import bench_registration, bench_tracking, format_rows, format_tracking
+import sys
+
+from snreg.cli.common import positive_int
 
 __all__ = ["add_bench_parser", "cmd_bench"]
 
 
 def add_bench_parser(subparsers) -> None:
-    p = subparsers.add_parser("bench", help="time the registration methods and the tracker")
-    p.add_argument("--reps", type=int, default=2, help="cases per patient and extras count")
+    p = subparsers.add_parser("bench", help="time the registration methods and the tracker",
+                              description="Time every registration method on simulated cases (one process) and the "
+                                          "tracker on rendered 1920x1080 stereo pairs.")
+    p.add_argument("--reps", type=positive_int, default=2, help="cases per patient and extras count")
     p.add_argument("--compare", action="store_true", help="also probreg CPD and Open3D ICP where installed")
-    p.add_argument("--pairs", type=int, default=40, help="stereo pairs to track")
+    p.add_argument("--pairs", type=positive_int, default=40, help="stereo pairs to track")
     p.set_defaults(func=cmd_bench)
 
 
 def cmd_bench(args) -> int:
+    from snreg.simulation.bench import bench_registration, bench_tracking, format_rows, format_tracking
+
+    print("bench: timing the registration methods ...", file=sys.stderr, flush=True)
+    rows = bench_registration(reps=args.reps, compare=args.compare)
     print("registration (simulated cases, one process):")
-    print(format_rows(bench_registration(reps=args.reps, compare=args.compare)))
+    print(format_rows(rows), flush=True)
+    print(f"bench: rendering and tracking {args.pairs} stereo pairs ...", file=sys.stderr, flush=True)
     print("\ntracking (rendered 1920x1080 pairs, one process):")
     print(format_tracking(bench_tracking(pairs=args.pairs)))
     return 0

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+from snreg.cli.common import check_output_file, positive_int, seed
 from snreg.errors import UserError
 
 
@@ -12,20 +14,21 @@ def add_demo_parser(subparsers) -> None:
     p.add_argument("--headless", action="store_true", help="no window: record, register and report (required here; "
                    "the window is 'snreg-gui --demo')")
     p.add_argument("-o", "--output", required=True, help="session file to create (.h5); the SPECT is written beside it")
-    p.add_argument("--fixes", type=int, default=60, help="valid fixes per stored node (thesis: 60)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--fixes", type=positive_int, default=60, help="valid fixes per stored node (thesis: 60)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the rendered scene and the simulated IMU")
     p.add_argument("--json", action="store_true", help='print one JSON object: {"rms_mm", "pairing", "nodes", ...}')
     p.set_defaults(func=cmd_demo)
 
 
 def cmd_demo(args) -> int:
-    from snreg.demo.headless import DemoError, run_headless
+    from snreg.demo.headless import DemoError, run_headless, spect_path_for
     from snreg.session import SessionError
 
     if not args.headless:
         raise UserError("the demo with a window is 'snreg-gui --demo'; add --headless to run it here without one")
-    if args.fixes < 1:
-        raise UserError(f"--fixes must be at least 1, not {args.fixes}")
+    check_output_file(args.output, "session", new=True)
+    check_output_file(Path(f"{args.output}.journal"), "session journal", new=True)
+    check_output_file(spect_path_for(args.output), "phantom SPECT")
     try:
         run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes)
     except (SessionError, DemoError, OSError) as err:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import _thread
+import contextlib
 import json
 import os
 import queue
@@ -11,14 +12,12 @@ import sys
 import threading
 import time
 
-from snreg.demo.imu_motion import MotionProfile, protractor_profile, still
-from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
+from snreg.cli.common import check_output_file, fraction, positive_float, positive_int, seed, writing
 from snreg.errors import UserError
-from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
-from snreg.imu.reader import DEFAULT_BAUD, ImuPortError, SerialImuReader
 
 __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
 
+DEFAULT_BAUD = 230400        # snreg.imu.reader.DEFAULT_BAUD, the firmware's (a test keeps them equal)
 _QUEUE_SIZE = 1 << 17         # ~10 min at 208 Hz: the monitor never falls that far behind
 _STATUS_EVERY_S = 0.2
 
@@ -30,22 +29,23 @@ def add_imu_parser(subparsers) -> None:
 
     m = imu.add_parser("monitor", help="live yaw, pitch and roll from an IMU serial port")
     m.add_argument("port", help="serial port: /dev/ttyACM0, COM3, or a simulator's pty or --port-link")
-    m.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"bits per second (default {DEFAULT_BAUD}, as the firmware)")
-    m.add_argument("--seconds", type=float, help="stop after this many seconds (default: at Ctrl-C)")
+    m.add_argument("--baud", type=positive_int, default=DEFAULT_BAUD, help="bits per second, as the firmware")
+    m.add_argument("--seconds", type=positive_float, help="stop after this many seconds (default: at Ctrl-C)")
     m.add_argument("--csv", help="write t_host_s,t_device_s,yaw,pitch,roll per sample (s since start, device s, degrees)")
     m.add_argument("--json", action="store_true", help='print {"samples", "corrupt", "dropped"} as JSON at exit')
     m.set_defaults(func=cmd_imu_monitor)
 
     s = imu.add_parser("simulate", help="an IMU on a pseudo-terminal, protractor moves or a replayed CSV (until Ctrl-C)")
     s.add_argument("--port-link", help="also make this symlink to the pty, e.g. /tmp/snreg-imu")
-    s.add_argument("--rate", type=float, help="sample rate in Hz (default 208)")
+    s.add_argument("--rate", type=positive_float, help="sample rate in Hz (default 208)")
     s.add_argument("--replay", help="play a recorded CSV (Time (s), Gyroscope X (deg/s), ..., Accelerometer X (g), ...)")
-    s.add_argument("--seed", type=int, default=0, help="seed for noise, bias and faults")
-    s.add_argument("--garbage", type=float, default=0.0, help="fraction of samples that come with a corrupt line")
-    s.add_argument("--dropout", type=float, default=0.0, help="fraction of samples skipped")
+    s.add_argument("--seed", type=seed, default=0, help="seed for noise, bias and faults")
+    s.add_argument("--garbage", type=fraction, default=0.0, help="fraction of samples that come with a corrupt line")
+    s.add_argument("--dropout", type=fraction, default=0.0, help="fraction of samples skipped")
     s.add_argument("--still", action="store_true", help="hold the sensor still and level instead of the protractor "
                    "moves (the demo rig's endoscope)")
-    s.add_argument("--parent", type=int, metavar="PID", help="stop when process PID ends (the app that started it)")
+    s.add_argument("--parent", type=positive_int, metavar="PID",
+                   help="stop when process PID, the program that started this simulator, ends")
     s.set_defaults(func=cmd_imu_simulate)
 
 
@@ -53,8 +53,11 @@ class _AngleLog:
     """Fuses samples into (yaw, pitch, roll) degrees and writes them as CSV rows (host s since start,
     device s with the 32-bit microsecond clock unwrapped)."""
 
-    def __init__(self, fusion_class, reader: SerialImuReader, out):
+    def __init__(self, fusion_class, reader, out):
         self._fusion_class, self._reader, self._out = fusion_class, reader, out
+        from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
+
+        self._wrap_us = DEVICE_CLOCK_WRAP_US
         self._fusion = None
         self._t0_ns = time.perf_counter_ns()
         self._last_us, self._wraps = None, 0
@@ -64,38 +67,50 @@ class _AngleLog:
         if self._fusion is None:
             self._fusion = self._fusion_class(self._reader.rate_hz)
         self.angles = yaw, pitch, roll = self._fusion.update(sample)
-        if self._last_us is not None and self._last_us - sample.t_device_us > DEVICE_CLOCK_WRAP_US // 2:
+        if self._last_us is not None and self._last_us - sample.t_device_us > self._wrap_us // 2:
             self._wraps += 1
         self._last_us = sample.t_device_us
         if self._out:
-            t_device_s = (self._wraps * DEVICE_CLOCK_WRAP_US + sample.t_device_us) / 1e6
+            t_device_s = (self._wraps * self._wrap_us + sample.t_device_us) / 1e6
             self._out.write(f"{(sample.t_host_ns - self._t0_ns) / 1e9:.6f},{t_device_s:.6f},"
                             f"{yaw:.4f},{pitch:.4f},{roll:.4f}\n")
 
 
 def cmd_imu_monitor(args) -> int:
+    """Show live angles until ``--seconds`` or Ctrl-C; with ``--csv`` the samples go to a temporary file beside the
+    target, renamed over it at the end (a full disk ends the run with one line and leaves nothing behind)."""
     from snreg.imu.fusion import Fusion
+    from snreg.imu.reader import ImuPortError, SerialImuReader
 
-    if args.seconds is not None and not args.seconds > 0:
-        raise UserError("--seconds must be a positive number of seconds")
-    if args.baud <= 0:
-        raise UserError(f"--baud must be a positive rate in bits per second, e.g. {DEFAULT_BAUD}")
-    try:
-        out = open(args.csv, "w", encoding="utf-8", newline="") if args.csv else None
-    except OSError as err:
-        raise UserError(f"cannot write {args.csv} ({err.strerror}); choose a writable path for --csv") from None
+    csv_path = check_output_file(args.csv, "IMU CSV") if args.csv else None
     reader = SerialImuReader(args.port, args.baud, queue_size=_QUEUE_SIZE)
-    log = _AngleLog(Fusion, reader, out)
-    try:
-        reader.start()
-    except ImuPortError as err:
+    with contextlib.ExitStack() as files:
+        out = None
+        if csv_path is not None:
+            out = files.enter_context(open(files.enter_context(writing(csv_path, "IMU CSV")), "w", encoding="utf-8",
+                                           newline=""))
+        log = _AngleLog(Fusion, reader, out)
+        try:
+            reader.start()
+        except ImuPortError as err:
+            raise UserError(str(err)) from None
         if out:
-            out.close()
-        raise UserError(str(err)) from None
-    if out:
-        out.write("t_host_s,t_device_s,yaw,pitch,roll\n")
+            out.write("t_host_s,t_device_s,yaw,pitch,roll\n")
+        state, problem = _monitor(reader, log, args.seconds)
+    c = reader.counts
+    if args.json:
+        print(json.dumps({"samples": c.samples, "corrupt": c.corrupt, "dropped": c.dropped}))
+    else:
+        last = f" (last: {reader.last_corrupt.reason})" if reader.last_corrupt else ""
+        print(f"{c.samples} samples, {c.corrupt} corrupt{last}, {c.dropped} dropped; {state.value}"
+              f"{': ' + problem if problem else ''}")
+    return 0
+
+
+def _monitor(reader, log: _AngleLog, seconds: float | None):
+    """Feed the samples into ``log`` until the time is up or Ctrl-C; returns the reader's last state and problem."""
     live = sys.stderr.isatty()
-    deadline = None if args.seconds is None else time.perf_counter() + args.seconds
+    deadline = None if seconds is None else time.perf_counter() + seconds
     next_status = time.perf_counter()
     try:
         while deadline is None or time.perf_counter() < deadline:
@@ -113,24 +128,20 @@ def cmd_imu_monitor(args) -> int:
     finally:
         state, problem = reader.state, reader.problem
         reader.stop()
-        while not reader.queue.empty():
-            log.add(reader.queue.get_nowait())
-        if out:
-            out.close()
+    while not reader.queue.empty():
+        log.add(reader.queue.get_nowait())
     if live:
         print(file=sys.stderr)
-    c = reader.counts
-    if args.json:
-        print(json.dumps({"samples": c.samples, "corrupt": c.corrupt, "dropped": c.dropped}))
-    else:
-        last = f" (last: {reader.last_corrupt.reason})" if reader.last_corrupt else ""
-        print(f"{c.samples} samples, {c.corrupt} corrupt{last}, {c.dropped} dropped; {state.value}"
-              f"{': ' + problem if problem else ''}")
-    return 0
+    return state, problem
 
 
 def cmd_imu_simulate(args) -> int:
+    from snreg.demo.imu_motion import MotionProfile, protractor_profile, still
+    from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 
+    if args.parent is not None and args.parent != os.getppid():
+        raise UserError(f"--parent {args.parent}: not the process that started this simulator (its parent is "
+                        f"{os.getppid()}); give the PID of the program that starts it, or leave --parent out")
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
         if args.replay:

@@ -11,12 +11,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+from snreg.cli.common import check_output_file, finite_float, positive_int
 from snreg.errors import UserError
-from snreg.nodes import write_nodes
-from snreg.preop.segment import read_station_table, segment_nodes
-from snreg.preop.volume import PreopError, load_volume
 
 __all__ = ["add_preop_parser", "cmd_preop"]
+
+NODE_FILE_SUFFIXES = (".csv", ".mrk.json", ".json")
 
 
 def add_preop_parser(subparsers) -> argparse.ArgumentParser:
@@ -27,11 +27,12 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("spect", nargs="+", metavar="SPECT_PATH",
                    help="a multi-frame NM file, a directory holding one series, or the slice files")
     p.add_argument("-o", "--output", required=True, metavar="NODES", help="node file to write (.csv or .mrk.json)")
-    p.add_argument("--threshold", type=float, default=0.3, metavar="REL",
-                   help="activity threshold as a fraction of the maximum (default 0.3)")
-    p.add_argument("--nodes", type=int, metavar="N", help="expected number of nodes")
+    p.add_argument("--threshold", type=finite_float, default=0.3, metavar="REL",
+                   help="activity threshold as a fraction of the maximum, between 0 and 1")
+    p.add_argument("--nodes", type=positive_int, metavar="N",
+                   help="expected number of nodes (default: every hot spot and peak found)")
     p.add_argument("--stations", metavar="CSV", help="station per node id: a CSV with columns id,station")
-    p.add_argument("--midline-x", type=float, metavar="MM",
+    p.add_argument("--midline-x", type=finite_float, metavar="MM",
                    help="patient x of the midline for left/right labels (default: the volume centre)")
     p.set_defaults(func=cmd_preop)
     return p
@@ -39,7 +40,13 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_preop(args) -> int:
     """Run ``snreg preop``; bad input raises ``snreg.errors.UserError`` with one sentence."""
+    from snreg.nodes import write_nodes
+    from snreg.preop.segment import read_station_table, segment_nodes
+    from snreg.preop.volume import PreopError, load_volume
 
+    if not args.output.lower().endswith(NODE_FILE_SUFFIXES):
+        raise UserError(f"{args.output}: a node file is written as .csv or .mrk.json; give one of those names")
+    check_output_file(args.output, "node file")
     source = args.spect[0] if len(args.spect) == 1 else args.spect
     try:
         stations = read_station_table(args.stations) if args.stations else None
@@ -56,7 +63,7 @@ def cmd_preop(args) -> int:
     try:
         write_nodes(nodes, args.output)
     except OSError as err:
-        raise UserError(f"{args.output}: cannot write the node file ({err.strerror})") from None
+        raise UserError(f"{args.output}: cannot write the node file ({err.strerror or err}); nothing was written") from None
     z, y, x = volume.voxels.shape
     sx, sy, sz = volume.spacing_mm
     print(f"{len(nodes)} node(s) above {args.threshold:g} x maximum in a {x}x{y}x{z} volume "

@@ -6,28 +6,26 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from snreg.cli.common import read_initial
-from snreg.errors import NodeFileError, NoFitError, SessionError, UserError
-from snreg.nodes import read_nodes
-from snreg.registration import CONFIDENT, METHODS, register
-from snreg.registration.report import missing_nodes, pair_rows
-from snreg.session import Session, read_intraop_nodes
+from snreg.cli.common import check_output_file, finite_float, read_initial, seed, write_text
+from snreg.errors import UserError
 
-__all__ = ["add_register_parser", "cmd_register"]
+__all__ = ["add_register_parser", "cmd_register", "METHOD_CHOICES"]
+
+METHOD_CHOICES = ("icp", "cpd", "chamfer", "global")      # snreg.registration.METHODS (a test keeps them equal)
 
 
 def add_register_parser(subparsers) -> None:
     p = subparsers.add_parser("register", help="register preop nodes to intraop nodes and pair them")
     p.add_argument("preop", help="preop node file (.csv or .mrk.json), or a session (.h5) holding both node sets")
     p.add_argument("intraop", nargs="?", help="intraop node file (.csv or .mrk.json) or session (.h5)")
-    p.add_argument("--method", choices=METHODS, default="global", help="default: global")
+    p.add_argument("--method", choices=METHOD_CHOICES, default="global", help="registration method")
     p.add_argument("--labels", action="store_true", help="use the anatomical labels (e.g. 'OBT R')")
     p.add_argument("--initial", help="rough intraop_from_preop: 4x4 text or JSON file, or a session (.h5) whose last "
                                      "registration's initial alignment is used (default: the session's, when the "
                                      "preop nodes come from it)")
-    p.add_argument("--max-rotation", type=float, default=60.0, help="degrees from the initial alignment (default 60)")
-    p.add_argument("--max-translation", type=float, default=60.0, help="mm from the initial alignment (default 60)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-rotation", type=finite_float, default=60.0, help="degrees from the initial alignment")
+    p.add_argument("--max-translation", type=finite_float, default=60.0, help="mm from the initial alignment")
+    p.add_argument("--seed", type=seed, default=0, help="random seed of the search")
     p.add_argument("-o", "--output", help="write the result as JSON")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=cmd_register)
@@ -39,6 +37,9 @@ def _is_session(path: str) -> bool:
 
 def _inputs(args):
     """(preop, intraop, default initial path): from two files, or both node sets from one session."""
+    from snreg.nodes import read_nodes
+    from snreg.session import Session, read_intraop_nodes
+
     if args.intraop is None:
         if not _is_session(args.preop):
             raise UserError(f"{args.preop}: give the preop and the intraop node files, or one session (.h5)")
@@ -54,6 +55,12 @@ def _inputs(args):
 
 
 def cmd_register(args) -> int:
+    from snreg.errors import NodeFileError, NoFitError, SessionError
+    from snreg.registration import CONFIDENT, register
+    from snreg.registration.report import missing_nodes, pair_rows
+
+    if args.output:
+        check_output_file(args.output, "result")
     try:
         preop, intraop, session_initial = _inputs(args)
     except (NodeFileError, SessionError, ValueError, OSError) as err:
@@ -79,7 +86,7 @@ def cmd_register(args) -> int:
            "initial": result.initial.tolist(), "nodes": [row.as_json() for row in rows],
            "missing": [node.as_json() for node in missing]}
     if args.output:
-        Path(args.output).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+        write_text(args.output, json.dumps(doc, indent=2), "result")
     if args.json:
         print(json.dumps(doc))
         return 0

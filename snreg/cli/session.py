@@ -3,27 +3,30 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+from snreg.cli.common import check_output_file
 from snreg.errors import UserError
-from snreg.session.schema import SessionError
 
 
 def add_session_parser(subparsers) -> None:
     """Add ``session`` with its ``info``, ``export`` and ``recover`` subcommands; each sets ``func``."""
     session = subparsers.add_parser("session", help="inspect, export or recover a session file (HDF5)")
-    commands = session.add_subparsers(dest="session_command", required=True)
+    commands = session.add_subparsers(dest="session_command", required=True, metavar="ACTION")
     info = commands.add_parser("info", help="case id, creation time, counts of nodes and stream samples")
-    info.add_argument("session")
+    info.add_argument("session", help="session file (.h5)")
     info.add_argument("--json", action="store_true", help="one JSON object on stdout")
     info.set_defaults(func=cmd_info)
     export = commands.add_parser("export", help="write the intraop nodes (trocar frame, mm) as CSV or Slicer markups")
-    export.add_argument("session")
-    export.add_argument("--format", choices=("csv", "slicer"), default="csv")
-    export.add_argument("-o", "--output", required=True)
+    export.add_argument("session", help="session file (.h5)")
+    export.add_argument("--format", choices=("csv", "slicer"), default="csv", help="node CSV or 3D Slicer .mrk.json")
+    export.add_argument("-o", "--output", required=True, help="node file to write")
     export.set_defaults(func=cmd_export)
     recover = commands.add_parser("recover", help="rebuild a clean session file from a damaged one and its journal")
-    recover.add_argument("session")
-    recover.add_argument("-o", "--output", default=None, help="write here instead of replacing the file")
+    recover.add_argument("session", help="session file (.h5); its journal SESSION.h5.journal is read too")
+    recover.add_argument("-o", "--output", default=None,
+                         help="write the recovered session to this new file (default: replace the session file, "
+                              "keeping the damaged one beside it)")
     recover.set_defaults(func=cmd_recover)
 
 
@@ -46,6 +49,7 @@ def cmd_info(args) -> int:
 
 def cmd_export(args) -> int:
     from snreg.session.export import export_nodes
+    check_output_file(args.output, "node file")
     n = _guard(export_nodes, args.session, args.format, args.output)
     print(f"wrote {n} nodes to {args.output}")
     return 0
@@ -53,6 +57,8 @@ def cmd_export(args) -> int:
 
 def cmd_recover(args) -> int:
     from snreg.session.export import recover
+    if args.output is not None and Path(args.output).resolve() != Path(args.session).resolve():
+        check_output_file(args.output, "recovered session", new=True)
     out = _guard(recover, args.session, args.output)
     print(f"recovered session written to {out}")
     return 0
@@ -60,6 +66,7 @@ def cmd_recover(args) -> int:
 
 def _guard(func, *args):
     """Run ``func``; a session or file error becomes a one-sentence :class:`snreg.errors.UserError`."""
+    from snreg.session.schema import SessionError
     try:
         return func(*args)
     except SessionError as err:

@@ -14,6 +14,8 @@ from pydicom.dataset import Dataset, FileMetaDataset
 from pydicom.sequence import Sequence
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
 
+from snreg.files import atomic_write
+
 __all__ = ["THESIS_SHAPE", "THESIS_VOXEL_MM", "THESIS_SOURCES", "spect_of_nodes", "write_nm"]
 
 THESIS_SHAPE = (76, 128, 128)        # (slices, rows, columns), thesis §3.2
@@ -82,14 +84,16 @@ def write_nm(counts, origin, voxel_mm, path, *, multiframe: bool = True, patient
         return ds
 
     if multiframe:
-        dataset(stored, origin, 1).save_as(path, enforce_file_format=True)
+        with atomic_write(path) as temporary:
+            dataset(stored, origin, 1).save_as(temporary, enforce_file_format=True)
         return [path]
     path.mkdir(parents=True, exist_ok=True)
     files = []
     for k, plane in enumerate(stored):
         position = np.asarray(origin, float) + [0.0, 0.0, k * spacing[2]]
         files.append(path / f"slice{k + 1:03d}.dcm")
-        dataset(plane, position, k + 1).save_as(files[-1], enforce_file_format=True)
+        with atomic_write(files[-1]) as temporary:
+            dataset(plane, position, k + 1).save_as(temporary, enforce_file_format=True)
     return files
 
 

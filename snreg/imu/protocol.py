@@ -152,7 +152,8 @@ class StreamDecoder:
     """Bytes in, samples out: splits lines, parses them and keeps :class:`StreamCounts`.
 
     rate_hz: nominal sample rate for gap detection; ``None`` takes the rate a ``#`` line announces
-        (``odr_hz=``), else 208 Hz. A step in device time (mod 2**32, so the micros() wrap is no gap)
+        (``odr_hz=``), else 208 Hz; a ``#`` line without a rate (perhaps a sample whose ``$`` was corrupted
+        to ``#``) leaves it as it was. A step in device time (mod 2**32, so the micros() wrap is no gap)
         longer than 1.5 periods counts ``round(step / period) - 1`` dropped samples; a step back or
         beyond 1 s is a device restart and counts nothing. Lines longer than 256 bytes count as one
         corrupt line each. Not thread-safe: one decoder per reader thread.
@@ -162,7 +163,7 @@ class StreamDecoder:
         if rate_hz is not None and not rate_hz > 0:
             raise ValueError(f"IMU sample rate must be positive, got {rate_hz} Hz")
         self._rate_hz = rate_hz
-        self.info: InfoLine | None = None
+        self.info: InfoLine | None = None       # the last ``#`` line that announced a rate
         self.last_corrupt: CorruptLine | None = None
         self.counts = StreamCounts()
         self._partial = b""
@@ -192,7 +193,8 @@ class StreamDecoder:
                 self._count_gap(item.t_device_us)
                 out.append(item)
             elif isinstance(item, InfoLine):
-                self.info = item
+                if item.odr_hz is not None:      # only a line stating the rate sets it (a corrupted "$" can read "#")
+                    self.info = item
                 out.append(item)
             elif isinstance(item, CorruptLine):
                 self._corrupt(item)

@@ -89,7 +89,7 @@ class SerialImuReader:
 
     @property
     def info(self) -> InfoLine | None:
-        """The device's last ``#`` line, if any."""
+        """The device's last ``#`` line that announced its rate, if any."""
         return self._decoder.info
 
     @property

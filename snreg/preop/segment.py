@@ -66,7 +66,7 @@ def segment_nodes(volume: Volume, *, threshold: float = 0.3, n_nodes: int | None
     smooth = ndimage.gaussian_filter(voxels, sigma=smoothing_mm / spacing_zyx)
     seeds = _seeds(smooth, mask, components, n_components, spacing_zyx, min_separation_mm)
     if n_nodes is not None:
-        seeds = _choose(seeds, smooth, n_nodes, components, spacing_zyx)
+        seeds = _choose(seeds, smooth, n_nodes, components, spacing_zyx, min_separation_mm)
     clusters = np.zeros(voxels.shape, dtype=np.int32)
     centres, peaks, totals = [], [], []
     for component, component_seeds in seeds.items():
@@ -141,11 +141,14 @@ def _seeds(smooth, mask, components, n_components, spacing_zyx, min_separation_m
     return seeds
 
 
-def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zyx) -> dict[int, list]:
+def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zyx,
+            min_separation_mm: float) -> dict[int, list]:
     """At most n_nodes seeds: components ranked by their top peak, extra peaks by height.
 
     When peaks run out (nodes merged beyond a visible dip), the component with the most voxels
-    per seed gets a new seed at its voxel farthest from its seeds, for k-means to refine.
+    per seed gets a new seed at its voxel farthest from its seeds, for k-means to refine. A new
+    seed must lie ``min_separation_mm`` from the others, as peaks must: asking for more nodes than
+    fit that way is a :class:`PreopError` (it would cut hot spots into one-voxel "nodes").
     """
     height = {c: float(smooth[tuple(s[0])]) for c, s in seeds.items()}
     kept = sorted(seeds, key=lambda c: -height[c])[:n_nodes]
@@ -155,12 +158,19 @@ def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zy
     for _, component, i in extras[:n_nodes - len(kept)]:
         chosen[component].append(seeds[component][i])
     size = {c: int(np.count_nonzero(components == c)) for c in chosen}
+    full: set[int] = set()
     while sum(len(s) for s in chosen.values()) < n_nodes:
-        component = max(chosen, key=lambda c: size[c] / len(chosen[c]))
-        if size[component] <= len(chosen[component]):
-            break   # every voxel is a node already
+        open_components = [c for c in chosen if c not in full]
+        if not open_components:
+            found = sum(len(s) for s in chosen.values())
+            raise PreopError(f"only {found} node(s) at least {min_separation_mm:g} mm apart lie above the threshold, "
+                             f"not the {n_nodes} asked for; ask for at most {found} (--nodes) or lower the threshold")
+        component = max(open_components, key=lambda c: size[c] / len(chosen[c]))
         index = np.argwhere(components == component)
         gap = np.min([np.linalg.norm((index - s) * spacing_zyx, axis=1) for s in chosen[component]], axis=0)
+        if gap.max() < min_separation_mm:
+            full.add(component)
+            continue
         chosen[component].append(index[np.argmax(gap)])
     return chosen
 

@@ -57,11 +57,11 @@ def load_volume(path, *, modality: str | None = None) -> Volume:
     datasets = _read_all(path)
     found = {str(ds.get("Modality", "")) for ds in datasets}
     if modality and found != {modality}:
-        raise PreopError(f"{_name(path)} is {'/'.join(sorted(found)) or 'of unknown modality'}, "
-                         f"not {modality}; give the {modality} series")
+        raise PreopError(f"{_name(path)}: modality {'/'.join(sorted(found)) or 'unknown'}, not {modality}; "
+                         f"give the {modality} series")
     series = {str(ds.get("SeriesInstanceUID", "")) for ds in datasets}
     if len(series) > 1:
-        raise PreopError(f"{_name(path)} holds {len(series)} series; give the files of one series")
+        raise PreopError(f"{_name(path)}: {len(series)} series found; give the files of one series")
     if len(datasets) == 1:
         return _from_multiframe(datasets[0], _name(path))
     return _from_slices(datasets, _name(path))
@@ -90,7 +90,7 @@ def _read_all(path) -> list:
             if not skip_non_dicom:
                 raise PreopError(f"{file} is not a readable DICOM file") from None
     if not datasets:
-        raise PreopError(f"{_name(path)} contains no DICOM files")
+        raise PreopError(f"no DICOM file found in {_name(path)}")
     return datasets
 
 
@@ -102,8 +102,13 @@ def _pixels(ds, source: str) -> np.ndarray:
         raw = ds.pixel_array
     except Exception:  # pydicom raises RuntimeError, NotImplementedError or ValueError per plugin
         syntax = ds.file_meta.get("TransferSyntaxUID")
-        raise PreopError(f"{source}: the pixel data ({syntax.name if syntax else 'unknown encoding'}) "
-                         "cannot be decoded by the installed decoders; export it uncompressed") from None
+        if syntax is None or not syntax.is_compressed:
+            expected = (int(ds.get("Rows", 0)) * int(ds.get("Columns", 0)) * int(ds.get("NumberOfFrames", 1) or 1)
+                        * int(ds.get("SamplesPerPixel", 1)) * int(ds.get("BitsAllocated", 16)) // 8)
+            raise PreopError(f"{source}: the uncompressed pixel data is incomplete ({len(ds.PixelData)} of {expected} "
+                             "bytes; the file is probably truncated); copy or export it again") from None
+        raise PreopError(f"{source}: the pixel data ({syntax.name}) cannot be decoded by the installed decoders; "
+                         "export it uncompressed") from None
     if ds.get("SamplesPerPixel", 1) != 1:
         raise PreopError(f"{source} is a colour image, not a SPECT or CT volume")
     return np.asarray(raw, dtype=np.float32).reshape(-1, ds.Rows, ds.Columns)

@@ -7,6 +7,7 @@ import os
 import time
 from pathlib import Path
 
+from snreg.files import atomic_write
 from snreg.session import Session
 from snreg.session.journal import journal_path, read_journal
 from snreg.session.schema import STREAM_DTYPES, SessionError
@@ -32,7 +33,8 @@ def export_nodes(path: str | Path, fmt: str, out: str | Path) -> int:
     with Session.open(path) as session:
         nodes = session.intraop_nodes()
     text = nodes.to_csv() if fmt == "csv" else json.dumps(nodes.to_slicer(), indent=2)
-    Path(out).write_text(text, encoding="utf-8")
+    with atomic_write(out) as temporary:
+        temporary.write_text(text, encoding="utf-8")
     return len(nodes)
 
 
@@ -44,7 +46,6 @@ def recover(path: str | Path, out: str | Path | None = None) -> Path:
     """
     path = Path(path)
     target = Path(out) if out is not None else path
-    tmp = target.with_name(target.name + ".recovering")
     try:
         session = Session.open(path)
     except SessionError as err:
@@ -52,9 +53,8 @@ def recover(path: str | Path, out: str | Path | None = None) -> Path:
             raise
         raise SessionError(f"{path}: nothing to recover: neither the file nor a journal beside it holds a "
                            "snreg session") from None
-    with session:
-        session.save_as(tmp)
-    if target == path and path.exists():
-        os.replace(path, path.with_name(f"{path.name}.damaged-{int(time.time())}"))
-    os.replace(tmp, target)
+    with session, atomic_write(target) as temporary:
+        session.save_as(temporary)
+        if target == path and path.exists():
+            os.replace(path, path.with_name(f"{path.name}.damaged-{int(time.time())}"))
     return target

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from snreg.files import atomic_write
 from snreg.registration import CONFIDENT
 from snreg.simulation.stats import accuracy, calibration, column, extras_breakdown, paired_tests, select, threshold_for
 from snreg.simulation.study import StudyResult
@@ -227,12 +228,13 @@ def markdown_report(study: StudyResult, command: str = "") -> str:
 
 
 def write_report(study: StudyResult, directory: str | Path, command: str = "") -> dict[str, Path]:
-    """Write report.md, trials.csv and the PNG plots into ``directory``; returns their paths."""
+    """Write report.md, trials.csv and the PNG plots into ``directory`` (each atomically); returns their paths."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = {"markdown": directory / "report.md", "trials": directory / "trials.csv"}
-    paths["markdown"].write_text(markdown_report(study, command), encoding="utf-8")
-    with paths["trials"].open("w", newline="", encoding="utf-8") as handle:
+    with atomic_write(paths["markdown"]) as temporary:
+        temporary.write_text(markdown_report(study, command), encoding="utf-8")
+    with atomic_write(paths["trials"]) as temporary, temporary.open("w", newline="", encoding="utf-8") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(study.rows[0]))
         writer.writeheader()
         writer.writerows(study.rows)
@@ -260,7 +262,7 @@ def _plots(study: StudyResult, directory: Path) -> dict[str, Path]:
     ax.legend()
     ax.grid(alpha=0.3)
     out["accuracy_plot"] = directory / "accuracy.png"
-    fig.savefig(out["accuracy_plot"], dpi=120, bbox_inches="tight")
+    _save(fig, out["accuracy_plot"])
     plt.close(fig)
 
     fig, axes = plt.subplots(1, len(cfg.methods), figsize=(3.2 * len(cfg.methods), 4), sharey=True, squeeze=False)
@@ -277,7 +279,7 @@ def _plots(study: StudyResult, directory: Path) -> dict[str, Path]:
         ax.set_title(method)
     axes[0][0].set_ylabel("max error ratio (Fig. 23)")
     out["error_ratio_plot"] = directory / "error_ratio.png"
-    fig.savefig(out["error_ratio_plot"], dpi=120, bbox_inches="tight")
+    _save(fig, out["error_ratio_plot"])
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(5, 5))
@@ -288,6 +290,12 @@ def _plots(study: StudyResult, directory: Path) -> dict[str, Path]:
     ax.set(xlabel="confidence", ylabel="fraction of pairings right", title="Confidence calibration")
     ax.legend()
     out["calibration_plot"] = directory / "calibration.png"
-    fig.savefig(out["calibration_plot"], dpi=120, bbox_inches="tight")
+    _save(fig, out["calibration_plot"])
     plt.close(fig)
     return out
+
+
+def _save(figure, path: Path) -> None:
+    """Save a matplotlib figure as PNG atomically."""
+    with atomic_write(path) as temporary:
+        figure.savefig(temporary, dpi=120, bbox_inches="tight", format="png")

@@ -14,10 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from snreg.registration import register
 from snreg.simulation.cohort import Patient
 from snreg.simulation.protocol import Trial, error_stats, make_trial, oracle_success, run_trial
 
-__all__ = ["parse_method", "StudyConfig", "StudyResult", "run_study", "DEFAULT_METHODS", "DEFAULT_SIGMAS", "DEFAULT_EXTRAS"]
+__all__ = ["parse_method", "check_method", "StudyConfig", "StudyResult", "run_study", "DEFAULT_METHODS", "DEFAULT_SIGMAS", "DEFAULT_EXTRAS"]
 
 DEFAULT_METHODS = ("icp", "cpd", "chamfer", "global")
 DEFAULT_SIGMAS = (2.0, 5.0, 10.0, 15.0, 20.0)
@@ -73,6 +74,17 @@ def parse_method(spec: str) -> tuple[str, bool, dict]:
         except ValueError:
             options[key] = value
     return name, flag == "labels", options
+
+
+def check_method(spec: str) -> None:
+    """Raise ``ValueError`` naming ``spec`` when it is not a method spec :func:`register` accepts (unknown method
+    or option, an option value out of range): one tiny registration, so a study never fails after its first hour."""
+    name, _, options = parse_method(spec)
+    tetrahedron = np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0], [0.0, 30.0, 0.0], [10.0, 10.0, 25.0]])
+    try:
+        register(tetrahedron, tetrahedron + 1.0, method=name, **options)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"method spec {spec!r}: {err}") from None
 
 
 class _Collected:
