@@ -1,6 +1,7 @@
 """Stereo checkerboard calibration (thesis §4.2): files, rendered ground truth, OpenCV's samples, errors."""
 
 import dataclasses
+import json
 import re
 from pathlib import Path
 
@@ -8,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from snreg.calibration.check import check_images, check_views
 from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.stereo import calibrate_mono, calibrate_stereo, drop_views, load_image_pairs
-from snreg.camera import CalibrationFileError, load_calibration, save_calibration, thesis_calibration
+from snreg.camera import CalibrationFileError, StereoCalibration, load_calibration, save_calibration, thesis_calibration
 from snreg.camera.calibration import _thesis_values
 from snreg.cli import build_parser
 from snreg.demo.board_render import random_board_poses, render_stereo_board, right_from_left
@@ -270,3 +272,73 @@ def test_command_no_files(tmp_path):
     with pytest.raises(UserError, match="no files match"):
         run_command(["calibrate", "stereo", "--left", str(tmp_path / "l*.png"), "--right", str(tmp_path / "r*.png"),
                      "--board", "10x7", "--square", "10", "-o", str(tmp_path / "c.yaml")])
+
+
+# 5. The calibration check: good against R turned by one degree ------------------------------------------
+
+def turned(calib, axis, degrees=1.0):
+    """``calib`` with R turned by ``degrees`` about ``axis`` (left-camera frame), rectification redone."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis, float)).as_matrix() @ calib.R
+    return StereoCalibration.from_pair(calib.image_size, calib.K1, calib.D1, calib.K2, calib.D2, R, calib.T)
+
+
+@pytest.mark.parametrize("axis", [(1, 0, 0), (0, 1, 0), (0, 0, 1)])
+def test_check_tells_the_samples_calibration_from_one_with_R_turned_1_degree(samples, axis):
+    _, result = samples
+    good = check_views(result.calibration, result.left_corners, result.right_corners, result.board)
+    spoiled = check_views(turned(result.calibration, axis), result.left_corners, result.right_corners, result.board)
+    assert good.verdict == "good" and good.epipolar_rms_px < 0.3 and abs(good.scale_error) < 0.005
+    assert spoiled.verdict == "bad", spoiled.summary()
+    # about x the rows part; about y (the baseline's normal in the image plane) every disparity shifts: the scale
+    assert spoiled.epipolar_rms_px > 5 if axis == (1, 0, 0) else True
+    assert abs(spoiled.scale_error) > 0.05 if axis == (0, 1, 0) else True
+
+
+@pytest.mark.parametrize("axis", [(1, 0, 0), (0, 1, 0), (0, 0, 1)])
+def test_check_tells_the_true_calibration_from_one_with_R_turned_1_degree_on_rendered_boards(truth, rendered_result, axis):
+    good = check_views(truth, rendered_result.left_corners, rendered_result.right_corners, BOARD)
+    spoiled = check_views(turned(truth, axis), rendered_result.left_corners, rendered_result.right_corners, BOARD)
+    assert good.verdict == "good" and good.epipolar_rms_px < 0.2, good.summary()
+    assert spoiled.verdict == "bad" and spoiled.reasons, spoiled.summary()
+    assert good.as_json()["verdict"] == "good" and set(good.as_json()) >= {"epipolar_rms_px", "reconstruction_mm", "views",
+                                                                           "verdict", "reasons"}
+
+
+def test_copies_of_one_view_are_flagged_and_their_calibration_fails_the_check(truth, rendered, rendered_result):
+    _, left, right = rendered
+    copies = calibrate_stereo([left[0]] * 3, [right[0]] * 3, BOARD)
+    assert copies.distinct_views == 1 and copies.repeated_views == ((1, 0), (2, 0))
+    warnings = " ".join(copies.warnings())
+    assert "near-identical views" in warnings and "provisional" in warnings and "bad" in warnings
+    assert copies.check.verdict == "bad" and copies.check.epipolar_rms_px > 10      # its own views betray it
+    assert rendered_result.distinct_views >= 8 and not any("provisional" in w for w in rendered_result.warnings())
+    other_views = check_views(copies.calibration, rendered_result.left_corners, rendered_result.right_corners, BOARD)
+    assert other_views.verdict == "bad"
+
+
+def test_check_command_on_the_samples(samples, tmp_path, capsys):
+    _, result = samples
+    good, spoiled = tmp_path / "good.yaml", tmp_path / "spoiled.yaml"
+    save_calibration(result.calibration, good)
+    save_calibration(turned(result.calibration, (1, 0, 0)), spoiled)
+    figures = {}
+    for path in (good, spoiled):
+        assert run_command(["calibrate", "check", str(path), "--left", str(SAMPLES / "left*.jpg"), "--right",
+                            str(SAMPLES / "right*.jpg"), "--board", "9x6", "--square", "1", "--json"]) == 0
+        figures[path.stem] = json.loads(capsys.readouterr().out)
+    assert figures["good"]["verdict"] == "good" and figures["spoiled"]["verdict"] == "bad"
+    assert figures["good"]["views"] == 13 and "epipolar error" in figures["spoiled"]["reasons"][0]
+    assert run_command(["calibrate", "check", str(good), "--left", str(SAMPLES / "left0*.jpg"), "--right",
+                        str(SAMPLES / "right0*.jpg"), "--board", "9x6", "--square", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "verdict: good" in text and "left01.jpg/right01.jpg" in text
+
+
+def test_check_refuses_images_of_another_size_and_boards_not_found(truth, rendered):
+    _, left, right = rendered
+    with pytest.raises(ValueError, match="calibration is for 960x540"):
+        check_images(truth, [cv2.resize(left[0], (480, 270))], [cv2.resize(right[0], (480, 270))], BOARD)
+    with pytest.raises(ValueError, match="found in no pair"):
+        check_images(truth, left[:1], right[:1], Board(11, 8, 10.0))

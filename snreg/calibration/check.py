@@ -10,12 +10,18 @@ independent of the calibration's own fit:
   row; the RMS of their vertical disparity (px). A rotation of R by one degree, or intrinsics of another
   camera, shows at once (the tracker matches stripes along those rows).
 - reconstruction error: corners triangulated with the rectified projections; the mean absolute
-  difference between neighbouring-corner distances and the square size (mm, and as a fraction of the
-  square). A wrong scale (baseline, focal length) shows here.
+  difference between neighbouring-corner distances and the square size (mm), the figure the thesis
+  reports. It mixes the calibration's error with triangulation noise, which with a 4 mm baseline is
+  several per cent of a square at 20 cm, so the verdict uses its systematic part instead:
+- scale error: the median signed relative difference between neighbouring-corner distances and the
+  square (%). Noise averages out of it; a wrong baseline, focal length or a rotation of R about the
+  vertical axis (which shifts every disparity) does not.
 
-Verdict: "bad" when either figure is over its BAD threshold, "check" when over its GOOD threshold, else
-"good"; ``reasons`` say which figure decided it, with the threshold. The thresholds are stated below and in
-every report.
+Verdict: "bad" when the epipolar or the scale error is over its BAD threshold, "check" when over its GOOD
+threshold, else "good"; ``reasons`` say which figure decided it, with the threshold. The thresholds are
+stated below and in every report. Figures measured (tests/test_calibration_check.py): OpenCV's stereo
+samples through their own calibration 0.13 px and 0.02 %; with R turned by 1 degree about x 9.1 px,
+about y a scale error of -6.9 %, about z 1.7 px.
 """
 
 from __future__ import annotations
@@ -30,12 +36,13 @@ from snreg.calibration.checkerboard import Board, find_corners
 from snreg.calibration.coverage import SIMILAR_SHIFT_FRACTION, mean_corner_shift
 from snreg.camera import StereoCalibration
 
-__all__ = ["CalibrationCheck", "check_views", "check_images", "rectified_corners", "reconstruction_errors",
-           "near_identical_views", "EPIPOLAR_GOOD_PX", "EPIPOLAR_BAD_PX", "RECONSTRUCTION_GOOD", "RECONSTRUCTION_BAD",
-           "PROVISIONAL_VIEWS"]
+__all__ = ["CalibrationCheck", "check_views", "check_images", "rectified_corners", "corner_steps",
+           "near_identical_views", "EPIPOLAR_GOOD_PX", "EPIPOLAR_BAD_PX", "SCALE_GOOD", "SCALE_BAD", "PROVISIONAL_VIEWS"]
 
-EPIPOLAR_GOOD_PX, EPIPOLAR_BAD_PX = 1.0, 2.0          # RMS vertical disparity of rectified matched corners
-RECONSTRUCTION_GOOD, RECONSTRUCTION_BAD = 0.02, 0.05  # mean |neighbour distance - square| / square
+EPIPOLAR_GOOD_PX, EPIPOLAR_BAD_PX = 1.0, 1.5     # RMS vertical disparity of rectified matched corners; the
+                                                  # stereo search follows image rows, and tolerates about 1 px
+SCALE_GOOD, SCALE_BAD = 0.015, 0.025             # |median (neighbour distance - square) / square|; triangulation
+                                                  # noise alone biases it by up to ~0.7 % (4 mm baseline, 20-35 cm)
 PROVISIONAL_VIEWS = 8            # a calibration from fewer distinct views than this is provisional
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 
@@ -45,13 +52,13 @@ class CalibrationCheck:
     """The check of one calibration on ``views`` board views (mm, px).
 
     ``view_epipolar_px`` (n,): RMS vertical disparity per view; ``view_reconstruction_mm`` (n,): mean
-    neighbouring-corner error per view; ``reconstruction_fraction``: ``reconstruction_mm`` over the square
-    size; ``skipped``: images in which the board was not found (left out).
+    |neighbouring-corner distance - square| per view; ``scale_error``: median signed (distance - square) /
+    square over all views; ``skipped``: images in which the board was not found (left out).
     """
 
     epipolar_rms_px: float
     reconstruction_mm: float
-    reconstruction_fraction: float
+    scale_error: float
     views: int
     view_epipolar_px: np.ndarray
     view_reconstruction_mm: np.ndarray
@@ -63,18 +70,17 @@ class CalibrationCheck:
         """``{"epipolar_rms_px", "reconstruction_mm", "views", "verdict", "reasons", ...}`` (DESIGN.md §4)."""
         return {"epipolar_rms_px": round(self.epipolar_rms_px, 4), "reconstruction_mm": round(self.reconstruction_mm, 4),
                 "views": self.views, "verdict": self.verdict, "reasons": list(self.reasons),
-                "reconstruction_percent": round(100 * self.reconstruction_fraction, 3),
+                "scale_percent": round(100 * self.scale_error, 3),
                 "thresholds": {"epipolar_rms_px": {"good": EPIPOLAR_GOOD_PX, "bad": EPIPOLAR_BAD_PX},
-                               "reconstruction_percent": {"good": 100 * RECONSTRUCTION_GOOD,
-                                                          "bad": 100 * RECONSTRUCTION_BAD}},
+                               "scale_percent": {"good": 100 * SCALE_GOOD, "bad": 100 * SCALE_BAD}},
                 "view_epipolar_px": [round(float(v), 4) for v in self.view_epipolar_px],
                 "view_reconstruction_mm": [round(float(v), 4) for v in self.view_reconstruction_mm],
                 "skipped": list(self.skipped)}
 
     def summary(self) -> str:
         """One line: both figures and the verdict."""
-        return (f"epipolar error {self.epipolar_rms_px:.3f} px RMS, reconstruction error {self.reconstruction_mm:.3f} mm "
-                f"({100 * self.reconstruction_fraction:.2f}% of the square) over {self.views} view(s): {self.verdict}")
+        return (f"epipolar error {self.epipolar_rms_px:.3f} px RMS, reconstruction error {self.reconstruction_mm:.3f} mm, "
+                f"scale error {100 * self.scale_error:+.2f}% over {self.views} view(s): {self.verdict}")
 
 
 def rectified_corners(calib: StereoCalibration, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,18 +92,17 @@ def rectified_corners(calib: StereoCalibration, left: np.ndarray, right: np.ndar
     return rect_l, rect_r
 
 
-def reconstruction_errors(calib: StereoCalibration, left: Sequence[np.ndarray], right: Sequence[np.ndarray],
-                          board: Board) -> np.ndarray:
-    """(n,) mean |neighbouring-corner distance - square| per view, mm, from rectified triangulation."""
-    errors = []
+def corner_steps(calib: StereoCalibration, left: Sequence[np.ndarray], right: Sequence[np.ndarray],
+                 board: Board) -> list[np.ndarray]:
+    """Per view, the distances (mm) between neighbouring corners triangulated in the rectified frame."""
+    steps = []
     for corners_l, corners_r in zip(left, right):
         rect_l, rect_r = rectified_corners(calib, corners_l, corners_r)
         homogeneous = cv2.triangulatePoints(calib.P1, calib.P2, rect_l.T, rect_r.T)
         grid = (homogeneous[:3] / homogeneous[3]).T.reshape(board.rows, board.cols, 3)
-        steps = np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
-                                np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])
-        errors.append(np.abs(steps - board.square_mm).mean())
-    return np.array(errors, dtype=float)
+        steps.append(np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
+                                     np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()]))
+    return steps
 
 
 def check_views(calib: StereoCalibration, left: Sequence[np.ndarray], right: Sequence[np.ndarray], board: Board, *,
@@ -109,14 +114,15 @@ def check_views(calib: StereoCalibration, left: Sequence[np.ndarray], right: Seq
     vertical = [np.diff([a[:, 1] for a in rectified_corners(calib, l_, r_)], axis=0).ravel() for l_, r_ in zip(left, right)]
     view_epipolar = np.array([np.sqrt(np.mean(v ** 2)) for v in vertical])
     epipolar = float(np.sqrt(np.mean(np.concatenate(vertical) ** 2)))
-    view_mm = reconstruction_errors(calib, left, right, board)
+    steps = corner_steps(calib, left, right, board)
+    view_mm = np.array([np.abs(s - board.square_mm).mean() for s in steps])
     reconstruction = float(view_mm.mean())
-    fraction = reconstruction / board.square_mm
-    verdict, reasons = _verdict(epipolar, reconstruction, fraction)
-    if not np.isfinite(epipolar) or not np.isfinite(reconstruction):
+    scale = float(np.median(np.concatenate(steps)) / board.square_mm - 1.0)
+    verdict, reasons = _verdict(epipolar, reconstruction, scale)
+    if not np.isfinite(epipolar) or not np.isfinite(reconstruction) or not np.isfinite(scale):
         verdict, reasons = "bad", ("the calibration maps these corners to no finite position: it does not belong "
                                    "to these cameras",)
-    return CalibrationCheck(epipolar, reconstruction, fraction, len(left), view_epipolar, view_mm, verdict, reasons,
+    return CalibrationCheck(epipolar, reconstruction, scale, len(left), view_epipolar, view_mm, verdict, reasons,
                             tuple(skipped))
 
 
@@ -167,20 +173,20 @@ def near_identical_views(left: Sequence[np.ndarray], right: Sequence[np.ndarray]
     return len(distinct), repeats
 
 
-def _verdict(epipolar_px: float, reconstruction_mm: float, fraction: float) -> tuple[str, tuple[str, ...]]:
+def _verdict(epipolar_px: float, reconstruction_mm: float, scale: float) -> tuple[str, tuple[str, ...]]:
     """("good" | "check" | "bad", reasons) from the thresholds at the top of the module."""
     epipolar = (f"epipolar error {epipolar_px:.3f} px RMS (good <= {EPIPOLAR_GOOD_PX:g}, bad > {EPIPOLAR_BAD_PX:g} px)")
-    recon = (f"reconstruction error {reconstruction_mm:.3f} mm = {100 * fraction:.2f}% of the square "
-             f"(good <= {100 * RECONSTRUCTION_GOOD:g}%, bad > {100 * RECONSTRUCTION_BAD:g}%)")
+    recon = (f"scale error {100 * scale:+.2f}% (median distance of neighbouring corners against the square; good "
+             f"<= {100 * SCALE_GOOD:g}%, bad > {100 * SCALE_BAD:g}%; mean reconstruction error {reconstruction_mm:.3f} mm)")
     bad, check = [], []
     if epipolar_px > EPIPOLAR_BAD_PX:
         bad.append(f"{epipolar}: matched corners lie on different rows after rectification, so R, T or the intrinsics "
                    "do not fit these cameras")
     elif epipolar_px > EPIPOLAR_GOOD_PX:
         check.append(f"{epipolar}: rectified rows disagree a little; recalibrate if it grows")
-    if fraction > RECONSTRUCTION_BAD:
-        bad.append(f"{recon}: distances come out at the wrong scale (baseline or focal length)")
-    elif fraction > RECONSTRUCTION_GOOD:
+    if abs(scale) > SCALE_BAD:
+        bad.append(f"{recon}: distances come out at the wrong scale (baseline, focal length or R)")
+    elif abs(scale) > SCALE_GOOD:
         check.append(f"{recon}: distances are a little off")
     if bad:
         return "bad", tuple(bad + check)
