@@ -162,3 +162,89 @@ def test_a_fully_hidden_middle_stripe_leaves_two_that_still_give_the_axis(scene)
     assert fix.n_stripes == 2
     assert np.linalg.norm(fix.centre - pose.point(probe.band_centre_mm)) < 1.5
     assert np.linalg.norm(fix.tip - pose.tip) < 3.0
+
+
+# Distractors: green things that are not the probe -------------------------------------------------------
+
+DISTRACTORS = {
+    "two round fiducials 7.2 mm apart": RenderOptions(noise_sigma=3, seed=1, probe=False,
+                                                      fiducials_mm=((20.0, 30.0), (27.2, 30.0))),
+    "three fiducials 10 mm apart in a row": RenderOptions(noise_sigma=3, seed=1, probe=False,
+                                                          fiducials_mm=((0.0, 30.0), (10.0, 30.0), (20.0, 30.0))),
+    "greenish blobs at the border": RenderOptions(noise_sigma=3, seed=1, probe=False, border_blobs=4),
+    "specular highlights with a green fringe": RenderOptions(noise_sigma=3, seed=1, probe=False, highlights=6),
+}
+
+
+@pytest.fixture(scope="module")
+def half_scene():
+    """The thesis cameras at half resolution (960x540): the distractors are in mm, the renders 4x cheaper."""
+    calibration, probe = thesis_calibration().scaled(0.5), default_probe_model()
+    return calibration, probe, StereoRenderer(calibration, probe)
+
+
+@pytest.mark.parametrize("name", list(DISTRACTORS))
+def test_distractors_alone_give_no_fix(half_scene, name):
+    calibration, probe, renderer = half_scene
+    left, right = renderer.render(pose_at(120), DISTRACTORS[name])
+    mask = cv2.inRange(cv2.cvtColor(left, cv2.COLOR_BGR2HSV), probe.hsv_low, probe.hsv_high)
+    assert np.count_nonzero(mask) > 200                      # there is something green to be fooled by
+    for method in ("triangulation", "sgbm", "width"):
+        with pytest.raises(TrackingError, match="no probe"):
+            StereoTracker(calibration, probe, method=method).track(left, right)
+
+
+def test_the_probe_is_found_beside_every_distractor(half_scene):
+    calibration, probe, renderer = half_scene
+    pose = pose_at(120)
+    left, right = renderer.render(pose, RenderOptions(noise_sigma=3, seed=1, fiducials_mm=((20.0, 30.0), (27.2, 30.0)),
+                                                      border_blobs=4, highlights=6))
+    for method, tolerance_mm in (("triangulation", 1.0), ("sgbm", 2.0), ("width", 8.0)):
+        fix = StereoTracker(calibration, probe, method=method).track(left, right)
+        assert fix.n_stripes == 3 and np.linalg.norm(fix.centre - pose.point(probe.band_centre_mm)) < tolerance_mm, method
+
+
+def test_a_fix_outside_the_depth_range_is_refused(half_scene):
+    calibration, probe, renderer = half_scene
+    left, right = renderer.render(pose_at(120), RenderOptions(noise_sigma=2, seed=3))
+    assert StereoTracker(calibration, probe, depth_range_mm=(60, 200)).track(left, right).n_stripes == 3
+    with pytest.raises(TrackingError, match="no probe"):
+        StereoTracker(calibration, probe, depth_range_mm=(200, 400)).track(left, right)
+    with pytest.raises(ValueError, match="depth range"):
+        StereoTracker(calibration, probe, depth_range_mm=(50, 20))
+
+
+@pytest.mark.parametrize("method", ["triangulation", "sgbm"])
+def test_standard_definition_images(method):
+    """360 px wide, as an SD endoscope: the disparity window follows from the calibration and the depth range
+    (the thesis' fixed 288 left nothing valid in the first 288 columns)."""
+    calibration, probe = thesis_calibration().scaled(0.1875), default_probe_model()
+    assert calibration.image_size == (360, 202)
+    pose = ProbePose.make([-10.0, 3.0, 80.0], AXIS)
+    left, right = StereoRenderer(calibration, probe).render(pose, RenderOptions(noise_sigma=2, seed=1))
+    fix = StereoTracker(calibration, probe, method=method).track(left, right)
+    assert np.linalg.norm(fix.centre - pose.point(probe.band_centre_mm)) < 2.0
+
+
+def test_track_command_no_probe_width_method_and_depth_range(half_scene, tmp_path, capsys):
+    calibration, probe, renderer = half_scene
+    from snreg.camera import save_calibration
+
+    save_calibration(calibration, tmp_path / "half.yaml")
+    pose = pose_at(140)
+    for name, options in (("probe", RenderOptions(noise_sigma=2, seed=4)),
+                          ("fiducials", DISTRACTORS["two round fiducials 7.2 mm apart"])):
+        for eye, image in zip("lr", renderer.render(pose, options)):
+            cv2.imwrite(str(tmp_path / f"{name}_{eye}.png"), image)
+    common = ["--calib", str(tmp_path / "half.yaml"), "--json"]
+    assert main(["track", str(tmp_path / "probe_l.png"), str(tmp_path / "probe_r.png"), "--method", "width", *common]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["method"] == "width" and np.linalg.norm(np.array(doc["centre"]) - pose.point(probe.band_centre_mm)) < 10.0
+    for method in ("triangulation", "sgbm", "width"):
+        assert main(["track", str(tmp_path / "fiducials_l.png"), str(tmp_path / "fiducials_r.png"), "--method", method,
+                     *common]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err.startswith("snreg: no probe") and captured.err.count("\n") == 1
+    assert main(["track", str(tmp_path / "probe_l.png"), str(tmp_path / "probe_r.png"), "--depth-range", "150,300",
+                 *common]) == 2
+    assert "outside the working depth range 150-300 mm" in capsys.readouterr().err

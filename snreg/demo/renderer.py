@@ -65,6 +65,7 @@ class RenderOptions:
     fiducial_diameter_mm: float = 6.0
     border_blobs: int = 0             # greenish blobs cut by the image border (a drape, a stained swab)
     highlights: int = 0               # specular highlights on the tissue: white spots with a greenish fringe
+    probe: bool = True                # False: the scene without the probe (distractors alone)
 
 
 def _tissue_texture(seed: int) -> np.ndarray:
@@ -134,7 +135,8 @@ class StereoRenderer:
         depth = np.full(rays.shape[:2], np.inf, np.float32)
         colour = np.zeros(rays.shape, np.float32)
         self._tissue_plane(rays, origin, pose, options, depth, colour)
-        self._probe(rays, origin, pose, options, depth, colour)
+        if options.probe:
+            self._probe(rays, origin, pose, options, depth, colour)
         if options.hide_stripe is not None:
             self._blob(rays, origin, pose, options, depth, colour)
         # endoscope light at the camera, inverse-square fall-off; exposure set for the probe tip

@@ -14,6 +14,11 @@ probe model (:class:`~snreg.probe.ProbeModel`, DESIGN.md §4) within stated tole
   the model's width projects to (a disc larger than the band, or two blobs merged, does);
 - depth: every stripe within the working depth range.
 
+The monocular ``width`` method cannot triangulate, so :func:`check_flat_bands` asks only that each stripe
+be a band, not a disc: its extent along the image axis at most ``band_roundness`` times its extent
+across (a 4 mm band on a 10 mm probe seen side-on: 0.4; tilted 60 degrees towards the camera: 0.85; a
+round fiducial: 1).
+
 Every measure uses the camera model, so the tolerances mean the same at any resolution and distance.
 """
 
@@ -28,7 +33,7 @@ from snreg.errors import TrackingError
 from snreg.probe import ProbeModel
 from snreg.tracking.markers import Stripes
 
-__all__ = ["ProbeTolerances", "ProbeShape", "measure_shape", "check_shape"]
+__all__ = ["ProbeTolerances", "ProbeShape", "measure_shape", "check_shape", "check_flat_bands"]
 
 _RING_ANGLES = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
 
@@ -41,6 +46,7 @@ class ProbeTolerances:
     disparity_px: float = 0.15       # disparity uncertainty of a stripe centroid (1 sigma) behind that allowance
     diameter: float = 0.3            # |band diameter / model - 1|
     stripe_width: float = 0.6        # a stripe's along-axis extent at most (1 + this) x the model band's
+    band_roundness: float = 0.85     # monocular: a stripe's along / across pixel extent at most this
 
 
 @dataclass(frozen=True)
@@ -101,6 +107,15 @@ def check_shape(shape: ProbeShape, points: np.ndarray, probe: ProbeModel, depth_
     if shape.width_ratio.max() > 1.0 + tolerances.stripe_width:
         raise TrackingError(f"no probe: a stripe {shape.width_ratio.max() * probe.stripe_width_mm:.1f} mm long where "
                             f"the probe's are {probe.stripe_width_mm:g} mm (tolerance {100 * tolerances.stripe_width:.0f}%)")
+
+
+def check_flat_bands(stripes: Stripes, tolerances: ProbeTolerances) -> None:
+    """Raise :class:`TrackingError` when a stripe is as long along the image axis as across (a disc, not a band)."""
+    along, across = _extents(stripes)
+    ratio = along / np.maximum(across, 1.0)
+    if ratio.max() > tolerances.band_roundness:
+        raise TrackingError(f"no probe: a green mark {ratio.max():.2f} as long as wide, round rather than a band "
+                            f"around the probe (at most {tolerances.band_roundness:g})")
 
 
 def _normal(direction: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from snreg.camera import StereoCalibration
 from snreg.errors import TrackingError
 from snreg.probe import ProbeModel, default_probe_model
 from snreg.tracking.markers import Stripes, find_stripe_candidates
-from snreg.tracking.plausibility import ProbeTolerances, check_shape, measure_shape
+from snreg.tracking.plausibility import ProbeTolerances, check_flat_bands, check_shape, measure_shape
 
 __all__ = ["ProbeFix", "SGBMParams", "StereoTracker", "TrackingError", "METHODS"]
 
@@ -118,10 +118,7 @@ class StereoTracker:
                 return self._track_candidate(left, right, stripes_left)
             except TrackingError as err:
                 reasons.append(str(err))
-        if not reasons:
-            raise TrackingError("no probe stripe found in the left image")
-        others = f" ({len(reasons) - 1} other green group(s) rejected too)" if len(reasons) > 1 else ""
-        raise TrackingError(reasons[0] + others)
+        raise _no_probe(reasons)
 
     def _track_candidate(self, left: np.ndarray, right: np.ndarray, stripes_left: Stripes) -> ProbeFix:
         """The fix from one left candidate, or TrackingError why it is not the probe."""
@@ -172,7 +169,8 @@ class StereoTracker:
     def marker_width(self, left: np.ndarray) -> ProbeFix:
         """The thesis' marker-width baseline (§3.4.1): depth from the probe's width in pixels (pinhole).
 
-        Candidates are tried best first; one is the probe when its depth lies in the working range and its
+        Candidates are tried best first; one is the probe when its stripes are bands rather than discs
+        (:func:`~snreg.tracking.plausibility.check_flat_bands`), its depth lies in the working range and its
         stripes are no farther apart in the image than the model's spacing at that depth allows.
         """
         self._check(left, "left")
@@ -182,11 +180,10 @@ class StereoTracker:
                 return self._width_fix(stripes)
             except TrackingError as err:
                 reasons.append(str(err))
-        if not reasons:
-            raise TrackingError("no probe stripe found in the left image")
-        raise TrackingError(reasons[0] + (f" ({len(reasons) - 1} other green group(s) rejected too)" if len(reasons) > 1 else ""))
+        raise _no_probe(reasons)
 
     def _width_fix(self, stripes: Stripes) -> ProbeFix:
+        check_flat_bands(stripes, self.tolerances)
         ys, xs = np.nonzero(stripes.labels)
         x0, y0 = stripes.box[:2]
         (cx, cy), (w, h), _ = cv2.minAreaRect(np.column_stack([xs + x0, ys + y0]).astype(np.float32))
@@ -399,3 +396,11 @@ class StereoTracker:
         if after is None and before is not None:
             return not before
         return None
+
+
+def _no_probe(reasons: list[str]) -> TrackingError:
+    """The error for a pair without a fix: "no probe: " and why the best candidate was not the probe."""
+    if not reasons:
+        return TrackingError("no probe stripe found in the left image")
+    first = reasons[0] if reasons[0].startswith("no probe") else f"no probe: {reasons[0]}"
+    return TrackingError(first + (f" ({len(reasons) - 1} other green group(s) rejected too)" if len(reasons) > 1 else ""))
