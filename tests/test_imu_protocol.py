@@ -151,6 +151,16 @@ def test_rate_comes_from_the_info_line_unless_given():
         StreamDecoder(rate_hz=0)
 
 
+def test_a_sample_whose_dollar_became_a_hash_leaves_the_rate():
+    """A '$' corrupted to '#' reads as an information line; only one that states odr_hz may set the rate
+    (before, it reset the rate, and the samples after it were counted against the wrong period)."""
+    decoder = StreamDecoder()
+    corrupted = b"#" + format_line(1000, [0, 0, 1], [0, 0, 0])[1:]
+    decoder.feed(format_info(1000) + _lines([0]) + corrupted + _lines(1000 * np.arange(2, 102)), 0)
+    assert decoder.rate_hz == 1000.0 and decoder.info.odr_hz == 1000.0
+    assert decoder.counts == StreamCounts(samples=101, corrupt=0, dropped=1)    # the one sample lost, no more
+
+
 def test_an_endless_line_counts_once_and_the_stream_recovers():
     decoder = StreamDecoder(rate_hz=1000.0)
     for _ in range(10):

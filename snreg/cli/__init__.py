@@ -54,8 +54,8 @@ def build_parser() -> Parser:
 def main(argv=None) -> int:
     """Run ``snreg`` with ``argv`` (default: the command line); returns the exit status."""
     _quiet_opencv()
-    args = build_parser().parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)         # argparse's errors: one line and exit 2 (common.Parser)
         status = args.func(args)
         sys.stdout.flush()
         return status

@@ -119,7 +119,7 @@ def cmd_trocar_pivot(args) -> int:
         lines.append("IMU-camera rotation: identity assumed (no --imu-csv; the thesis aligned the axes by eye)")
     print("\n".join(lines))
     if pivot.verdict == "bad":
-        raise UserError(f"pivot calibration refused ({pivot.advice}; orientation spread {pivot.tilt_range_deg:.1f} degrees, "
+        raise UserError(f"pivot calibration refused: {pivot.advice} (orientation spread {pivot.tilt_range_deg:.1f} degrees, "
                         f"residual {pivot.rms_mm:.2f} mm){'; no chain file written' if output else ''}")
     if output is not None:
         write_text(output, _chain_json(chain, "pivot") + "\n", "chain file")
