@@ -322,3 +322,9 @@ def test_help_shows_the_defaults(capsys):
         main(["simulate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "(default: 25)" in text and "(default: 2,5,10,15,20)" in text
+
+
+def test_a_calibration_written_to_a_full_device_raises_instead_of_reporting_success():
+    """``calibrate stereo -o /dev/full`` printed "wrote" with a 0-byte file; the write error now surfaces."""
+    with pytest.raises(OSError):
+        save_calibration(thesis_calibration(), "/dev/full")

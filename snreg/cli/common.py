@@ -232,7 +232,7 @@ def read_initial(path: str | None):
 def session_initial(path: str):
     """The initial alignment stored with the session's last registration that kept one."""
     from snreg.errors import SessionError
-    from snreg.session import Session          # h5py only when a session is read
+    from snreg.session import Session  # h5py only when a session is read
 
     try:
         with Session.open(path) as session:
