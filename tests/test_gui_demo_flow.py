@@ -25,7 +25,7 @@ def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), timeout=60_000)
     qtbot.waitUntil(lambda: panel.preop_box.nodes is not None and len(panel.preop_box.nodes) == 4, timeout=20_000)
     window.tabs.setCurrentWidget(panel)
-    assert panel.intraop_table.rowCount() == 4                       # the panel follows the stored nodes
+    qtbot.waitUntil(lambda: panel.intraop_table.rowCount() == 4, timeout=5_000)    # the panel follows the stored nodes
     qtbot.mouseClick(panel.alignment.centre_button, Qt.MouseButton.LeftButton)
     with qtbot.waitSignal(panel.registered, timeout=30_000) as registered:
         qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)

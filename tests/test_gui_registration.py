@@ -350,6 +350,7 @@ def test_the_panel_registers_again_after_each_stored_node_when_it_says_so(qtbot,
     with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as first:
         panel.rerun_after_store()
     assert len(first.args[0].pairing) == 4 and len(panel.missing_nodes) == 2
+    assert session.registrations() == [] and panel.run_button.isEnabled()    # only Run stores the one that counts
     panel.auto_rerun.setChecked(False)
     session.add_intraop_node(intraop.ids[4], intraop.labels[4], intraop.xyz[4])
     with qtbot.assertNotEmitted(panel.registered, wait=300):

@@ -89,7 +89,8 @@ class RegistrationPanel(QWidget):
         self._record_current = False                 # do the inputs still match it?
         self._preop_stored = False
         self._registering = False
-        self._rerun_pending = False
+        self._rerun_pending = False                 # Run pressed during a run: run again when it ends
+        self._auto_pending = False                  # a node stored during a run: register again when it ends
         self._excluded: set[str] = set()             # intraop ids left out of the next runs
         self._exporting = 0
         self._tasks = WorkerSet()
@@ -240,10 +241,16 @@ class RegistrationPanel(QWidget):
         self.preop_box.load(path)
 
     def run(self) -> None:
-        """Register the current preop to the current intraop nodes with the chosen settings, in a worker."""
+        """Register the current preop to the current intraop nodes with the chosen settings, in a worker; the result
+        is stored in a writable session."""
+        self._start(automatic=False)
+
+    def _start(self, automatic: bool) -> None:
+        """Start a run; an automatic one (after a store) is not stored in the session and leaves Run enabled."""
         preop, intraop = self.preop_box.nodes, self._intraop
-        if self._registering:
-            return self._say("A registration is already running; wait for it to finish.")
+        if self._registering:                       # the latest inputs run as soon as the current run ends
+            self._rerun_pending = self._rerun_pending or not automatic
+            return self._say("A registration is running; it will run again with these settings when it ends.")
         if not _has_nodes(preop):
             return self._say("Load the preop nodes first: a node file or a SPECT.")
         if not _has_nodes(intraop):
@@ -251,14 +258,14 @@ class RegistrationPanel(QWidget):
         intraop = _without(intraop, self._excluded)
         if len(intraop) < 3:
             return self._say("Fewer than 3 intraop nodes are left once the excluded ones are taken out; include some.")
-        store = self._session is not None and _same_nodes(intraop, _without(self._session.intraop_nodes(),
-                                                                            self._excluded))
+        store = not automatic and self._session is not None and _same_nodes(
+            intraop, _without(self._session.intraop_nodes(), self._excluded))
         request = RunRequest(preop, intraop, self.method_combo.currentText(), self.labels_check.isChecked(),
                              self.alignment.transform(preop.xyz), self.rotation_bound.value(),
                              self.translation_bound.value(), self._session if store else None,
                              store and not self._preop_stored)
         self._registering = True
-        self.run_button.setEnabled(False)
+        self.run_button.setEnabled(automatic)
         self.busy_bar.setVisible(True)
         left_out = f", without {', '.join(sorted(self._excluded))}" if self._excluded else ""
         self._say(f"Registering {len(preop)} preop to {len(intraop)} intraop nodes ({request.method}{left_out})...")
@@ -267,15 +274,16 @@ class RegistrationPanel(QWidget):
 
     def rerun_after_store(self) -> None:
         """A node was stored: re-read the session's nodes and, when "register again" is ticked and both node sets
-        are there, register again (after the run under way, if any)."""
+        are there and no run is under way, register again (not stored in the session: Run stores the one that
+        counts)."""
         self.refresh_intraop()
         if not (self.auto_rerun.isChecked() and _has_nodes(self.preop_box.nodes) and self._intraop is not None
                 and len(self._intraop) >= 3):
             return
         if self._registering:
-            self._rerun_pending = True
+            self._auto_pending = True
         else:
-            self.run()
+            self._start(automatic=True)
 
     def shutdown(self) -> None:
         """Wait for every worker of the panel (call when the window closes)."""
@@ -347,9 +355,10 @@ class RegistrationPanel(QWidget):
         self._registering = False
         self.run_button.setEnabled(True)
         self.busy_bar.setVisible(False)
-        if self._rerun_pending:
-            self._rerun_pending = False
-            self.run()
+        if self._rerun_pending or self._auto_pending:
+            automatic = not self._rerun_pending
+            self._rerun_pending = self._auto_pending = False
+            self._start(automatic=automatic)
 
     def _exclude_selected(self) -> None:
         chosen = self.pairing_table.selected_intraop_ids()
