@@ -1,0 +1,190 @@
+"""``snreg demo --headless --igtl PORT`` served to real OpenIGTLink clients (pyigtl's, in this process; the demo in
+a subprocess, as 3D Slicer would meet it), and the session's probe stream exported as a Slicer sequence and read
+back by a NRRD reader written here from the format's specification (not through snreg's writer)."""
+
+import gzip
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from snreg.cli import main
+from snreg.geometry import apply
+from snreg.session import Session
+
+DEMO_TIMEOUT_S = 600            # a deadline for a loaded machine, not a measurement
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def start_demo(session_path: Path, port: int) -> subprocess.Popen:
+    """The headless demo serving on ``port``, with this interpreter and PYTHONPATH (the tree under test)."""
+    return subprocess.Popen([sys.executable, "-m", "snreg.cli", "demo", "--headless", "-o", str(session_path),
+                             "--json", "--igtl", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=dict(os.environ))
+
+
+def finish(demo: subprocess.Popen) -> tuple[dict, str]:
+    out, err = demo.communicate(timeout=DEMO_TIMEOUT_S)
+    assert demo.returncode == 0, err
+    return json.loads(out), err
+
+
+def stalled_client(port: int) -> socket.socket:
+    """Connect (retrying until the demo listens) with the smallest receive buffer the kernel allows; never read."""
+    deadline = time.monotonic() + 120.0
+    while True:
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1)
+        try:
+            sock.connect(("127.0.0.1", port))
+            return sock
+        except OSError:
+            sock.close()
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def read_nrrd(path: Path) -> tuple[dict, dict, np.ndarray]:
+    """A NRRD file with attached data, per http://teem.sourceforge.net/nrrd/format.html: the magic line, then
+    ``field: value`` and ``key:=value`` lines (``#`` comments) up to the first empty line, then the data in the
+    given ``type``, ``endian`` and ``encoding`` (raw or gzip), fastest axis first in ``sizes``."""
+    blob = path.read_bytes()
+    end = blob.index(b"\n\n")
+    lines = blob[:end].decode("ascii").split("\n")
+    assert lines[0].startswith("NRRD000")
+    fields, keys = {}, {}
+    for line in lines[1:]:
+        if line.startswith("#"):
+            continue
+        if ":=" in line:
+            key, value = line.split(":=", 1)
+            keys[key] = value
+        else:
+            field, value = line.split(": ", 1)
+            fields[field] = value
+    data = blob[end + 2:]
+    if fields["encoding"] in ("gzip", "gz"):
+        data = gzip.decompress(data)
+    else:
+        assert fields["encoding"] == "raw"
+    types = {"double": "f8", "float": "f4"}
+    dtype = np.dtype(("<" if fields.get("endian", "little") == "little" else ">") + types[fields["type"]])
+    sizes = [int(v) for v in fields["sizes"].split()]
+    assert int(fields["dimension"]) == len(sizes)
+    array = np.frombuffer(data, dtype=dtype, count=int(np.prod(sizes))).reshape(sizes[::-1])
+    return fields, keys, array
+
+
+@pytest.fixture(scope="module")
+def served_demo(tmp_path_factory):
+    """One demo run with a pyigtl client connected from the start; the session read back after the run."""
+    from conftest import RecordingIgtlClient
+
+    folder = tmp_path_factory.mktemp("served")
+    path, port = folder / "demo.h5", free_port()
+    demo = start_demo(path, port)
+    client = RecordingIgtlClient(port)              # pyigtl's client retries until the demo listens
+    try:
+        out, err = finish(demo)
+        client.wait_for(lambda c: c.messages("TrocarToRas"), timeout_s=10.0)
+    finally:
+        client.stop()
+    with Session.open(path) as session:
+        nodes, preop, registration = session.intraop_nodes(), session.preop_nodes(), session.registrations()[-1]
+    return dict(path=path, out=out, err=err, client=client, nodes=nodes, preop=preop, registration=registration)
+
+
+def test_the_demo_says_it_waits_for_a_client_and_streams_rigid_poses(served_demo):
+    assert "waiting up to 30 s" in served_demo["err"] and "a client is connected" in served_demo["err"]
+    poses = served_demo["client"].messages("ProbeTipToTrocar")
+    assert len(poses) >= 50
+    for pose in poses:
+        rotation = np.asarray(pose.matrix)[:3, :3]
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-5)     # float32 on the wire
+        assert abs(np.linalg.det(rotation) - 1.0) < 1e-5
+        np.testing.assert_allclose(np.asarray(pose.matrix)[3], [0, 0, 0, 1])
+
+
+def test_the_last_intraop_nodes_are_the_sessions_nodes(served_demo):
+    last = served_demo["client"].messages("IntraopNodes")[-1]
+    nodes = served_demo["nodes"]
+    assert last.names == nodes.ids
+    np.testing.assert_allclose(np.asarray(last.positions), nodes.xyz, atol=0.01)
+
+
+def test_trocar_to_ras_maps_the_paired_intraop_nodes_onto_the_preop_nodes(served_demo):
+    client, registration = served_demo["client"], served_demo["registration"]
+    ras_from_trocar = np.asarray(client.messages("TrocarToRas")[-1].matrix)
+    preop = client.messages("PreopNodes")[-1]
+    preop_ras = dict(zip(preop.names, np.asarray(preop.positions)))
+    intraop = dict(zip(served_demo["nodes"].ids, served_demo["nodes"].xyz))
+    assert set(preop.names) == set(served_demo["preop"].ids)
+    rms = registration.result.rms_mm
+    paired = [(i, registration.preop_ids[p]) for i, p in zip(registration.intraop_ids, registration.result.pairing)
+              if p >= 0]
+    assert len(paired) >= 3
+    for intraop_id, preop_id in paired:
+        mapped = apply(ras_from_trocar, intraop[intraop_id][None])[0]
+        assert np.linalg.norm(mapped - preop_ras[preop_id]) <= rms + 0.5, (intraop_id, preop_id)
+    assert "registered with global" in client.messages("Status")[-1].string
+
+
+def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served_demo, tmp_path):
+    assert main(["session", "export", str(served_demo["path"]), "--format", "slicer-sequence",
+                 "-o", str(tmp_path / "seq")]) == 0
+    fields, keys, items = read_nrrd(tmp_path / "seq" / "ProbeTipToTrocar.seq.nrrd")
+    assert fields["kinds"].split()[-1] == "list" and "trocar" in keys["snreg frame"]
+    poses = items.reshape(-1, 4, 4)                 # axis 0 = column, axis 1 = row: C order reads row by row
+    times = np.array([float(v) for v in keys["axis 2 index values"].split()])
+    with Session.open(served_demo["path"]) as session:
+        probe = session.stream("probe")[()]
+        records = session.intraop_records()
+    assert len(poses) == len(probe) == len(times)
+    np.testing.assert_allclose(times, probe["t_host_ns"] / 1e9, atol=1e-6)
+    np.testing.assert_allclose(poses[:, 3], np.tile([0, 0, 0, 1], (len(poses), 1)))
+    for node in records:                            # each stored node is the median of the poses at its rest
+        near = np.linalg.norm(poses[:, :3, 3] - node.xyz_trocar, axis=1) < 3.0 * max(node.spread_mm, 0.5)
+        assert near.sum() >= node.n_frames // 2
+        np.testing.assert_allclose(np.median(poses[near, :3, 3], axis=0), node.xyz_trocar, atol=0.5)
+    for live in served_demo["client"].messages("ProbeTipToTrocar"):   # every pose sent live is in the recording
+        matrix = np.asarray(live.matrix)
+        gap = np.linalg.norm(poses[:, :3, 3] - matrix[:3, 3], axis=1)
+        assert gap.min() < 0.05
+        np.testing.assert_allclose(poses[int(np.argmin(gap)), :3, :3], matrix[:3, :3], atol=1e-3)
+
+
+def test_a_stalled_client_costs_the_acquisition_no_frames(tmp_path):
+    """A client that connects and never reads must not slow acquisition. What is measured: the wall time the
+    acquisition loop spends inside the live link's calls (show_frame, add_node, ...), timed by the demo around each
+    call, as a fraction of the loop's wall time. A link that blocked on a stalled socket (pyigtl's send_message
+    waits until its queue is empty) would spend nearly all of the run there, and a real-time source that drops
+    frames while its consumer is busy (a camera) would lose that same fraction of its frames: so this fraction is
+    the share of tracked frames the link can cost, and it must stay under 5%. Both times grow alike when other
+    processes load the CPU, so the ratio does not flake with load the way frames per second against a separate run
+    without clients would. The client's receive buffer is as small as the kernel allows and the test checks that
+    the link did hit the stall (messages left waiting and replaced by newer ones), so the test exercises it."""
+    path, port = tmp_path / "stalled.h5", free_port()
+    demo = start_demo(path, port)
+    sock = stalled_client(port)
+    try:
+        out, _ = finish(demo)
+    finally:
+        sock.close()
+    link = out["live_link"]
+    assert link["messages_replaced"] > 0 or link["dropped_stalled"] > 0     # the stall was reached
+    assert link["calls"] >= out["frames"]
+    share = link["seconds_in_calls"] / out["recording_s"]
+    assert share < 0.05, f"the link took {100 * share:.1f}% of the acquisition loop ({link})"
+    assert out["pairing_correct"] and len(out["nodes"]) == 4
