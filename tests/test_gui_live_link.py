@@ -1,0 +1,77 @@
+"""The app's live link to 3D Slicer, offscreen: the Devices menu toggle serves the demo acquisition to a pyigtl
+client (stored nodes, probe poses), shows the clients and address in the stream-health area, and is remembered."""
+
+import socket
+
+import pytest
+from PySide6.QtCore import QSettings
+
+from snreg.demo.rig import DemoRig
+from snreg.demo.scene import Schedule
+from snreg_gui.app import MainWindow
+from snreg_gui.common.live_link import ENABLED_KEY, PORT_KEY
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def settings(tmp_path):
+    return QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+
+
+def open_window(qtbot, tmp_path, settings, name):
+    rig = DemoRig(schedule=Schedule(rest_frames=45, move_frames=3))
+    window = MainWindow(str(tmp_path / name), demo=True, rig=rig, fixes_per_node=20, settings=settings)
+    qtbot.addWidget(window)
+    window.show()
+    return window
+
+
+def test_the_toggle_serves_stored_nodes_and_poses_to_a_client(qtbot, tmp_path, settings, igtl_client, monkeypatch):
+    window = open_window(qtbot, tmp_path, settings, "demo.h5")
+    try:
+        port = free_port()
+        asked = []
+        monkeypatch.setattr(window.live_link, "ask_port", lambda current: asked.append(current) or port)
+        assert not window.live_link.action.isChecked()
+        window.live_link.action.trigger()                       # Devices > Live link to 3D Slicer (OpenIGTLink)...
+        assert asked == [18944] and window.live_link.action.isChecked() and window.live_link.link is not None
+        client = igtl_client(port)
+        screen = window.acquisition
+        qtbot.waitUntil(lambda: f"1 client on 127.0.0.1:{port}" in screen.link_health.text(), timeout=30_000)
+        assert screen.link_health.isVisibleTo(screen)
+        screen.auto_store.setChecked(True)
+        qtbot.waitUntil(lambda: screen.nodes.rowCount() >= 1, timeout=60_000)
+        assert client.wait_for(lambda c: c.messages("IntraopNodes") and c.messages("IntraopNodes")[-1].names[:1]
+                               == ["SN1"], timeout_s=20.0)
+        assert client.messages("ProbeTipToTrocar")              # the poses stream as frames are tracked
+        assert client.messages("Status")
+        assert settings.value(ENABLED_KEY) in (True, "true") and int(settings.value(PORT_KEY)) == port
+
+        window.live_link.action.trigger()                       # off: closed, the line hidden, remembered off
+        assert window.live_link.link is None and not screen.link_health.isVisibleTo(screen)
+        assert settings.value(ENABLED_KEY) in (False, "false")
+    finally:
+        window.shutdown()
+
+
+def test_the_link_restarts_with_the_app_on_its_port_and_a_taken_port_says_so(qtbot, tmp_path, settings):
+    port = free_port()
+    settings.setValue(ENABLED_KEY, True)
+    settings.setValue(PORT_KEY, port)
+    window = open_window(qtbot, tmp_path, settings, "first.h5")
+    try:
+        assert window.live_link.link is not None and window.live_link.link.port == port
+        assert window.live_link.action.isChecked()
+        second = open_window(qtbot, tmp_path, settings, "second.h5")     # the same port, taken by the first
+        try:
+            assert second.live_link.link is None and not second.live_link.action.isChecked()
+            assert "port is in use" in second.statusBar().currentMessage()
+        finally:
+            second.shutdown()
+    finally:
+        window.shutdown()
