@@ -98,8 +98,16 @@ def test_poses_stream_and_undo_empties_the_node_list(link, igtl_client):
     stored = node("SN1", [1.0, 2.0, 3.0])
     link.add_node(stored)
     link.remove_node(stored)
-    # the list is state, re-sent whole: the store and its undo may arrive as one message, the empty list
-    assert client.wait_for(lambda c: c.messages("IntraopNodes") and c.messages("IntraopNodes")[-1].names == [])
+    # the list is state, re-sent whole: the store and its undo may arrive as one message, the empty list, which
+    # comes after the last pose (the list sent on connect was empty too)
+    def emptied_after_the_poses(c):
+        log = list(c.log)
+        last_pose = max((k for k, m in enumerate(log) if m.device_name == "ProbeTipToTrocar"
+                         and m.matrix[0, 3] == 19.0), default=None)
+        return last_pose is not None and any(m.device_name == "IntraopNodes" and m.names == []
+                                             for m in log[last_pose:])
+
+    assert client.wait_for(emptied_after_the_poses)
     poses = client.messages("ProbeTipToTrocar")
     assert 1 <= len(poses) <= 20 and poses[-1].matrix[0, 3] == 19.0        # latest wins: never an older one last
     assert [p.matrix[0, 3] for p in poses] == sorted(p.matrix[0, 3] for p in poses)

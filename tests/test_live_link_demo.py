@@ -1,8 +1,7 @@
 """``snreg demo --headless --igtl PORT`` served to real OpenIGTLink clients (pyigtl's, in this process; the demo in
 a subprocess, as 3D Slicer would meet it), and the session's probe stream exported as a Slicer sequence and read
-back by a NRRD reader written here from the format's specification (not through snreg's writer)."""
+back by readers written from the formats' specifications (tests/nrrd_spec_reader.py, not through snreg's writer)."""
 
-import gzip
 import json
 import os
 import socket
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from nrrd_spec_reader import read_metafile_transforms, read_nrrd
 
 from snreg.cli import main
 from snreg.geometry import apply
@@ -54,37 +54,6 @@ def stalled_client(port: int) -> socket.socket:
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.05)
-
-
-def read_nrrd(path: Path) -> tuple[dict, dict, np.ndarray]:
-    """A NRRD file with attached data, per http://teem.sourceforge.net/nrrd/format.html: the magic line, then
-    ``field: value`` and ``key:=value`` lines (``#`` comments) up to the first empty line, then the data in the
-    given ``type``, ``endian`` and ``encoding`` (raw or gzip), fastest axis first in ``sizes``."""
-    blob = path.read_bytes()
-    end = blob.index(b"\n\n")
-    lines = blob[:end].decode("ascii").split("\n")
-    assert lines[0].startswith("NRRD000")
-    fields, keys = {}, {}
-    for line in lines[1:]:
-        if line.startswith("#"):
-            continue
-        if ":=" in line:
-            key, value = line.split(":=", 1)
-            keys[key] = value
-        else:
-            field, value = line.split(": ", 1)
-            fields[field] = value
-    data = blob[end + 2:]
-    if fields["encoding"] in ("gzip", "gz"):
-        data = gzip.decompress(data)
-    else:
-        assert fields["encoding"] == "raw"
-    types = {"double": "f8", "float": "f4"}
-    dtype = np.dtype(("<" if fields.get("endian", "little") == "little" else ">") + types[fields["type"]])
-    sizes = [int(v) for v in fields["sizes"].split()]
-    assert int(fields["dimension"]) == len(sizes)
-    array = np.frombuffer(data, dtype=dtype, count=int(np.prod(sizes))).reshape(sizes[::-1])
-    return fields, keys, array
 
 
 @pytest.fixture(scope="module")
@@ -158,6 +127,9 @@ def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served
         near = np.linalg.norm(poses[:, :3, 3] - node.xyz_trocar, axis=1) < 3.0 * max(node.spread_mm, 0.5)
         assert near.sum() >= node.n_frames // 2
         np.testing.assert_allclose(np.median(poses[near, :3, 3], axis=0), node.xyz_trocar, atol=0.5)
+    mha_times, mha_poses = read_metafile_transforms(tmp_path / "seq" / "ProbeTipToTrocar.seq.mha", "ProbeTipToTrocar")
+    np.testing.assert_allclose(mha_times, times, atol=1e-9)
+    np.testing.assert_allclose(mha_poses, poses, atol=1e-6)
     for live in served_demo["client"].messages("ProbeTipToTrocar"):   # every pose sent live is in the recording
         matrix = np.asarray(live.matrix)
         gap = np.linalg.norm(poses[:, :3, 3] - matrix[:3, 3], axis=1)
@@ -188,3 +160,13 @@ def test_a_stalled_client_costs_the_acquisition_no_frames(tmp_path):
     share = link["seconds_in_calls"] / out["recording_s"]
     assert share < 0.05, f"the link took {100 * share:.1f}% of the acquisition loop ({link})"
     assert out["pairing_correct"] and len(out["nodes"]) == 4
+
+
+def test_a_taken_port_is_one_line_and_no_session(tmp_path, capsys):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        assert main(["demo", "--headless", "-o", str(tmp_path / "x.h5"), "--igtl", str(taken.getsockname()[1])]) == 2
+    err = capsys.readouterr().err
+    assert "port is in use" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.h5").exists()

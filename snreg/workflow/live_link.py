@@ -140,6 +140,7 @@ class LiveLink:
         self._connected = threading.Event()
         self._drained = threading.Event()
         self._closing = False
+        self._offer(msg.INTRAOP_NODES, ([], np.zeros((0, 3))))    # a client always gets the list, empty or not
         self._offer(msg.STATUS, True)
         self._thread = threading.Thread(target=self._serve, name="snreg-live-link", daemon=True)
         self._thread.start()
