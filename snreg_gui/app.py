@@ -281,6 +281,7 @@ class MainWindow(QMainWindow):
         return records, self.registration.preop_box.nodes, self.registration.last_result
 
     def _stop_acquisition(self) -> None:
+        self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say
         if self._thread is not None:
             stop_worker(self.worker, self._thread)
             self._thread = None
