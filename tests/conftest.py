@@ -25,6 +25,13 @@ def pelvic_nodes():
     return xyz, labels
 
 
+def shown(points) -> tuple[list, np.ndarray]:
+    """The names and (N, 3) positions of a received POINT message's points that Slicer shows (alpha above 0): an
+    empty list goes as one hidden point (snreg.workflow.live_messages.point_list)."""
+    keep = [k for k, rgba in enumerate(points.rgba_colors) if rgba[3] > 0]
+    return [points.names[k] for k in keep], np.array([points.positions[k] for k in keep], dtype=float).reshape(-1, 3)
+
+
 class RecordingIgtlClient:
     """pyigtl's own OpenIGTLinkClient, keeping every message it receives in order (``log``): pyigtl keeps only the
     newest message per device, and the live-link tests count and compare all of them."""

@@ -4,6 +4,7 @@ client (stored nodes, probe poses), shows the clients and address in the stream-
 import socket
 
 import pytest
+from conftest import shown
 from PySide6.QtCore import QSettings
 
 from snreg.demo.rig import DemoRig
@@ -46,7 +47,7 @@ def test_the_toggle_serves_stored_nodes_and_poses_to_a_client(qtbot, tmp_path, s
         assert screen.link_health.isVisibleTo(screen)
         screen.auto_store.setChecked(True)
         qtbot.waitUntil(lambda: screen.nodes.rowCount() >= 1, timeout=60_000)
-        assert client.wait_for(lambda c: c.messages("IntraopNodes") and c.messages("IntraopNodes")[-1].names[:1]
+        assert client.wait_for(lambda c: c.messages("IntraopNodes") and shown(c.messages("IntraopNodes")[-1])[0][:1]
                                == ["SN1"], timeout_s=20.0)
         assert client.messages("ProbeTipToTrocar")              # the poses stream as frames are tracked
         assert client.messages("Status")

@@ -1,6 +1,6 @@
 """``snreg demo --headless --igtl PORT`` served to real OpenIGTLink clients (pyigtl's, in this process; the demo in
 a subprocess, as 3D Slicer would meet it), and the session's probe stream exported as a Slicer sequence and read
-back by readers written from the formats' specifications (tests/nrrd_spec_reader.py, not through snreg's writer)."""
+back by a reader written from the format's description (tests/sequence_metafile_reader.py, not snreg's writer)."""
 
 import json
 import os
@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nrrd_spec_reader import read_metafile_transforms, read_nrrd
+from conftest import shown
+from sequence_metafile_reader import read_sequence_metafile, slicer_index_values, transforms
 
 from snreg.cli import main
 from snreg.geometry import apply
@@ -87,19 +88,19 @@ def test_the_demo_says_it_waits_for_a_client_and_streams_rigid_poses(served_demo
 
 
 def test_the_last_intraop_nodes_are_the_sessions_nodes(served_demo):
-    last = served_demo["client"].messages("IntraopNodes")[-1]
+    names, positions = shown(served_demo["client"].messages("IntraopNodes")[-1])
     nodes = served_demo["nodes"]
-    assert last.names == nodes.ids
-    np.testing.assert_allclose(np.asarray(last.positions), nodes.xyz, atol=0.01)
+    assert names == nodes.ids
+    np.testing.assert_allclose(positions, nodes.xyz, atol=0.01)
 
 
 def test_trocar_to_ras_maps_the_paired_intraop_nodes_onto_the_preop_nodes(served_demo):
     client, registration = served_demo["client"], served_demo["registration"]
     ras_from_trocar = np.asarray(client.messages("TrocarToRas")[-1].matrix)
-    preop = client.messages("PreopNodes")[-1]
-    preop_ras = dict(zip(preop.names, np.asarray(preop.positions)))
+    preop_names, preop_positions = shown(client.messages("PreopNodes")[-1])
+    preop_ras = dict(zip(preop_names, preop_positions))
     intraop = dict(zip(served_demo["nodes"].ids, served_demo["nodes"].xyz))
-    assert set(preop.names) == set(served_demo["preop"].ids)
+    assert set(preop_names) == set(served_demo["preop"].ids)
     rms = registration.result.rms_mm
     paired = [(i, registration.preop_ids[p]) for i, p in zip(registration.intraop_ids, registration.result.pairing)
               if p >= 0]
@@ -113,23 +114,18 @@ def test_trocar_to_ras_maps_the_paired_intraop_nodes_onto_the_preop_nodes(served
 def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served_demo, tmp_path):
     assert main(["session", "export", str(served_demo["path"]), "--format", "slicer-sequence",
                  "-o", str(tmp_path / "seq")]) == 0
-    fields, keys, items = read_nrrd(tmp_path / "seq" / "ProbeTipToTrocar.seq.nrrd")
-    assert fields["kinds"].split()[-1] == "list" and "trocar" in keys["snreg frame"]
-    poses = items.reshape(-1, 4, 4)                 # axis 0 = column, axis 1 = row: C order reads row by row
-    times = np.array([float(v) for v in keys["axis 2 index values"].split()])
+    sequence = read_sequence_metafile(tmp_path / "seq" / "ProbeTipToTrocar.seq.mha")
+    times, poses, statuses = transforms(sequence, "ProbeTipToTrocar")
     with Session.open(served_demo["path"]) as session:
         probe = session.stream("probe")[()]
         records = session.intraop_records()
-    assert len(poses) == len(probe) == len(times)
+    assert len(poses) == len(probe) == len(set(slicer_index_values(sequence))) and set(statuses) == {"OK"}
     np.testing.assert_allclose(times, probe["t_host_ns"] / 1e9, atol=1e-6)
     np.testing.assert_allclose(poses[:, 3], np.tile([0, 0, 0, 1], (len(poses), 1)))
     for node in records:                            # each stored node is the median of the poses at its rest
         near = np.linalg.norm(poses[:, :3, 3] - node.xyz_trocar, axis=1) < 3.0 * max(node.spread_mm, 0.5)
         assert near.sum() >= node.n_frames // 2
         np.testing.assert_allclose(np.median(poses[near, :3, 3], axis=0), node.xyz_trocar, atol=0.5)
-    mha_times, mha_poses = read_metafile_transforms(tmp_path / "seq" / "ProbeTipToTrocar.seq.mha", "ProbeTipToTrocar")
-    np.testing.assert_allclose(mha_times, times, atol=1e-9)
-    np.testing.assert_allclose(mha_poses, poses, atol=1e-6)
     for live in served_demo["client"].messages("ProbeTipToTrocar"):   # every pose sent live is in the recording
         matrix = np.asarray(live.matrix)
         gap = np.linalg.norm(poses[:, :3, 3] - matrix[:3, 3], axis=1)

@@ -1,10 +1,10 @@
 """``snreg session export --format slicer-sequence``: probe poses in the trocar frame from the stored probe and IMU
-streams and the session's chain, read back with readers written from the file formats (tests/nrrd_spec_reader.py)."""
+streams and the session's chain, read back with a reader written from the file format (tests/sequence_metafile_reader.py)."""
 
 import numpy as np
 import pytest
-from nrrd_spec_reader import read_metafile_transforms, read_nrrd
 from scipy.spatial.transform import Rotation
+from sequence_metafile_reader import SLICER_LINE_LIMIT, read_sequence_metafile, slicer_index_values, transforms
 
 from snreg.chain import ChainCalibration, camera_from_probe, trocar_from_probe
 from snreg.cli import main
@@ -58,17 +58,15 @@ def test_the_export_holds_the_probe_poses_at_the_fused_imu_orientation(recorded,
     tilt = [np.degrees((Rotation.from_matrix(o) * TILT.inv()).magnitude()) for o in orientations]
     assert max(tilt) < 1.0                           # the filter has settled on the tilt: a non-trivial orientation
     assert main(["session", "export", str(path), "--format", "slicer-sequence", "-o", str(tmp_path / "out")]) == 0
-    fields, keys, items = read_nrrd(tmp_path / "out" / "ProbeTipToTrocar.seq.nrrd")
-    assert fields["sizes"] == f"4 4 {len(t_probe)}" and fields["kinds"].split()[2] == "list"
-    assert fields["labels"].split()[2] == '"time"' and fields["units"].split()[2] == '"s"'
-    assert keys["axis 2 index type"] == "numeric" and keys["snreg frame"].startswith("trocar")
-    assert [int(v.replace(".", "")) for v in keys["axis 2 index values"].split()] == list(t_probe)   # exact ns
-    np.testing.assert_allclose(items, truth, atol=1e-6)
-    times, matrices = read_metafile_transforms(tmp_path / "out" / "ProbeTipToTrocar.seq.mha", "ProbeTipToTrocar")
-    np.testing.assert_allclose(times, t_probe / 1e9, rtol=0, atol=1e-9)
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["ProbeTipToTrocar.seq.mha"]     # no leftovers
+    sequence = read_sequence_metafile(tmp_path / "out" / "ProbeTipToTrocar.seq.mha")
+    times, matrices, statuses = transforms(sequence, "ProbeTipToTrocar")
     np.testing.assert_allclose(matrices, truth, atol=1e-6)
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["ProbeTipToTrocar.seq.mha",
-                                                                      "ProbeTipToTrocar.seq.nrrd"]   # no leftovers
+    np.testing.assert_allclose(times, t_probe / 1e9, rtol=0, atol=1e-9)
+    assert statuses == ["OK"] * len(t_probe)
+    assert [int(frame["Timestamp"].replace(".", "")) for frame in sequence.frames] == list(t_probe)    # exact ns
+    assert sequence.longest_line < SLICER_LINE_LIMIT
+    assert len(set(slicer_index_values(sequence))) == len(t_probe)        # one Slicer index value per fix
 
 
 def test_between_imu_samples_the_orientation_is_interpolated(recorded):

@@ -21,7 +21,8 @@ def add_session_parser(subparsers) -> None:
     export.add_argument("session")
     export.add_argument("--format", choices=("csv", "slicer", "slicer-sequence"), default="csv",
                         help="csv or slicer: the intraop nodes into the file OUT; slicer-sequence: the probe poses "
-                        "(trocar frame) as ProbeTipToTrocar.seq.nrrd and .seq.mha into the folder OUT")
+                        "(trocar frame) as ProbeTipToTrocar.seq.mha, 3D Slicer's linear transform sequence, into the "
+                        "folder OUT")
     export.add_argument("-o", "--output", required=True)
     export.set_defaults(func=cmd_export)
     recover = commands.add_parser("recover", help="rebuild a clean session file from a damaged one and its journal")
@@ -50,8 +51,8 @@ def cmd_info(args) -> int:
 def cmd_export(args) -> int:
     if args.format == "slicer-sequence":
         from snreg.session.slicer_sequence import write_slicer_sequence
-        paths = _guard(write_slicer_sequence, args.session, args.output)
-        print(f"wrote the probe pose sequence (trocar frame, mm) to {', '.join(str(p) for p in paths)}")
+        path = _guard(write_slicer_sequence, args.session, args.output)
+        print(f"wrote the probe pose sequence (trocar frame, mm) to {path}")
         return 0
     from snreg.session.export import export_nodes
     n = _guard(export_nodes, args.session, args.format, args.output)

@@ -1,5 +1,5 @@
 """The probe pose stream of a session as a sequence for 3D Slicer: ``snreg session export S.h5 --format
-slicer-sequence -o DIR`` writes ``ProbeTipToTrocar.seq.nrrd`` and ``ProbeTipToTrocar.seq.mha`` into DIR.
+slicer-sequence -o DIR`` writes ``DIR/ProbeTipToTrocar.seq.mha``.
 
 The poses: the stored probe stream holds the tip and axis in the camera frame per fix, not the IMU orientation,
 so the stored IMU samples are fused again with the live filter (:func:`~snreg.session.timeline.fuse_imu`), the
@@ -9,24 +9,16 @@ from the tip backwards, as the live link's ``ProbeTipToTrocar``. Not RAS: in Sli
 ``TrocarToRas`` transform of a registration. The live acquisition mapped each fix with the orientation of its
 processing moment, a few ms after the grab; with the endoscope still both agree.
 
-Why two files (Slicer's source, read for this): Slicer's ``.seq.nrrd`` is its volume-sequence format
-(``vtkMRMLVolumeSequenceStorageNode``: NRRD with a ``list`` axis last, ``axis <A> index type/values:=`` fields,
-the index name in ``labels`` and its unit in ``units``) and, in recent versions, grid (displacement-field)
-transform sequences (``vtkMRMLTransformSequenceStorageNode``, ``intent_code:=1006``); no Slicer reader turns a
-NRRD into a sequence of *linear* transforms. So:
+The format, checked against Slicer's documentation and source: Slicer's ``.seq.nrrd`` is a *volume* sequence (3
+spatial axes and a list axis); a sequence of linear transforms is stored by Slicer's
+``vtkMRMLLinearTransformSequenceStorageNode`` (its default extension ``.seq.mha``) in PLUS's sequence metafile:
+a MetaIO header with no image (``DimSize = 0 0 N``), then per frame ``Seq_Frame<k>_<Name>Transform = `` the 16
+numbers row by row, ``Seq_Frame<k>_<Name>TransformStatus = OK`` and ``Seq_Frame<k>_Timestamp = `` seconds, and
+``ElementDataFile = LOCAL`` last. Slicer names the sequence ``<Name>`` (here ``ProbeTipToTrocar``), uses the
+timestamps rounded to milliseconds as its index values and reads lines of up to 1000 characters. The header
+written here is the one Slicer writes, plus ``BinaryDataByteOrderMSB = False``, which PLUS's description requires.
 
-- ``.seq.nrrd``: the sequence as plain NRRD in Slicer's sequence conventions, self-described: ``sizes: 4 4 N``,
-  double, the 4x4 matrix of item k row by row (axis 0 the column, axis 1 the row), ``kinds: 4-vector 4-vector
-  list``, ``labels: "column" "row" "time"``, ``units: "" "" "s"``, ``axis 2 index type:=numeric``, ``axis 2 index
-  values:=`` the host times in seconds, and the frame stated in ``snreg ...:=`` fields and comments. For analysis
-  and any NRRD reader; Slicer's own readers would not make transforms of it.
-- ``.seq.mha``: the same poses in the sequence metafile that Slicer itself writes for a linear transform sequence
-  (``vtkMRMLLinearTransformSequenceStorageNode``, the default storage of transform sequences, also PLUS's format):
-  ``Seq_Frame<k>_ProbeTipToTrocarTransform = `` 16 numbers row by row, ``..TransformStatus = OK``,
-  ``Seq_Frame<k>_Timestamp = `` seconds, ``DimSize = 0 0 N`` (no image). This is the file to open in Slicer (the
-  "Sequence Metafile" reader); Slicer rounds the timestamps to milliseconds as it reads them.
-
-Both are written under a temporary name and renamed, so a reader never sees half a file.
+The file is written under a temporary name and renamed, so a reader never sees half a file.
 """
 
 from __future__ import annotations
@@ -56,7 +48,6 @@ class ProbePoses:
     t_host_ns: np.ndarray
     trocar_from_probe: np.ndarray
     imu: str
-    case_id: str
 
 
 def probe_poses(path: str | Path) -> ProbePoses:
@@ -64,7 +55,6 @@ def probe_poses(path: str | Path) -> ProbePoses:
     with Session.open(path) as session:
         chain = session.calibration().get("chain")
         probe, imu = (_rows(session.stream(name)) for name in ("probe", "imu"))
-        case_id = session.case_id
     if chain is None:
         raise SessionError(f"{path}: the session has no chain calibration, so its probe fixes cannot be put in the "
                            "trocar frame; record with a calibrated rig")
@@ -74,18 +64,17 @@ def probe_poses(path: str | Path) -> ProbePoses:
     orientations, source = _orientations_at(imu, t_ns)
     poses = np.stack([trocar_from_probe(chain, orientations[k], camera_from_probe(probe["tip_mm"][k], probe["axis"][k]))
                       for k in range(len(t_ns))])
-    return ProbePoses(t_ns, poses, source, case_id)
+    return ProbePoses(t_ns, poses, source)
 
 
-def write_slicer_sequence(path: str | Path, out_dir: str | Path) -> list[Path]:
-    """Write ``ProbeTipToTrocar.seq.nrrd`` and ``.seq.mha`` into ``out_dir`` (created if missing); returns the paths."""
+def write_slicer_sequence(path: str | Path, out_dir: str | Path) -> Path:
+    """Write ``ProbeTipToTrocar.seq.mha`` into ``out_dir`` (created if missing); returns its path."""
     poses = probe_poses(path)
     out_dir = Path(out_dir)
     out_dir.mkdir(exist_ok=True)
-    nrrd, mha = out_dir / f"{SEQUENCE_NAME}.seq.nrrd", out_dir / f"{SEQUENCE_NAME}.seq.mha"
-    _write_atomically(nrrd, _nrrd_bytes(poses))
-    _write_atomically(mha, _metafile_bytes(poses))
-    return [nrrd, mha]
+    target = out_dir / f"{SEQUENCE_NAME}.seq.mha"
+    _write_atomically(target, _metafile_bytes(poses))
+    return target
 
 
 def seconds_text(t_ns: int) -> str:
@@ -112,41 +101,10 @@ def _orientations_at(imu: np.ndarray, t_ns: np.ndarray) -> tuple[np.ndarray, str
     return Slerp((t_imu - t_imu[0]) / 1e9, rotations)((at - t_imu[0]) / 1e9).as_matrix(), source
 
 
-def _nrrd_bytes(poses: ProbePoses) -> bytes:
-    n = len(poses.t_host_ns)
-    values = " ".join(seconds_text(t) for t in poses.t_host_ns)
-    header = [
-        "NRRD0004",
-        "# Complete NRRD file format specification at:",
-        "# http://teem.sourceforge.net/nrrd/format.html",
-        f"# snreg probe pose sequence {SEQUENCE_NAME} of case {poses.case_id}: item k is the 4x4 matrix",
-        "# trocar_from_probe (probe to trocar frame, mm) row by row: axis 0 = column, axis 1 = row, axis 2 = item;",
-        "# the probe frame has the tip at its origin and z along the probe from the tip backwards;",
-        "# the index values are the host clock (time.perf_counter) of each fix, in seconds",
-        "type: double",
-        "dimension: 3",
-        f"sizes: 4 4 {n}",
-        "kinds: 4-vector 4-vector list",
-        'labels: "column" "row" "time"',
-        'units: "" "" "s"',
-        "endian: little",
-        "encoding: raw",
-        "DataNodeClassName:=vtkMRMLLinearTransformNode",
-        "axis 2 index type:=numeric",
-        f"axis 2 index values:={values}",
-        f"snreg transform:={SEQUENCE_NAME}",
-        "snreg frame:=trocar (not RAS: place under TrocarToRas)",
-        "snreg units:=mm",
-        f"snreg orientation:=IMU {poses.imu}",
-    ]
-    data = np.ascontiguousarray(poses.trocar_from_probe, dtype="<f8").tobytes()
-    return ("\n".join(header) + "\n\n").encode("ascii") + data
-
-
 def _metafile_bytes(poses: ProbePoses) -> bytes:
     lines = ["ObjectType = Image", "NDims = 3", "AnatomicalOrientation = RAI", "BinaryData = True",
-             "CompressedData = False", f"DimSize = 0 0 {len(poses.t_host_ns)}", "ElementSpacing = 1 1 1",
-             "Offset = 0 0 0", "TransformMatrix = 1 0 0 0 1 0 0 0 1", "ElementType = MET_UCHAR",
+             "BinaryDataByteOrderMSB = False", "CompressedData = False", f"DimSize = 0 0 {len(poses.t_host_ns)}",
+             "ElementSpacing = 1 1 1", "Offset = 0 0 0", "TransformMatrix = 1 0 0 0 1 0 0 0 1", "ElementType = MET_UCHAR",
              "Kinds = domain domain list"]
     for k, (t_ns, pose) in enumerate(zip(poses.t_host_ns, poses.trocar_from_probe)):
         frame = f"Seq_Frame{k:04d}_"

@@ -6,9 +6,9 @@ one packed message (header and body, CRC included) ready for a socket.
 
 How SlicerOpenIGTLink shows them (vtkMRMLIGTLConnectorNode, checked in its source): a TRANSFORM becomes a linear
 transform node named after the device whose matrix is its "transform to parent", taken as sent; a POINT message
-becomes a markups fiducial node whose control points are replaced by the list (labels = point names, an empty list
-clears it); a STRING becomes a text node. Nothing is converted between LPS and RAS on the way, so the sender says
-which frame each device is in:
+becomes a markups fiducial node whose control points are replaced by the list (labels = point names; a point whose
+alpha is 0 is hidden; a message without points is dropped, see :func:`point_list`); a STRING becomes a text node.
+Nothing is converted between LPS and RAS on the way, so the sender says which frame each device is in:
 
 - ``ProbeTipToTrocar`` (TRANSFORM): probe to trocar, mm: the tip at the origin, z along the probe from the tip
   backwards (:func:`snreg.chain.camera_from_probe`).
@@ -27,7 +27,7 @@ import pyigtl
 from snreg.geometry import invert
 
 __all__ = ["DEFAULT_PORT", "PROBE_POSE", "INTRAOP_NODES", "PREOP_NODES", "TROCAR_TO_RAS", "STATUS", "RAS_FROM_LPS",
-           "probe_pose", "point_list", "preop_points", "ras_from_trocar", "trocar_to_ras", "status"]
+           "NO_POINTS_NAME", "probe_pose", "point_list", "preop_points", "ras_from_trocar", "trocar_to_ras", "status"]
 
 DEFAULT_PORT = 18944                 # OpenIGTLink's registered port, SlicerOpenIGTLink's default
 PROBE_POSE = "ProbeTipToTrocar"
@@ -39,16 +39,7 @@ STATUS = "Status"
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])      # DESIGN.md §3: x and y negated (its own inverse)
 INTRAOP_RGBA = (40, 200, 80, 255)                   # green: stored in surgery
 PREOP_RGBA = (230, 120, 30, 255)                    # orange: seen on the SPECT
-
-
-class _PointList(pyigtl.PointMessage):
-    """pyigtl's POINT message, allowing an empty list: after the last node is undone, Slicer's list must empty too
-    (its connector removes the control points a message no longer holds)."""
-
-    def _pack_content(self):
-        if len(np.asarray(self.positions).reshape(-1, 3)) == 0:
-            return b""
-        return super()._pack_content()
+NO_POINTS_NAME = "(none)"                           # the hidden point that stands for an empty list
 
 
 def probe_pose(trocar_from_probe: np.ndarray, timestamp_s: float) -> bytes:
@@ -58,12 +49,21 @@ def probe_pose(trocar_from_probe: np.ndarray, timestamp_s: float) -> bytes:
 
 
 def point_list(device: str, ids, xyz, rgba=INTRAOP_RGBA) -> bytes:
-    """A POINT message named ``device``: one point per id at ``xyz`` (N, 3) mm, N may be 0."""
+    """A POINT message named ``device``: one point per id at ``xyz`` (N, 3) mm.
+
+    N = 0 (the last node undone, the preop nodes cleared) is sent as one hidden point (alpha 0) named
+    ``NO_POINTS_NAME`` at the origin, not as a message without points: Slicer's OpenIGTLink library unpacks no
+    body of size 0 and its POINT converter then drops the message, so Slicer would keep showing the old points.
+    Slicer hides a point whose alpha is 0; clients that list the points should skip those.
+    """
     positions = np.asarray(xyz, dtype=float).reshape(-1, 3)
     names = [str(i) for i in ids]
     if len(names) != len(positions):
         raise ValueError(f"{device}: {len(names)} names for {len(positions)} points")
-    return _PointList(positions=positions, names=names, rgba_colors=list(rgba), device_name=device).pack()
+    colours = [list(rgba)] * len(names)
+    if not names:
+        positions, names, colours = np.zeros((1, 3)), [NO_POINTS_NAME], [[*rgba[:3], 0]]
+    return pyigtl.PointMessage(positions=positions, names=names, rgba_colors=colours, device_name=device).pack()
 
 
 def preop_points(ids, xyz_lps) -> bytes:
