@@ -60,19 +60,20 @@ def test_the_toggle_serves_stored_nodes_and_poses_to_a_client(qtbot, tmp_path, s
         window.shutdown()
 
 
-def test_the_link_restarts_with_the_app_on_its_port_and_a_taken_port_says_so(qtbot, tmp_path, settings):
+def test_the_link_restarts_with_the_app_on_its_port_and_a_taken_port_says_so(qtbot, settings):
     port = free_port()
     settings.setValue(ENABLED_KEY, True)
     settings.setValue(PORT_KEY, port)
-    window = open_window(qtbot, tmp_path, settings, "first.h5")
+    windows = []
+    for _ in range(2):                      # no rig and no session: the link starts with the window all the same
+        windows.append(MainWindow(settings=settings))
+        qtbot.addWidget(windows[-1])
+    first, second = windows
     try:
-        assert window.live_link.link is not None and window.live_link.link.port == port
-        assert window.live_link.action.isChecked()
-        second = open_window(qtbot, tmp_path, settings, "second.h5")     # the same port, taken by the first
-        try:
-            assert second.live_link.link is None and not second.live_link.action.isChecked()
-            assert "port is in use" in second.statusBar().currentMessage()
-        finally:
-            second.shutdown()
+        assert first.live_link.link is not None and first.live_link.link.port == port
+        assert first.live_link.action.isChecked()
+        assert second.live_link.link is None and not second.live_link.action.isChecked()   # the port is taken
+        assert "port is in use" in second.statusBar().currentMessage()
     finally:
-        window.shutdown()
+        for window in windows:
+            window.shutdown()

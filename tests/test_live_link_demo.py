@@ -41,9 +41,9 @@ def finish(demo: subprocess.Popen) -> tuple[dict, str]:
     return json.loads(out), err
 
 
-def stalled_client(port: int) -> socket.socket:
+def stalled_client(port: int, demo: subprocess.Popen) -> socket.socket:
     """Connect (retrying until the demo listens) with the smallest receive buffer the kernel allows; never read."""
-    deadline = time.monotonic() + 120.0
+    deadline = time.monotonic() + DEMO_TIMEOUT_S
     while True:
         sock = socket.socket()
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1)
@@ -52,28 +52,43 @@ def stalled_client(port: int) -> socket.socket:
             return sock
         except OSError:
             sock.close()
-            if time.monotonic() > deadline:
-                raise
+            if demo.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"the demo never served port {port}: {demo.communicate()[1]}") from None
             time.sleep(0.05)
+
+
+def drain(sock: socket.socket) -> int:
+    """Read what a client never took until the server's end of the connection closes; the bytes."""
+    sock.settimeout(DEMO_TIMEOUT_S)
+    total = 0
+    while chunk := sock.recv(65536):
+        total += len(chunk)
+    return total
 
 
 @pytest.fixture(scope="module")
 def served_demo(tmp_path_factory):
-    """One demo run with a pyigtl client connected from the start; the session read back after the run."""
+    """One demo run served from its start to two clients: pyigtl's, recording every message, and one that connects
+    and never reads (stalled); the session read back after the run."""
     from conftest import RecordingIgtlClient
 
     folder = tmp_path_factory.mktemp("served")
     path, port = folder / "demo.h5", free_port()
     demo = start_demo(path, port)
     client = RecordingIgtlClient(port)              # pyigtl's client retries until the demo listens
+    stalled = stalled_client(port, demo)
     try:
         out, err = finish(demo)
-        client.wait_for(lambda c: c.messages("TrocarToRas"), timeout_s=10.0)
+        assert client.wait_for(lambda c: c.messages("TrocarToRas") and c.messages("Status")
+                               and "registered with global" in c.messages("Status")[-1].string)
+        stalled_bytes = drain(stalled)
     finally:
         client.stop()
+        stalled.close()
     with Session.open(path) as session:
         nodes, preop, registration = session.intraop_nodes(), session.preop_nodes(), session.registrations()[-1]
-    return dict(path=path, out=out, err=err, client=client, nodes=nodes, preop=preop, registration=registration)
+    return dict(path=path, out=out, err=err, client=client, nodes=nodes, preop=preop, registration=registration,
+                stalled_bytes=stalled_bytes)
 
 
 def test_the_demo_says_it_waits_for_a_client_and_streams_rigid_poses(served_demo):
@@ -133,27 +148,22 @@ def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served
         np.testing.assert_allclose(poses[int(np.argmin(gap)), :3, :3], matrix[:3, :3], atol=1e-3)
 
 
-def test_a_stalled_client_costs_the_acquisition_no_frames(tmp_path):
-    """A client that connects and never reads must not slow acquisition. What is measured: the wall time the
-    acquisition loop spends inside the live link's calls (show_frame, add_node, ...), timed by the demo around each
-    call, as a fraction of the loop's wall time. A link that blocked on a stalled socket (pyigtl's send_message
-    waits until its queue is empty) would spend nearly all of the run there, and a real-time source that drops
-    frames while its consumer is busy (a camera) would lose that same fraction of its frames: so this fraction is
-    the share of tracked frames the link can cost, and it must stay under 5%. Both times grow alike when other
-    processes load the CPU, so the ratio does not flake with load the way frames per second against a separate run
-    without clients would. The client's receive buffer is as small as the kernel allows and the test checks that
-    the link did hit the stall (messages left waiting and replaced by newer ones), so the test exercises it."""
-    path, port = tmp_path / "stalled.h5", free_port()
-    demo = start_demo(path, port)
-    sock = stalled_client(port)
-    try:
-        out, _ = finish(demo)
-    finally:
-        sock.close()
-    link = out["live_link"]
-    assert link["messages_replaced"] > 0 or link["dropped_stalled"] > 0     # the stall was reached
-    assert link["calls"] >= out["frames"]
-    share = link["seconds_in_calls"] / out["recording_s"]
+def test_a_stalled_client_costs_the_acquisition_no_frames(served_demo):
+    """A client that connects and never reads must not cost the acquisition frames (at most 5%). The demo reads its
+    rendered frames on demand, so its frame count cannot drop; a camera delivering in real time drops the frames
+    that arrive while the loop is held up, so the share of the loop's wall time the link can take from it is what
+    it could cost in frames. That share is bounded here by the wall time the loop spends inside the link's calls
+    (show_frame, add_node, ..., timed by the demo around each call) plus all the CPU time of the link's own thread,
+    as if none of it overlapped the loop's work. A link that waited on the stalled socket (as pyigtl's
+    send_message does until its queue is empty) would spend most of the run in those calls. Under CPU load the
+    loop's wall time grows at least as fast as these times, so the ratio does not flake the way a frame rate
+    compared with a separate run would. That the stall was reached is checked from the client's side: the stalled
+    socket was offered fewer bytes than the poses alone the other client read."""
+    out, link = served_demo["out"], served_demo["out"]["live_link"]
+    assert link["clients_seen"] == 2 and link["calls"] >= out["frames"]
+    pose_bytes = len(served_demo["client"].messages("ProbeTipToTrocar")) * (58 + 48)   # header + 12 float32
+    assert served_demo["stalled_bytes"] < pose_bytes / 2, (served_demo["stalled_bytes"], pose_bytes)
+    share = (link["seconds_in_calls"] + link["cpu_s"]) / out["recording_s"]
     assert share < 0.05, f"the link took {100 * share:.1f}% of the acquisition loop ({link})"
     assert out["pairing_correct"] and len(out["nodes"]) == 4
 
