@@ -47,8 +47,9 @@ def test_the_toggle_serves_stored_nodes_and_poses_to_a_client(qtbot, tmp_path, s
         assert screen.link_health.isVisibleTo(screen)
         screen.auto_store.setChecked(True)
         qtbot.waitUntil(lambda: screen.nodes.rowCount() >= 1, timeout=60_000)
-        assert client.wait_for(lambda c: c.messages("IntraopNodes") and shown(c.messages("IntraopNodes")[-1])[0][:1]
-                               == ["SN1"], timeout_s=20.0)
+        # waitUntil, not client.wait_for: the link is fed in this (GUI) thread, so the event loop must keep running
+        qtbot.waitUntil(lambda: bool(client.messages("IntraopNodes"))
+                        and shown(client.messages("IntraopNodes")[-1])[0][:1] == ["SN1"], timeout=20_000)
         assert client.messages("ProbeTipToTrocar")              # the poses stream as frames are tracked
         assert client.messages("Status")
         assert settings.value(ENABLED_KEY) in (True, "true") and int(settings.value(PORT_KEY)) == port
