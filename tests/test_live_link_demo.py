@@ -141,10 +141,13 @@ def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served
         near = np.linalg.norm(poses[:, :3, 3] - node.xyz_trocar, axis=1) < 3.0 * max(node.spread_mm, 0.5)
         assert near.sum() >= node.n_frames // 2
         np.testing.assert_allclose(np.median(poses[near, :3, 3], axis=0), node.xyz_trocar, atol=0.5)
-    for live in served_demo["client"].messages("ProbeTipToTrocar"):   # every pose sent live is in the recording
+    # every pose sent live is in the recording: the live one took the IMU filter's orientation when the frame was
+    # processed, the export slerps the re-fused orientation at the frame's grab, so on the still rig they differ by
+    # the filter's jitter over the processing lag (longer under load): hundredths of a degree, 270 mm from the trocar
+    for live in served_demo["client"].messages("ProbeTipToTrocar"):
         matrix = np.asarray(live.matrix)
         gap = np.linalg.norm(poses[:, :3, 3] - matrix[:3, 3], axis=1)
-        assert gap.min() < 0.05
+        assert gap.min() < 0.2
         np.testing.assert_allclose(poses[int(np.argmin(gap)), :3, :3], matrix[:3, :3], atol=1e-3)
 
 
