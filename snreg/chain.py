@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from snreg.geometry import apply, make_transform
 
 __all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "ChainCalibration", "reference_rotation", "trocar_from_imu",
-           "trocar_from_camera", "trocar_from_probe", "camera_to_trocar"]
+           "trocar_from_camera", "camera_from_probe", "trocar_from_probe", "camera_to_trocar"]
 
 # thesis §4.1: the IMU-trocar distance measured by hand, and the trocar-camera distance it measured (mm)
 THESIS_IMU_TROCAR_MM = 460.0
@@ -145,6 +145,23 @@ def trocar_from_imu(chain: ChainCalibration, earth_from_imu) -> np.ndarray:
 def trocar_from_camera(chain: ChainCalibration, earth_from_imu) -> np.ndarray:
     """(4, 4) camera to trocar at one IMU orientation: ``trocar_from_imu(t) @ imu_from_camera``."""
     return trocar_from_imu(chain, earth_from_imu) @ chain.imu_from_camera
+
+
+def camera_from_probe(tip_camera: np.ndarray, axis_camera: np.ndarray) -> np.ndarray:
+    """(4, 4) probe to camera from a tracked tip (3,) mm and unit axis (3,), both in the camera frame.
+
+    The probe frame has its origin at the tip and z along the axis from the tip backwards (towards the stripes,
+    as tracking reports it). Roll about the axis is not observable (the stripes are rings), so x is the camera
+    axis least aligned with the probe, made perpendicular to it: a fixed, continuous choice away from the switch.
+    """
+    tip, axis = np.asarray(tip_camera, dtype=float), np.asarray(axis_camera, dtype=float)
+    if tip.shape != (3,) or axis.shape != (3,) or not (np.isfinite(tip).all() and np.isfinite(axis).all()):
+        raise ValueError(f"a probe pose needs a finite tip (3,) and axis (3,), got shapes {tip.shape} and {axis.shape}")
+    z = axis / np.linalg.norm(axis)
+    reference = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = reference - (reference @ z) * z
+    x /= np.linalg.norm(x)
+    return make_transform(np.column_stack([x, np.cross(z, x), z]), tip)
 
 
 def trocar_from_probe(chain: ChainCalibration, earth_from_imu, camera_from_probe: np.ndarray) -> np.ndarray:

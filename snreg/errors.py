@@ -8,7 +8,7 @@ All but :class:`UserError` are ``ValueError``s, so code that validates input may
 from __future__ import annotations
 
 __all__ = ["UserError", "NodeFileError", "CalibrationFileError", "SourceError", "ImuPortError", "PreopError",
-           "SessionError", "TrackingError", "StoreError", "NoFitError"]
+           "SessionError", "TrackingError", "StoreError", "NoFitError", "LiveLinkError"]
 
 
 class UserError(Exception):
@@ -49,3 +49,7 @@ class StoreError(ValueError):
 
 class NoFitError(ValueError):
     """No pairing of the node sets fits within the registration's bounds; the message names what to change."""
+
+
+class LiveLinkError(ValueError):
+    """The live link to 3D Slicer cannot serve (e.g. its port is taken); the message says what to do."""

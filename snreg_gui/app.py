@@ -27,6 +27,7 @@ from snreg.session import Session, SessionError
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
+from snreg_gui.common.live_link import LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
 from snreg_gui.registration.demo_spect import DemoSpect
 from snreg_gui.registration.panel import RegistrationPanel
@@ -69,9 +70,13 @@ class MainWindow(QMainWindow):
         self.setCentralWidget(self.tabs)
         self.tabs.currentChanged.connect(self._refresh_registration)
         self.wizards = WizardLauncher(self)
+        self.live_link = LiveLinkControl(self.settings, self, self._link_state)
         self._menus()
         self.review.failed.connect(self.statusBar().showMessage)
         self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
+        self.live_link.failed.connect(self.statusBar().showMessage)
+        self.registration.registered.connect(self.live_link.set_registration)
+        self.registration.preop_box.nodes_changed.connect(self.live_link.set_preop_nodes)
         self.resize(1500, 900)
         self._restore_layout()
         QApplication.instance().aboutToQuit.connect(self.shutdown)
@@ -90,6 +95,7 @@ class MainWindow(QMainWindow):
         else:
             self.statusBar().showMessage("ready")
         self._update_title()
+        self.live_link.restore()
         gc.freeze()        # the objects of start-up (Qt wrappers, modules) are left out of later collections,
                            # so a full collection during acquisition walks only what came after (shorter stalls)
 
@@ -105,6 +111,7 @@ class MainWindow(QMainWindow):
         self._action(file, "&Quit", self.close, QKeySequence.StandardKey.Quit)
         devices = self.menuBar().addMenu("&Devices")
         self._action(devices, "Select cameras and IMU...", self.wizards.select_devices)
+        devices.addAction(self.live_link.action)
         calibrate = self.menuBar().addMenu("&Calibrate")
         self._action(calibrate, "Stereo cameras (checkerboard)...", self.wizards.stereo)
         self._action(calibrate, "Trocar distance...", self.wizards.trocar)
@@ -177,6 +184,7 @@ class MainWindow(QMainWindow):
             stored = session.calibration()
             self.rig.chain = stored.get("chain", self.rig.chain)
         self.registration.set_session(session)
+        self.live_link.reset_state()
         self.statusBar().showMessage(f"recording into {session.path} (case {session.case_id})")
         self._update_title()
         self._start_acquisition()
@@ -243,6 +251,12 @@ class MainWindow(QMainWindow):
         self.acquisition.undo_requested.connect(self.worker.undo, queued)
         self.acquisition.fixes_per_node_changed.connect(self.worker.set_fixes_per_node, queued)
         self.worker.frame_processed.connect(self._first_frame, queued)
+        for signal, slot in ((self.worker.frame_processed, self.live_link.show_result),
+                             (self.worker.node_stored, self.live_link.add_node),
+                             (self.worker.node_removed, self.live_link.remove_node)):
+            signal.connect(slot, queued)                # the link's calls return at once, in the GUI thread
+        self.live_link.state_changed.connect(self.acquisition.show_link_state)
+        self.acquisition.show_link_state(self.live_link.state_text)
         self._waiting_for_frames = True
         self._thread = start_worker(self.worker)
 
@@ -261,7 +275,13 @@ class MainWindow(QMainWindow):
             self._registration_stale = False
             self.registration.refresh_intraop()
 
+    def _link_state(self) -> tuple:
+        """What a live-link client sees first: the stored nodes, the preop nodes, the registration shown."""
+        records = self.session.intraop_records() if self.session is not None else []
+        return records, self.registration.preop_box.nodes, self.registration.last_result
+
     def _stop_acquisition(self) -> None:
+        self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say
         if self._thread is not None:
             stop_worker(self.worker, self._thread)
             self._thread = None
@@ -311,6 +331,7 @@ class MainWindow(QMainWindow):
         self.settings.setValue("window/state", self.saveState())
         self.settings.setValue("window/tab", self.tabs.currentIndex())
         self._stop_acquisition()
+        self.live_link.stop(remember=False)
         self.wizards.shutdown()
         self.registration.shutdown()
         self.review.shutdown()

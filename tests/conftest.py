@@ -23,3 +23,60 @@ def pelvic_nodes():
                     [52.0, 18.0, 35.0], [44.0, 45.0, 12.0], [12.0, 100.0, 72.0]])
     labels = ["EXT R", "OBT R", "INT R", "EXT L", "OBT L", "SAC L"]
     return xyz, labels
+
+
+def shown(points) -> tuple[list, np.ndarray]:
+    """The names and (N, 3) positions of a received POINT message's points that Slicer shows (alpha above 0): an
+    empty list goes as one hidden point (snreg.workflow.live_messages.point_list)."""
+    keep = [k for k, rgba in enumerate(points.rgba_colors) if rgba[3] > 0]
+    return [points.names[k] for k in keep], np.array([points.positions[k] for k in keep], dtype=float).reshape(-1, 3)
+
+
+class RecordingIgtlClient:
+    """pyigtl's own OpenIGTLinkClient, keeping every message it receives in order (``log``): pyigtl keeps only the
+    newest message per device, and the live-link tests count and compare all of them."""
+
+    def __init__(self, port: int):
+        import pyigtl
+
+        class _Client(pyigtl.OpenIGTLinkClient):
+            def _receive_message_from_socket(inner, sock):
+                received = pyigtl.OpenIGTLinkClient._receive_message_from_socket(inner, sock)
+                if received:
+                    with inner.lock_incoming_messages:
+                        self.log.extend(inner.incoming_messages.values())
+                        inner.incoming_messages.clear()
+                return received
+
+        self.log = []
+        self._client = _Client(host="127.0.0.1", port=port)
+
+    def messages(self, device: str) -> list:
+        return [m for m in list(self.log) if m.device_name == device]
+
+    def wait_for(self, condition, timeout_s: float = 20.0) -> bool:
+        """Poll ``condition(self)`` until true or ``timeout_s`` has passed (a deadline, never a timed assertion)."""
+        import time
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if condition(self):
+                return True
+            time.sleep(0.02)
+        return condition(self)
+
+    def stop(self) -> None:
+        self._client.stop()
+
+
+@pytest.fixture
+def igtl_client():
+    """``igtl_client(port)``: a started pyigtl client recording every message; stopped after the test."""
+    clients = []
+
+    def connect(port: int) -> RecordingIgtlClient:
+        clients.append(RecordingIgtlClient(port))
+        return clients[-1]
+
+    yield connect
+    for client in clients:
+        client.stop()

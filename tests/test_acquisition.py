@@ -44,6 +44,9 @@ def test_fixes_go_to_the_trocar_frame_and_the_streams(acquisition, scene):
     # IMU level: the trocar frame is the camera frame moved back along the shaft
     np.testing.assert_allclose(outcome.tip_trocar, outcome.fix.tip + [0, 0, chain.trocar_camera_mm], atol=1e-6)
     assert outcome.valid_fixes == 1 and np.isnan(outcome.window_spread_mm) and not outcome.still
+    pose = outcome.trocar_from_probe                     # the probe pose the live link streams: tip and axis
+    np.testing.assert_allclose(pose[:3, 3], outcome.tip_trocar, atol=1e-9)
+    np.testing.assert_allclose(pose[:3, 2], outcome.fix.axis, atol=1e-9)
     session = acquisition.session
     assert list(session.stream("frames")["t_device_ns"]) == [2000]
     assert session.stream("probe").shape == (1,) and list(session.stream("imu")["t_device_ns"]) == [7000]
@@ -53,6 +56,7 @@ def test_a_frame_without_the_probe_gives_the_reason_and_no_fix(acquisition):
     black = np.zeros((540, 960, 3), np.uint8)
     outcome = acquisition.process(StereoFrame(black, black, 0, 0, 0), LEVEL)
     assert outcome.fix is None and "no probe stripe" in outcome.reason and outcome.valid_fixes == 0
+    assert outcome.trocar_from_probe is None
     assert acquisition.session.stream("probe").shape == (0,)
 
 

@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from snreg.calibration.pivot import imu_camera_rotation, imu_from_camera_transform, pivot_calibration
-from snreg.chain import ChainCalibration, camera_to_trocar, trocar_from_camera, trocar_from_imu, trocar_from_probe
+from snreg.chain import (ChainCalibration, camera_from_probe, camera_to_trocar, trocar_from_camera, trocar_from_imu,
+                         trocar_from_probe)
 from snreg.geometry import apply, invert, make_transform
 
 TROCAR_CAMERA_MM = 158.0
@@ -106,6 +107,16 @@ def test_trocar_from_probe_composes_camera_from_probe():
     composed = trocar_from_probe(chain, orientation, camera_from_probe)
     assert np.allclose(composed[:3, 3], camera_to_trocar(chain, orientation, camera_from_probe[:3, 3]))
     assert np.allclose(composed, trocar_from_camera(chain, orientation.as_matrix()) @ camera_from_probe)
+
+
+@pytest.mark.parametrize("axis", [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.3, -0.8, -0.5]])
+def test_camera_from_probe_puts_the_tip_at_the_origin_and_z_along_the_axis(axis):
+    tip, axis = np.array([4.0, -7.0, 95.0]), np.asarray(axis) / np.linalg.norm(axis)
+    pose = camera_from_probe(tip, axis)
+    rotation = pose[:3, :3]
+    assert np.allclose(rotation @ rotation.T, np.eye(3)) and np.isclose(np.linalg.det(rotation), 1.0)
+    assert np.allclose(pose[:3, 3], tip) and np.allclose(rotation[:, 2], axis)
+    assert np.allclose(pose @ [0.0, 0.0, 20.0, 1.0], [*(tip + 20.0 * axis), 1.0])      # 20 mm up the probe
 
 
 def test_to_dict_from_dict_round_trip_through_json():

@@ -1,12 +1,20 @@
-"""``snreg demo --headless -o SESSION.h5 [--json]``: wired into ``snreg.cli`` by :func:`add_demo_parser`."""
+"""``snreg demo --headless -o SESSION.h5 [--json] [--igtl PORT]``: wired into ``snreg.cli`` by :func:`add_demo_parser`.
+
+With ``--igtl`` the run serves the live link to 3D Slicer (DESIGN.md §4) and waits up to 30 s for the first
+client before it starts. DESIGN says "waiting up to 30 s ... before starting", so the run starts anyway after
+that (one line on stderr says no client came); a client that connects later still gets the node lists at once.
+"""
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from snreg.cli.common import check_output_file, positive_int, seed
 from snreg.errors import UserError
+
+CLIENT_WAIT_S = 30.0
 
 
 def add_demo_parser(subparsers) -> None:
@@ -17,6 +25,9 @@ def add_demo_parser(subparsers) -> None:
     p.add_argument("--fixes", type=positive_int, default=60, help="valid fixes per stored node (thesis: 60)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the rendered scene and the simulated IMU")
     p.add_argument("--json", action="store_true", help='print one JSON object: {"rms_mm", "pairing", "nodes", ...}')
+    p.add_argument("--igtl", type=int, metavar="PORT", default=None,
+                   help="serve the live link to 3D Slicer (OpenIGTLink) on this port of localhost; waits up to "
+                   f"{CLIENT_WAIT_S:.0f} s for the first client before starting")
     p.set_defaults(func=cmd_demo)
 
 
@@ -29,14 +40,21 @@ def cmd_demo(args) -> int:
     check_output_file(args.output, "session", new=True)
     check_output_file(Path(f"{args.output}.journal"), "session journal", new=True)
     check_output_file(spect_path_for(args.output), "phantom SPECT")
+    link = _serve(args.igtl) if args.igtl is not None else None
     try:
-        run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes)
+        run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes, link=link)
     except (SessionError, DemoError, OSError) as err:
         raise UserError(str(err)) from None
-    if args.json:
-        print(json.dumps(run.to_json()))
-        return 0
+    finally:
+        if link is not None:
+            link.close(flush_timeout_s=2.0)
     out = run.to_json()
+    if link is not None:
+        out["live_link"] = {"address": link.address, "seconds_in_calls": round(run.link_s, 4), "calls": run.link_calls,
+                            **vars(link.stats())}
+    if args.json:
+        print(json.dumps(out))
+        return 0
     print(f"stored {len(out['nodes'])} nodes in {out['frames']} frames into {out['session']}; SPECT {out['spect']}")
     for node in out["nodes"]:
         print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'extra':<4} "
@@ -44,3 +62,22 @@ def cmd_demo(args) -> int:
     print(f"{out['method']}: RMS after registration {out['rms_mm']:.2f} mm; "
           f"pairing {'matches' if out['pairing_correct'] else 'DOES NOT match'} the phantom's truth")
     return 0
+
+
+def _serve(port: int):
+    """Start the live link on ``port`` and wait for the first client (saying so on stderr)."""
+    from snreg.errors import LiveLinkError
+    from snreg.workflow.live_link import LiveLink
+
+    try:
+        link = LiveLink(port)
+    except LiveLinkError as err:
+        raise UserError(str(err)) from None
+    print(f"snreg: serving OpenIGTLink on {link.address}; waiting up to {CLIENT_WAIT_S:.0f} s for a client "
+          f"(3D Slicer: OpenIGTLinkIF, type client, host localhost, port {link.port})", file=sys.stderr, flush=True)
+    if link.wait_for_client(CLIENT_WAIT_S):
+        print("snreg: a client is connected; starting the demo", file=sys.stderr, flush=True)
+    else:
+        print(f"snreg: no OpenIGTLink client connected within {CLIENT_WAIT_S:.0f} s; running the demo anyway, still "
+              f"serving on {link.address}", file=sys.stderr, flush=True)
+    return link

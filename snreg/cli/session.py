@@ -17,10 +17,14 @@ def add_session_parser(subparsers) -> None:
     info.add_argument("session", help="session file (.h5)")
     info.add_argument("--json", action="store_true", help="one JSON object on stdout")
     info.set_defaults(func=cmd_info)
-    export = commands.add_parser("export", help="write the intraop nodes (trocar frame, mm) as CSV or Slicer markups")
+    export = commands.add_parser("export", help="write the intraop nodes (trocar frame, mm) as CSV or Slicer markups, "
+                                 "or the probe pose stream as a 3D Slicer sequence")
     export.add_argument("session", help="session file (.h5)")
-    export.add_argument("--format", choices=("csv", "slicer"), default="csv", help="node CSV or 3D Slicer .mrk.json")
-    export.add_argument("-o", "--output", required=True, help="node file to write")
+    export.add_argument("--format", choices=("csv", "slicer", "slicer-sequence"), default="csv",
+                        help="csv or slicer: the intraop nodes into the file OUT (node CSV or 3D Slicer .mrk.json); "
+                        "slicer-sequence: the probe poses (trocar frame) as ProbeTipToTrocar.seq.mha, 3D Slicer's "
+                        "linear transform sequence, into the folder OUT")
+    export.add_argument("-o", "--output", required=True, help="node file, or folder for slicer-sequence")
     export.set_defaults(func=cmd_export)
     recover = commands.add_parser("recover", help="rebuild a clean session file from a damaged one and its journal")
     recover.add_argument("session", help="session file (.h5); its journal SESSION.h5.journal is read too")
@@ -48,6 +52,11 @@ def cmd_info(args) -> int:
 
 
 def cmd_export(args) -> int:
+    if args.format == "slicer-sequence":
+        from snreg.session.slicer_sequence import write_slicer_sequence
+        path = _guard(write_slicer_sequence, args.session, args.output)
+        print(f"wrote the probe pose sequence (trocar frame, mm) to {path}")
+        return 0
     from snreg.session.export import export_nodes
     check_output_file(args.output, "node file")
     n = _guard(export_nodes, args.session, args.format, args.output)

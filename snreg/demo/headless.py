@@ -6,6 +6,10 @@ camera-to-trocar chain, nodes auto-stored into a crash-safe session (the probe h
 source; the "technician" types the label written on the phantom), the phantom's SPECT written as NM
 DICOM, read back and segmented, and the preop nodes registered to the stored ones with ``global``
 from the operator's rough set-up alignment (:mod:`snreg.demo.phantom`).
+
+With a live link (:class:`snreg.workflow.live_link.LiveLink`) the run feeds it as the app does: every processed
+frame, every stored node, the preop nodes once segmented and the registration; the seconds the loop spends in those
+calls are counted, since a link that blocked would cost frames there.
 """
 
 from __future__ import annotations
@@ -47,6 +51,9 @@ class HeadlessResult:
     preop_ids: list[str]
     pairing_correct: bool
     frames: int
+    recording_s: float = float("nan")
+    link_s: float = 0.0
+    link_calls: int = 0
 
     def to_json(self) -> dict:
         """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the API."""
@@ -57,7 +64,8 @@ class HeadlessResult:
                   "confidence": round(row.confidence, 4)} for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
-                "frames": self.frames, "session": str(self.session_path), "spect": str(self.spect_path)}
+                "frames": self.frames, "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
+                "spect": str(self.spect_path)}
 
 
 def spect_path_for(session_path: str | Path) -> Path:
@@ -66,33 +74,56 @@ def spect_path_for(session_path: str | Path) -> Path:
     return session_path.with_name(session_path.stem + "-spect.dcm")
 
 
-def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5) -> HeadlessResult:
-    """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT."""
+class _TimedLink:
+    """Calls into the live link (none without one), with the wall time the calling thread spends in them."""
+
+    def __init__(self, link):
+        self.link, self.seconds, self.calls = link, 0.0, 0
+
+    def __call__(self, method: str, *args) -> None:
+        if self.link is None:
+            return
+        started = time.perf_counter()
+        getattr(self.link, method)(*args)
+        self.seconds += time.perf_counter() - started
+        self.calls += 1
+
+
+def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
+                 link=None) -> HeadlessResult:
+    """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
+
+    ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None."""
     session_path = Path(session_path)
     rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=fixes_per_node + 30), seed=seed)
+    feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
-            frames = _record(rig, session, fixes_per_node)
+            started = time.perf_counter()
+            frames = _record(rig, session, fixes_per_node, feed)
+            recording_s = time.perf_counter() - started
             tips = phantom_tips(rig.probe)
             sources = true_sources_lps(tips, rig.chain)
             spect = write_phantom_spect(sources, spect_path_for(session_path), seed=seed)
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
             session.set_preop_nodes(preop)
+            feed("set_preop_nodes", preop)
             intraop = session.intraop_nodes()
             result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
                               intraop_labels=intraop.labels, initial=rough_alignment(preop.xyz, intraop.xyz), seed=seed)
             session.add_registration(result, preop.ids, intraop.ids)
+            feed("set_registration", result)
     finally:
         rig.close()
     truth = _true_pairing(preop.xyz, sources, tips, session.intraop_records())
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
-                          bool(np.array_equal(result.pairing, truth)), frames)
+                          bool(np.array_equal(result.pairing, truth)), frames, recording_s, feed.seconds, feed.calls)
 
 
-def _record(rig: DemoRig, session: Session, fixes_per_node: int) -> int:
-    """Run the tour until every node is auto-stored; returns the frames read."""
+def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink) -> int:
+    """Run the tour until every node is auto-stored, feeding the live link; returns the frames read."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
@@ -102,10 +133,12 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int) -> int:
         for frame in source:
             imu = rig.imu.snapshot()
             outcome = acquisition.process(frame, ImuReading(imu.earth_from_imu, rig.imu.take_samples()))
+            feed("show_frame", outcome)
             if outcome.auto_store_due:
                 node = rig.scene.resting_node(frame.index)
                 label = PHANTOM_LABELS[node] if node is not None else ""
-                acquisition.store(session.next_node_id(), label, left_jpeg=frame.left, right_jpeg=frame.right)
+                feed("add_node", acquisition.store(session.next_node_id(), label, left_jpeg=frame.left,
+                                                   right_jpeg=frame.right))
             if len(session.intraop_records()) == N_NODES:
                 return frame.index + 1
             if frame.index >= limit:

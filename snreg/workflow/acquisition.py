@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snreg.camera import StereoCalibration
-from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.chain import ChainCalibration, camera_from_probe, camera_to_trocar, trocar_from_probe
 from snreg.errors import StoreError
 from snreg.imu.protocol import ImuSample
 from snreg.probe import ProbeModel
@@ -33,7 +33,9 @@ AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored no
 class FrameOutcome:
     """What one pair gave: the fix (None with the ``reason``), the tip in the trocar frame (mm), and the store
     window: how many valid fixes it holds (at most N), their spread (mm, NaN until full), whether that is still,
-    and whether the auto-store rule (full, still, and over ``AUTO_STORE_SEPARATION_MM`` from every stored node) would store it now."""
+    and whether the auto-store rule (full, still, and over ``AUTO_STORE_SEPARATION_MM`` from every stored node) would store it now.
+    ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
+    a fix; the live link to 3D Slicer streams it."""
 
     index: int
     fix: ProbeFix | None
@@ -44,6 +46,7 @@ class FrameOutcome:
     still: bool
     auto_store_due: bool
     track_ms: float
+    trocar_from_probe: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -75,7 +78,7 @@ class Acquisition:
         self._record_imu(imu.samples)
         self.session.append_frames(frame.t_left_ns, frame.t_right_ns, frame.index)
         started = time.perf_counter()
-        fix, reason, tip_trocar = None, "", None
+        fix, reason, tip_trocar, pose = None, "", None, None
         try:
             fix = self.tracker.track(frame.left, frame.right)
         except TrackingError as err:
@@ -83,13 +86,14 @@ class Acquisition:
         track_ms = (time.perf_counter() - started) * 1e3
         if fix is not None:
             tip_trocar = camera_to_trocar(self.chain, imu.earth_from_imu, fix.tip)
+            pose = trocar_from_probe(self.chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
             self._fixes.append((fix.tip, tip_trocar))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)
         window = self._window_trocar()
         spread = window.spread_mm if window is not None else float("nan")
         still = bool(spread <= STILL_SPREAD_MM)
         return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still,
-                            still and self._away_from_stored(window.xyz), track_ms)
+                            still and self._away_from_stored(window.xyz), track_ms, pose)
 
     def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"",
               right_jpeg=b"") -> IntraopNode:

@@ -54,6 +54,8 @@ class AcquisitionScreen(QWidget):
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
         self.video_health, self.imu_health = _status_label("video: waiting"), _status_label("IMU: waiting")
+        self.link_health = _status_label("")            # the live link to 3D Slicer, shown while it is on
+        self.link_health.setVisible(False)
         self.tip_trocar = _status_label("tip (trocar): no fix")
         self.missing_list = _status_label("")
         self.missing_list.setToolTip("SPECT nodes the latest registration left unpaired: where they should be (trocar "
@@ -107,8 +109,8 @@ class AcquisitionScreen(QWidget):
         form.addRow(self.store_status)
         form.addRow(self.undo_button)
         side = QVBoxLayout()
-        for widget in (self.video_health, self.imu_health, self.tip_trocar, self.missing_list, self.guidance, store,
-                       self.nodes):
+        for widget in (self.video_health, self.imu_health, self.link_health, self.tip_trocar, self.missing_list,
+                       self.guidance, store, self.nodes):
             side.addWidget(widget)
         grid = QGridLayout(self)
         grid.addLayout(feeds, 0, 0)
@@ -187,6 +189,12 @@ class AcquisitionScreen(QWidget):
         cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", str(node.n_frames))
         for column, text in enumerate(cells):
             self.nodes.setItem(row, column, QTableWidgetItem(text))
+
+    def show_link_state(self, text: str) -> None:
+        """The live link's clients and address (from its ``state_changed`` signal); empty hides the line."""
+        self.link_health.setText(text)
+        self.link_health.setToolTip(text)
+        self.link_health.setVisible(bool(text))
 
     def show_store_problem(self, message: str) -> None:
         self._store_pending = False

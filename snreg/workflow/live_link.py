@@ -1,0 +1,423 @@
+"""The live link to 3D Slicer: an OpenIGTLink server on its own thread that the acquisition feeds without waiting.
+
+Why the sockets are handled here rather than by pyigtl's ``OpenIGTLinkServer`` (pyigtl 0.3.4, ``comm.py``): its
+constructor installs SIGINT and SIGTERM handlers (and raises ValueError off the main thread, after binding the
+port); it is a ``socketserver.TCPServer``, so a second client waits unserved until the first leaves; after a client
+closes, its handler loops on ``recv() == b""`` until a send fails; all devices share one deque of 100 messages, and
+``send_message`` waits by default until that deque is empty (forever while no client is connected); a send held up
+10 ms (its socket timeout) ends the connection mid-message. pyigtl still packs every message
+(:mod:`snreg.workflow.live_messages`); nothing of it runs on the caller's thread or touches signal handlers.
+
+Threads: the feeding methods (:meth:`LiveLink.show_frame`, :meth:`~LiveLink.add_node`, ...) only put the newest
+state under a lock and wake the server thread, without a socket call; they are safe from any thread. The server
+thread owns every socket: it accepts clients, packs what changed and writes without blocking. Per client, only the
+newest message of each device waits (latest wins), so a client that stalls holds at most one message per device
+and is dropped after ``stall_drop_s`` without progress; one that connects gets the node lists, the registration
+and the status at once; probe poses are sent only while someone listens.
+
+>>> link = LiveLink(18944)                  # LiveLinkError when the port is taken
+>>> link.wait_for_client(30.0)             # True once Slicer (or any OpenIGTLink client) is connected
+>>> link.show_frame(outcome)                # per processed frame (a FrameOutcome)
+>>> link.add_node(node); link.set_registration(result)
+>>> link.close()                            # sends what is queued (up to a second), then closes
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import selectors
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from snreg.errors import LiveLinkError
+from snreg.workflow import live_messages as msg
+
+__all__ = ["LiveLink", "LinkStats", "LiveLinkError", "STALL_DROP_S", "SEND_BUFFER_BYTES"]
+
+log = logging.getLogger(__name__)
+
+STALL_DROP_S = 10.0             # a client that takes nothing for this long while messages wait is dropped
+STATUS_PERIOD_S = 1.0           # the Status string is recomputed (and sent if it changed) this often
+SEND_BUFFER_BYTES = 8 * 1024    # per client (Linux doubles it): bounds how stale the poses a slow reader gets can be
+_STATE = (msg.INTRAOP_NODES, msg.PREOP_NODES, msg.TROCAR_TO_RAS, msg.STATUS)   # re-sent whole to every new client
+_LISTEN, _WAKE = "listen", "wake"
+
+
+@dataclass(frozen=True)
+class LinkStats:
+    """Clients now, messages waiting for them now (at most one per device and client), and counters since the start:
+    clients ever, messages written whole, messages replaced by a newer one of their device before a client took
+    them (latest wins), clients dropped for stalling or gone, and the CPU seconds the server thread has used
+    (packing and writing: the link's own cost besides the callers' calls)."""
+
+    clients: int
+    waiting: int
+    clients_seen: int
+    messages_sent: int
+    messages_replaced: int
+    dropped_stalled: int
+    disconnected: int
+    cpu_s: float
+
+
+class _Client:
+    """One connection, owned by the server thread: the message being written and the newest waiting per device."""
+
+    def __init__(self, sock: socket.socket, address: str):
+        self.sock, self.address = sock, address
+        self.outbox: dict[str, bytes] = {}
+        self.current: memoryview | None = None
+        self.blocked_since: float | None = None
+
+    @property
+    def waiting(self) -> bool:
+        return self.current is not None or bool(self.outbox)
+
+    def queue(self, device: str, payload: bytes) -> bool:
+        """Make ``payload`` the next message of ``device``; True when it replaced one not yet taken."""
+        replaced = self.outbox.pop(device, None) is not None
+        self.outbox[device] = payload
+        return replaced
+
+    def write(self, now: float) -> int:
+        """Write what the socket takes now; returns the messages completed. OSError when the client is gone."""
+        done = 0
+        while self.waiting:
+            if self.current is None:
+                device = next(iter(self.outbox))
+                self.current = memoryview(self.outbox.pop(device))
+            try:
+                sent = self.sock.send(self.current)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
+            if sent == 0:
+                self.blocked_since = self.blocked_since or now
+                return done
+            self.blocked_since = None
+            self.current = self.current[sent:] if sent < len(self.current) else None
+            done += self.current is None
+        return done
+
+
+class LiveLink:
+    """Serves DESIGN.md §4 "Live link" on ``host:port`` (port 0: any free port; ``self.port`` says which).
+
+    ``host`` is 127.0.0.1 by default, so the surgical data stays on this computer; "0.0.0.0" serves the network.
+    ``on_clients(count)`` is called from the server thread whenever the number of connected clients changes.
+    """
+
+    def __init__(self, port: int = msg.DEFAULT_PORT, *, host: str = "127.0.0.1", on_clients=None,
+                 stall_drop_s: float = STALL_DROP_S, send_buffer_bytes: int = SEND_BUFFER_BYTES):
+        if not 0 <= int(port) <= 65535:
+            raise LiveLinkError(f"the live link port must be between 1 and 65535, not {port}")
+        try:
+            self._listener = socket.create_server((host, int(port)))
+        except OSError as err:
+            taken = err.errno == errno.EADDRINUSE
+            raise LiveLinkError(f"cannot serve OpenIGTLink on {host}:{port}: "
+                                + ("the port is in use (another snreg or Slicer server?); choose another port"
+                                   if taken else f"{err.strerror or err}; choose a port above 1024")) from None
+        self._listener.setblocking(False)
+        self.host, self.port = self._listener.getsockname()[:2]
+        self._on_clients, self._stall_drop_s, self._send_buffer = on_clients, float(stall_drop_s), int(send_buffer_bytes)
+        self._wake_r, self._wake_w = socket.socketpair()
+        for end in (self._wake_r, self._wake_w):
+            end.setblocking(False)
+        self._lock = threading.Lock()
+        self._pending: dict[str, object] = {}          # device -> what to pack next (latest wins); under _lock
+        self._woken = False
+        self._nodes: dict[str, np.ndarray] = {}        # stored nodes by id, trocar frame
+        self._action = "link started"
+        self._frames = self._fixes = 0
+        self._last_frame = None
+        self._clients: list[_Client] = []               # server thread only
+        self._client_count = self._waiting = 0
+        self._current: dict[str, bytes] = {}           # the packed state, server thread only
+        self._counts = dict(clients_seen=0, messages_sent=0, messages_replaced=0, dropped_stalled=0, disconnected=0)
+        self._cpu_s = 0.0
+        self._connected = threading.Event()
+        self._drained = threading.Event()
+        self._closing = False
+        self._offer(msg.INTRAOP_NODES, ([], np.zeros((0, 3))))    # a client always gets the list, empty or not
+        self._offer(msg.STATUS, True)
+        self._thread = threading.Thread(target=self._serve, name="snreg-live-link", daemon=True)
+        self._thread.start()
+
+    # -- for the callers: never blocks -------------------------------------------
+    @property
+    def address(self) -> str:
+        return f"{self.host}:{self.port}"
+
+    @property
+    def clients(self) -> int:
+        return self._client_count
+
+    def show_frame(self, outcome) -> None:
+        """One processed frame (a :class:`~snreg.workflow.acquisition.FrameOutcome`): its probe pose, if it has a fix,
+        goes to the connected clients (a newer pose replaces one not yet sent); counted for the stream health."""
+        pose = getattr(outcome, "trocar_from_probe", None)
+        with self._lock:
+            self._frames += 1
+            self._last_frame = time.monotonic()
+            if pose is None:
+                return
+            self._fixes += 1
+            if self._client_count == 0:
+                return
+        self._offer(msg.PROBE_POSE, (np.array(pose, dtype=float), time.time()))
+
+    def set_intraop_nodes(self, records) -> None:
+        """All stored nodes (objects with ``id`` and ``xyz_trocar``), e.g. those of a continued session."""
+        with self._lock:
+            self._nodes = {str(r.id): np.array(r.xyz_trocar, dtype=float) for r in records}
+        self._offer_nodes(f"{len(self._nodes)} stored nodes loaded")
+
+    def add_node(self, node) -> None:
+        """A node just stored (an :class:`~snreg.session.IntraopNode`)."""
+        with self._lock:
+            self._nodes[str(node.id)] = np.array(node.xyz_trocar, dtype=float)
+        label = getattr(node, "label", "")
+        self._offer_nodes(f"stored {node.id}" + (f" ({label})" if label else ""))
+
+    def remove_node(self, node) -> None:
+        """A node taken back (undo)."""
+        with self._lock:
+            self._nodes.pop(str(node.id), None)
+        self._offer_nodes(f"undid {node.id}")
+
+    def set_preop_nodes(self, nodes) -> None:
+        """The preop nodes (a :class:`~snreg.nodes.NodeSet` in patient LPS, mm), sent in RAS; None clears them."""
+        ids = [] if nodes is None else [str(i) for i in nodes.ids]
+        xyz = np.zeros((0, 3)) if nodes is None else np.array(nodes.xyz, dtype=float).reshape(-1, 3)
+        self._offer(msg.PREOP_NODES, (ids, xyz), f"preop nodes: {len(ids)}")
+
+    def set_registration(self, result) -> None:
+        """A registration done (a :class:`~snreg.registration.RegistrationResult`): ``TrocarToRas`` from its transform."""
+        self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float),
+                    f"registered with {result.method}, RMS {float(result.rms_mm):.2f} mm")
+
+    # -- waiting and closing ------------------------------------------------------------
+    def wait_for_client(self, timeout_s: float | None = None) -> bool:
+        """Block until a client has connected (at any time since the start); False after ``timeout_s``."""
+        return self._connected.wait(timeout_s)
+
+    def flush(self, timeout_s: float = 1.0) -> bool:
+        """Block until every queued message is written to every client (False after ``timeout_s``)."""
+        self._wake()
+        return self._drained.wait(timeout_s)
+
+    def stats(self) -> LinkStats:
+        with self._lock:
+            return LinkStats(self._client_count, self._waiting, **self._counts, cpu_s=self._cpu_s)
+
+    def close(self, flush_timeout_s: float = 1.0) -> None:
+        """Send what is queued (waiting up to ``flush_timeout_s``), then close every socket; safe to call twice."""
+        if self._closing:
+            return
+        if self._client_count:
+            self.flush(flush_timeout_s)
+        self._closing = True
+        self._wake()
+        self._thread.join(5.0)
+
+    def __enter__(self) -> "LiveLink":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- internals: callers' side ------------------------------------------------------------
+    def _offer_nodes(self, action: str) -> None:
+        with self._lock:
+            ids, xyz = list(self._nodes), np.array(list(self._nodes.values())).reshape(-1, 3)
+        self._offer(msg.INTRAOP_NODES, (ids, xyz), action)
+
+    def _offer(self, device: str, data, action: str | None = None) -> None:
+        with self._lock:
+            if device in self._pending:
+                self._counts["messages_replaced"] += 1
+            self._pending[device] = data
+            if action is not None:
+                self._action = action
+                self._pending[msg.STATUS] = True
+            self._drained.clear()
+            wake, self._woken = not self._woken, True
+        if wake:
+            self._wake()
+
+    def _wake(self) -> None:
+        try:
+            self._wake_w.send(b"!")
+        except (BlockingIOError, OSError):
+            pass                                   # a wake-up is already waiting, or the link is closed
+
+    # -- internals: the server thread ------------------------------------------------------------
+    def _serve(self) -> None:
+        selector = selectors.DefaultSelector()
+        selector.register(self._listener, selectors.EVENT_READ, _LISTEN)
+        selector.register(self._wake_r, selectors.EVENT_READ, _WAKE)
+        self._health = _Health()
+        next_status = time.monotonic() + STATUS_PERIOD_S
+        try:
+            while not self._closing:
+                for key, mask in selector.select(max(0.0, next_status - time.monotonic())):
+                    if key.data == _LISTEN:
+                        self._accept(selector)
+                    elif key.data == _WAKE:
+                        self._drain_wake()
+                    elif mask & selectors.EVENT_READ:
+                        self._read(selector, key.data)
+                now = time.monotonic()
+                if now >= next_status:
+                    with self._lock:
+                        self._pending[msg.STATUS] = True
+                    next_status = now + STATUS_PERIOD_S
+                self._distribute(now)
+                self._write_all(selector, now)
+                self._cpu_s = time.thread_time()
+        except Exception:                                        # the link must not die silently
+            log.exception("the live link stopped")
+        finally:
+            for client in list(self._clients):
+                self._drop(selector, client, None)
+            selector.close()
+            for sock in (self._listener, self._wake_r, self._wake_w):
+                sock.close()
+
+    def _accept(self, selector) -> None:
+        while True:
+            try:
+                sock, peer = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self._send_buffer)
+            client = _Client(sock, f"{peer[0]}:{peer[1]}")
+            for device in _STATE:
+                if device in self._current:
+                    client.queue(device, self._current[device])
+            self._clients.append(client)
+            selector.register(sock, selectors.EVENT_READ, client)
+            self._set_count(+1)
+            self._connected.set()
+
+    def _read(self, selector, client: _Client) -> None:
+        """Take and ignore what a client sends (Slicer may query or echo); an empty read means it has gone."""
+        try:
+            data = client.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(selector, client, "disconnected")
+
+    def _distribute(self, now: float) -> None:
+        with self._lock:
+            pending, self._pending, self._woken = self._pending, {}, False
+            frames, fixes, last_frame, action, n_nodes = self._frames, self._fixes, self._last_frame, self._action, \
+                len(self._nodes)
+        for device, data in pending.items():
+            try:
+                payload = self._pack(device, data, now, frames, fixes, last_frame, action, n_nodes)
+            except (ValueError, TypeError) as err:                  # bad data from a caller: say so, keep serving
+                log.warning("live link: %s not sent: %s", device, err)
+                continue
+            if payload is None:
+                continue
+            if device in _STATE:
+                self._current[device] = payload
+            for client in self._clients:
+                if client.queue(device, payload):
+                    self._count("messages_replaced")
+
+    def _pack(self, device, data, now, frames, fixes, last_frame, action, n_nodes) -> bytes | None:
+        if device == msg.PROBE_POSE:
+            return msg.probe_pose(*data)
+        if device == msg.INTRAOP_NODES:
+            return msg.point_list(msg.INTRAOP_NODES, *data)
+        if device == msg.PREOP_NODES:
+            return msg.preop_points(*data)
+        if device == msg.TROCAR_TO_RAS:
+            return msg.trocar_to_ras(data)
+        text = f"{self._health.describe(now, frames, fixes, last_frame)}; {n_nodes} stored; last: {action}"
+        if self._current.get(msg.STATUS) is not None and text == self._health.last_text:
+            return None
+        self._health.last_text = text
+        return msg.status(text)
+
+    def _write_all(self, selector, now: float) -> None:
+        for client in list(self._clients):
+            try:
+                done = client.write(now)
+            except OSError:
+                self._drop(selector, client, "disconnected")
+                continue
+            self._count("messages_sent", done)
+            if client.blocked_since is not None and now - client.blocked_since > self._stall_drop_s:
+                log.warning("live link: dropped %s, which took nothing for %.0f s", client.address, self._stall_drop_s)
+                self._drop(selector, client, "dropped_stalled")
+                continue
+            events = selectors.EVENT_READ | (selectors.EVENT_WRITE if client.waiting else 0)
+            if selector.get_key(client.sock).events != events:
+                selector.modify(client.sock, events, client)
+        waiting = sum(len(c.outbox) + (c.current is not None) for c in self._clients)
+        with self._lock:
+            self._waiting = waiting
+            if not self._pending and not waiting:
+                self._drained.set()
+
+    def _drop(self, selector, client: _Client, reason: str | None) -> None:
+        self._clients.remove(client)
+        selector.unregister(client.sock)
+        client.sock.close()
+        if reason:
+            self._count(reason)
+        self._set_count(-1)
+
+    def _drain_wake(self) -> None:
+        try:
+            while self._wake_r.recv(4096):
+                pass
+        except (BlockingIOError, InterruptedError):
+            pass
+
+    def _count(self, name: str, n: int = 1) -> None:
+        with self._lock:
+            self._counts[name] += n
+
+    def _set_count(self, change: int) -> None:
+        with self._lock:
+            self._client_count += change
+            if change > 0:
+                self._counts["clients_seen"] += 1
+        if self._on_clients is not None:
+            try:
+                self._on_clients(self._client_count)
+            except Exception:
+                log.exception("live link: the on_clients callback failed")
+
+
+class _Health:
+    """The stream-health words of ``Status``: frame rate and how often the probe was found since the last time."""
+
+    def __init__(self):
+        self.last_text = ""
+        self._t, self._frames, self._fixes = time.monotonic(), 0, 0
+
+    def describe(self, now: float, frames: int, fixes: int, last_frame: float | None) -> str:
+        span, new_frames, new_fixes = now - self._t, frames - self._frames, fixes - self._fixes
+        if span < 0.5 and self.last_text:                   # too soon for a rate: keep the words as they were
+            return self.last_text.split(";")[0]
+        self._t, self._frames, self._fixes = now, frames, fixes
+        if last_frame is None:
+            return "waiting for frames"
+        if new_frames == 0:
+            return f"no frames for {now - last_frame:.0f} s"
+        return f"video {new_frames / span:.1f} fps, probe found in {100.0 * new_fixes / new_frames:.0f}% of frames"

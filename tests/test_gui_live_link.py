@@ -1,0 +1,80 @@
+"""The app's live link to 3D Slicer, offscreen: the Devices menu toggle serves the demo acquisition to a pyigtl
+client (stored nodes, probe poses), shows the clients and address in the stream-health area, and is remembered."""
+
+import socket
+
+import pytest
+from conftest import shown
+from PySide6.QtCore import QSettings
+
+from snreg.demo.rig import DemoRig
+from snreg.demo.scene import Schedule
+from snreg_gui.app import MainWindow
+from snreg_gui.common.live_link import ENABLED_KEY, PORT_KEY
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def settings(tmp_path):
+    return QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+
+
+def open_window(qtbot, tmp_path, settings, name):
+    rig = DemoRig(schedule=Schedule(rest_frames=45, move_frames=3))
+    window = MainWindow(str(tmp_path / name), demo=True, rig=rig, fixes_per_node=20, settings=settings)
+    qtbot.addWidget(window)
+    window.show()
+    return window
+
+
+def test_the_toggle_serves_stored_nodes_and_poses_to_a_client(qtbot, tmp_path, settings, igtl_client, monkeypatch):
+    window = open_window(qtbot, tmp_path, settings, "demo.h5")
+    try:
+        port = free_port()
+        asked = []
+        monkeypatch.setattr(window.live_link, "ask_port", lambda current: asked.append(current) or port)
+        assert not window.live_link.action.isChecked()
+        window.live_link.action.trigger()                       # Devices > Live link to 3D Slicer (OpenIGTLink)...
+        assert asked == [18944] and window.live_link.action.isChecked() and window.live_link.link is not None
+        client = igtl_client(port)
+        screen = window.acquisition
+        qtbot.waitUntil(lambda: f"1 client on 127.0.0.1:{port}" in screen.link_health.text(), timeout=30_000)
+        assert screen.link_health.isVisibleTo(screen)
+        screen.auto_store.setChecked(True)
+        qtbot.waitUntil(lambda: screen.nodes.rowCount() >= 1, timeout=60_000)
+        # waitUntil, not client.wait_for: the link is fed in this (GUI) thread, so the event loop must keep running
+        qtbot.waitUntil(lambda: bool(client.messages("IntraopNodes"))
+                        and shown(client.messages("IntraopNodes")[-1])[0][:1] == ["SN1"], timeout=20_000)
+        assert client.messages("ProbeTipToTrocar")              # the poses stream as frames are tracked
+        assert client.messages("Status")
+        assert settings.value(ENABLED_KEY) in (True, "true") and int(settings.value(PORT_KEY)) == port
+
+        window.live_link.action.trigger()                       # off: closed, the line hidden, remembered off
+        assert window.live_link.link is None and not screen.link_health.isVisibleTo(screen)
+        assert settings.value(ENABLED_KEY) in (False, "false")
+    finally:
+        window.shutdown()
+
+
+def test_the_link_restarts_with_the_app_on_its_port_and_a_taken_port_says_so(qtbot, settings):
+    port = free_port()
+    settings.setValue(ENABLED_KEY, True)
+    settings.setValue(PORT_KEY, port)
+    windows = []
+    for _ in range(2):                      # no rig and no session: the link starts with the window all the same
+        windows.append(MainWindow(settings=settings))
+        qtbot.addWidget(windows[-1])
+    first, second = windows
+    try:
+        assert first.live_link.link is not None and first.live_link.link.port == port
+        assert first.live_link.action.isChecked()
+        assert second.live_link.link is None and not second.live_link.action.isChecked()   # the port is taken
+        assert "port is in use" in second.statusBar().currentMessage()
+    finally:
+        for window in windows:
+            window.shutdown()
