@@ -16,7 +16,7 @@ import numpy as np
 
 from snreg.registration.report import MissingNode
 
-__all__ = ["Pointer", "point_to_nearest", "guidance_line", "targets_text"]
+__all__ = ["Pointer", "point_to_nearest", "guidance_line", "targets_text", "target_circle"]
 
 _AXIS_WORDS = (("+x", "-x"), ("+y", "-y"), ("+z", "-z"))
 
@@ -69,3 +69,18 @@ def guidance_line(targets: list[MissingNode], tip_trocar) -> str:
     t = pointer.target
     where = "inside its bound" if pointer.within_bound else pointer.direction_words()
     return f"nearest missing {t.preop_id}: {pointer.distance_mm:.0f} mm, {where} (bound {t.bound_mm:.0f} mm)"
+
+
+def target_circle(target: MissingNode, camera_from_trocar: np.ndarray, project) -> tuple[np.ndarray, float] | None:
+    """Where to draw a missing node on a camera image: the centre (2,) in pixels and a radius in pixels that shows its
+    90% bound at its depth; None when it lies behind the camera. ``project`` maps camera points (N, 3) mm to pixels
+    (N, 2) (e.g. the tracker's projection for one eye)."""
+    centre = camera_from_trocar[:3, :3] @ np.asarray(target.mapped_xyz, float) + camera_from_trocar[:3, 3]
+    if centre[2] <= 1.0:
+        return None
+    across = np.cross(centre, [0.0, 1.0, 0.0])                  # perpendicular to the line of sight
+    if np.linalg.norm(across) < 1e-9:
+        across = np.array([1.0, 0.0, 0.0])
+    edge = centre + target.bound_mm * across / np.linalg.norm(across)
+    pixels = np.asarray(project(np.array([centre, edge])), float).reshape(2, 2)
+    return pixels[0], float(np.linalg.norm(pixels[1] - pixels[0]))
