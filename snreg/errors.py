@@ -8,7 +8,8 @@ All but :class:`UserError` are ``ValueError``s, so code that validates input may
 from __future__ import annotations
 
 __all__ = ["UserError", "NodeFileError", "CalibrationFileError", "SourceError", "ImuPortError", "PreopError",
-           "SessionError", "TrackingError", "StoreError", "NoFitError", "LiveLinkError"]
+           "SessionError", "TrackingError", "StoreError", "NoFitError", "LiveLinkError", "StoreRefused",
+           "StoreNeedsConfirmation"]
 
 
 class UserError(Exception):
@@ -53,3 +54,15 @@ class NoFitError(ValueError):
 
 class LiveLinkError(ValueError):
     """The live link to 3D Slicer cannot serve (e.g. its port is taken); the message says what to do."""
+
+
+class StoreRefused(StoreError):
+    """Store SN refused by its guard (stale IMU or fix, probe moving, window not full); the message says why."""
+
+
+class StoreNeedsConfirmation(StoreError):
+    """A store close to a node already stored: the message is the question to ask, ``near`` that node's id."""
+
+    def __init__(self, question: str, near: str):
+        super().__init__(question)
+        self.near = near

@@ -35,7 +35,7 @@ def test_info_json(session_file, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["case_id"] == "phantom-01" and info["intraop_nodes"] == 2
     assert info["streams"] == {"imu": 3, "probe": 0, "frames": 0} and info["registrations"] == []
-    assert info["format_version"] == 1 and not info["damaged"]
+    assert info["format_version"] == 2 and not info["damaged"]
 
 
 def test_info_text(session_file, capsys):

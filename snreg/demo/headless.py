@@ -95,7 +95,8 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
 
     ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None."""
     session_path = Path(session_path)
-    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=fixes_per_node + 30), seed=seed)
+    # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs
+    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
@@ -123,16 +124,17 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
 
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink) -> int:
-    """Run the tour until every node is auto-stored, feeding the live link; returns the frames read."""
+    """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
+    skips some)."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node)
-    limit = 2 * rig.schedule.cycle
+    limit, read = 2 * rig.schedule.cycle, 0
     with source:
         for frame in source:
-            imu = rig.imu.snapshot()
-            outcome = acquisition.process(frame, ImuReading(imu.earth_from_imu, rig.imu.take_samples()))
+            read += 1
+            outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))
             feed("show_frame", outcome)
             if outcome.auto_store_due:
                 node = rig.scene.resting_node(frame.index)
@@ -140,7 +142,7 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
                 feed("add_node", acquisition.store(session.next_node_id(), label, left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
             if len(session.intraop_records()) == N_NODES:
-                return frame.index + 1
+                return read
             if frame.index >= limit:
                 break
     raise DemoError(f"only {len(session.intraop_records())} of {N_NODES} nodes were stored in {limit} frames "

@@ -33,7 +33,7 @@ from snreg.camera import StereoCalibration
 from snreg.chain import THESIS_IMU_TROCAR_MM, THESIS_TROCAR_CAMERA_MM, ChainCalibration
 from snreg.demo.board_render import render_stereo_board
 from snreg.geometry import euler_from_rotation, invert, make_transform
-from snreg.imu.monitor import ImuSnapshot
+from snreg.imu.monitor import ImuAt, ImuSnapshot
 from snreg.sources import CallableSource
 
 __all__ = ["PivotScene", "SceneImu", "DEFAULT_IMU_FROM_CAMERA", "DEFAULT_EARTH_FROM_TROCAR"]
@@ -133,6 +133,10 @@ class SceneImu:
 
     def take_samples(self) -> list:
         return []
+
+    def orientation_at(self, t_host_ns: int) -> ImuAt:
+        """The orientation at the frame the scene rendered last (the wizard asks right after reading it)."""
+        return ImuAt(self._scene.earth_from_imu(self._scene.shown_index), 0.0, "open")
 
     def snapshot(self) -> ImuSnapshot:
         index = self._scene.shown_index

@@ -68,8 +68,9 @@ class DemoRig:
             scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed)
             scene.prerender()
             self.scene = scene
-        # frame times on the host clock of the IMU samples and stored nodes (DESIGN.md §3), from now at the nominal rate
-        return CallableSource(self.scene.render, self.fps, start_ns=time.perf_counter_ns(), name="Demo phantom")
+        # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
+        # skipped when tracking falls behind, while the scene goes on at its own pace
+        return CallableSource(self.scene.render, self.fps, live=True, name="Demo phantom")
 
     def board_source(self) -> FrameSource:
         """A rendered checkerboard tour seen by the simulated cameras as they truly are (the calibration to find)."""

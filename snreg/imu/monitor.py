@@ -1,8 +1,11 @@
 """The IMU as acquisition sees it: a serial reader feeding the orientation filter, read as snapshots.
 
-Why: samples arrive at ~208 Hz in the reader's own thread; the tracking loop and the health display
-only need the latest orientation and the stream's health, taken at their own pace under a lock, and
-the loop records the raw samples into the session (:meth:`ImuMonitor.take_samples`).
+Why: samples arrive at ~208 Hz in the reader's own thread; the health display only needs the latest
+orientation and the stream's health, taken at its own pace under a lock, and the loop records the raw samples
+into the session (:meth:`ImuMonitor.take_samples`). A fix is mapped with the orientation at its frame's grab
+time, not the latest (:meth:`ImuMonitor.orientation_at`: the last ``HISTORY_S`` seconds of fused orientations,
+interpolated on the host clock), so a tracking loop that runs late still pairs each frame with its own pose.
+Sample times are host receive times: they trail the sensor by the serial latency (a few ms).
 """
 
 from __future__ import annotations
@@ -13,13 +16,14 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from snreg.geometry import euler_from_rotation
 from snreg.imu import Fusion, ImuSample, SerialImuReader
 from snreg.imu.reader import DEFAULT_BAUD
 
 STALE_AFTER_S = 1.0
+HISTORY_S = 2.0           # fused orientations kept for :meth:`ImuMonitor.orientation_at`
 KEPT_SAMPLES_S = 10.0     # raw samples wait this long for :meth:`ImuMonitor.take_samples` before the oldest go
 
 
@@ -41,6 +45,34 @@ class ImuSnapshot:
         return self.age_s > STALE_AFTER_S
 
 
+@dataclass(frozen=True)
+class ImuAt:
+    """The orientation at one host time: ``earth_from_imu`` (3, 3), ``gap_s`` from that time to the nearest
+    sample (0 for an IMU that needs no samples; inf when there are none), and the IMU's ``state``."""
+
+    earth_from_imu: np.ndarray
+    gap_s: float
+    state: str
+
+    @property
+    def stale(self) -> bool:
+        return self.gap_s > STALE_AFTER_S
+
+
+def interpolate_orientation(times_ns: np.ndarray, quats_xyzw: np.ndarray, t_ns: int) -> tuple[np.ndarray, float]:
+    """(3, 3) orientation at ``t_ns`` slerped between the samples around it (times (N,) ns ascending, quaternions
+    (N, 4) x, y, z, w), the nearest sample's outside them; and the distance in s to the nearest sample."""
+    if len(times_ns) == 0:
+        return np.eye(3), float("inf")
+    k = int(np.searchsorted(times_ns, t_ns))
+    if k == 0 or k == len(times_ns):
+        nearest = 0 if k == 0 else len(times_ns) - 1
+        return Rotation.from_quat(quats_xyzw[nearest]).as_matrix(), abs(int(t_ns) - int(times_ns[nearest])) / 1e9
+    pair = times_ns[k - 1:k + 1]
+    rotation = Slerp(pair.astype(float), Rotation.from_quat(quats_xyzw[k - 1:k + 1]))([float(t_ns)])[0]
+    return rotation.as_matrix(), min(int(t_ns) - int(pair[0]), int(pair[1]) - int(t_ns)) / 1e9
+
+
 class ImuMonitor:
     """Reads ``port`` at ``baudrate`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`;
     thread-safe :meth:`snapshot`."""
@@ -50,6 +82,7 @@ class ImuMonitor:
         self._fusion = Fusion(sample_rate_hz)
         self._arrivals: deque[int] = deque(maxlen=int(sample_rate_hz * 2))
         self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
+        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=int(sample_rate_hz * HISTORY_S))
         self._rotation = Rotation.identity()
         self._reader = SerialImuReader(port, baudrate, on_sample=self._on_sample)
         self.started = False
@@ -65,10 +98,21 @@ class ImuMonitor:
     def _on_sample(self, sample: ImuSample) -> None:
         self._fusion.advance(sample)            # angles only when a snapshot asks: 208 Hz stays cheap
         rotation = self._fusion.rotation
+        quat = rotation.as_quat()
         with self._lock:
             self._rotation = rotation
             self._arrivals.append(sample.t_host_ns)
             self._pending.append(sample)
+            self._history.append((sample.t_host_ns, quat))
+
+    def orientation_at(self, t_host_ns: int) -> ImuAt:
+        """The fused orientation at host time ``t_host_ns`` (a frame's grab time), interpolated between samples."""
+        with self._lock:
+            history = list(self._history)
+        times = np.array([t for t, _ in history], dtype=np.int64)
+        quats = np.array([q for _, q in history]).reshape(-1, 4)
+        earth_from_imu, gap_s = interpolate_orientation(times, quats, t_host_ns)
+        return ImuAt(earth_from_imu, gap_s, self._reader.state.value)
 
     def take_samples(self) -> list[ImuSample]:
         """The raw samples received since the last call (at most the last ``KEPT_SAMPLES_S`` seconds), for recording."""

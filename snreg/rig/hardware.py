@@ -30,7 +30,7 @@ import numpy as np
 
 from snreg.camera import StereoCalibration, load_calibration
 from snreg.chain import ChainCalibration
-from snreg.imu.monitor import ImuMonitor, ImuSnapshot
+from snreg.imu.monitor import ImuAt, ImuMonitor, ImuSnapshot
 from snreg.probe import default_probe_model, load_probe_model
 from snreg.rig.config import RigConfig
 from snreg.sources import (FrameSource, ImageFolderSource, OpenCVPairSource, OpenCVStackedSource, SourceError,
@@ -155,6 +155,9 @@ class AbsentImu:
 
     def snapshot(self) -> ImuSnapshot:
         return ImuSnapshot(ABSENT, self.PROBLEM, 0.0, 0.0, (0.0, 0.0, 0.0), np.eye(3), 0, 0)
+
+    def orientation_at(self, t_host_ns: int) -> ImuAt:
+        return ImuAt(np.eye(3), 0.0, ABSENT)
 
 
 def _start_imu(config: RigConfig) -> ImuMonitor | AbsentImu:

@@ -12,7 +12,7 @@ from typing import Protocol, runtime_checkable
 
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
-from snreg.imu.monitor import ImuSnapshot
+from snreg.imu.monitor import ImuAt, ImuSnapshot
 from snreg.imu.protocol import ImuSample
 from snreg.probe import ProbeModel
 from snreg.sources import FrameSource
@@ -36,6 +36,10 @@ class Imu(Protocol):
 
     def take_samples(self) -> list[ImuSample]:
         """The raw samples received since the last call, for recording (an empty list when there are none)."""
+
+    def orientation_at(self, t_host_ns: int) -> ImuAt:
+        """The orientation at a host time (a frame's grab time, ``time.perf_counter_ns``), with how far the nearest
+        sample is from it (thread-safe)."""
 
 
 @runtime_checkable

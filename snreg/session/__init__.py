@@ -9,10 +9,16 @@ Nodes, node removals (undo), calibrations, preop sets and registrations go to a 
 when a kill left the HDF5 file unreadable (``Session.damaged``); ``snreg session recover`` rebuilds a clean
 file. :meth:`Session.resume` reopens a session to go on recording into it. The journal keeps every node ever
 stored, so an undone node stays on record there.
+
+What happened besides the nodes (a store refused and why, nodes re-expressed under a new calibration with their old
+values, an acquisition started) goes to the ``events`` log (:meth:`Session.log_event`, :meth:`Session.events`),
+journal first as well. A re-expression is one journal line, so a kill during it leaves every node either all old
+or all new, never half.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import functools
 import threading
@@ -28,9 +34,11 @@ from snreg.nodes import NodeSet
 from snreg.session import reader, writer
 from snreg.session.journal import Journal, journal_path, read_journal
 from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, StoredRegistration,
-                                  jpeg_bytes, position_mm, stereo_from_dict, stereo_to_dict, validate_case_id)
+                                  calibration_version, jpeg_bytes, position_mm, stereo_from_dict, stereo_to_dict,
+                                  validate_case_id)
 
-__all__ = ["Session", "SessionError", "IntraopNode", "StoredRegistration", "read_intraop_nodes", "validate_case_id"]
+__all__ = ["Session", "SessionError", "IntraopNode", "StoredRegistration", "read_intraop_nodes", "validate_case_id",
+           "calibration_version"]
 
 
 def _serialised(method):
@@ -52,6 +60,7 @@ class Session:
         self._calibration: dict[str, dict] = {}
         self._preop: dict | None = None
         self._registrations: list[dict] = []
+        self._events: list[dict] = []
         self._buffers: dict[str, writer.StreamBuffer] = {}
         self._lock = threading.RLock()
 
@@ -117,15 +126,22 @@ class Session:
                 raise SessionError(f"{path}: the HDF5 file is damaged; run 'snreg session recover' on it, "
                                    "then continue the recovered file")
             state = (merged.header, merged.intraop_records(), dict(merged._calibration), merged._preop,
-                     list(merged._registrations))
-        header, nodes, calibration, preop, registrations = state
+                     list(merged._registrations), list(merged._events))
+        header, nodes, calibration, preop, registrations, events = state
         try:
             h5 = h5py.File(path, "r+")
         except OSError as err:
             raise SessionError(f"{path}: cannot be opened for writing ({err}); is it open in another program?") from None
+        header = {**header, "format_version": FORMAT_VERSION}
         session = cls(path, header, h5, Journal(journal_path(path)), damaged=False)
         session._nodes = {node.id: node for node in nodes}
         session._calibration, session._preop = calibration, preop
+        writer.require_v2_tables(h5)
+        logged = {event.get("n") for event in reader.read_events(h5)}
+        for event in events:
+            if event.get("n") not in logged:
+                writer.append_event(h5, event)
+        session._events = events
         written = {int(n) for n in h5["registration"]}
         for kind, data in calibration.items():
             writer.write_calibration(h5, kind, data)
@@ -142,7 +158,8 @@ class Session:
 
     def _load_hdf5(self) -> None:
         for part, load in (("nodes", reader.read_nodes), ("calibration", reader.read_calibration),
-                           ("preop", reader.read_preop), ("registrations", reader.read_registrations)):
+                           ("preop", reader.read_preop), ("registrations", reader.read_registrations),
+                           ("events", reader.read_events)):
             try:
                 value = load(self._h5)
             except (OSError, ValueError, KeyError, RuntimeError):
@@ -154,17 +171,26 @@ class Session:
                 self._calibration.update(value)
             elif part == "preop":
                 self._preop = value
+            elif part == "events":
+                self._events = value
             else:
                 self._registrations = value
 
     def _replay(self, entries: list) -> None:
         """Merge journal entries over what the HDF5 file holds (the journal is never behind it)."""
         known = {reg["n"] for reg in self._registrations}
+        logged = {event.get("n") for event in self._events}
         for kind, data in entries:
             if kind == "node":
                 self._nodes[data["id"]] = IntraopNode.from_json(data)
             elif kind == "node_removed":
                 self._nodes.pop(data["id"], None)
+            elif kind in ("event", "nodes_reexpressed"):
+                if kind == "nodes_reexpressed":
+                    self._apply_reexpression(data)
+                if data.get("n") not in logged:
+                    self._events.append(data)
+                    logged.add(data.get("n"))
             elif kind == "calibration":
                 self._calibration[data["kind"]] = data["data"]
             elif kind == "preop":
@@ -177,10 +203,12 @@ class Session:
     @_serialised
     def add_intraop_node(self, node_id: str, label: str, xyz_trocar, *, xyz_camera=None, spread_mm: float = float("nan"),
                          n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
-                         left_jpeg=b"", right_jpeg=b"") -> IntraopNode:
+                         left_jpeg=b"", right_jpeg=b"", earth_from_imu=None, stereo_version: str = "",
+                         chain_version: str = "") -> IntraopNode:
         """Store a node (positions mm; time ns on the host clock, perf_counter_ns like the streams); on disk when this returns.
 
-        Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here.
+        Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here. ``earth_from_imu`` (3, 3) and the
+        calibration versions say what the node was measured with (see :class:`IntraopNode`).
         """
         self._writable()
         node_id = str(node_id)
@@ -189,7 +217,10 @@ class Session:
         nan3 = np.full(3, np.nan)
         node = IntraopNode(node_id, str(label), time.perf_counter_ns() if time_ns is None else int(time_ns),
                            position_mm(xyz_trocar), nan3 if xyz_camera is None else position_mm(xyz_camera), float(spread_mm),
-                           int(n_frames), float(counts), jpeg_bytes(left_jpeg), jpeg_bytes(right_jpeg))
+                           int(n_frames), float(counts), jpeg_bytes(left_jpeg), jpeg_bytes(right_jpeg),
+                           np.full((3, 3), np.nan) if earth_from_imu is None
+                           else np.asarray(earth_from_imu, dtype=float).reshape(3, 3),
+                           str(stereo_version), str(chain_version))
         self._journal.append("node", node.to_json())
         writer.write_node(self._h5, node)
         self._h5.flush()
@@ -208,6 +239,56 @@ class Session:
         writer.rewrite_nodes(self._h5, list(self._nodes.values()))
         self._h5.flush()
         return node
+
+    @_serialised
+    def reexpress_nodes(self, nodes: list[IntraopNode], reason: str) -> dict:
+        """Replace stored nodes by the same nodes re-expressed (new positions and calibration versions, same ids),
+        all or none: one journal line holds them with their old values, which stay on record in the ``events`` log
+        (kind ``nodes_reexpressed``). Returns that event."""
+        self._writable()
+        missing = [node.id for node in nodes if node.id not in self._nodes]
+        if missing:
+            raise SessionError(f"{self.path}: there is no stored node {missing[0]!r} to re-express")
+        keys = ("xyz_trocar", "xyz_camera", "stereo_version", "chain_version")
+        changes = []
+        for node in nodes:
+            old = self._nodes[node.id]
+            changes.append({"id": node.id, **_plain_values(node, keys),
+                            "old": _plain_values(old, keys)})
+        event = {"n": len(self._events), "kind": "nodes_reexpressed", "time_ns": time.perf_counter_ns(),
+                 "reason": str(reason), "nodes": changes}
+        self._journal.append("nodes_reexpressed", event)
+        self._apply_reexpression(event)
+        self._events.append(event)
+        writer.rewrite_nodes(self._h5, list(self._nodes.values()))
+        writer.append_event(self._h5, event)
+        self._h5.flush()
+        return event
+
+    def _apply_reexpression(self, event: dict) -> None:
+        for change in event["nodes"]:
+            node = self._nodes.get(change["id"])
+            if node is not None:
+                self._nodes[node.id] = dataclasses.replace(
+                    node, xyz_trocar=np.asarray(change["xyz_trocar"], dtype=float),
+                    xyz_camera=np.asarray(change["xyz_camera"], dtype=float),
+                    stereo_version=str(change["stereo_version"]), chain_version=str(change["chain_version"]))
+
+    @_serialised
+    def log_event(self, kind: str, **data) -> dict:
+        """Put what happened (``kind``, e.g. ``store_refused`` with its ``reason``) on record, durable on return;
+        host time ns is added. Returns the event."""
+        self._writable()
+        event = {"n": len(self._events), "kind": str(kind), "time_ns": time.perf_counter_ns(), **data}
+        self._journal.append("event", event)
+        writer.append_event(self._h5, event)
+        self._h5.flush()
+        self._events.append(event)
+        return event
+
+    def events(self, kind: str | None = None) -> list[dict]:
+        """The events on record, oldest first; only those of ``kind`` if given."""
+        return [dict(event) for event in self._events if kind is None or event["kind"] == kind]
 
     def next_node_id(self, prefix: str = "SN") -> str:
         """The first ``<prefix><k>`` (k = 1, 2, ...) not stored: after an undo the id is used again."""
@@ -325,6 +406,10 @@ class Session:
             out["chain"] = ChainCalibration.from_dict(self._calibration["chain"])
         return out
 
+    def calibration_versions(self) -> tuple[str, str]:
+        """(stereo, chain) :func:`calibration_version` of the calibrations stored now ("" for one not stored)."""
+        return calibration_version(self._calibration.get("stereo")), calibration_version(self._calibration.get("chain"))
+
     def registrations(self) -> list[StoredRegistration]:
         """The stored registrations, in order: each :class:`~snreg.registration.RegistrationResult` with the ids of
         the nodes it paired (None in files written before ids were stored)."""
@@ -351,6 +436,8 @@ class Session:
                 writer.write_preop(h5, self._preop)
             for data in self._registrations:
                 writer.write_registration(h5, data)
+            for event in self._events:
+                writer.append_event(h5, event)
             for name in STREAM_DTYPES:
                 source = self.stream(name)
                 rows = reader.readable_rows(source) if isinstance(source, h5py.Dataset) else source
@@ -373,6 +460,11 @@ class Session:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _plain_values(node: IntraopNode, keys) -> dict:
+    return {key: np.asarray(getattr(node, key), dtype=float).tolist() if key.startswith("xyz")
+            else str(getattr(node, key)) for key in keys}
 
 
 def read_intraop_nodes(path: str | Path) -> NodeSet:

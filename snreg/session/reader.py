@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import h5py
@@ -29,11 +30,28 @@ def read_nodes(h5: h5py.File) -> list[IntraopNode]:
     group = h5["nodes/intraop"]
     cols = {name: group[name][()] for name in group}
     n = min(len(v) for v in cols.values())
+    unknown = np.full((3, 3), np.nan)          # format 1: no orientation or calibration versions stored
     return [IntraopNode(_plain(cols["id"][k]), _plain(cols["label"][k]), int(cols["time_ns"][k]),
                         cols["xyz_trocar"][k], cols["xyz_camera"][k], float(cols["spread_mm"][k]),
                         int(cols["n_frames"][k]), float(cols["counts"][k]), bytes(cols["left_jpeg"][k]),
-                        bytes(cols["right_jpeg"][k]))
+                        bytes(cols["right_jpeg"][k]),
+                        cols["earth_from_imu"][k] if "earth_from_imu" in cols else unknown.copy(),
+                        _plain(cols["stereo_version"][k]) if "stereo_version" in cols else "",
+                        _plain(cols["chain_version"][k]) if "chain_version" in cols else "")
             for k in range(n)]
+
+
+def read_events(h5: h5py.File) -> list[dict]:
+    """The ``events`` log, oldest first (empty in format-1 files); a row cut short by a kill is skipped."""
+    if "events" not in h5:
+        return []
+    out = []
+    for raw in h5["events"][()]:
+        try:
+            out.append(json.loads(_plain(raw)))
+        except ValueError:
+            continue
+    return out
 
 
 def read_calibration(h5: h5py.File) -> dict:

@@ -6,8 +6,10 @@ patient name or birth date typed by mistake is refused before anything reaches t
 
 from __future__ import annotations
 
+import hashlib
+import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -17,7 +19,7 @@ from snreg.errors import SessionError
 from snreg.registration import RegistrationResult
 
 FORMAT = "snreg-session"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (version 1 reads)
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
@@ -53,7 +55,10 @@ class IntraopNode:
     """One stored sentinel node: positions in mm (trocar and left-camera frames), time in ns (host clock).
 
     ``spread_mm`` is the scatter of the tip over the ``n_frames`` averaged; ``counts`` the gamma probe
-    reading (NaN when none); the snapshots are JPEG bytes (empty when none).
+    reading (NaN when none); the snapshots are JPEG bytes (empty when none). What the node was measured with,
+    so it can be re-expressed when a calibration changes: ``earth_from_imu`` (3, 3) the mean IMU orientation over
+    its fixes (NaN when unknown: files of format 1), ``stereo_version`` and ``chain_version`` the
+    :func:`calibration_version` of the stereo calibration and chain that mapped it ("" when unknown).
     """
 
     id: str
@@ -66,20 +71,32 @@ class IntraopNode:
     counts: float
     left_jpeg: bytes = b""
     right_jpeg: bytes = b""
+    earth_from_imu: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    stereo_version: str = ""
+    chain_version: str = ""
 
     def to_json(self) -> dict:
         """JSON-ready, the snapshots as hex (the journal's form)."""
         return {"id": self.id, "label": self.label, "time_ns": int(self.time_ns),
                 "xyz_trocar": [float(v) for v in self.xyz_trocar], "xyz_camera": [float(v) for v in self.xyz_camera],
                 "spread_mm": float(self.spread_mm), "n_frames": int(self.n_frames), "counts": float(self.counts),
-                "left_jpeg": self.left_jpeg.hex(), "right_jpeg": self.right_jpeg.hex()}
+                "left_jpeg": self.left_jpeg.hex(), "right_jpeg": self.right_jpeg.hex(),
+                "earth_from_imu": np.asarray(self.earth_from_imu, dtype=float).tolist(),
+                "stereo_version": self.stereo_version, "chain_version": self.chain_version}
 
     @classmethod
     def from_json(cls, data: dict) -> "IntraopNode":
         return cls(str(data["id"]), str(data["label"]), int(data["time_ns"]),
                    np.asarray(data["xyz_trocar"], dtype=float), np.asarray(data["xyz_camera"], dtype=float),
                    float(data["spread_mm"]), int(data["n_frames"]), float(data["counts"]),
-                   bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]))
+                   bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]),
+                   np.asarray(data.get("earth_from_imu", np.full((3, 3), np.nan)), dtype=float).reshape(3, 3),
+                   str(data.get("stereo_version", "")), str(data.get("chain_version", "")))
+
+    @property
+    def measured_under(self) -> tuple[str, str]:
+        """(stereo_version, chain_version): the calibration this node's trocar position was mapped with."""
+        return self.stereo_version, self.chain_version
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,3 +158,19 @@ def stereo_from_dict(data: dict):
     data = dict(data)
     size = tuple(int(v) for v in data.pop("image_size"))
     return StereoCalibration(size, **{k: np.asarray(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+_VERSIONED = ("image_size", "K1", "D1", "K2", "D2", "R", "T",            # stereo: the camera model itself
+              "imu_from_camera", "imu_trocar_mm", "trocar_from_earth")      # chain
+
+
+def calibration_version(data: dict | None) -> str:
+    """A short content hash (8 hex digits) of a calibration in its JSON form (:func:`stereo_to_dict`,
+    ``ChainCalibration.to_dict``) over the values that move a tip (not its date or quality figures), rounded to
+    1e-9: the same calibration gives the same version in any session and after any file round trip; "" for none."""
+    if data is None:
+        return ""
+    values = {key: (np.round(np.asarray(data[key], dtype=float), 9) + 0.0).tolist()   # + 0.0: no -0.0
+              for key in _VERSIONED if key in data}
+    text = json.dumps(values, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:8]

@@ -6,17 +6,21 @@ second, so an hour never sits in memory; a kill loses at most the last unflushed
 
 from __future__ import annotations
 
+import json
 import time
 
 import h5py
 import numpy as np
 
-from snreg.session.schema import STREAM_DTYPES, IntraopNode
+from snreg.session.schema import FORMAT_VERSION, STREAM_DTYPES, IntraopNode
 
 _BYTES = h5py.vlen_dtype(np.uint8)
 _STR = h5py.string_dtype()
-_NODE_FIELDS = {"id": _STR, "label": _STR, "time_ns": "<i8", "xyz_trocar": ("<f8", 3), "xyz_camera": ("<f8", 3),
-                "spread_mm": "<f8", "n_frames": "<i8", "counts": "<f8", "left_jpeg": _BYTES, "right_jpeg": _BYTES}
+_NODE_FIELDS = {"id": _STR, "label": _STR, "time_ns": "<i8", "xyz_trocar": ("<f8", (3,)), "xyz_camera": ("<f8", (3,)),
+                "spread_mm": "<f8", "n_frames": "<i8", "counts": "<f8", "left_jpeg": _BYTES, "right_jpeg": _BYTES,
+                # format 2: what the node was measured with (a format-1 file gets these columns when resumed)
+                "earth_from_imu": ("<f8", (3, 3)), "stereo_version": _STR, "chain_version": _STR}
+_FILL = {"earth_from_imu": np.nan, "stereo_version": "", "chain_version": ""}
 
 
 def init_file(h5: h5py.File, header: dict) -> None:
@@ -28,11 +32,34 @@ def init_file(h5: h5py.File, header: dict) -> None:
     for name, dtype in STREAM_DTYPES.items():
         h5.create_dataset(f"streams/{name}", shape=(0,), maxshape=(None,), dtype=dtype, chunks=(1024,),
                           compression="gzip", compression_opts=1)
-    intraop = h5.require_group("nodes/intraop")
+    h5.require_group("nodes/intraop")
+    require_v2_tables(h5)
+
+
+def require_v2_tables(h5: h5py.File) -> None:
+    """Every ``nodes/intraop`` table and the ``events`` log, adding what a format-1 file lacks (existing rows get
+    NaN or "" there) and marking the file format 2."""
+    intraop = h5["nodes/intraop"]
+    n = intraop["id"].shape[0] if "id" in intraop else 0
     for name, dtype in _NODE_FIELDS.items():
-        base, shape = dtype if isinstance(dtype, tuple) else (dtype, None)
-        intraop.create_dataset(name, shape=(0, shape) if shape else (0,), maxshape=(None, shape) if shape else (None,),
-                               dtype=base, chunks=(16, shape) if shape else (16,))
+        if name in intraop:
+            continue
+        base, shape = dtype if isinstance(dtype, tuple) else (dtype, ())
+        dataset = intraop.create_dataset(name, shape=(n, *shape), maxshape=(None, *shape), dtype=base,
+                                         chunks=(16, *shape))
+        if n and name in _FILL:
+            dataset[...] = _FILL[name]
+    if "events" not in h5:
+        h5.create_dataset("events", shape=(0,), maxshape=(None,), dtype=_STR, chunks=(64,))
+    h5.attrs["format_version"] = FORMAT_VERSION
+
+
+def append_event(h5: h5py.File, event: dict) -> None:
+    """One row of the ``events`` log: the event as a JSON object (refused stores, re-expressions, acquisition starts)."""
+    events = h5["events"]
+    n = events.shape[0]
+    events.resize(n + 1, axis=0)
+    events[n] = json.dumps(event, separators=(",", ":"), allow_nan=True)
 
 
 def write_node(h5: h5py.File, node: IntraopNode) -> None:
@@ -42,7 +69,8 @@ def write_node(h5: h5py.File, node: IntraopNode) -> None:
     values = {"id": node.id, "label": node.label, "time_ns": node.time_ns, "xyz_trocar": node.xyz_trocar,
               "xyz_camera": node.xyz_camera, "spread_mm": node.spread_mm, "n_frames": node.n_frames,
               "counts": node.counts, "left_jpeg": np.frombuffer(node.left_jpeg, np.uint8),
-              "right_jpeg": np.frombuffer(node.right_jpeg, np.uint8)}
+              "right_jpeg": np.frombuffer(node.right_jpeg, np.uint8), "earth_from_imu": node.earth_from_imu,
+              "stereo_version": node.stereo_version, "chain_version": node.chain_version}
     for name, value in values.items():
         intraop[name].resize(n + 1, axis=0)
         intraop[name][n] = value

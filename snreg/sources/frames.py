@@ -16,6 +16,7 @@ from __future__ import annotations
 import enum
 import glob
 import re
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -119,8 +120,10 @@ class FrameSource(ABC):
         self._state, self._problem = state, problem
         self._release()
 
-    def _frame(self, left: np.ndarray, right: np.ndarray, t_left_ns: int, t_right_ns: int) -> StereoFrame:
-        frame = StereoFrame(left, right, int(t_left_ns), int(t_right_ns), self._delivered)
+    def _frame(self, left: np.ndarray, right: np.ndarray, t_left_ns: int, t_right_ns: int,
+               index: int | None = None) -> StereoFrame:
+        """A frame numbered ``index``, by default the count delivered so far."""
+        frame = StereoFrame(left, right, int(t_left_ns), int(t_right_ns), self._delivered if index is None else index)
         self._delivered += 1
         return frame
 
@@ -136,24 +139,50 @@ def _nominal_ns(start_ns: int, index: int, fps: float) -> int:
 
 
 class CallableSource(FrameSource):
-    """Frames from ``render(index) -> (left, right)`` at a nominal rate; endless when ``n_frames`` is None.
+    """Frames from ``render(index) -> (left, right)`` at ``fps``; endless when ``n_frames`` is None. Both eyes get the
+    same timestamp. This is where the synthetic renderer plugs in.
 
-    This is where the synthetic renderer plugs in. Both eyes get the same timestamp.
+    Offline (the default) every frame is delivered, stamped at its nominal time from ``start_ns``. ``live``: the
+    source behaves as a camera does (DESIGN.md §3): frame k is due ``k / fps`` after the first read, :meth:`read`
+    waits for the next due frame and, when the consumer has fallen behind, skips to the newest one (``index`` jumps
+    over the frames skipped, as the scene went on without it), stamped on the host clock
+    (``time.perf_counter_ns``) when it is taken.
     """
 
     def __init__(self, render: Callable[[int], tuple[np.ndarray, np.ndarray]], fps: float,
-                 n_frames: int | None = None, *, start_ns: int = 0, name: str = "Synthetic source"):
+                 n_frames: int | None = None, *, start_ns: int = 0, live: bool = False, name: str = "Synthetic source"):
         super().__init__(name)
         self._render, self._fps, self._n, self._start = render, _check_fps(fps), n_frames, int(start_ns)
+        self._live = bool(live)
+        self._first_ns: int | None = None
+        self._next = 0                  # the index the next read delivers at the earliest
+        self.skipped = 0                # live: frames the consumer was too slow for
 
     def _read(self) -> StereoFrame | None:
-        i = self._delivered
-        if self._n is not None and i >= self._n:
+        if self._live:
+            index, t = self._due()
+        else:
+            index = self._next
+            t = _nominal_ns(self._start, index, self._fps)
+        if self._n is not None and index >= self._n:
             self._stop(SourceState.ENDED, f"{self.name} rendered all {self._n} frames.")
             return None
-        left, right = self._render(i)
-        t = _nominal_ns(self._start, i, self._fps)
-        return self._frame(left, right, t, t)
+        self._next = index + 1
+        left, right = self._render(index)
+        return self._frame(left, right, t, t, index)
+
+    def _due(self) -> tuple[int, int]:
+        """The frame to take now and its grab time: the newest due, after waiting for the next if none is."""
+        now = time.perf_counter_ns()
+        if self._first_ns is None:
+            self._first_ns = now
+        due = int((now - self._first_ns) * self._fps // 1e9)
+        if due < self._next:
+            wait_ns = _nominal_ns(self._first_ns, self._next, self._fps) - now
+            time.sleep(max(wait_ns, 0) / 1e9)
+            due, now = self._next, time.perf_counter_ns()
+        self.skipped += due - self._next
+        return due, now
 
 
 def _natural_key(path: str) -> list:

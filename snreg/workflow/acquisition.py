@@ -1,32 +1,78 @@
 """Acquisition: each stereo pair into a probe fix in the camera and trocar frames, the streams into the
-session, and Store SN, undo and auto-store over the last valid fixes.
+session, and Store SN, undo and auto-store over the last valid fixes, guarded.
 
 Why here and not in the GUI: the app's worker thread and ``snreg demo --headless`` must run the very same
 steps (DESIGN.md §5: real and simulated devices share the code after the sources). A node is the median
-of the last N valid tip fixes (thesis §5.2: N = 60) in both frames, with their spread.
+of the last N valid tip fixes (thesis §5.2: N = 60) in both frames, with their spread; each fix is mapped with
+the IMU orientation at its own frame's grab time (:class:`ImuReading`).
+
+A store is refused, with the reason in words and on record in the session's events (``store_refused``), when the
+window is not full, its newest fix is stale (the probe is out of view), the IMU is absent or stale (unless the
+acquisition runs without an IMU by choice) or the window spreads over the limit (:class:`StoreLimits`, 2 mm by
+default); a store within ``duplicate_mm`` of a stored node needs ``confirmed=True``
+(:class:`~snreg.errors.StoreNeedsConfirmation` names that node). Auto-store keeps its stricter rule (held still
+within ``STILL_SPREAD_MM``, over ``AUTO_STORE_SEPARATION_MM`` from every node) on top of the guard.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration, camera_from_probe, camera_to_trocar, trocar_from_probe
-from snreg.errors import StoreError
+from snreg.errors import StoreError, StoreNeedsConfirmation, StoreRefused
+from snreg.imu.monitor import STALE_AFTER_S
 from snreg.imu.protocol import ImuSample
 from snreg.probe import ProbeModel
-from snreg.session import IntraopNode, Session
+from snreg.session import IntraopNode, Session, calibration_version
+from snreg.session.schema import stereo_to_dict
 from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
+
+__all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
+           "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT"]
 
 THESIS_FIXES_PER_NODE = 60
 STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below this spread (RMS about the median)
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
+IMU_ABSENT = "absent"            # the IMU state of a rig run without one (chosen in the device dialog)
+
+
+@dataclass(frozen=True)
+class StoreLimits:
+    """When a manual store is refused or asks first: spread over ``max_spread_mm`` (the app's setting), newest fix
+    older than ``fix_stale_s``, an IMU sample farther than ``imu_stale_s`` from a fix's frame; within
+    ``duplicate_mm`` of a stored node it asks."""
+
+    max_spread_mm: float = 2.0
+    duplicate_mm: float = 5.0
+    fix_stale_s: float = 1.0
+    imu_stale_s: float = STALE_AFTER_S
+
+
+@dataclass(frozen=True, eq=False)
+class StoreCheck:
+    """Whether Store SN would store now: ``refusal`` (one sentence, "" when it would), else the stored node within
+    the duplicate distance (``near``, None when none) and how far it is (mm)."""
+
+    refusal: str
+    near: IntraopNode | None = None
+    near_mm: float = float("nan")
+
+    @property
+    def question(self) -> str:
+        """The confirmation to ask when a stored node is near, naming it; "" otherwise."""
+        if self.near is None:
+            return ""
+        label = f" ({self.near.label})" if self.near.label else ""
+        return (f"{self.near.id}{label} is already stored {self.near_mm:.1f} mm from here. "
+                f"Store this as a new node anyway?")
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,7 +81,9 @@ class FrameOutcome:
     window: how many valid fixes it holds (at most N), their spread (mm, NaN until full), whether that is still,
     and whether the auto-store rule (full, still, and over ``AUTO_STORE_SEPARATION_MM`` from every stored node) would store it now.
     ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
-    a fix; the live link to 3D Slicer streams it."""
+    a fix; the live link to 3D Slicer streams it. ``store_check``: what Store SN would meet now (the guard's
+    refusal in words, or the near node to confirm); ``imu_gap_s``: from the frame's grab time to the nearest IMU
+    sample."""
 
     index: int
     fix: ProbeFix | None
@@ -47,25 +95,57 @@ class FrameOutcome:
     auto_store_due: bool
     track_ms: float
     trocar_from_probe: np.ndarray | None = None
+    store_check: StoreCheck = StoreCheck("waiting for the first frame")
+    imu_gap_s: float = 0.0
 
 
 @dataclass(frozen=True)
 class ImuReading:
-    """The endoscope orientation at a frame: ``earth_from_imu`` (3, 3) and the raw samples since the last frame."""
+    """The endoscope orientation at a frame's grab time: ``earth_from_imu`` (3, 3), how far (s) the nearest IMU
+    sample is from that time (``gap_s``), the IMU's ``state``, and the raw samples since the last frame."""
 
     earth_from_imu: np.ndarray
     samples: Sequence[ImuSample] = ()
+    gap_s: float = 0.0
+    state: str = "open"
+
+    @classmethod
+    def at_frame(cls, imu, frame: StereoFrame) -> "ImuReading":
+        """From an :class:`~snreg.rig.protocols.Imu`: the orientation interpolated at the frame's left grab time,
+        and the samples it received since the last call."""
+        at = imu.orientation_at(frame.t_left_ns)
+        return cls(at.earth_from_imu, imu.take_samples(), at.gap_s, at.state)
+
+
+@dataclass(frozen=True, eq=False)
+class _Fix:
+    camera: np.ndarray
+    trocar: np.ndarray
+    quat_xyzw: np.ndarray
+    imu_gap_s: float
+    imu_state: str
+    seen_ns: int           # host time it was computed
 
 
 class Acquisition:
-    """Tracks pairs, keeps the last ``fixes_per_node`` valid fixes, records streams and stores nodes in ``session``."""
+    """Tracks pairs, keeps the last ``fixes_per_node`` valid fixes, records streams and stores nodes in ``session``.
+
+    ``imu_required``: False only when the acquisition runs without an IMU by choice (stores are then not refused
+    for it); ``clock``: host time in ns (tests pass their own).
+    """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
-                 *, fixes_per_node: int = THESIS_FIXES_PER_NODE):
+                 *, fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
+                 imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns):
         self.tracker = StereoTracker(calibration, probe)
-        self.chain, self.session = chain, session
+        self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
+        self.stereo_version = calibration_version(stereo_to_dict(calibration))
+        self.chain_version = calibration_version(chain.to_dict())
         self.fixes_per_node = max(1, int(fixes_per_node))
-        self._fixes: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.fixes_per_node)
+        self._clock = clock
+        self._fixes: deque[_Fix] = deque(maxlen=self.fixes_per_node)
+        self._last_reason = ""
+        self._last_imu: ImuReading | None = None
         self._stored_here: list[str] = []          # ids stored through this object, for undo
 
     def set_fixes_per_node(self, n: int) -> None:
@@ -73,9 +153,15 @@ class Acquisition:
         self.fixes_per_node = max(1, int(n))
         self._fixes = deque(self._fixes, maxlen=self.fixes_per_node)
 
+    def set_max_spread(self, mm: float) -> None:
+        """Refuse manual stores whose window spreads over ``mm`` from now on."""
+        self.limits = replace(self.limits, max_spread_mm=float(mm))
+
     def process(self, frame: StereoFrame, imu: ImuReading) -> FrameOutcome:
-        """Track one pair at the given IMU orientation, record the frame, probe and IMU streams, update the window."""
+        """Track one pair at the IMU orientation of its grab time, record the frame, probe and IMU streams (the probe
+        row at the frame's own time), update the window."""
         self._record_imu(imu.samples)
+        self._last_imu = imu
         self.session.append_frames(frame.t_left_ns, frame.t_right_ns, frame.index)
         started = time.perf_counter()
         fix, reason, tip_trocar, pose = None, "", None, None
@@ -84,29 +170,63 @@ class Acquisition:
         except TrackingError as err:
             reason = str(err)
         track_ms = (time.perf_counter() - started) * 1e3
+        self._last_reason = reason
         if fix is not None:
             tip_trocar = camera_to_trocar(self.chain, imu.earth_from_imu, fix.tip)
             pose = trocar_from_probe(self.chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
-            self._fixes.append((fix.tip, tip_trocar))
+            quat = Rotation.from_matrix(imu.earth_from_imu).as_quat()
+            self._fixes.append(_Fix(fix.tip, tip_trocar, quat, float(imu.gap_s), imu.state, self._clock()))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)
         window = self._window_trocar()
         spread = window.spread_mm if window is not None else float("nan")
         still = bool(spread <= STILL_SPREAD_MM)
-        return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still,
-                            still and self._away_from_stored(window.xyz), track_ms, pose)
+        check = self.check_store(window)
+        due = still and not check.refusal and self._away_from_stored(window.xyz)
+        return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still, due, track_ms,
+                            pose, check, float(imu.gap_s))
 
-    def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"",
-              right_jpeg=b"") -> IntraopNode:
-        """The median of the store window as node ``node_id``, durable on return; :class:`StoreError` when the
-        window is not full yet. Snapshots are JPEG bytes or BGR images."""
-        if len(self._fixes) < self.fixes_per_node:
-            raise StoreError(f"only {len(self._fixes)} of {self.fixes_per_node} valid fixes so far; "
-                             "hold the probe on the node")
-        camera = summarise(np.array([f[0] for f in self._fixes]))
-        trocar = summarise(np.array([f[1] for f in self._fixes]))
+    def check_store(self, window=None) -> StoreCheck:
+        """Whether Store SN would store now, and if not why (in words); the near node when one is. ``window``: the
+        store window's summary when the caller has it already."""
+        n, needed = len(self._fixes), self.fixes_per_node
+        if n < needed:
+            return StoreCheck(f"only {n} of {needed} valid fixes so far; hold the probe on the node")
+        age_s = (self._clock() - self._fixes[-1].seen_ns) / 1e9
+        if age_s > self.limits.fix_stale_s:
+            lost = f" ({self._last_reason})" if self._last_reason else ""
+            return StoreCheck(f"the last valid fix is {age_s:.1f} s old{lost}: the probe is not tracked now; "
+                              "bring it into view and hold it on the node")
+        imu_problem = self._imu_problem()
+        if imu_problem:
+            return StoreCheck(imu_problem)
+        window = window or self._window_trocar()
+        if window.spread_mm > self.limits.max_spread_mm:
+            return StoreCheck(f"the probe moved: the last {needed} fixes spread {window.spread_mm:.1f} mm (limit "
+                              f"{self.limits.max_spread_mm:.1f} mm); hold it still on the node")
+        return self._nearest(window.xyz)
+
+    def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"", right_jpeg=b"",
+              confirmed: bool = False, trigger: str = "") -> IntraopNode:
+        """The median of the store window as node ``node_id``, durable on return, with the camera-frame tip, the mean
+        IMU orientation and the calibration versions it was mapped with. Refused (:class:`StoreRefused`, put on
+        record with ``trigger``, e.g. "F5") as :meth:`check_store` says; :class:`StoreNeedsConfirmation` when a
+        stored node is near and ``confirmed`` is False. Snapshots are JPEG bytes or BGR images."""
+        check = self.check_store()
+        if check.refusal:
+            self.session.log_event("store_refused", reason=check.refusal, trigger=str(trigger), node_id=str(node_id))
+            raise StoreRefused(check.refusal)
+        if check.near is not None and not confirmed:
+            raise StoreNeedsConfirmation(check.question, check.near.id)
+        camera = summarise(np.array([f.camera for f in self._fixes]))
+        trocar = summarise(np.array([f.trocar for f in self._fixes]))
+        orientation = Rotation.from_quat(np.array([f.quat_xyzw for f in self._fixes])).mean().as_matrix()
         node = self.session.add_intraop_node(node_id, label, trocar.xyz, xyz_camera=camera.xyz,
                                              spread_mm=trocar.spread_mm, n_frames=trocar.n_frames, counts=counts,
-                                             left_jpeg=left_jpeg, right_jpeg=right_jpeg)
+                                             left_jpeg=left_jpeg, right_jpeg=right_jpeg, earth_from_imu=orientation,
+                                             stereo_version=self.stereo_version, chain_version=self.chain_version)
+        if check.near is not None:
+            self.session.log_event("store_near_confirmed", node_id=node.id, near=check.near.id,
+                                   distance_mm=round(check.near_mm, 2), trigger=str(trigger))
         self._stored_here.append(node.id)
         return node
 
@@ -120,16 +240,42 @@ class Acquisition:
             raise StoreError("there is no stored node to undo")
         return self.session.remove_intraop_node(target)
 
+    def _imu_problem(self) -> str:
+        """Why the window's trocar positions cannot be trusted for want of an IMU, in words; "" when they can."""
+        if not self.imu_required:
+            return ""
+        readings = [(f.imu_state, f.imu_gap_s) for f in self._fixes]
+        if self._last_imu is not None:
+            readings.append((self._last_imu.state, self._last_imu.gap_s))
+        if any(state == IMU_ABSENT for state, _ in readings):
+            return ("there is no IMU, so the tip cannot be followed into the trocar frame; connect the IMU, "
+                    "or start the session without one (Devices: IMU none)")
+        state, gap = max(readings, key=lambda r: r[1])
+        if gap > self.limits.imu_stale_s:
+            return (f"the IMU is stale: no sample within {gap:.1f} s of a frame (IMU {state}), so the tip cannot be "
+                    "mapped into the trocar frame; reconnect the IMU and store again")
+        return ""
+
+    def _nearest(self, here: np.ndarray) -> StoreCheck:
+        records = self.session.intraop_records()
+        if not records:
+            return StoreCheck("")
+        distances = np.linalg.norm(np.array([r.xyz_trocar for r in records]) - here, axis=1)
+        k = int(np.argmin(distances))
+        if distances[k] > self.limits.duplicate_mm:
+            return StoreCheck("")
+        return StoreCheck("", records[k], float(distances[k]))
+
     def _away_from_stored(self, here: np.ndarray) -> bool:
         """Auto-store rule, for a full and still window with median ``here``: away from every stored node."""
         stored = [node.xyz_trocar for node in self.session.intraop_records()]
         return not stored or float(np.min(np.linalg.norm(np.array(stored) - here, axis=1))) > AUTO_STORE_SEPARATION_MM
 
     def _window_trocar(self):
-        """Median and spread of the full store window in the trocar frame (once per frame); None until full."""
+        """Median and spread of the full store window in the trocar frame; None until full."""
         if len(self._fixes) < self.fixes_per_node:
             return None
-        return summarise(np.array([f[1] for f in self._fixes]))
+        return summarise(np.array([f.trocar for f in self._fixes]))
 
     def _record_imu(self, samples: Sequence[ImuSample]) -> None:
         if not samples:
