@@ -4,6 +4,10 @@ devices and the calibration wizards.
 Why one window: in the operating room the technician records nodes, then registers them against the SPECT
 without leaving the app; offline, the same window reviews a saved session. The window owns the session
 and the rig (demo or hardware) and restarts the acquisition worker whenever either changes.
+
+A calibration applied while nodes are stored is said plainly, with the offer to re-express them under it
+(:mod:`snreg.workflow.chain_change`); closing while recording asks first ("N nodes stored, all saved; end the
+session?"), as an accidental close would end a surgical session.
 """
 
 from __future__ import annotations
@@ -18,13 +22,14 @@ from pathlib import Path
 
 from PySide6.QtCore import QSettings, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, QMainWindow, QTabWidget, QVBoxLayout,
-                               QWidget)
+from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, QMainWindow, QMessageBox, QTabWidget,
+                               QVBoxLayout, QWidget)
 
 from snreg import __version__
 from snreg.demo.rig import DemoRig
 from snreg.session import Session, SessionError
-from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
+from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
+from snreg.workflow.chain_change import calibration_change, id_list, reexpress
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
 from snreg_gui.common.live_link import LiveLinkControl
@@ -39,6 +44,7 @@ from snreg_gui.wizards.launcher import WizardLauncher
 # stalls short (measured with the heartbeat in tests/test_gui_acquisition.py).
 GIL_SWITCH_INTERVAL_S = 0.001
 
+MAX_SPREAD_KEY = "acquisition/max_spread_mm"      # the store guard's spread limit, a setting (default 2 mm)
 NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IMU... for the real rig, "
                "or start with --demo for the simulated one.")
 
@@ -59,6 +65,9 @@ class MainWindow(QMainWindow):
         self._thread = None
         self._waiting_for_frames = False
         self._registration_stale = False
+        self._end_confirmed = False
+        self.close_prompt: QMessageBox | None = None
+        self.calibration_prompt: QMessageBox | None = None
         self.tabs = QTabWidget()
         self._acquisition_tab = QWidget()
         QVBoxLayout(self._acquisition_tab)
@@ -207,8 +216,11 @@ class MainWindow(QMainWindow):
         return self.rig is not None and self.rig.simulated
 
     def pause_acquisition(self) -> None:
-        """Stop the acquisition worker (a wizard needs the cameras); :meth:`restart_acquisition` resumes."""
+        """Stop the acquisition worker (a wizard needs the cameras), saying "paused for calibration";
+        :meth:`restart_acquisition` resumes."""
         self._stop_acquisition()
+        if self.acquisition is not None:
+            self.acquisition.set_paused(True)
 
     def restart_acquisition(self) -> None:
         """After a calibration changed the rig: the worker starts again with it."""
@@ -216,29 +228,71 @@ class MainWindow(QMainWindow):
         self._start_acquisition()
 
     def apply_stereo_calibration(self, calibration) -> None:
-        """Track with ``calibration`` from now on and store it in the session."""
-        self.rig.calibration = calibration
+        """Track with ``calibration`` from now on and store it in the session; stored nodes: say so, offer to
+        re-express them."""
+        previous, self.rig.calibration = self.rig.calibration, calibration
         if self.session is not None:
             self.session.set_calibration(stereo=calibration)
         self.statusBar().showMessage(f"stereo calibration applied: RMS {calibration.rms_reprojection_px:.3f} px, "
                                      f"baseline {calibration.baseline_mm:.2f} mm")
+        self._offer_reexpression(previous)
 
     def apply_chain(self, chain) -> None:
-        """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session)."""
+        """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session); stored
+        nodes: say so, offer to re-express them."""
         self.rig.chain = chain
         self.statusBar().showMessage(f"trocar calibration applied: trocar-camera {chain.trocar_camera_mm:.1f} mm")
+        self._offer_reexpression(self.rig.calibration)
+
+    def _offer_reexpression(self, previous_stereo) -> None:
+        """When stored nodes were mapped with another calibration than the rig's now: say so plainly and offer to
+        re-express them (the session keeps their old values on record)."""
+        session = self.session
+        if session is None or not session.writable:
+            return
+        change = calibration_change(session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
+        if change is None:
+            return
+        box = QMessageBox(QMessageBox.Icon.Warning, "Calibration changed: stored nodes", change.message, parent=self)
+        if change.question:
+            box.setInformativeText(change.question)
+            box.addButton(f"Re-express {id_list(change.movable)}", QMessageBox.ButtonRole.AcceptRole)
+            box.addButton("Keep them as stored", QMessageBox.ButtonRole.RejectRole)
+        else:
+            box.addButton(QMessageBox.StandardButton.Ok)
+        box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo))
+        self.calibration_prompt = box
+        box.open()
+
+    def _reexpression_answered(self, box: QMessageBox, previous_stereo) -> None:
+        self.calibration_prompt = None
+        role = box.buttonRole(box.clickedButton()) if box.clickedButton() is not None else None
+        if role != QMessageBox.ButtonRole.AcceptRole or self.session is None:
+            self.statusBar().showMessage("stored nodes kept as measured: a registration will say it mixes calibrations")
+            return
+        try:
+            moved = reexpress(self.session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
+        except (SessionError, OSError) as err:
+            self.statusBar().showMessage(f"The nodes could not be re-expressed: {err}")
+            return
+        if self.acquisition is not None:
+            self.acquisition.set_nodes(self.session.intraop_records())
+        self._nodes_changed()
+        self.statusBar().showMessage(f"re-expressed {id_list(moved)} under the new calibration; their old positions "
+                                     "stay on record in the session")
 
     def _start_acquisition(self) -> None:
         if self.rig is None or self.session is None:
             self._show_placeholder(NO_RIG_TEXT if self.rig is None else "No session: File > New session...")
             return
-        self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node)
+        limits = StoreLimits(max_spread_mm=float(self.settings.value(MAX_SPREAD_KEY, StoreLimits.max_spread_mm)))
+        self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm)
         self.acquisition.set_nodes(self.session.intraop_records())
         self.registration.missing_changed.connect(self.acquisition.show_missing)
         self.acquisition.show_missing(self.registration.missing_nodes)
         self._show_in_acquisition_tab(self.acquisition)
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
-                                        self.rig.imu, self.session, self.rig.fps, self.fixes_per_node)
+                                        self.rig.imu, self.session, self.rig.fps, self.fixes_per_node, limits)
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
         self.worker.frame_processed.connect(self.acquisition.show_result, queued)
         self.worker.node_stored.connect(self.acquisition.add_node, queued)
@@ -246,6 +300,9 @@ class MainWindow(QMainWindow):
         self.worker.node_stored.connect(self._nodes_changed, queued)
         self.worker.node_removed.connect(self._nodes_changed, queued)
         self.worker.store_failed.connect(self.acquisition.show_store_problem, queued)
+        self.worker.store_confirm.connect(self.acquisition.ask_to_confirm, queued)
+        self.acquisition.max_spread_changed.connect(self.worker.set_max_spread, queued)
+        self.acquisition.max_spread_changed.connect(lambda mm: self.settings.setValue(MAX_SPREAD_KEY, mm))
         self.worker.source_stopped.connect(self.statusBar().showMessage, queued)
         self.acquisition.store_requested.connect(self.worker.store_node, queued)
         self.acquisition.undo_requested.connect(self.worker.undo, queued)
@@ -322,8 +379,34 @@ class MainWindow(QMainWindow):
         self.tabs.setCurrentIndex(int(self.settings.value("window/tab", 0)))
 
     def closeEvent(self, event) -> None:
+        """While recording, ask first (:attr:`close_prompt`); the window closes when the technician says yes."""
+        if self._recording() and not self._end_confirmed:
+            event.ignore()
+            self._ask_to_end()
+            return
         self.shutdown()
         super().closeEvent(event)
+
+    def _recording(self) -> bool:
+        return self.session is not None and self.session.writable and self.rig is not None
+
+    def _ask_to_end(self) -> None:
+        if self.close_prompt is not None:
+            return
+        n = len(self.session.intraop_records())
+        box = QMessageBox(QMessageBox.Icon.Question, "End the session?",
+                          f"{n} node{'' if n == 1 else 's'} stored, all saved; end the session?", parent=self)
+        end = box.addButton("End the session", QMessageBox.ButtonRole.AcceptRole)
+        box.setDefaultButton(box.addButton("Keep recording", QMessageBox.ButtonRole.RejectRole))
+        box.finished.connect(lambda _: self._end_answered(box.clickedButton() is end))
+        self.close_prompt = box
+        box.open()
+
+    def _end_answered(self, end: bool) -> None:
+        self.close_prompt = None
+        if end:
+            self._end_confirmed = True
+            self.close()
 
     def shutdown(self) -> None:
         """Remember the layout, stop the worker, then the devices, and close the session file; safe to call twice."""

@@ -106,15 +106,19 @@ def test_auto_store_stores_a_node_once_the_probe_is_held_still(qtbot, demo_windo
     assert sorted(nearest) == list(range(len(tips)))
 
 
-def test_store_is_disabled_with_a_reason_until_enough_fixes(qtbot, demo_window):
+def test_a_store_before_enough_fixes_is_refused_in_words_and_on_record(qtbot, demo_window):
     window, _ = demo_window
     screen = window.acquisition
-    assert not screen.store_button.isEnabled()
-    qtbot.waitUntil(lambda: "collecting fixes" in screen.store_reason.text() or screen.store_button.isEnabled(),
+    assert not screen.store_button.isEnabled()                       # no frame yet: nothing to ask the worker
+    qtbot.waitUntil(lambda: "collecting fixes" in screen.store_reason.text() or "ready" in screen.store_reason.text(),
                     timeout=30_000)
     screen.fixes_spin.setValue(500)      # more than the worker can have yet
-    assert not screen.store_button.isEnabled()
-    assert "of 500" in screen.store_reason.text()
+    assert "collecting fixes" in screen.store_reason.text() and "of 500" in screen.store_reason.text()
+    qtbot.mouseClick(screen.store_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: screen.store_status.text().startswith("Refused (button): only"), timeout=5_000)
+    assert "of 500 valid fixes so far; hold the probe on the node" in screen.store_status.text()
+    [event] = window.session.events("store_refused")
+    assert event["trigger"] == "button" and "of 500 valid fixes" in event["reason"]
 
 
 class StillImu:
@@ -134,8 +138,8 @@ def test_store_disabled_with_the_tracking_reason_and_stale_feed_flagged(qtbot):
     screen = AcquisitionScreen(StillImu(), fixes_per_node=5)
     qtbot.addWidget(screen)
     screen.show_result(frame_without_fix("no probe stripe found in the left image"))
-    assert not screen.store_button.isEnabled()
-    assert "no probe stripe found in the left image" in screen.store_reason.text()
+    assert screen.store_reason.text() == ("not ready: collecting fixes, 0 of 5 (no valid fix: no probe stripe found "
+                                          "in the left image)")
     qtbot.waitUntil(lambda: "no fix (no probe stripe found in the left image)" in screen.tip_trocar.text(), timeout=1_000)
     qtbot.waitUntil(lambda: "STALE" in screen.video_health.text(), timeout=3_000)     # no frame for over 1 s
     assert screen.store_reason.text().startswith("no frames for") and not screen.store_button.isEnabled()

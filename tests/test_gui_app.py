@@ -18,7 +18,7 @@ from snreg.imu.monitor import ImuSnapshot
 from snreg.probe import default_probe_model
 from snreg.rig import RigConfig
 from snreg.session import Session
-from snreg.workflow.acquisition import FrameOutcome
+from snreg.workflow.acquisition import FrameOutcome, StoreCheck
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow
@@ -165,7 +165,7 @@ def ready_result(fixes: int) -> FrameResult:
     from snreg.tracking import ProbeFix
     fix = ProbeFix(np.array([0.0, 0.0, 90.0]), np.array([0.0, 0.0, 120.0]), np.array([0.0, 0.0, 1.0]), 1.0,
                    "triangulation", 3)
-    outcome = FrameOutcome(0, fix, "", np.array([0.0, 0.0, 248.0]), fixes, 0.2, True, False, 5.0)
+    outcome = FrameOutcome(0, fix, "", np.array([0.0, 0.0, 248.0]), fixes, 0.2, True, False, 5.0, StoreCheck(""))
     rgb = np.zeros((54, 96, 3), np.uint8)
     return FrameResult(outcome, rgb, rgb, None, None, LevelImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
 
@@ -182,7 +182,7 @@ def test_foot_pedal_and_undo_keys(qtbot):
     assert screen.store_button.isEnabled() and "held still" in screen.store_reason.text()
     with qtbot.waitSignal(screen.store_requested) as stored:
         qtbot.keyClick(screen, Qt.Key.Key_F5)                                  # what a USB foot pedal sends
-    assert stored.args == [StoreRequest("EXT L", 1520.0)]
+    assert stored.args == [StoreRequest("EXT L", 1520.0, "F5")]
     assert not screen.store_button.isEnabled() and screen.store_reason.text() == "storing..."
     with qtbot.assertNotEmitted(screen.undo_requested):
         qtbot.keyClick(screen, Qt.Key.Key_Z, Qt.KeyboardModifier.ControlModifier)   # nothing stored yet

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import functools
+import os
 import threading
 import time
 from pathlib import Path
@@ -32,7 +33,7 @@ from snreg import __version__
 from snreg.chain import ChainCalibration
 from snreg.nodes import NodeSet
 from snreg.session import reader, writer
-from snreg.session.journal import Journal, journal_path, read_journal
+from snreg.session.journal import Journal, fsync_directory, journal_path, read_journal
 from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, StoredRegistration,
                                   calibration_version, jpeg_bytes, position_mm, stereo_from_dict, stereo_to_dict,
                                   validate_case_id)
@@ -74,11 +75,17 @@ class Session:
                   "snreg_version": __version__}
         if path.exists() or journal_path(path).exists():
             raise SessionError(f"{path}: a session (or its journal) already exists there; choose a new file name")
-        journal = Journal(journal_path(path))
-        journal.append("session", header)
-        h5 = h5py.File(path, "w")
-        writer.init_file(h5, header)
-        h5.flush()
+        # A kill at any moment leaves nothing, a journal holding the header (opens, empty; 'recover' writes the
+        # file), or both files whole: each is built under a temporary name and renamed into place.
+        journal = Journal.start(journal_path(path), "session", header)
+        building = path.with_name(f".{path.name}.creating")
+        with h5py.File(building, "w") as h5:
+            writer.init_file(h5, header)
+        with open(building, "rb+") as file:
+            os.fsync(file.fileno())
+        os.replace(building, path)
+        fsync_directory(path.parent)
+        h5 = h5py.File(path, "r+")
         session = cls(path, header, h5, journal, damaged=False)
         session._buffers = {name: writer.StreamBuffer(h5, name, stream_flush_s) for name in STREAM_DTYPES}
         return session

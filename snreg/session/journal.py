@@ -29,21 +29,43 @@ class JournalEntries:
     damaged: int
 
 
+def fsync_directory(path: str | Path) -> None:
+    """Make the names in ``path`` (a folder) durable: a new or renamed file survives a crash under its name."""
+    directory = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def _line(kind: str, data: dict) -> bytes:
+    payload = json.dumps({"kind": kind, "data": data}, separators=(",", ":"), allow_nan=True).encode("utf-8")
+    return b"%08x " % zlib.crc32(payload) + payload + b"\n"
+
+
 class Journal:
     """An append-only journal; :meth:`append` returns once the line is on disk (fsync)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self._file = open(self.path, "ab")
-        directory = os.open(self.path.parent, os.O_RDONLY)   # make the new file's name durable too
-        try:
-            os.fsync(directory)
-        finally:
-            os.close(directory)
+        fsync_directory(self.path.parent)
+
+    @classmethod
+    def start(cls, path: str | Path, kind: str, data: dict) -> "Journal":
+        """A new journal whose first line is already on disk: written under a temporary name, then renamed, so a
+        kill at any moment leaves either no journal or one that begins with this entry."""
+        path = Path(path)
+        partial = path.with_name(f".{path.name}.creating")
+        with open(partial, "wb") as file:
+            file.write(_line(kind, data))
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(partial, path)
+        return cls(path)
 
     def append(self, kind: str, data: dict) -> None:
-        payload = json.dumps({"kind": kind, "data": data}, separators=(",", ":"), allow_nan=True).encode("utf-8")
-        self._file.write(b"%08x " % zlib.crc32(payload) + payload + b"\n")
+        self._file.write(_line(kind, data))
         self._file.flush()
         os.fsync(self._file.fileno())
 

@@ -9,7 +9,7 @@ if the technician changes them while it runs. No widgets here.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +18,7 @@ from snreg.nodes import NodeSet, write_nodes
 from snreg.registration import RegistrationResult, register
 from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
 from snreg.session import Session, SessionError
+from snreg.workflow.chain_change import mixed_calibration_note
 
 # kind: (name, file dialog filter, suffix added when the chosen name ends in none of the accepted ones)
 EXPORTS = {"pairs": ("pairing CSV", "CSV (*.csv)", (".csv",)),
@@ -52,7 +53,18 @@ class RunRecord:
 
 
 def run_registration(request: RunRequest) -> RunRecord:
-    """Register (worker thread); store the preop set and the result when the request carries a session."""
+    """Register (worker thread); store the preop set and the result when the request carries a session. When the
+    session's nodes registered were mapped with different calibrations, the note says so first (issue 12: never
+    mix two frames silently)."""
+    record = _run(request)
+    if request.session is None:
+        return record
+    stored = {node.id: node for node in request.session.intraop_records()}
+    mixed = mixed_calibration_note([stored[i] for i in request.intraop.ids if i in stored])
+    return replace(record, note=f"{mixed} {record.note}".strip()) if mixed else record
+
+
+def _run(request: RunRequest) -> RunRecord:
     labels = (request.preop.labels, request.intraop.labels) if request.use_labels else (None, None)
     result = register(request.preop.xyz, request.intraop.xyz, method=request.method, preop_labels=labels[0],
                       intraop_labels=labels[1], initial=request.initial,

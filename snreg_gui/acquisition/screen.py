@@ -1,8 +1,13 @@
 """The acquisition screen: both feeds with the probe overlay, stream health, IMU plot, trocar tip, Store SN, nodes.
 
 Why: the technician's one view while stored nodes are collected. It only displays what the
-:class:`AcquisitionWorker` emits and forwards requests (store, undo, window size) back to it; nothing is
-computed here. Auto-store only presses Store SN for the technician when the worker says its rule holds.
+:class:`AcquisitionWorker` emits and forwards requests (store, undo, window size, spread limit) back to it; nothing
+is computed here. Auto-store only presses Store SN for the technician when the worker says its rule holds.
+
+Store SN (button, Space, F5 alike) stays pressable while frames arrive: the core decides, and a refusal comes back
+in words (red, with a beep for a foot pedal that cannot see the screen) and goes on record in the session; the
+ready line says beforehand what a press would meet. A store near a stored node asks first, naming it.
+While a calibration wizard holds the cameras the screen says "paused for calibration", not that the feed died.
 """
 
 from __future__ import annotations
@@ -11,11 +16,12 @@ import time
 
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
-from PySide6.QtWidgets import (QCheckBox, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit,
-                               QPushButton, QSizePolicy, QSpinBox, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QApplication, QCheckBox, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox,
+                               QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QSizePolicy, QSpinBox,
+                               QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
-from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
+from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg.workflow.guidance import guidance_line, targets_text
 from snreg_gui.acquisition.orientation_plot import OrientationPlot
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
@@ -26,6 +32,8 @@ UNDO_SHORTCUT = "Ctrl+Z"
 DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
 PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
 _NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread mm", "frames")
+PAUSED_TEXT = "paused for calibration: the wizard has the cameras; acquisition resumes when it closes"
+_WARN, _BAD, _GOOD, _PAUSED = "color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400", "color: #1f4e9e"
 
 
 def _status_label(text: str) -> QLabel:
@@ -37,20 +45,42 @@ def _status_label(text: str) -> QLabel:
     return label
 
 
+def _style(label: QLabel, style: str) -> None:
+    """Set a label's style sheet only when it changes (a style change per frame would cost the GUI thread)."""
+    if label.styleSheet() != style:
+        label.setStyleSheet(style)
+
+
+def _wrapped_label(lines: int) -> QLabel:
+    """A status label that wraps over a fixed ``lines`` lines: long reasons are read whole, and the layout never
+    moves when the text changes."""
+    label = QLabel("")
+    label.setWordWrap(True)
+    label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
+    label.setMinimumWidth(200)
+    label.setFixedHeight(label.fontMetrics().lineSpacing() * lines + 4)
+    return label
+
+
 class AcquisitionScreen(QWidget):
-    """Emits ``store_requested(StoreRequest)``, ``undo_requested()`` and ``fixes_per_node_changed(int)``; fed by
-    :meth:`show_result`, :meth:`add_node`, :meth:`remove_node`."""
+    """Emits ``store_requested(StoreRequest)``, ``undo_requested()``, ``fixes_per_node_changed(int)`` and
+    ``max_spread_changed(float)``; fed by :meth:`show_result`, :meth:`add_node`, :meth:`remove_node`,
+    :meth:`show_store_problem`, :meth:`ask_to_confirm` and :meth:`set_paused`."""
 
     store_requested = Signal(object)
     undo_requested = Signal()
     fixes_per_node_changed = Signal(int)
+    max_spread_changed = Signal(float)
 
-    def __init__(self, imu: ImuMonitor, fixes_per_node: int = THESIS_FIXES_PER_NODE):
+    def __init__(self, imu: ImuMonitor, fixes_per_node: int = THESIS_FIXES_PER_NODE,
+                 max_spread_mm: float = StoreLimits.max_spread_mm):
         super().__init__()
         self._imu = imu
         self._last_result: FrameResult | None = None
         self._last_arrival_ns: int | None = None
         self._store_pending = False
+        self._paused = ""
+        self.confirm_box: QMessageBox | None = None
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
         self.video_health, self.imu_health = _status_label("video: waiting"), _status_label("IMU: waiting")
@@ -63,8 +93,8 @@ class AcquisitionScreen(QWidget):
         self.guidance = _status_label("")
         self._missing: list = []
         self.store_button = QPushButton("Store SN")
-        self.store_reason = _status_label("waiting for the first frame")
-        self.store_status = _status_label("")
+        self.store_reason = _wrapped_label(3)
+        self.store_status = _wrapped_label(3)
         self.undo_button = QPushButton("Undo last node")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
@@ -76,12 +106,16 @@ class AcquisitionScreen(QWidget):
         self.fixes_spin = QSpinBox()
         self.fixes_spin.setRange(1, 600)
         self.fixes_spin.setValue(fixes_per_node)
+        self.spread_spin = QDoubleSpinBox(decimals=1, minimum=0.1, maximum=50.0, singleStep=0.5, suffix=" mm")
+        self.spread_spin.setValue(max_spread_mm)
+        self.spread_spin.setToolTip("a store whose fixes spread more than this is refused (the probe moved)")
         self.nodes = QTableWidget(0, len(_NODE_COLUMNS))
         self.nodes.setHorizontalHeaderLabels(_NODE_COLUMNS)
         self._layout()
-        self.store_button.clicked.connect(self.request_store)
+        self.store_button.clicked.connect(lambda: self.request_store("button"))
         for key in STORE_SHORTCUTS:
-            QShortcut(QKeySequence(key), self, activated=self.request_store)
+            QShortcut(QKeySequence(key), self, activated=lambda key=key: self.request_store(key))
+        self.spread_spin.valueChanged.connect(self.max_spread_changed)
         self.undo_button.clicked.connect(self.request_undo)
         QShortcut(QKeySequence(UNDO_SHORTCUT), self, activated=self.request_undo)
         self.fixes_spin.valueChanged.connect(self.fixes_per_node_changed)
@@ -103,6 +137,7 @@ class AcquisitionScreen(QWidget):
         form.addRow("label", self.label_edit)
         form.addRow("counts", self.counts_edit)
         form.addRow("fixes per node", self.fixes_spin)
+        form.addRow("spread limit", self.spread_spin)
         form.addRow(self.auto_store)
         form.addRow(self.store_button)
         form.addRow(self.store_reason)
@@ -130,7 +165,7 @@ class AcquisitionScreen(QWidget):
         self._update_store_state()
         outcome = result.outcome
         if self.auto_store.isChecked() and outcome.auto_store_due and self.store_button.isEnabled():
-            self.request_store()
+            self.request_store("auto")
 
     def _draw(self) -> None:
         """Draw the newest result, if any came since the last tick; older ones are skipped, so a slow paint
@@ -171,7 +206,7 @@ class AcquisitionScreen(QWidget):
         self._store_pending = False
         self._append_row(node)
         self.undo_button.setEnabled(True)
-        self.store_status.setText(f"stored {node.id} (spread {node.spread_mm:.2f} mm over {node.n_frames} fixes)")
+        self._say(f"stored {node.id} (spread {node.spread_mm:.2f} mm over {node.n_frames} fixes)", _GOOD)
         self._update_store_state()
 
     def remove_node(self, node) -> None:
@@ -181,7 +216,7 @@ class AcquisitionScreen(QWidget):
                 self.nodes.removeRow(row)
                 break
         self.undo_button.setEnabled(self.nodes.rowCount() > 0)
-        self.store_status.setText(f"undone: {node.id} (kept on record in the session journal)")
+        self._say(f"undone: {node.id} (kept on record in the session journal)", "")
 
     def _append_row(self, node) -> None:
         row = self.nodes.rowCount()
@@ -197,50 +232,96 @@ class AcquisitionScreen(QWidget):
         self.link_health.setVisible(bool(text))
 
     def show_store_problem(self, message: str) -> None:
+        """A store refused or failed: the reason in red, and a beep (a foot pedal does not look at the screen)."""
         self._store_pending = False
-        self.store_status.setText(message)
+        self._say(message, _BAD)
+        QApplication.beep()
+        self._update_store_state()
+
+    def ask_to_confirm(self, question: str, request: StoreRequest) -> None:
+        """A store near a stored node: ask (the question names it); yes sends the request again, confirmed."""
+        self._store_pending = False
+        self._update_store_state()
+        box = QMessageBox(QMessageBox.Icon.Question, "Store SN near a stored node", question,
+                          QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, self)
+        box.setDefaultButton(QMessageBox.StandardButton.No)
+        box.finished.connect(lambda answer: self._confirmed(answer, request))
+        self.confirm_box = box
+        box.open()
+
+    def _confirmed(self, answer: int, request: StoreRequest) -> None:
+        self.confirm_box = None
+        if answer == QMessageBox.StandardButton.Yes:
+            self._store_pending = True
+            self._set_store_enabled(False, "storing...")
+            self.store_requested.emit(request.confirm())
+        else:
+            self._say("Not stored: you chose not to store a node so close to a stored one.", _WARN)
+
+    def set_paused(self, paused: bool) -> None:
+        """Say "paused for calibration" (a wizard holds the cameras) instead of a stale feed; Store SN waits."""
+        self._paused = PAUSED_TEXT if paused else ""
+        self._show_health()
         self._update_store_state()
 
     # -- Store SN ------------------------------------------------------------
-    def request_store(self) -> None:
+    def request_store(self, trigger: str = "button") -> None:
+        """Ask the worker to store (``trigger``: "button", "Space", "F5" or "auto"); when nothing can be asked now
+        (no frames, paused, a store pending) say so in red."""
         if not self.store_button.isEnabled():
+            if trigger != "auto":
+                self.show_store_problem(f"Not stored ({trigger}): {self.store_button.toolTip()}.")
             return
         counts = self.counts_edit.text().strip()
         try:
             counts_value = float(counts) if counts else float("nan")
         except ValueError:
-            self.store_status.setText("Gamma counts must be a number; correct it or leave it empty.")
+            self._say("Gamma counts must be a number; correct it or leave it empty.", _BAD)
             return
         self._store_pending = True
         self._set_store_enabled(False, "storing...")
-        self.store_requested.emit(StoreRequest(self.label_edit.text().strip(), counts_value))
+        self.store_requested.emit(StoreRequest(self.label_edit.text().strip(), counts_value, trigger))
+
+    def _say(self, text: str, style: str) -> None:
+        self.store_status.setText(text)
+        self.store_status.setToolTip(text)
+        _style(self.store_status, style)
 
     def request_undo(self) -> None:
         if self.undo_button.isEnabled():
             self.undo_requested.emit()
 
     def _update_store_state(self) -> None:
+        """The button is pressable whenever frames arrive (the core answers every press); the ready line says what a
+        press would meet, in the core's words."""
         outcome, needed = (self._last_result.outcome if self._last_result else None), self.fixes_spin.value()
-        if self._store_pending:
+        if self._paused:
+            self._set_store_enabled(False, "paused for calibration", _PAUSED)
+        elif self._store_pending:
             self._set_store_enabled(False, "storing...")
         elif outcome is None:
             self._set_store_enabled(False, "waiting for the first frame")
         elif self._feed_age_s() > STALE_AFTER_S:
-            self._set_store_enabled(False, f"no frames for {self._feed_age_s():.0f} s: check the cameras")
-        elif outcome.fix is None:
-            self._set_store_enabled(False, f"no valid fix: {outcome.reason}")
+            self._set_store_enabled(False, f"no frames for {self._feed_age_s():.0f} s: check the cameras", _BAD)
         elif outcome.valid_fixes < needed:
-            self._set_store_enabled(False, f"collecting fixes: {outcome.valid_fixes} of {needed}")
+            self._set_store_enabled(True, f"not ready: collecting fixes, {outcome.valid_fixes} of {needed}"
+                                          + ("" if outcome.fix is not None else f" (no valid fix: {outcome.reason})"),
+                                    _WARN)
+        elif outcome.store_check.refusal:
+            self._set_store_enabled(True, f"not ready: {outcome.store_check.refusal}", _WARN)
         else:
-            state = "held still" if outcome.still else "MOVING: hold the probe still on the node"
+            state = "held still" if outcome.still else "within the limit, not quite still"
+            near = outcome.store_check
+            ask = f"; {near.near.id} is {near.near_mm:.1f} mm away: you will be asked" if near.near is not None else ""
             self._set_store_enabled(True, f"ready: median of the last {needed} fixes, spread "
-                                          f"{outcome.window_spread_mm:.1f} mm ({state})")
+                                          f"{outcome.window_spread_mm:.1f} mm ({state}){ask}", _GOOD)
 
-    def _set_store_enabled(self, enabled: bool, reason: str) -> None:
+    def _set_store_enabled(self, enabled: bool, reason: str, style: str = "") -> None:
         self.store_button.setEnabled(enabled)
         self.store_button.setToolTip(reason)
         self.store_reason.setText(reason)
         self.store_reason.setToolTip(reason)
+        _style(self.store_reason, style)
 
     # -- health --------------------------------------------------------------
     def _feed_age_s(self) -> float:
@@ -250,7 +331,9 @@ class AcquisitionScreen(QWidget):
         if self._last_result is not None:
             self._update_store_state()           # a feed that stopped disables Store SN
         result = self._last_result
-        if result is None:
+        if self._paused:
+            self.video_health.setText(f"video: {self._paused}")
+        elif result is None:
             self.video_health.setText("video: waiting for frames")
         else:
             age_s = self._feed_age_s()
@@ -261,5 +344,5 @@ class AcquisitionScreen(QWidget):
         stale = "  STALE" if imu.stale else ""
         problem = f" ({imu.problem})" if imu.problem else ""
         self.imu_health.setText(f"IMU: {imu.state}, {imu.rate_hz:.0f} Hz, {imu.corrupt} corrupt{stale}{problem}")
-        self.video_health.setStyleSheet("color: red" if "STALE" in self.video_health.text() else "")
-        self.imu_health.setStyleSheet("color: red" if imu.stale else "")
+        _style(self.video_health, _PAUSED if self._paused else "color: red" if "STALE" in self.video_health.text() else "")
+        _style(self.imu_health, "color: red" if imu.stale else "")

@@ -3,14 +3,16 @@
 Why: capture, tracking and session writes must never run on the GUI thread (DESIGN.md §5). The worker
 lives in its own QThread, paced by a timer there; every frame ends as one :class:`FrameResult` signal,
 and "Store SN" and undo requests arrive as queued slot calls between frames, so a node is the median
-of fixes this worker itself kept. Connect the signals before :func:`start_worker`.
+of fixes this worker itself kept. The core decides whether a store is refused (said in ``store_failed``) or
+must be confirmed first (``store_confirm``: the question naming the near node, and the request to send back with
+``confirmed=True``). Connect the signals before :func:`start_worker`.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from PySide6.QtCore import QCoreApplication, QMetaObject, QObject, Qt, QThread, QTimer, Signal, Slot
@@ -19,8 +21,9 @@ from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.session import Session, SessionError
-from snreg.sources import FrameSource, SourceError
-from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError
+from snreg.sources import FrameSource, SourceError, SourceState
+from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading,
+                                        StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
 
 _AXIS_DRAWN_MM = 50.0
@@ -48,10 +51,17 @@ class FrameResult:
 
 @dataclass(frozen=True)
 class StoreRequest:
-    """Store SN as asked for on screen; the id is the session's next free ``SN<k>``."""
+    """Store SN as asked for on screen; the id is the session's next free ``SN<k>``. ``trigger``: what asked
+    ("button", "Space", "F5", "auto"), kept on record with a refusal; ``confirmed``: the technician said yes to
+    storing near a stored node."""
 
     label: str
     counts: float = float("nan")
+    trigger: str = "button"
+    confirmed: bool = False
+
+    def confirm(self) -> "StoreRequest":
+        return replace(self, confirmed=True)
 
 
 class AcquisitionWorker(QObject):
@@ -61,14 +71,15 @@ class AcquisitionWorker(QObject):
     node_stored = Signal(object)         # snreg.session.IntraopNode
     node_removed = Signal(object)        # snreg.session.IntraopNode taken back by undo
     store_failed = Signal(str)           # one sentence saying what to do
+    store_confirm = Signal(str, object)  # the question naming the near node, the StoreRequest to confirm
     source_stopped = Signal(str)         # the source's problem
 
     def __init__(self, make_source: Callable[[], FrameSource], calibration: StereoCalibration, probe,
                  chain: ChainCalibration, imu: ImuMonitor, session: Session, fps: float,
-                 fixes_per_node: int = THESIS_FIXES_PER_NODE):
+                 fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits()):
         super().__init__()
         self._make_source, self._imu, self._fps = make_source, imu, fps
-        self._setup = (calibration, probe, chain, session, fixes_per_node)
+        self._setup = (calibration, probe, chain, session, fixes_per_node, limits)
         self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
         self._timer: QTimer | None = None
@@ -78,8 +89,16 @@ class AcquisitionWorker(QObject):
 
     @Slot()
     def start(self) -> None:
-        calibration, probe, chain, session, fixes = self._setup
-        self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes)
+        calibration, probe, chain, session, fixes, limits = self._setup
+        without_imu = self._imu.snapshot().state == IMU_ABSENT      # no IMU port chosen in the device dialog
+        self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes, limits=limits,
+                                       imu_required=not without_imu)
+        try:
+            session.log_event("acquisition_started", imu="none (chosen)" if without_imu else "required",
+                              stereo_version=self.acquisition.stereo_version,
+                              chain_version=self.acquisition.chain_version, max_spread_mm=limits.max_spread_mm)
+        except (SessionError, OSError) as err:
+            self.store_failed.emit(f"The session cannot be written: {err}")
         try:
             self._source = self._make_source()
         except (SourceError, OSError, ValueError) as err:
@@ -105,13 +124,27 @@ class AcquisitionWorker(QObject):
         if self.acquisition is not None:
             self.acquisition.set_fixes_per_node(n)
 
+    @Slot(float)
+    def set_max_spread(self, mm: float) -> None:
+        """Refuse stores whose window spreads over ``mm`` from now on (the app's setting)."""
+        if self.acquisition is not None:
+            self.acquisition.set_max_spread(mm)
+
     @Slot(object)
     def store_node(self, request: StoreRequest) -> None:
-        """Median and spread of the store window into the session (durable on return), with the last frame as snapshots."""
+        """Median and spread of the store window into the session (durable on return), with the last frame as
+        snapshots; or the refusal in words, or the question to confirm."""
         left, right = (self._last_frame.left, self._last_frame.right) if self._last_frame is not None else (b"", b"")
         try:
             node = self.acquisition.store(self.acquisition.session.next_node_id(), request.label,
-                                          counts=request.counts, left_jpeg=left, right_jpeg=right)
+                                          counts=request.counts, left_jpeg=left, right_jpeg=right,
+                                          confirmed=request.confirmed, trigger=request.trigger)
+        except StoreNeedsConfirmation as err:
+            self.store_confirm.emit(str(err), request)
+            return
+        except StoreRefused as err:
+            self.store_failed.emit(f"Refused ({request.trigger}): {err}.")
+            return
         except StoreError as err:
             self.store_failed.emit(f"Not stored: {err}.")
             return
@@ -133,6 +166,8 @@ class AcquisitionWorker(QObject):
     @Slot()
     def _step(self) -> None:
         frame = self._source.read()
+        if frame is None and self._source.state is SourceState.OPEN:
+            return                               # none this tick (a camera that missed a grab)
         if frame is None:
             self._timer.stop()
             self.source_stopped.emit(self._source.problem)
@@ -143,7 +178,7 @@ class AcquisitionWorker(QObject):
             self._fps_measured = instant if self._fps_measured == 0 else 0.9 * self._fps_measured + 0.1 * instant
         self._last_ns, self._last_frame = now, frame
         imu = self._imu.snapshot()
-        outcome = self.acquisition.process(frame, ImuReading(imu.earth_from_imu, self._imu.take_samples()))
+        outcome = self.acquisition.process(frame, ImuReading.at_frame(self._imu, frame))
         overlay_left = overlay_right = None
         if outcome.fix is not None:
             drawn = np.array([outcome.fix.tip, outcome.fix.tip + _AXIS_DRAWN_MM * outcome.fix.axis])

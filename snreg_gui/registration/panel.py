@@ -30,6 +30,7 @@ from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHODS
 from snreg.registration.report import mapped_preop, missing_nodes, pair_rows, summary_line
+from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
 from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
 from snreg_gui.common.node_views import NodeScene, make_node_view
@@ -230,7 +231,10 @@ class RegistrationPanel(QWidget):
         """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""
         if self._session is not None:
             nodes = self._session.intraop_nodes()
-            self._set_intraop(nodes, f"{_count(nodes)} from session {self._session.case_id}")
+            mixed = mixed_calibration_note(self._session.intraop_records())
+            self._set_intraop(nodes, f"{_count(nodes)} from session {self._session.case_id}"
+                                     + (" - MAPPED WITH MIXED CALIBRATIONS" if mixed else ""))
+            self.intraop_source.setToolTip(mixed)
 
     def set_intraop_nodes(self, nodes: NodeSet) -> None:
         """Use these intraop nodes (trocar frame, mm)."""
