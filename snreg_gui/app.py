@@ -345,7 +345,7 @@ class MainWindow(QMainWindow):
             self.worker = None
 
     def _first_frame(self) -> None:
-        if not self._waiting_for_frames:
+        if not self._waiting_for_frames or self.session is None:     # a frame queued before the session ended
             return
         self._waiting_for_frames = False
         self.statusBar().showMessage("demo mode: no hardware" if self.demo else f"recording into {self.session.path}")

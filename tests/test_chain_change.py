@@ -6,9 +6,11 @@ from scipy.spatial.transform import Rotation
 
 from snreg.camera import StereoCalibration, thesis_calibration
 from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.nodes import NodeSet
 from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 from snreg.workflow.chain_change import calibration_change, mixed_calibration_note, reexpress, retriangulate
+from snreg.workflow.registration_run import RunRequest, run_registration
 
 SEED = 1212
 
@@ -113,3 +115,19 @@ def test_a_registration_over_two_calibrations_is_named():
     assert note == ("These nodes were mapped with 2 different calibrations (SN1 and SN2 under stereo 5e5e5e5e, chain "
                     "c0c0c0c0; SN3 under stereo 5e5e5e5e, chain 0badc0de): a registration mixes two frames; re-express "
                     "the older nodes (Acquisition) or undo them first.")
+
+
+def test_a_registration_run_on_mixed_nodes_says_so_first(tmp_path):
+    rng = np.random.default_rng(SEED)
+    stereo = thesis_calibration()
+    with Session.create(tmp_path / "s.h5", case_id="chain-3") as session:
+        _store_nodes(session, stereo, ChainCalibration.manual(), rng, n=3)
+        camera = np.array([5.0, 5.0, 100.0])
+        session.add_intraop_node("SN4", "", camera_to_trocar(_pivoted_chain(), np.eye(3), camera), xyz_camera=camera,
+                                 earth_from_imu=np.eye(3), stereo_version=_versions(stereo, _pivoted_chain())[0],
+                                 chain_version=_versions(stereo, _pivoted_chain())[1])
+        intraop = session.intraop_nodes()
+        preop = NodeSet(["P1", "P2", "P3", "P4"], [""] * 4, intraop.xyz + 1.0, frame="LPS")
+        record = run_registration(RunRequest(preop, intraop, "icp", False, np.eye(4), 60.0, 60.0, session=session))
+    assert record.note.startswith("These nodes were mapped with 2 different calibrations (SN1, SN2 and SN3 under ")
+    assert record.note.endswith("Stored in the session as registration 0.")
