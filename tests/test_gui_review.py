@@ -42,7 +42,7 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     path, truth = recorded
     _load(qtbot, screen, path)
     header = screen.header.text()
-    assert str(path) in header and "case review-01" in header and "format version 1" in header
+    assert str(path) in header and "case review-01" in header and "format version 2" in header
     assert f"stereo RMS {STEREO_RMS_PX:.2f} px" in header and "IMU-trocar 460.0 mm, trocar-camera 158.0 mm" in header
     assert "DAMAGED" not in header and "1 gap, longest 0.53 s" in header
     table = screen.node_table
@@ -91,6 +91,26 @@ def test_timelines_show_fused_yaw_node_markers_and_frames(qtbot, screen, recorde
     assert gap_x == pytest.approx(edges)             # one red bar from the last frame before the gap to the next
     tip_t, tip_y = timelines.tip_curves[1].getOriginalDataset()
     assert tip_y == pytest.approx(2 * (tip_t - CAMERA_LAG_S), abs=1e-4)
+
+
+def test_a_recording_gap_is_drawn_as_a_gap(qtbot, screen, tmp_path):
+    """Acquisition paused 60 s (a calibration): the tip and angle curves break there instead of bridging it."""
+    from snreg.session import Session
+    t = np.concatenate([np.arange(60) / 30, 62.0 + np.arange(60) / 30])
+    t_imu = np.concatenate([np.arange(416) / 208, 62.0 + np.arange(416) / 208])
+    host, host_imu = (np.round(1e12 + v * 1e9).astype(np.int64) for v in (t, t_imu))
+    with Session.create(tmp_path / "gap.h5", case_id="gap-1", stream_flush_s=0) as s:
+        s.append_imu(host_imu, (t_imu * 1e9).astype(np.int64), np.tile([0.0, 0.0, 1.0], (len(t_imu), 1)),
+                     np.zeros((len(t_imu), 3)))
+        s.append_probe(host, host, np.column_stack([t, t, t]), np.zeros((len(t), 3)), np.tile([0, 0, 1.0], (len(t), 1)),
+                       np.ones(len(t)))
+        s.append_frames(host, host, np.arange(len(t)))
+    _load(qtbot, screen, tmp_path / "gap.h5")
+    qtbot.waitUntil(lambda: screen.timelines.imu_shown == len(t_imu), timeout=LOAD_TIMEOUT_MS)
+    tip_t, tip_y = screen.timelines.tip_curves[0].getOriginalDataset()
+    assert len(tip_t) == len(t) + 1 and np.isnan(tip_y[60]) and tip_t[61] == pytest.approx(62.0)
+    imu_t, yaw = screen.timelines.imu_curves[0].getOriginalDataset()
+    assert len(imu_t) == len(t_imu) + 1 and np.isnan(imu_t[416]) and np.isfinite(yaw[417:]).all()
 
 
 def test_a_damaged_file_says_so_and_shows_its_journal(qtbot, screen, recorded, tmp_path):

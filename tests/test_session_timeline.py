@@ -15,7 +15,8 @@ from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError
 from snreg.session.journal import Journal, journal_path, read_journal
-from snreg.session.timeline import GAP_PERIODS, frame_series, fuse_imu, fuse_imu_blocks, load_review
+from snreg.session.timeline import (GAP_PERIODS, clock_figures, frame_series, fuse_imu, fuse_imu_blocks, gap_after,
+                                    load_review, with_gaps)
 
 T0_NS = 5_000_000_000_000          # host clock at the first IMU sample
 YAW_TURN_DEG = 10.0
@@ -141,6 +142,16 @@ def test_frame_rate_and_gaps():
     assert frames.rate_hz[~whole] == [FRAME_RATE_HZ / 2]                # half of second 4 was lost
 
 
+def test_recording_gaps_break_a_curve_instead_of_bridging_it():
+    t = np.concatenate([np.arange(10) / 30, 95.0 + np.arange(10) / 30])      # paused 95 s for a calibration
+    after = gap_after(t)
+    assert list(after) == [9] and list(gap_after(t, period_s=100.0)) == []
+    t_drawn, values = with_gaps(t, np.column_stack([t, 2 * t]), after)
+    assert len(t_drawn) == 21 and np.isnan(t_drawn[10]) and np.isnan(values[10]).all()
+    np.testing.assert_array_equal(values[11:, 1], 2 * t[10:])
+    assert len(gap_after(np.arange(10) * 0.01 * (1 + 0.1 * (np.arange(10) % 2)))) == 0    # jitter is not a gap
+
+
 def test_fused_yaw_follows_the_applied_turn(recorded):
     path, _ = recorded
     review = load_review(path)
@@ -218,3 +229,15 @@ def test_a_file_written_before_ids_were_stored_names_rows_from_its_node_lists(re
         assert stored.preop_ids is None and stored.intraop_ids is None and stored.result.initial is None
     (reg,) = load_review(old).registrations
     assert reg.intraop_ids == truth.node_ids and reg.preop_ids == PREOP_IDS[:3]
+
+
+def test_clock_figures_say_where_streams_end_and_how_far_nodes_are_from_fixes(recorded):
+    path, truth = recorded
+    figures = clock_figures(path)
+    assert figures["ends_s"]["imu"] == pytest.approx((int(DURATION_S * 208) - 1) / 208, abs=1e-3)
+    assert figures["ends_s"]["probe"] == pytest.approx((DURATION_S * FRAME_RATE_HZ - 1) / FRAME_RATE_HZ + CAMERA_LAG_S,
+                                                       abs=1e-3)
+    assert figures["end_spread_s"] == pytest.approx(abs(figures["ends_s"]["probe"] - figures["ends_s"]["imu"]), abs=2e-3)
+    assert figures["max_frame_gap_s"] == pytest.approx((LOST_FRAMES[-1] + 2 - LOST_FRAMES[0]) / FRAME_RATE_HZ, abs=1e-3)
+    # nodes at 1.5, 4.2 and 6.5 s, fixes every 1/30 s: at most half a period from one
+    assert figures["nodes"] == 3 and figures["max_node_to_fix_s"] <= 0.5 / FRAME_RATE_HZ + 1e-3

@@ -28,7 +28,8 @@ from snreg.session import Session, SessionError, StoredRegistration
 from snreg.session.reader import readable_rows
 
 __all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
-           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "GAP_PERIODS"]
+           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "gap_after", "with_gaps", "clock_figures",
+           "GAP_PERIODS"]
 
 GAP_PERIODS = 3.0          # an interval longer than this many median frame periods is a gap (>= 2 frames lost)
 FUSION_BLOCK = 65536       # samples fused between progress reports: ~5 min of IMU data, ~0.4 s of work at ~6 us/sample
@@ -183,6 +184,46 @@ def frame_series(t_s: np.ndarray) -> FrameSeries:
     gap = steps > GAP_PERIODS * period
     return FrameSeries(t_s, edges, counts.astype(float), 1.0 / period if period > 0 else float("inf"),
                        np.column_stack([t_s[:-1][gap], steps[gap]]))
+
+
+def gap_after(t_s: np.ndarray, period_s: float | None = None) -> np.ndarray:
+    """Indices k (G,) after which a stream ``t_s`` (N,) s has a gap: ``t[k+1] - t[k]`` over :data:`GAP_PERIODS`
+    periods (``period_s``, or the stream's median step)."""
+    t_s = np.asarray(t_s, dtype=float)
+    if len(t_s) < 2:
+        return np.zeros(0, dtype=int)
+    steps = np.diff(t_s)
+    period = float(np.median(steps)) if period_s is None or not np.isfinite(period_s) else float(period_s)
+    return np.flatnonzero(steps > GAP_PERIODS * period)
+
+
+def with_gaps(t_s: np.ndarray, values: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``t_s`` (N,) and ``values`` (N, ...) with a NaN row after each index in ``after``: a curve drawn with
+    ``connect="finite"`` then shows a recording gap as a gap, not as a line across it."""
+    at = np.asarray(after, dtype=int) + 1
+    return (np.insert(np.asarray(t_s, dtype=float), at, np.nan),
+            np.insert(np.asarray(values, dtype=float), at, np.nan, axis=0))
+
+
+def clock_figures(path: str | Path) -> dict:
+    """Whether a session's streams share one clock (issue 12), JSON-ready, seconds: where each stream ends after the
+    first sample of any (``ends_s``), how far apart those ends are (``end_spread_s``), the longest step between
+    frames (``max_frame_gap_s``) and the farthest any stored node is from its nearest probe fix
+    (``max_node_to_fix_s``; None without nodes or fixes)."""
+    with Session.open(path) as session:
+        streams = {name: _rows(session.stream(name))["t_host_ns"] for name in ("frames", "probe", "imu")}
+        nodes = np.array([r.time_ns for r in session.intraop_records()], dtype=np.int64)
+    t0 = min((int(t.min()) for t in streams.values() if len(t)), default=0)
+    ends = {name: round((int(t.max()) - t0) / 1e9, 3) for name, t in streams.items() if len(t)}
+    frames, probe = np.sort(streams["frames"]), np.sort(streams["probe"])
+    to_fix = None
+    if len(nodes) and len(probe):
+        k = np.searchsorted(probe, nodes)
+        before, after = probe[np.clip(k - 1, 0, len(probe) - 1)], probe[np.clip(k, 0, len(probe) - 1)]
+        to_fix = round(float(np.minimum(np.abs(nodes - before), np.abs(nodes - after)).max()) / 1e9, 3)
+    return {"ends_s": ends, "end_spread_s": round(max(ends.values()) - min(ends.values()), 3) if ends else None,
+            "max_frame_gap_s": round(float(np.diff(frames).max()) / 1e9, 3) if len(frames) > 1 else None,
+            "nodes": int(len(nodes)), "max_node_to_fix_s": to_fix}
 
 
 def fuse_imu_blocks(imu: ImuSeries, block: int = FUSION_BLOCK) -> Iterator[np.ndarray]:

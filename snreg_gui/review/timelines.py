@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pyqtgraph as pg
 
-from snreg.session.timeline import SessionReview
+from snreg.session.timeline import SessionReview, gap_after, with_gaps
 
 _XYZ_COLOURS = ("#e6550d", "#31a354", "#3182bd")        # yaw/x, pitch/y, roll/z
 _MARKER_PEN = pg.mkPen("#bbbbbb", width=1, style=pg.QtCore.Qt.PenStyle.DashLine)
@@ -53,6 +53,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
             cursor.hide()
         self.node_markers: dict[str, list[pg.InfiniteLine]] = {}
         self._imu_t = np.zeros(0)
+        self._imu_rows = np.zeros(0, dtype=int)
         self._euler = np.zeros((0, 3))
         self._imu_filled = 0
 
@@ -79,19 +80,25 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         for cursor in self.cursors:
             cursor.hide()
         self._imu_t, self._euler, self._imu_filled = np.zeros(0), np.zeros((0, 3)), 0
+        self._imu_rows = np.zeros(0, dtype=int)
 
     def show_review(self, review: SessionReview) -> None:
         """Probe, frames and node markers of ``review``; the IMU curves wait for :meth:`add_imu_block`."""
         self.clear_review()
-        for curve, column in zip(self.tip_curves, review.probe.tip_mm.T):
-            curve.setData(review.probe.t_s, column)
-        self.quality_curve.setData(review.probe.t_s, review.probe.quality)
         frames = review.frames
+        probe_gaps = gap_after(review.probe.t_s, 1.0 / frames.median_rate_hz if frames.median_rate_hz > 0 else None)
+        t_probe, tips = with_gaps(review.probe.t_s, review.probe.tip_mm, probe_gaps)    # gaps drawn as gaps
+        for curve, column in zip(self.tip_curves, tips.T):
+            curve.setData(t_probe, column)
+        self.quality_curve.setData(*with_gaps(review.probe.t_s, review.probe.quality, probe_gaps))
         self.rate_curve.setData(frames.rate_edges_s, frames.rate_hz, stepMode="center")
         self.gap_curve.setData(np.column_stack([frames.gaps_s[:, 0], frames.gaps_s.sum(axis=1)]).ravel(),
                                np.zeros(2 * len(frames.gaps_s)))
-        self._imu_t = review.imu.t_s
-        self._euler = np.full((len(review.imu.t_s), 3), np.nan)
+        imu_gaps = gap_after(review.imu.t_s)
+        self._imu_t, _ = with_gaps(review.imu.t_s, np.zeros(len(review.imu.t_s)), imu_gaps)
+        samples = np.arange(len(review.imu.t_s))
+        self._imu_rows = samples + np.searchsorted(imu_gaps, samples, side="left")   # each sample's row after the NaNs
+        self._euler = np.full((len(self._imu_t), 3), np.nan)
         for node in review.nodes:
             self._add_marker(node.id, node.t_s)
         ends = [t[[0, -1]] for t in (review.imu.t_s, review.probe.t_s, frames.t_s) if len(t)]
@@ -107,11 +114,12 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         while the fusion runs stays cheap however long the session; the last block shows them all.
         """
         end = self._imu_filled + len(euler_deg)
-        self._euler[self._imu_filled:end] = euler_deg
+        self._euler[self._imu_rows[self._imu_filled:end]] = euler_deg
         self._imu_filled = end
-        step = 1 if end == len(self._imu_t) else max(1, end // PROGRESS_POINTS)
-        for curve, column in zip(self.imu_curves, self._euler[:end:step].T):
-            curve.setData(self._imu_t[:end:step], column)
+        last = int(self._imu_rows[end - 1]) + 1 if end else 0
+        step = 1 if end == len(self._imu_rows) else max(1, last // PROGRESS_POINTS)
+        for curve, column in zip(self.imu_curves, self._euler[:last:step].T):
+            curve.setData(self._imu_t[:last:step], column)
 
     @property
     def imu_shown(self) -> int:

@@ -1,9 +1,13 @@
-"""How long the GUI thread is blocked during acquisition: ``python -m snreg_gui.bench [--seconds S] [--json]``.
+"""How long the GUI thread is blocked during acquisition, and whether the recording keeps one clock:
+``python -m snreg_gui.bench [--seconds S] [--json] [--keep SESSION.h5]``.
 
 Why: the technician's screen must never freeze while frames are tracked and nodes stored (issue 6: no stall
 over 50 ms). A 10 ms heartbeat timer on the GUI thread ticks while the demo acquires (rendered feeds tracked
-in the worker, the IMU on its pty, auto-store writing nodes); the gaps between ticks are the stalls. Runs
-offscreen unless a display is set; the numbers belong here, not in timed tests.
+in the worker, the IMU on its pty, auto-store writing nodes); the gaps between ticks are the stalls. The
+recorded session is then read back (:func:`~snreg.session.timeline.clock_figures`, issue 12): where the frame,
+probe and IMU streams end, the longest frame gap, how far each stored node is from a probe fix. ``--keep`` records
+into SESSION.h5 and leaves it there. Runs offscreen unless a display is set; the numbers belong here, not in timed
+tests.
 """
 
 from __future__ import annotations
@@ -45,18 +49,23 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m snreg_gui.bench", description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0, help="acquisition time measured (default 20)")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    parser.add_argument("--keep", metavar="SESSION.h5", help="record into this new session file and keep it")
     args = parser.parse_args(argv)
+    if args.keep and Path(args.keep).exists():
+        parser.error(f"{args.keep} exists already; choose a new file name for the kept session")
     if "DISPLAY" not in os.environ:
         os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     from PySide6.QtWidgets import QApplication
 
     from snreg.demo.rig import DemoRig
     from snreg.demo.scene import Schedule
+    from snreg.session.timeline import clock_figures
     from snreg_gui.app import MainWindow
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
     work = Path(tempfile.mkdtemp(prefix="snreg-bench-"))
-    window = MainWindow(str(work / "bench.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
+    session_path = Path(args.keep) if args.keep else work / "bench.h5"
+    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
                         settings=QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat))
     window.show()
     frames: list[int] = []
@@ -74,12 +83,17 @@ def main(argv=None) -> int:
     window.shutdown()
     result = {"seconds": args.seconds, "frames": len(frames), "nodes_stored": stored, "ticks": len(gaps) + 1,
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
-              "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName()}
+              "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),
+              "clock": clock_figures(session_path), "session": str(session_path) if args.keep else None}
     if args.json:
         print(json.dumps(result))
     else:
         print(f"GUI thread during {args.seconds:.0f} s of demo acquisition ({result['frames']} frames, "
               f"{stored} nodes auto-stored, {result['platform']}): longest stall {result['max_gap_ms']} ms, "
               f"p99 {result['p99_gap_ms']} ms, median tick gap {result['median_gap_ms']} ms (timer {TICK_MS} ms)")
+        clock = result["clock"]
+        print(f"one clock: streams end at {clock['ends_s']} s (spread {clock['end_spread_s']} s), longest frame gap "
+              f"{clock['max_frame_gap_s']} s, stored nodes at most {clock['max_node_to_fix_s']} s from a probe fix"
+              + (f"; session kept in {session_path}" if args.keep else ""))
     return 0
 
