@@ -387,6 +387,12 @@ class MainWindow(QMainWindow):
         self.shutdown()
         super().closeEvent(event)
 
+    def quit_without_asking(self) -> None:
+        """End the app now, without the question on close (Ctrl-C, a kill signal, the bench): Qt 6's quit closes
+        the windows first, and a close the question holds back would cancel the quit."""
+        self._end_confirmed = True
+        QApplication.instance().quit()
+
     def _recording(self) -> bool:
         return self.session is not None and self.session.writable and self.rig is not None
 
@@ -433,11 +439,11 @@ def main(argv=None) -> int:
                         "created for recording (demo default: a new file in the temp folder)")
     args = parser.parse_args(argv)
     app = QApplication.instance() or QApplication(sys.argv[:1])
+    window = MainWindow(args.session, demo=args.demo)
     for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
-        signal.signal(signum, lambda *_: app.quit())
+        signal.signal(signum, lambda *_: window.quit_without_asking())
     wake = QTimer(interval=200, timeout=lambda: None)      # lets Python run those handlers while Qt waits
     wake.start()
-    window = MainWindow(args.session, demo=args.demo)
     window.show()
     status = app.exec()
     window.shutdown()

@@ -201,5 +201,6 @@ def test_a_node_keeps_its_camera_tip_orientation_and_calibration_versions(guarde
     np.testing.assert_allclose(node.xyz_trocar, camera_to_trocar(acquisition.chain, turned, node.xyz_camera), atol=0.5)
     assert node.measured_under == (acquisition.stereo_version, acquisition.chain_version)
     assert len(node.stereo_version) == 8 and len(node.chain_version) == 8
+    assert node.time_ns == frame_on(scene, 1, 3).t_left_ns          # its newest fix's grab time: a probe row's time
     with Session.open(acquisition.session.path) as reopened:            # the journal and the HDF5 rows agree
         np.testing.assert_allclose(reopened.intraop_records()[0].earth_from_imu, turned, atol=1e-9)

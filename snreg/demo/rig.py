@@ -31,7 +31,7 @@ from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
 
 DEMO_FPS = 30.0
-IMU_START_TIMEOUT_S = 20.0
+IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
 
 
 class DemoRig:

@@ -124,6 +124,7 @@ class _Fix:
     quat_xyzw: np.ndarray
     imu_gap_s: float
     imu_state: str
+    grabbed_ns: int        # its frame's (left) grab time: the stream rows' clock
     seen_ns: int           # host time it was computed
 
 
@@ -175,7 +176,8 @@ class Acquisition:
             tip_trocar = camera_to_trocar(self.chain, imu.earth_from_imu, fix.tip)
             pose = trocar_from_probe(self.chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
             quat = Rotation.from_matrix(imu.earth_from_imu).as_quat()
-            self._fixes.append(_Fix(fix.tip, tip_trocar, quat, float(imu.gap_s), imu.state, self._clock()))
+            self._fixes.append(_Fix(fix.tip, tip_trocar, quat, float(imu.gap_s), imu.state, frame.t_left_ns,
+                                    self._clock()))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)
         window = self._window_trocar()
         spread = window.spread_mm if window is not None else float("nan")
@@ -208,7 +210,8 @@ class Acquisition:
     def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"", right_jpeg=b"",
               confirmed: bool = False, trigger: str = "") -> IntraopNode:
         """The median of the store window as node ``node_id``, durable on return, with the camera-frame tip, the mean
-        IMU orientation and the calibration versions it was mapped with. Refused (:class:`StoreRefused`, put on
+        IMU orientation and the calibration versions it was mapped with; its time is its newest fix's grab time (on
+        the streams' clock: the node points at its own probe rows, however late the store was asked). Refused (:class:`StoreRefused`, put on
         record with ``trigger``, e.g. "F5") as :meth:`check_store` says; :class:`StoreNeedsConfirmation` when a
         stored node is near and ``confirmed`` is False. Snapshots are JPEG bytes or BGR images."""
         check = self.check_store()
@@ -222,7 +225,8 @@ class Acquisition:
         orientation = Rotation.from_quat(np.array([f.quat_xyzw for f in self._fixes])).mean().as_matrix()
         node = self.session.add_intraop_node(node_id, label, trocar.xyz, xyz_camera=camera.xyz,
                                              spread_mm=trocar.spread_mm, n_frames=trocar.n_frames, counts=counts,
-                                             left_jpeg=left_jpeg, right_jpeg=right_jpeg, earth_from_imu=orientation,
+                                             time_ns=self._fixes[-1].grabbed_ns, left_jpeg=left_jpeg,
+                                             right_jpeg=right_jpeg, earth_from_imu=orientation,
                                              stereo_version=self.stereo_version, chain_version=self.chain_version)
         if check.near is not None:
             self.session.log_event("store_near_confirmed", node_id=node.id, near=check.near.id,

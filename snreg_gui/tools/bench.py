@@ -65,17 +65,23 @@ def main(argv=None) -> int:
     app = QApplication.instance() or QApplication(sys.argv[:1])
     work = Path(tempfile.mkdtemp(prefix="snreg-bench-"))
     session_path = Path(args.keep) if args.keep else work / "bench.h5"
-    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
+    # 8 s rests: the live feed skips frames when the worker lags, so a loaded machine still gathers 60 fixes per node
+    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240)),
                         settings=QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat))
     window.show()
     frames: list[int] = []
     window.worker.frame_processed.connect(lambda result: frames.append(result.outcome.index))
     window.acquisition.auto_store.setChecked(True)
+    stopped: list[str] = []
+    window.worker.source_stopped.connect(stopped.append)
     while not frames:                                   # the scene is pre-rendered before the first frame
+        if stopped:
+            window.shutdown()
+            raise SystemExit(f"bench: the demo feed did not start: {stopped[0]}")
         app.processEvents()
         time.sleep(0.01)
     heartbeat = Heartbeat()
-    QTimer.singleShot(round(args.seconds * 1000), app.quit)
+    QTimer.singleShot(round(args.seconds * 1000), window.quit_without_asking)
     app.exec()                                          # the app's own event loop, as in use
     heartbeat.stop()
     gaps = heartbeat.gaps_ms()
