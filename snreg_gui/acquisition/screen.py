@@ -32,7 +32,7 @@ UNDO_SHORTCUT = "Ctrl+Z"
 DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
 PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
 _NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread mm", "frames")
-PAUSED_TEXT = "paused for calibration: the wizard has the cameras; acquisition resumes when it closes"
+PAUSED_TEXT = "paused for calibration (a wizard has the cameras)"
 _WARN, _BAD, _GOOD, _PAUSED = "color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400", "color: #1f4e9e"
 
 
@@ -83,7 +83,7 @@ class AcquisitionScreen(QWidget):
         self.confirm_box: QMessageBox | None = None
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
-        self.video_health, self.imu_health = _status_label("video: waiting"), _status_label("IMU: waiting")
+        self.video_health, self.imu_health = _status_label("video: waiting"), _wrapped_label(2)
         self.link_health = _status_label("")            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
         self.tip_trocar = _status_label("tip (trocar): no fix")
@@ -94,7 +94,7 @@ class AcquisitionScreen(QWidget):
         self._missing: list = []
         self.store_button = QPushButton("Store SN")
         self.store_reason = _wrapped_label(3)
-        self.store_status = _wrapped_label(3)
+        self.store_status = _wrapped_label(4)
         self.undo_button = QPushButton("Undo last node")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
