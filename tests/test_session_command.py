@@ -27,6 +27,7 @@ def session_file(tmp_path):
         s.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0], counts=50.0)
         s.add_intraop_node("SN2", "EXT L", [4.0, 5.0, 6.5], counts=70.0)
         s.append_imu(np.arange(3), np.arange(3), np.zeros((3, 3)), np.zeros((3, 3)))
+        s.log_event("store_refused", reason="the IMU is stale", trigger="F5")
     return path
 
 
@@ -35,7 +36,7 @@ def test_info_json(session_file, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["case_id"] == "phantom-01" and info["intraop_nodes"] == 2
     assert info["streams"] == {"imu": 3, "probe": 0, "frames": 0} and info["registrations"] == []
-    assert info["format_version"] == 2 and not info["damaged"]
+    assert info["format_version"] == 2 and not info["damaged"] and info["events"] == {"store_refused": 1}
 
 
 def test_info_text(session_file, capsys):

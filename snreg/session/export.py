@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections import Counter
 from pathlib import Path
 
 from snreg.files import atomic_write
@@ -14,7 +15,8 @@ from snreg.session.schema import STREAM_DTYPES, SessionError
 
 
 def session_info(path: str | Path) -> dict:
-    """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, calibration, registrations."""
+    """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, calibration, registrations,
+    events by kind (e.g. ``store_refused``)."""
     with Session.open(path) as session:
         preop = session.preop_nodes()
         return {"case_id": session.case_id, "created_utc": session.header.get("created_utc", ""),
@@ -25,6 +27,7 @@ def session_info(path: str | Path) -> dict:
                 "calibration": sorted(session.calibration()),
                 "registrations": [{"n": r.n, "method": r.result.method, "rms_mm": r.result.rms_mm}
                                   for r in session.registrations()],
+                "events": dict(Counter(event["kind"] for event in session.events())),
                 "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged}
 
 
