@@ -271,6 +271,28 @@ def test_endless_callable_source_stays_open_until_closed():
     assert source.state is SourceState.ENDED and source.read() is None
 
 
+def test_a_live_callable_source_stamps_at_grab_and_skips_what_a_slow_consumer_missed():
+    """As a camera (DESIGN.md §3): frame k is due k / fps after the first read; a consumer 95 ms late at 100 Hz
+    gets the newest due frame (9 skipped), stamped with the host time it was taken, not a nominal one."""
+    clock = {"ns": 7_000_000_000}
+    calls = []
+
+    def render(i):
+        calls.append(i)
+        return coded(i % 10, "left"), coded(i % 10, "right")
+
+    source = CallableSource(render, fps=100.0, n_frames=30, live=True, clock=lambda: clock["ns"])
+    first = source.read()
+    assert (first.index, first.t_left_ns, first.t_right_ns) == (0, 7_000_000_000, 7_000_000_000)
+    clock["ns"] += 95_000_000 + 10_000_000          # the consumer took 105 ms: frames 1..9 are gone
+    late = source.read()
+    assert (late.index, late.t_left_ns) == (10, 7_105_000_000) and calls == [0, 10]
+    clock["ns"] += 10_000_000
+    assert source.read().index == 11                 # keeping up: no skip
+    clock["ns"] += 1_000_000_000
+    assert source.read() is None and source.state is SourceState.ENDED      # frame 111 is past the 30 it has
+
+
 def test_stereo_frames_must_be_bgr_uint8_images():
     good = coded(0, "left")
     frame = StereoFrame(good, good, 1_000_000, 3_500_000, 0)

@@ -146,17 +146,17 @@ class CallableSource(FrameSource):
     source behaves as a camera does (DESIGN.md §3): frame k is due ``k / fps`` after the first read, :meth:`read`
     waits for the next due frame and, when the consumer has fallen behind, skips to the newest one (``index`` jumps
     over the frames skipped, as the scene went on without it), stamped on the host clock
-    (``time.perf_counter_ns``) when it is taken.
+    (``clock``: ``time.perf_counter_ns``) when it is taken.
     """
 
     def __init__(self, render: Callable[[int], tuple[np.ndarray, np.ndarray]], fps: float,
-                 n_frames: int | None = None, *, start_ns: int = 0, live: bool = False, name: str = "Synthetic source"):
+                 n_frames: int | None = None, *, start_ns: int = 0, live: bool = False, name: str = "Synthetic source",
+                 clock: Callable[[], int] = time.perf_counter_ns):
         super().__init__(name)
         self._render, self._fps, self._n, self._start = render, _check_fps(fps), n_frames, int(start_ns)
-        self._live = bool(live)
+        self._live, self._clock = bool(live), clock
         self._first_ns: int | None = None
         self._next = 0                  # the index the next read delivers at the earliest
-        self.skipped = 0                # live: frames the consumer was too slow for
 
     def _read(self) -> StereoFrame | None:
         if self._live:
@@ -173,15 +173,14 @@ class CallableSource(FrameSource):
 
     def _due(self) -> tuple[int, int]:
         """The frame to take now and its grab time: the newest due, after waiting for the next if none is."""
-        now = time.perf_counter_ns()
+        now = self._clock()
         if self._first_ns is None:
             self._first_ns = now
         due = int((now - self._first_ns) * self._fps // 1e9)
         if due < self._next:
             wait_ns = _nominal_ns(self._first_ns, self._next, self._fps) - now
             time.sleep(max(wait_ns, 0) / 1e9)
-            due, now = self._next, time.perf_counter_ns()
-        self.skipped += due - self._next
+            due, now = self._next, self._clock()
         return due, now
 
 
