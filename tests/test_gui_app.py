@@ -165,7 +165,7 @@ def ready_result(fixes: int) -> FrameResult:
     from snreg.tracking import ProbeFix
     fix = ProbeFix(np.array([0.0, 0.0, 90.0]), np.array([0.0, 0.0, 120.0]), np.array([0.0, 0.0, 1.0]), 1.0,
                    "triangulation", 3)
-    outcome = FrameOutcome(0, fix, "", np.array([0.0, 0.0, 248.0]), fixes, 0.2, True, False, 5.0, StoreCheck(""))
+    outcome = FrameOutcome(0, fix, "", np.array([0.0, 0.0, 248.0]), fixes, 0.2, True, False, 5.0, store_check=StoreCheck(""))
     rgb = np.zeros((54, 96, 3), np.uint8)
     return FrameResult(outcome, rgb, rgb, None, None, LevelImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
 
