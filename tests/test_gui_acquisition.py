@@ -24,7 +24,7 @@ GROSS_STALL_MS = 250.0          # a guard against blocking work on the GUI threa
 
 @pytest.fixture
 def demo_window(qtbot, tmp_path):
-    rig = DemoRig(schedule=Schedule(rest_frames=45, move_frames=3))
+    rig = DemoRig(schedule=Schedule(rest_frames=90, move_frames=3))    # 3 s rests: the live feed skips frames under load
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=rig, fixes_per_node=FIXES)
     qtbot.addWidget(window)
     with qtbot.waitExposed(window):

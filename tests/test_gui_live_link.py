@@ -25,7 +25,7 @@ def settings(tmp_path):
 
 
 def open_window(qtbot, tmp_path, settings, name):
-    rig = DemoRig(schedule=Schedule(rest_frames=45, move_frames=3))
+    rig = DemoRig(schedule=Schedule(rest_frames=90, move_frames=3))    # 3 s rests: the live feed skips frames under load
     window = MainWindow(str(tmp_path / name), demo=True, rig=rig, fixes_per_node=20, settings=settings)
     qtbot.addWidget(window)
     window.show()

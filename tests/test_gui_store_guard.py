@@ -108,7 +108,7 @@ def press(qtbot, screen, key):
 
 SCENARIOS = {
     "stale IMU": (on_node(0), 3.0, "the IMU is stale: no sample within 3.0 s of a frame (IMU disconnected)"),
-    "stale fix": (lambda index: on_node(0)(index) if index < 2 * FIXES else None, 0.0,
+    "stale fix": (lambda index: on_node(0)(index) if index < 60 else None, 0.0,          # probe gone after 2 s
                   "s old (no probe stripe"),
     "spread over the limit": (lambda index: on_node((index // 2) % 2)(index), 0.0, "the probe moved: the last 4 fixes"),
 }
