@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from PySide6.QtCore import QSettings, Qt, QTimer
+from PySide6.QtCore import QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, QMainWindow, QMessageBox, QTabWidget,
                                QVBoxLayout, QWidget)
@@ -54,6 +54,8 @@ class MainWindow(QMainWindow):
     Without ``demo``, an existing ``session_path`` opens for review and a new one is created for recording.
     ``rig`` lets tests pass a rig with a shorter schedule; ``settings`` an isolated QSettings."""
 
+    missing_for_worker = Signal(list)      # the missing SPECT nodes, to the acquisition worker's thread
+
     def __init__(self, session_path: str | None = None, demo: bool = False, *, rig=None,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None):
         super().__init__()
@@ -78,6 +80,7 @@ class MainWindow(QMainWindow):
         self.tabs.addTab(self.review, "Review")
         self.setCentralWidget(self.tabs)
         self.tabs.currentChanged.connect(self._refresh_registration)
+        self.registration.missing_changed.connect(self._missing_changed)
         self.wizards = WizardLauncher(self)
         self.live_link = LiveLinkControl(self.settings, self, self._link_state)
         self._menus()
@@ -288,12 +291,12 @@ class MainWindow(QMainWindow):
         limits = StoreLimits(max_spread_mm=float(self.settings.value(MAX_SPREAD_KEY, StoreLimits.max_spread_mm)))
         self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm)
         self.acquisition.set_nodes(self.session.intraop_records())
-        self.registration.missing_changed.connect(self.acquisition.show_missing)
-        self.acquisition.show_missing(self.registration.missing_nodes)
         self._show_in_acquisition_tab(self.acquisition)
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
                                         self.rig.imu, self.session, self.rig.fps, self.fixes_per_node, limits)
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
+        self.missing_for_worker.connect(self.worker.set_missing, queued)
+        self._missing_changed(self.registration.missing_nodes)
         self.worker.frame_processed.connect(self.acquisition.show_result, queued)
         self.worker.node_stored.connect(self.acquisition.add_node, queued)
         self.worker.node_removed.connect(self.acquisition.remove_node, queued)
@@ -316,6 +319,13 @@ class MainWindow(QMainWindow):
         self.acquisition.show_link_state(self.live_link.state_text)
         self._waiting_for_frames = True
         self._thread = start_worker(self.worker)
+
+    def _missing_changed(self, missing: list) -> None:
+        """The SPECT nodes the latest registration left unpaired go to the acquisition screen and, for the circle on
+        the feeds, to the worker (in its thread)."""
+        if self.acquisition is not None:
+            self.acquisition.show_missing(missing)
+        self.missing_for_worker.emit(list(missing))
 
     def _nodes_changed(self, *_) -> None:
         """The registration panel follows the stored nodes: it registers again at once when it says so (the missing

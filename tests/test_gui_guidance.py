@@ -36,3 +36,19 @@ def test_missing_nodes_and_the_live_pointer_to_the_nearest(qtbot):
                     timeout=2_000)
     screen.show_missing([])                                               # every node paired: nothing shown
     assert screen.missing_list.text() == "" and screen.guidance.text() == ""
+
+
+def test_the_nearest_missing_node_is_circled_on_both_feeds(qtbot):
+    screen = AcquisitionScreen(LevelImu(), fixes_per_node=5)
+    qtbot.addWidget(screen)
+    screen.show_missing([MissingNode(2, "P3", "INT R", np.array([10.0, 0.0, 200.0]), 12.0)])
+    rgb = np.zeros((54, 96, 3), np.uint8)
+    outcome = FrameOutcome(0, None, "moving", np.array([0.0, 0.0, 180.0]), 0, float("nan"), False, False, 5.0)
+    screen.show_result(FrameResult(outcome, rgb, rgb, None, None, LevelImu().snapshot(), 0.0, 30.0,
+                                   time.perf_counter_ns(), (np.array([40.0, 20.0]), 8.0), (np.array([30.0, 20.0]), 8.0)))
+    qtbot.waitUntil(lambda: screen.left_feed._circle is not None, timeout=2_000)
+    (centre, radius, text) = screen.left_feed._circle
+    assert tuple(centre) == (40.0, 20.0) and radius == 8.0 and text == "P3"
+    assert tuple(screen.right_feed._circle[0]) == (30.0, 20.0)
+    screen.show_result(frame_with_tip([0.0, 0.0, 180.0]))                  # no circle from the worker: none drawn
+    qtbot.waitUntil(lambda: screen.left_feed._circle is None, timeout=2_000)

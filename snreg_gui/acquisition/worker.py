@@ -17,14 +17,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 from PySide6.QtCore import QCoreApplication, QMetaObject, QObject, Qt, QThread, QTimer, Signal, Slot
 
+from snreg import geometry
 from snreg.camera import StereoCalibration
-from snreg.chain import ChainCalibration
+from snreg.chain import ChainCalibration, trocar_from_camera
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.session import Session, SessionError
 from snreg.sources import FrameSource, SourceError, SourceState
 from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading,
                                         StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
+from snreg.workflow.guidance import point_to_nearest, target_circle
 
 _AXIS_DRAWN_MM = 50.0
 
@@ -47,6 +49,8 @@ class FrameResult:
     skew_ms: float
     fps: float
     t_host_ns: int
+    target_left: tuple | None = None       # (centre (2,), radius) display pixels of the nearest missing SPECT node
+    target_right: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,7 @@ class AcquisitionWorker(QObject):
         self._last_frame = None
         self._last_ns: int | None = None
         self._fps_measured = 0.0
+        self._missing: list = []
 
     @Slot()
     def start(self) -> None:
@@ -178,14 +183,35 @@ class AcquisitionWorker(QObject):
             self._fps_measured = instant if self._fps_measured == 0 else 0.9 * self._fps_measured + 0.1 * instant
         self._last_ns, self._last_frame = now, frame
         imu = self._imu.snapshot()
-        outcome = self.acquisition.process(frame, ImuReading.at_frame(self._imu, frame))
+        reading = ImuReading.at_frame(self._imu, frame)
+        outcome = self.acquisition.process(frame, reading)
         overlay_left = overlay_right = None
+        tracker = self.acquisition.tracker
         if outcome.fix is not None:
             drawn = np.array([outcome.fix.tip, outcome.fix.tip + _AXIS_DRAWN_MM * outcome.fix.axis])
-            tracker = self.acquisition.tracker
             overlay_left, overlay_right = (DISPLAY_SCALE * tracker.project(drawn, eye) for eye in (0, 1))
+        targets = self._target_circles(outcome.tip_trocar, reading.earth_from_imu)
         self.frame_processed.emit(FrameResult(outcome, display_rgb(frame.left), display_rgb(frame.right),
-                                              overlay_left, overlay_right, imu, frame.skew_ms, self._fps_measured, now))
+                                              overlay_left, overlay_right, imu, frame.skew_ms, self._fps_measured, now,
+                                              *targets))
+
+    @Slot(list)
+    def set_missing(self, missing: list) -> None:
+        """The SPECT nodes the latest registration left unpaired; the nearest to the tip is drawn on the feeds."""
+        self._missing = list(missing)
+
+    def _target_circles(self, tip_trocar, earth_from_imu) -> tuple:
+        """Display circles (left, right) of the missing node nearest the tip, sized by its bound; Nones without."""
+        pointer = point_to_nearest(self._missing, tip_trocar)
+        if pointer is None:
+            return None, None
+        camera_from_trocar = geometry.invert(trocar_from_camera(self.acquisition.chain, earth_from_imu))
+        circles = []
+        for eye in (0, 1):
+            circle = target_circle(pointer.target, camera_from_trocar,
+                                   lambda points, eye=eye: self.acquisition.tracker.project(points, eye))
+            circles.append(None if circle is None else (DISPLAY_SCALE * circle[0], DISPLAY_SCALE * circle[1]))
+        return tuple(circles)
 
 
 def start_worker(worker: AcquisitionWorker) -> QThread:

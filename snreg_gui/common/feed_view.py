@@ -14,6 +14,7 @@ from PySide6.QtGui import QColor, QImage, QPainter, QPen
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 _TIP_COLOUR = QColor(255, 220, 0)
+_TARGET_COLOUR = QColor(80, 200, 255)            # a missing SPECT node: where to look
 _POINT_COLOUR, _FIRST_POINT_COLOUR = QColor(0, 230, 90), QColor(255, 60, 60)
 _MESSAGE_COLOUR = QColor(255, 90, 90)
 
@@ -29,6 +30,7 @@ class FeedView(QWidget):
         self._rgb: np.ndarray | None = None       # keeps the pixels of ``_image`` alive
         self._image: QImage | None = None
         self._overlay: np.ndarray | None = None
+        self._circle: tuple | None = None       # (centre (2,), radius px, text) of a place to look for
         self._depth_mm: float | None = None
         self._points: np.ndarray | None = None
         self._heat: np.ndarray | None = None
@@ -44,6 +46,11 @@ class FeedView(QWidget):
         height, width = self._rgb.shape[:2]
         self._image = QImage(self._rgb.data, width, height, 3 * width, QImage.Format.Format_RGB888)
         self._overlay, self._depth_mm = overlay, depth_mm
+        self.update()
+
+    def show_circle(self, centre, radius_px: float = 0.0, text: str = "") -> None:
+        """Circle a place in the frame's pixels (a SPECT node not found yet, sized by its bound), None to hide."""
+        self._circle = None if centre is None else (np.asarray(centre, float), float(radius_px), text)
         self.update()
 
     def show_points(self, points: np.ndarray | None) -> None:
@@ -66,7 +73,7 @@ class FeedView(QWidget):
 
     def clear(self, title: str | None = None) -> None:
         """Show no frame (and nothing on it); ``title`` replaces the caption if given."""
-        self._rgb = self._image = self._overlay = self._points = None
+        self._rgb = self._image = self._overlay = self._points = self._circle = None
         self.show_heat(None)
         self.message = ""
         if title is not None:
@@ -100,6 +107,8 @@ class FeedView(QWidget):
             scale = target.width() / self._image.width()
             if self._points is not None and len(self._points):
                 self._paint_points(painter, target, scale)
+            if self._circle is not None:
+                self._paint_circle(painter, target, scale)
             if self._overlay is not None:
                 self._paint_overlay(painter, target, scale)
             if self.message:
@@ -122,6 +131,16 @@ class FeedView(QWidget):
             painter.drawEllipse(self._at(target, scale, x, y), 2.0, 2.0)
         painter.setBrush(_FIRST_POINT_COLOUR)
         painter.drawEllipse(self._at(target, scale, *self._points[0]), 4.5, 4.5)
+
+    def _paint_circle(self, painter: QPainter, target: QRectF, scale: float) -> None:
+        (x, y), radius, text = self._circle
+        centre = self._at(target, scale, x, y)
+        painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+        painter.setPen(QPen(_TARGET_COLOUR, 2, Qt.PenStyle.DashLine))
+        painter.setBrush(Qt.BrushStyle.NoBrush)
+        painter.drawEllipse(centre, max(radius * scale, 6.0), max(radius * scale, 6.0))
+        if text:
+            painter.drawText(centre + QPointF(radius * scale + 4, 4), text)
 
     def _paint_overlay(self, painter: QPainter, target: QRectF, scale: float) -> None:
         tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
