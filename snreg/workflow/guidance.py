@@ -5,7 +5,7 @@ Why: the surgeon's question during the procedure is "which SPECT nodes have I no
 they?"; the acquisition screen answers it live from the latest registration, without a window in this module.
 
 >>> targets = missing_nodes(preop, result)           # snreg.registration.report
->>> line = guidance_line(targets, tip_trocar)      # "nearest missing P4 (OBT L): 23.5 mm, +x -y ..."
+>>> line = guidance_line(targets, tip_trocar)      # "nearest missing P4: 24 mm +x -y (±15)"
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def guidance_line(targets: list[MissingNode], tip_trocar) -> str:
         return "" if not targets else "nearest missing node: no probe fix"
     t = pointer.target
     where = "inside its bound" if pointer.within_bound else pointer.direction_words()
-    return f"nearest missing {t.preop_id}: {pointer.distance_mm:.0f} mm, {where} (bound {t.bound_mm:.0f} mm)"
+    return f"nearest missing {t.preop_id}: {pointer.distance_mm:.0f} mm {where} (\u00b1{t.bound_mm:.0f})"
 
 
 def target_circle(target: MissingNode, camera_from_trocar: np.ndarray, project) -> tuple[np.ndarray, float] | None:
