@@ -11,6 +11,18 @@ import numpy as np
 import pytest
 
 
+@pytest.fixture(autouse=True)
+def _own_settings_per_test(tmp_path_factory):
+    """Each test starts from empty app settings (remembered tab, window layout, devices), whatever ran before it."""
+    import sys
+    if "PySide6.QtCore" in sys.modules:
+        from PySide6.QtCore import QSettings
+        folder = str(tmp_path_factory.mktemp("settings"))
+        for fmt in (QSettings.Format.NativeFormat, QSettings.Format.IniFormat):
+            QSettings.setPath(fmt, QSettings.Scope.UserScope, folder)
+    yield
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

@@ -4,7 +4,7 @@ import threading
 
 import pytest
 
-from snreg_gui.common.workers import Worker
+from snreg_gui.common.workers import Worker, WorkerSet
 
 
 def run(qtbot, worker, timeout=5_000):
@@ -81,3 +81,14 @@ def test_a_worker_set_keeps_its_workers_until_shutdown_ends_them(qtbot):
     tasks.shutdown(5_000)
     assert not tasks.running and not live.running
     qtbot.waitUntil(lambda: results == [7], timeout=2_000)   # a result queued before shutdown is not lost
+
+
+def test_a_worker_set_starts_nothing_after_shutdown(qtbot):
+    tasks = WorkerSet()
+    results = []
+    tasks.start(lambda: 1, returned=results.append, errored=results.append)
+    qtbot.waitUntil(lambda: results == [1], timeout=5_000)
+    tasks.shutdown()
+    assert tasks.start(lambda: 2, returned=results.append, errored=results.append) is None
+    qtbot.wait(100)
+    assert results == [1] and not tasks.running

@@ -126,14 +126,19 @@ class WorkerSet:
 
     def __init__(self):
         self._workers: list[Worker] = []
+        self._closed = False
 
-    def run(self, worker: Worker) -> Worker:
-        """Start ``worker`` (its signals connected) and keep it until it has ended."""
+    def run(self, worker: Worker) -> Worker | None:
+        """Start ``worker`` (its signals connected) and keep it until it has ended; after :meth:`shutdown` nothing
+        starts (a signal queued before the window closed must not leave a thread running past it), and None is
+        returned."""
+        if self._closed:
+            return None
         self._workers = [w for w in self._workers if w.pending]
         self._workers.append(worker)
         return worker.start()
 
-    def start(self, fn: Callable, *args, returned: Callable, errored: Callable) -> Worker:
+    def start(self, fn: Callable, *args, returned: Callable, errored: Callable) -> Worker | None:
         """Run ``fn(*args)`` in a Worker; ``returned(value)`` or ``errored(sentence)`` follow on the GUI thread."""
         worker = Worker(fn, *args)
         worker.returned.connect(returned)
@@ -147,6 +152,7 @@ class WorkerSet:
     def shutdown(self, timeout_ms: int = 10_000) -> None:
         """Ask every generator to stop and wait for every thread (closing a window, tests). The workers stay
         referenced, so their last signals are still delivered when the event loop next runs."""
+        self._closed = True
         for worker in self._workers:
             worker.quit()
         for worker in self._workers:
