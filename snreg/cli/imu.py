@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import _thread
 import contextlib
 import json
 import os
@@ -182,4 +181,4 @@ def _stop_with_parent(pid: int) -> None:
     """Interrupt the simulator once ``pid`` is no longer its parent (the app ended, even by SIGKILL)."""
     while os.getppid() == pid:
         time.sleep(0.5)
-    _thread.interrupt_main()
+    os.kill(os.getpid(), signal.SIGTERM)      # a real signal: it also ends a write blocked on a pty nobody reads
