@@ -32,6 +32,7 @@ from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg.workflow.chain_change import calibration_change, id_list, reexpress
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
+from snreg_gui.common import wheel_guard
 from snreg_gui.common.live_link import LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
 from snreg_gui.registration.demo_spect import DemoSpect
@@ -59,6 +60,7 @@ class MainWindow(QMainWindow):
     def __init__(self, session_path: str | None = None, demo: bool = False, *, rig=None,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None):
         super().__init__()
+        wheel_guard.install(QApplication.instance())
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         self.settings = settings or QSettings("snreg", "snreg")
         self.recent = RecentSessions(self.settings)

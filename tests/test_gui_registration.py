@@ -357,3 +357,33 @@ def test_the_panel_registers_again_after_each_stored_node_when_it_says_so(qtbot,
         panel.rerun_after_store()
     assert panel.intraop_table.rowCount() == 5                                  # the nodes still follow the session
     session.close()
+
+
+def wheel_over(widget, steps: int = 3) -> None:
+    """A mouse-wheel turn of ``steps`` notches (up) over the middle of ``widget``, through the application."""
+    from PySide6.QtCore import QPoint, QPointF
+    from PySide6.QtGui import QWheelEvent
+    from PySide6.QtWidgets import QApplication
+    centre = QPointF(widget.rect().center())
+    event = QWheelEvent(centre, QPointF(widget.mapToGlobal(centre)), QPoint(0, 0), QPoint(0, 120 * steps),
+                        Qt.MouseButton.NoButton, Qt.KeyboardModifier.NoModifier, Qt.ScrollPhase.NoScrollPhase, False)
+    QApplication.sendEvent(widget, event)
+
+
+def test_wheel_over_an_unfocused_spin_box_changes_nothing(qtbot, qapp, panel):
+    from snreg_gui.common import wheel_guard
+    wheel_guard.install(qapp)
+    panel.show()
+    qtbot.waitExposed(panel)
+    spin = panel.rotation_bound
+    assert spin.focusPolicy() == Qt.FocusPolicy.StrongFocus and not spin.hasFocus()
+    wheel_over(spin)
+    wheel_over(panel.method_combo)
+    wheel_over(panel.preop_box.threshold_slider)
+    assert spin.value() == 60.0 and panel.method_combo.currentIndex() == 0
+    assert panel.preop_box.threshold_slider.focusPolicy() == Qt.FocusPolicy.StrongFocus
+    panel.activateWindow()
+    spin.setFocus()
+    qtbot.waitUntil(spin.hasFocus, timeout=TIMEOUT_MS)
+    wheel_over(spin)                                    # clicked into, the wheel works as usual
+    assert spin.value() == 63.0
