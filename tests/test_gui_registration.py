@@ -387,3 +387,25 @@ def test_wheel_over_an_unfocused_spin_box_changes_nothing(qtbot, qapp, panel):
     qtbot.waitUntil(spin.hasFocus, timeout=TIMEOUT_MS)
     wheel_over(spin)                                    # clicked into, the wheel works as usual
     assert spin.value() == 63.0
+
+
+def test_changed_inputs_grey_the_result_and_disable_exports_until_the_next_run(qtbot, panel, pelvic_nodes, tmp_path):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    click_run(qtbot, panel)
+    buttons = list(panel.export_buttons.values())
+    assert all(b.isEnabled() for b in buttons) and panel.pairing_table.isEnabled()
+    renumbered = NodeSet([f"SN{k + 1}" for k in reversed(range(len(preop)))], preop.labels, preop.xyz)
+    load_preop(qtbot, panel, renumbered, tmp_path / "renumbered.csv")
+    assert not any(b.isEnabled() for b in buttons) and not panel.pairing_table.isEnabled()
+    assert panel.summary.text().startswith("OUT OF DATE")
+    click_run(qtbot, panel)
+    assert all(b.isEnabled() for b in buttons) and panel.pairing_table.isEnabled()
+    assert table_column(panel.pairing_table, 2) == [renumbered.ids[n] for n in truth]
+    for change in (lambda: panel.method_combo.setCurrentText("icp"), lambda: panel.labels_check.toggle(),
+                   lambda: panel.rotation_bound.setValue(30.0), lambda: panel.translation_bound.setValue(30.0)):
+        change()
+        assert not any(b.isEnabled() for b in buttons) and not panel.pairing_table.isEnabled()
+        click_run(qtbot, panel)
+        assert all(b.isEnabled() for b in buttons)

@@ -131,6 +131,10 @@ class RegistrationPanel(QWidget):
         self.preop_box.nodes_changed.connect(self._preop_changed)
         self.intraop_open_button.clicked.connect(self._choose_intraop_file)
         self.alignment.changed.connect(self._inputs_changed)
+        self.method_combo.currentTextChanged.connect(self._inputs_changed)
+        self.labels_check.toggled.connect(self._inputs_changed)
+        self.rotation_bound.valueChanged.connect(self._inputs_changed)
+        self.translation_bound.valueChanged.connect(self._inputs_changed)
         self.alignment.centre_button.clicked.connect(self._centre_preop)
         self.run_button.clicked.connect(self.run)
         self.exclude_button.clicked.connect(self._exclude_selected)
@@ -321,13 +325,18 @@ class RegistrationPanel(QWidget):
             return self._say("Centring needs both preop and intraop nodes.")
         self.alignment.centre_on(self.preop_box.nodes.xyz, self._intraop.xyz)
 
-    def _inputs_changed(self) -> None:
-        """Preop, intraop or alignment changed: the view shows the initial alignment until the next run."""
+    def _inputs_changed(self, *_) -> None:
+        """Preop, intraop, alignment, method, labels or bounds changed: the result shown no longer answers them, so
+        its pairing table is greyed, the exports are disabled and the view shows the initial alignment until the
+        next run (a re-segmented SPECT renumbers the preop ids: the old table must not pass for current)."""
         self._record_current = False
         record = self._record
         if record is not None:
             rows = pair_rows(record.preop, record.intraop, record.result)
-            self.summary.setText(f"{summary_line(record.result, rows)} - inputs changed since: run again")
+            self.summary.setText(f"OUT OF DATE, inputs changed since: run again "
+                                 f"(was {summary_line(record.result, rows)})")
+        self.pairing_table.setEnabled(False)
+        self._set_exports_enabled(False)
         self._refresh_view()
 
     def _refresh_view(self) -> None:
@@ -382,6 +391,7 @@ class RegistrationPanel(QWidget):
         self.last_result = None if record is None else record.result
         rows = [] if record is None else pair_rows(record.preop, record.intraop, record.result)
         self.pairing_table.show_rows(rows)
+        self.pairing_table.setEnabled(record is not None)
         self.summary.setText("no registration yet" if record is None else summary_line(record.result, rows))
         missing = [] if record is None else missing_nodes(record.preop, record.result)
         self.missing_label.setText("" if record is None else "Not found yet (expected position, trocar frame, 90% "
@@ -398,8 +408,8 @@ class RegistrationPanel(QWidget):
             button.setEnabled(enabled)
 
     def _choose_export(self, kind: str) -> None:
-        if self._record is None:
-            return self._say("Run a registration before exporting.")
+        if self._record is None or not self._record_current:
+            return self._say("Run a registration with the current inputs before exporting.")
         name, file_filter, _ = EXPORTS[kind]
         path, _ = QFileDialog.getSaveFileName(self, f"Export {name}", "", file_filter)
         if path:
