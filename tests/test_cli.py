@@ -9,7 +9,7 @@ import pytest
 
 from snreg import geometry
 from snreg.cli import main
-from snreg.nodes import NodeSet, write_nodes
+from snreg.nodes import NodeSet, read_nodes, write_nodes
 
 
 @pytest.fixture
@@ -173,3 +173,17 @@ def test_register_refuses_when_no_pairing_fits_the_bounds(tmp_path, capsys, pelv
     assert main(["register", str(tmp_path / "s.h5"), "--initial", str(tmp_path / "identity.txt")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--initial" in err and "--labels" in err and "--max-rotation" in err
+
+
+def test_register_warns_of_a_far_or_extra_node(node_files, tmp_path, capsys):
+    preop, intraop = node_files
+    assert main(["register", str(preop), str(intraop), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []
+    nodes = read_nodes(intraop)
+    far = NodeSet(nodes.ids + ["SN7"], nodes.labels + [""], np.vstack([nodes.xyz, [[372.0, 0.0, 0.0]]]))
+    write_nodes(far, tmp_path / "far.csv")
+    assert main(["register", str(preop), str(tmp_path / "far.csv"), "--json"]) == 0
+    warnings = json.loads(capsys.readouterr().out)["warnings"]
+    assert len(warnings) == 1 and warnings[0].startswith("SN7 ")
+    assert main(["register", str(preop), str(tmp_path / "far.csv")]) == 0
+    assert f"warning: {warnings[0]}" in capsys.readouterr().out

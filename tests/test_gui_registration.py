@@ -409,3 +409,18 @@ def test_changed_inputs_grey_the_result_and_disable_exports_until_the_next_run(q
         assert not any(b.isEnabled() for b in buttons) and not panel.pairing_table.isEnabled()
         click_run(qtbot, panel)
         assert all(b.isEnabled() for b in buttons)
+
+
+@pytest.mark.parametrize("method", ["global", "chamfer"])
+def test_a_far_or_extra_node_is_warned_about_in_words(qtbot, panel, pelvic_nodes, tmp_path, method):
+    preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
+    far = NodeSet(intraop.ids + ["I7"], intraop.labels + [""], np.vstack([intraop.xyz, intraop.xyz[0] + [372.0, 0, 0]]))
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(far)
+    panel.method_combo.setCurrentText(method)
+    click_run(qtbot, panel)
+    warnings = [line for line in panel.summary.text().splitlines() if line.startswith("WARNING: ")]
+    assert len(warnings) == 1 and warnings[0].startswith("WARNING: I7 ")
+    panel.set_intraop_nodes(intraop)
+    click_run(qtbot, panel)
+    assert "WARNING" not in panel.summary.text()

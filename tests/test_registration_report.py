@@ -1,6 +1,7 @@
 """The Qt-free registration outputs: pair rows, mapped preop nodes, pairing CSV and the PNG report."""
 
 import csv
+import dataclasses
 import struct
 
 import numpy as np
@@ -9,8 +10,8 @@ import pytest
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes, write_nodes
 from snreg.registration import CONFIDENT, RegistrationResult, register
-from snreg.registration.report import (EXTRA, REPORT_DPI, REPORT_SIZE_IN, VIEWS, mapped_preop, pair_rows,
-                                       registration_figure, save_report_png, write_pairs_csv)
+from snreg.registration.report import (EXTRA, FAR_NODE_MM, REPORT_DPI, REPORT_SIZE_IN, VIEWS, mapped_preop,
+                                       node_warnings, pair_rows, registration_figure, save_report_png, write_pairs_csv)
 
 
 @pytest.fixture
@@ -103,3 +104,16 @@ def test_png_report_has_the_documented_size(case, tmp_path):
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = struct.unpack(">II", data[16:24])
     assert (width, height) == (round(REPORT_SIZE_IN[0] * REPORT_DPI), round(REPORT_SIZE_IN[1] * REPORT_DPI))
+
+
+def test_node_warnings_name_far_pairs_and_extra_nodes(case):
+    preop, intraop, result, _, _ = case
+    rows = pair_rows(preop, intraop, result)
+    warnings = node_warnings(rows)
+    assert len(warnings) == 1 and warnings[0].startswith(f"{intraop.ids[-1]} was judged extra")
+    far = dataclasses.replace(rows[0], distance_mm=372.0)             # a paired node 372 mm away
+    near = dataclasses.replace(rows[1], distance_mm=FAR_NODE_MM)      # at the limit: no warning
+    warnings = node_warnings([far, near])
+    assert warnings == [f"{far.intraop_id} is 372 mm from its partner {far.preop_id} (more than 20 mm): check this "
+                        "pairing and the stored node"]
+    assert node_warnings([far], far_mm=400.0) == []

@@ -57,7 +57,7 @@ def _inputs(args):
 def cmd_register(args) -> int:
     from snreg.errors import NodeFileError, NoFitError, SessionError
     from snreg.registration import CONFIDENT, register
-    from snreg.registration.report import missing_nodes, pair_rows
+    from snreg.registration.report import missing_nodes, node_warnings, pair_rows
 
     if args.output:
         check_output_file(args.output, "result")
@@ -84,7 +84,7 @@ def cmd_register(args) -> int:
     doc = {"method": result.method, "pairing_rule": result.pairing_rule, "rms_mm": result.rms_mm,
            "confident_threshold": CONFIDENT, "intraop_from_preop": result.transform.tolist(),
            "initial": result.initial.tolist(), "nodes": [row.as_json() for row in rows],
-           "missing": [node.as_json() for node in missing]}
+           "missing": [node.as_json() for node in missing], "warnings": node_warnings(rows)}
     if args.output:
         write_text(args.output, json.dumps(doc, indent=2), "result")
     if args.json:
@@ -100,5 +100,7 @@ def cmd_register(args) -> int:
         x, y, z = node.mapped_xyz
         print(f"missing {node.preop_id} ({node.preop_label or 'no label'}): expected at ({x:.1f}, {y:.1f}, {z:.1f}) mm, "
               f"within {node.bound_mm:.1f} mm (90%)")
+    for text in doc["warnings"]:
+        print(f"warning: {text}")
     print("loo: the node's distance when the other pairs alone register (a large value flags a suspect node)")
     return 0

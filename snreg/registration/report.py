@@ -23,10 +23,12 @@ from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, RegistrationResult
 
-__all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line", "write_pairs_csv",
-           "registration_figure", "save_report_png", "EXTRA", "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
+__all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line",
+           "node_warnings", "write_pairs_csv", "registration_figure", "save_report_png", "EXTRA", "FAR_NODE_MM", "VIEWS",
+           "REPORT_SIZE_IN", "REPORT_DPI"]
 
 EXTRA = "extra"                 # shown instead of a preop id for an intraop node judged extra (pairing -1)
+FAR_NODE_MM = 20.0              # a paired node farther than this from its mapped partner is warned about
 # The three orthogonal projections (name, horizontal axis, vertical axis): axial x-y, coronal x-z, sagittal y-z.
 VIEWS = (("axial", 0, 1), ("coronal", 0, 2), ("sagittal", 1, 2))
 REPORT_SIZE_IN = (12.0, 8.0)
@@ -151,6 +153,25 @@ def summary_line(result: RegistrationResult, rows: list[PairRow]) -> str:
     confident = sum(row.confident for row in rows)
     return (f"{result.method}: RMS {result.rms_mm:.2f} mm, {paired} of {len(rows)} intraop nodes paired, "
             f"{confident} confident (>= {CONFIDENT:g})")
+
+
+def node_warnings(rows: list[PairRow], far_mm: float = FAR_NODE_MM) -> list[str]:
+    """One plain sentence per intraop node to check: paired but farther than ``far_mm`` from its mapped partner, or
+    judged extra, in intraop order.
+
+    Why: a node 372 mm from every preop node was reported as "5 of 5 paired" by chamfer, with only a shaded row;
+    a distance far beyond the tracking and SPECT errors means the pairing (or the stored node) is wrong, whatever
+    the method's confidence says.
+    """
+    warnings = []
+    for row in rows:
+        if row.paired and row.distance_mm > far_mm:
+            warnings.append(f"{row.intraop_id} is {row.distance_mm:.0f} mm from its partner {row.preop_id} "
+                            f"(more than {far_mm:g} mm): check this pairing and the stored node")
+        elif not row.paired:
+            warnings.append(f"{row.intraop_id} was judged extra, paired with no preop node (nearest "
+                            f"{row.distance_mm:.0f} mm): a node not on the SPECT, or a mis-stored one; check it")
+    return warnings
 
 
 def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationResult, *, title: str = ""):

@@ -29,7 +29,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHODS
-from snreg.registration.report import mapped_preop, missing_nodes, pair_rows, summary_line
+from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
 from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
@@ -392,7 +392,8 @@ class RegistrationPanel(QWidget):
         rows = [] if record is None else pair_rows(record.preop, record.intraop, record.result)
         self.pairing_table.show_rows(rows)
         self.pairing_table.setEnabled(record is not None)
-        self.summary.setText("no registration yet" if record is None else summary_line(record.result, rows))
+        self.summary.setText("no registration yet" if record is None else "\n".join(
+            [summary_line(record.result, rows)] + [f"WARNING: {text}" for text in node_warnings(rows)]))
         missing = [] if record is None else missing_nodes(record.preop, record.result)
         self.missing_label.setText("" if record is None else "Not found yet (expected position, trocar frame, 90% "
                                    "bound):\n" + targets_text(missing) if missing else "")
