@@ -424,3 +424,14 @@ def test_a_far_or_extra_node_is_warned_about_in_words(qtbot, panel, pelvic_nodes
     panel.set_intraop_nodes(intraop)
     click_run(qtbot, panel)
     assert "WARNING" not in panel.summary.text()
+
+
+def test_each_method_has_a_one_sentence_tooltip(panel):
+    combo = panel.method_combo
+    methods = [combo.itemText(k) for k in range(combo.count())]
+    assert sorted(methods) == ["chamfer", "cpd", "global", "icp"]
+    for k in range(combo.count()):
+        tip = combo.itemData(k, Qt.ItemDataRole.ToolTipRole)
+        assert tip and tip.endswith(".") and tip.count(". ") == 0
+    combo.setCurrentText("chamfer")
+    assert combo.toolTip() == combo.itemData(combo.currentIndex(), Qt.ItemDataRole.ToolTipRole)

@@ -31,9 +31,20 @@ from snreg.registration.confidence import posterior_confidence, posterior_weight
 from snreg.registration.pairing import RULES, pair
 from snreg.registration.target import target_error_bound
 
-__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "METHODS", "PAIRING_RULE", "CONFIDENT"]
+__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "METHODS", "METHOD_HELP", "PAIRING_RULE", "CONFIDENT"]
 
 METHODS = ("icp", "cpd", "chamfer", "global")
+# One sentence per method for an operator (tooltips): what it does and when it suits.
+METHOD_HELP = {
+    "icp": "Iterative closest point: each preop node takes the nearest intraop node, the fit is repeated until it "
+           "settles; fast, but needs a good initial alignment and pairs every node, extra ones too.",
+    "cpd": "Coherent point drift: moves the preop nodes as a blurred cloud onto the intraop nodes, tolerating a "
+           "little noise and a few extra nodes; still needs a fair initial alignment.",
+    "chamfer": "Chamfer matching (the thesis' method): fits 10 mm spheres around the nodes to each other within the "
+               "rotation and translation bounds; a far node can still be paired, so check the warnings.",
+    "global": "Global search (default): tries every way of laying three preop nodes on three intraop nodes within "
+              "the bounds, allowing missing and extra nodes, and keeps the best; the most reliable, and slower.",
+}
 PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "assignment"}
 CONFIDENT = 0.95
 

@@ -28,7 +28,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog
 
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
-from snreg.registration import METHODS
+from snreg.registration import METHOD_HELP, METHODS
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
@@ -101,7 +101,11 @@ class RegistrationPanel(QWidget):
         self.intraop_open_button = QPushButton("Node file...")
         self.intraop_table = NodeTable()
         self.method_combo = QComboBox()
-        self.method_combo.addItems([DEFAULT_METHOD] + [m for m in METHODS if m != DEFAULT_METHOD])
+        for k, method in enumerate([DEFAULT_METHOD] + [m for m in METHODS if m != DEFAULT_METHOD]):
+            self.method_combo.addItem(method)
+            self.method_combo.setItemData(k, METHOD_HELP[method], Qt.ItemDataRole.ToolTipRole)
+        self.method_combo.setToolTip(METHOD_HELP[DEFAULT_METHOD])        # the chosen method's, also when closed
+        self.method_combo.currentTextChanged.connect(lambda m: self.method_combo.setToolTip(METHOD_HELP[m]))
         self.labels_check = QCheckBox("use labels (left/right, station)")
         self.rotation_bound = self._bound_spin(1.0, 180.0, 60.0, " deg")
         self.translation_bound = self._bound_spin(1.0, 500.0, 60.0, " mm")
