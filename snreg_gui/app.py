@@ -22,8 +22,8 @@ from pathlib import Path
 
 from PySide6.QtCore import QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import (QApplication, QFileDialog, QInputDialog, QLabel, QMainWindow, QMessageBox, QTabWidget,
-                               QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QApplication, QFileDialog, QLabel, QMainWindow, QMessageBox, QTabWidget, QVBoxLayout,
+                               QWidget)
 
 from snreg import __version__
 from snreg.demo.rig import DemoRig
@@ -33,6 +33,7 @@ from snreg.workflow.chain_change import calibration_change, id_list, reexpress
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
 from snreg_gui.common import wheel_guard
+from snreg_gui.common.case_id_dialog import CaseIdDialog
 from snreg_gui.common.live_link import LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
 from snreg_gui.registration.demo_spect import DemoSpect
@@ -146,9 +147,10 @@ class MainWindow(QMainWindow):
 
     # -- sessions ------------------------------------------------------------
     def new_session(self) -> None:
-        case_id, ok = QInputDialog.getText(self, "New session", "Pseudonymous case id (no patient names or dates):")
-        if not ok:
+        dialog = CaseIdDialog(self)
+        if not dialog.exec():
             return
+        case_id = dialog.case_id()
         path, _ = QFileDialog.getSaveFileName(self, "New session file", f"{case_id}.h5", "snreg sessions (*.h5)")
         if path:
             self.set_session(self._create(path, case_id))

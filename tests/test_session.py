@@ -161,7 +161,8 @@ def test_damaged_hdf5_is_read_from_the_journal_and_recovered(tmp_path, rng, pelv
 
 
 @pytest.mark.parametrize("case_id", ["", "Jane Doe", "Doe,Jane", "Müller", "x" * 65, "pt-1970-01-31",
-                                     "19700131", "31.01.1970", "a/b"])
+                                     "19700131", "31.01.1970", "a/b", "Smith1960", "Doe_1972",
+                                     "Smith 12/03/1960", "1960-03-12"])
 def test_case_ids_that_are_not_pseudonyms_are_refused(tmp_path, case_id):
     path = tmp_path / "s.h5"
     with pytest.raises(SessionError, match="case id .* is refused"):

@@ -24,6 +24,7 @@ JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
 _DATE = re.compile(r"(19|20)\d{2}[-._]?\d{2}[-._]?\d{2}|\d{2}[-._]\d{2}[-._](19|20)\d{2}")
+_NAME_YEAR = re.compile(r"[A-Z][a-z]{2,}[-._]?(19|20)\d{2}(?!\d)")     # "Smith1960", "Doe_1972": name and birth year
 
 # Stream tables: host time (time.perf_counter_ns, monotonic, as DESIGN.md §3) and device time, both ns.
 # imu: device time = the sensor's microsecond clock x 1000. probe and frames: the cameras have no device clock,
@@ -39,7 +40,8 @@ STREAM_DTYPES = {
 
 
 def validate_case_id(case_id: str) -> str:
-    """Return ``case_id`` if it is a pseudonym: 1-64 of ``A-Z a-z 0-9 . _ -`` and nothing like a date."""
+    """Return ``case_id`` if it is a pseudonym: 1-64 of ``A-Z a-z 0-9 . _ -``, nothing like a date or a capitalised
+    name followed by a year; else SessionError saying why (the new-session dialog shows it as the id is typed)."""
     text = str(case_id)
     if not _CASE_ID.fullmatch(text):
         raise SessionError(f"case id {text!r} is refused: use a pseudonymous id of 1 to 64 letters, digits, '.', '_' "
@@ -47,6 +49,9 @@ def validate_case_id(case_id: str) -> str:
     if _DATE.search(text):
         raise SessionError(f"case id {text!r} is refused: it looks like a date; use a pseudonymous id without "
                            "birth dates")
+    if _NAME_YEAR.search(text):
+        raise SessionError(f"case id {text!r} is refused: it looks like a name with a year of birth; use a "
+                           "pseudonymous id")
     return text
 
 
