@@ -322,6 +322,10 @@ def test_missing_nodes_leave_one_out_and_exclude_rerun(qtbot, panel, pelvic_node
         result = click_run(qtbot, panel)
     assert [t.preop_id for t in missing.args[0]] == ["P3", "P5"]
     assert "P3" in panel.missing_label.text() and "P5" in panel.missing_label.text()
+    with qtbot.waitSignal(panel.missing_changed) as cleared:            # inputs changed: no stale guidance
+        panel.rotation_bound.setValue(59.0)
+    assert cleared.args[0] == [] and panel.missing_label.text() == "" and panel.missing_nodes == []
+    result = click_run(qtbot, panel)
     loo_column = PAIR_COLUMNS.index("leave-one-out mm")
     assert [float(v) for v in table_column(panel.pairing_table, loo_column)] == pytest.approx(
         result.leave_one_out_mm, abs=0.051)

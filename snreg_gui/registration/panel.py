@@ -341,6 +341,10 @@ class RegistrationPanel(QWidget):
                                  f"(was {summary_line(record.result, rows)})")
         self.pairing_table.setEnabled(False)
         self._set_exports_enabled(False)
+        if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
+            self.missing_nodes = []
+            self.missing_label.setText("")
+            self.missing_changed.emit([])
         self._refresh_view()
 
     def _refresh_view(self) -> None:
