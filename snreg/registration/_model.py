@@ -31,7 +31,7 @@ from snreg import geometry
 from snreg.registration._problem import Problem
 
 __all__ = ["Candidate", "squared_distances", "pair_nats", "extra_nats", "assign", "evaluate", "score_many",
-           "refine_many", "fit_nats", "sigma_weights", "SIGMA_GRID_MM", "MIN_PAIRS"]
+           "refine_many", "sigma_weights", "SIGMA_GRID_MM", "MIN_PAIRS"]
 
 MIN_PAIRS = 3
 PI_FOUND = 0.9                    # a SPECT node is found (and stored) during surgery
@@ -207,11 +207,6 @@ def _fit_terms(sse: np.ndarray, n_pairs: np.ndarray) -> np.ndarray:
     dof = 3.0 * n_pairs[:, None] - 6.0
     sigma2 = SIGMA_GRID_MM[None, :] ** 2
     return sse[:, None] / (2.0 * sigma2) + 0.5 * dof * (_LOG_2PI + np.log(sigma2))
-
-
-def fit_nats(sse: np.ndarray, n_pairs: np.ndarray) -> np.ndarray:
-    """(A,) the fit term of the score: minus the log of its likelihood averaged over sigma's prior grid."""
-    return -(_logsumexp(-_fit_terms(np.asarray(sse, float), np.asarray(n_pairs)), axis=1) - np.log(len(SIGMA_GRID_MM)))
 
 
 def _occam_nats(problem: Problem, assignments: np.ndarray) -> np.ndarray:
