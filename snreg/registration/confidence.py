@@ -14,8 +14,9 @@ from snreg.registration._model import Candidate
 
 __all__ = ["posterior_weights", "posterior_confidence", "SCORE_TEMPERATURE"]
 
-# Score differences are divided by this before weighting, to allow for what the model leaves out (the correction's
-# uncertainty beyond Laplace's approximation, error that is not Gaussian); fitted on held-out simulation runs.
+# Score differences are divided by this before weighting, to allow for what the model leaves out. 1.0 trusts the
+# model as it is: on the simulation study 1.3-1.6 lowered the share of confident claims by a third without bringing
+# the claims with two SPECT nodes missing to 99% right (issue 11's note).
 SCORE_TEMPERATURE = 1.0
 
 
