@@ -45,7 +45,8 @@ def test_the_nearest_missing_node_is_circled_on_both_feeds(qtbot):
     rgb = np.zeros((54, 96, 3), np.uint8)
     outcome = FrameOutcome(0, None, "moving", np.array([0.0, 0.0, 180.0]), 0, float("nan"), False, False, 5.0)
     screen.show_result(FrameResult(outcome, rgb, rgb, None, None, LevelImu().snapshot(), 0.0, 30.0,
-                                   time.perf_counter_ns(), (np.array([40.0, 20.0]), 8.0), (np.array([30.0, 20.0]), 8.0)))
+                                   time.perf_counter_ns(), (np.array([40.0, 20.0]), 8.0, "P3"),
+                                   (np.array([30.0, 20.0]), 8.0, "P3")))
     qtbot.waitUntil(lambda: screen.left_feed._circle is not None, timeout=2_000)
     (centre, radius, text) = screen.left_feed._circle
     assert tuple(centre) == (40.0, 20.0) and radius == 8.0 and text == "P3"

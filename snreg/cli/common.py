@@ -236,13 +236,13 @@ def session_initial(path: str):
 
     try:
         with Session.open(path) as session:
-            stored = [r.result.initial for r in session.registrations() if r.result.initial is not None]
+            initial = session.last_initial()
     except (SessionError, OSError) as err:
         raise UserError(str(err)) from None
-    if not stored:
+    if initial is None:
         raise UserError(f"{path}: no registration in this session kept its initial alignment; give --initial as a "
                         "4x4 text or JSON file")
-    return stored[-1]
+    return initial
 
 
 def progress(label: str, always: bool = False) -> Callable[[int, int], None]:

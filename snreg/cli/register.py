@@ -36,7 +36,8 @@ def _is_session(path: str) -> bool:
 
 
 def _inputs(args):
-    """(preop, intraop, default initial path): from two files, or both node sets from one session."""
+    """(preop, intraop, the session's initial alignment or None): from two files, or both node sets and the initial
+    alignment kept with its last registration from one session."""
     from snreg.nodes import read_nodes
     from snreg.session import Session, read_intraop_nodes
 
@@ -44,11 +45,10 @@ def _inputs(args):
         if not _is_session(args.preop):
             raise UserError(f"{args.preop}: give the preop and the intraop node files, or one session (.h5)")
         with Session.open(args.preop) as session:
-            preop, intraop = session.preop_nodes(), session.intraop_nodes()
-            has_initial = any(r.result.initial is not None for r in session.registrations())
+            preop, intraop, initial = session.preop_nodes(), session.intraop_nodes(), session.last_initial()
         if preop is None:
             raise UserError(f"{args.preop}: the session holds no preop nodes; give PREOP.csv {args.preop}")
-        return preop, intraop, args.preop if has_initial else None
+        return preop, intraop, initial
     preop = read_nodes(args.preop)
     intraop = read_intraop_nodes(args.intraop) if _is_session(args.intraop) else read_nodes(args.intraop)
     return preop, intraop, None
@@ -65,7 +65,7 @@ def cmd_register(args) -> int:
         preop, intraop, session_initial = _inputs(args)
     except (NodeFileError, SessionError, ValueError, OSError) as err:
         raise UserError(str(err)) from None
-    initial = read_initial(args.initial or session_initial)
+    initial = read_initial(args.initial) if args.initial else session_initial
     try:
         result = register(preop.xyz, intraop.xyz, method=args.method,
                           preop_labels=preop.labels if args.labels else None,

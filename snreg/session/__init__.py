@@ -422,6 +422,12 @@ class Session:
         the nodes it paired (None in files written before ids were stored)."""
         return [StoredRegistration.from_json(r) for r in self._registrations]
 
+    def last_initial(self) -> np.ndarray | None:
+        """The initial alignment (4, 4) kept with the last registration that kept one, None if none did: where
+        registering these nodes again starts from."""
+        kept = [r["initial"] for r in self._registrations if r.get("initial") is not None]
+        return np.asarray(kept[-1], dtype=float) if kept else None
+
     def stream(self, name: str):
         """The ``streams/<name>`` table, lazily (an h5py dataset); empty when the HDF5 file is unreadable."""
         if name not in STREAM_DTYPES:

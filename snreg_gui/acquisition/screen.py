@@ -22,7 +22,7 @@ from PySide6.QtWidgets import (QApplication, QCheckBox, QDoubleSpinBox, QFormLay
 
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
-from snreg.workflow.guidance import guidance_line, point_to_nearest, targets_text
+from snreg.workflow.guidance import guidance_line, targets_text
 from snreg_gui.acquisition.orientation_plot import OrientationPlot
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.common.feed_view import FeedView
@@ -177,13 +177,8 @@ class AcquisitionScreen(QWidget):
         depth = float(outcome.fix.tip[2]) if outcome.fix is not None else None
         self.left_feed.show_frame(result.left_rgb, result.overlay_left, depth)
         self.right_feed.show_frame(result.right_rgb, result.overlay_right, depth)
-        pointer = point_to_nearest(self._missing, outcome.tip_trocar)
-        name = "" if pointer is None else pointer.target.preop_id
         for feed, circle in ((self.left_feed, result.target_left), (self.right_feed, result.target_right)):
-            if circle is None:
-                feed.show_circle(None)
-            else:
-                feed.show_circle(circle[0], circle[1], name)
+            feed.show_circle(*(circle or (None,)))
         self._draws += 1
         if self._draws % PLOT_EVERY == 0:
             self.orientation.redraw()

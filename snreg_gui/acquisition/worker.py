@@ -49,7 +49,7 @@ class FrameResult:
     skew_ms: float
     fps: float
     t_host_ns: int
-    target_left: tuple | None = None       # (centre (2,), radius) display pixels of the nearest missing SPECT node
+    target_left: tuple | None = None       # (centre (2,), radius, preop id): display pixels of the nearest missing node
     target_right: tuple | None = None
 
 
@@ -201,7 +201,8 @@ class AcquisitionWorker(QObject):
         self._missing = list(missing)
 
     def _target_circles(self, tip_trocar, earth_from_imu) -> tuple:
-        """Display circles (left, right) of the missing node nearest the tip, sized by its bound; Nones without."""
+        """Display circles (left, right) of the missing node nearest the tip, sized by its bound and named; Nones
+        without."""
         pointer = point_to_nearest(self._missing, tip_trocar)
         if pointer is None:
             return None, None
@@ -210,7 +211,8 @@ class AcquisitionWorker(QObject):
         for eye in (0, 1):
             circle = target_circle(pointer.target, camera_from_trocar,
                                    lambda points, eye=eye: self.acquisition.tracker.project(points, eye))
-            circles.append(None if circle is None else (DISPLAY_SCALE * circle[0], DISPLAY_SCALE * circle[1]))
+            circles.append(None if circle is None else (DISPLAY_SCALE * circle[0], DISPLAY_SCALE * circle[1],
+                                                        pointer.target.preop_id))
         return tuple(circles)
 
 
