@@ -6,6 +6,7 @@ import pytest
 
 from snreg import geometry
 from snreg.registration import CONFIDENT, METHODS, NoFitError, register
+from snreg.registration.pairing import pairing_at
 from snreg.simulation.cohort import synthetic_cohort
 from snreg.simulation.protocol import make_trial
 
@@ -104,3 +105,15 @@ def test_a_fit_far_better_beyond_the_bounds_refuses_the_forced_one_inside(pelvic
     with pytest.raises(NoFitError, match="fit far better"):
         register(xyz, turned, max_rotation_deg=25.0)
     assert np.all(register(xyz, turned, max_rotation_deg=60.0).pairing == np.arange(len(xyz)))
+
+
+def test_the_pairing_at_a_known_transform_leaves_a_far_node_extra_and_gives_a_crowded_node_to_the_nearer(pelvic_nodes):
+    # the model oracle of snreg simulate: with the transform known, a node 40 mm from every mapped node is extra, and
+    # of two nodes beside one preop node only the nearer is paired (DESIGN §4), even when the farther is the true one
+    xyz, _ = pelvic_nodes
+    intraop = geometry.apply(TRUTH, xyz) + np.random.default_rng(4).normal(0.0, 1.0, xyz.shape)
+    far = geometry.apply(TRUTH, xyz[:1]) + np.array([[40.0, 0.0, 0.0]])
+    nearer = geometry.apply(TRUTH, xyz[1:2]) + np.array([[0.5, 0.0, 0.0]])
+    pairing = pairing_at(xyz, np.vstack([intraop, far, nearer]), TRUTH, 2.0)
+    np.testing.assert_array_equal(pairing[[0, 2, 3, 4, 5, 6]], [0, 2, 3, 4, 5, -1])
+    assert pairing[7] == 1 and pairing[1] == -1

@@ -62,7 +62,7 @@ def test_extra_nodes_sit_5_to_15_mm_per_axis_from_a_true_node():
 def test_oracles_and_error_ratio_on_a_clean_trial():
     patient = synthetic_cohort()[0]
     trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 0.0, 0, 0, (5,))
-    assert oracle_success(trial) == {"oracle_nearest": True, "oracle_one_to_one": True}
+    assert oracle_success(trial) == {"oracle_nearest": True, "oracle_one_to_one": True, "oracle_model": True}
     assert error_stats(trial)["max_error_ratio"] == 0.0
 
 

@@ -15,10 +15,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from snreg import geometry
-from snreg.registration._model import squared_distances
-from snreg.registration._problem import Problem
+from snreg.registration._model import assign, squared_distances
+from snreg.registration._problem import Problem, make_problem
 
-__all__ = ["RULES", "pair"]
+__all__ = ["RULES", "pair", "pairing_at"]
 
 RULES = ("nearest", "one_to_one", "assignment")
 
@@ -35,3 +35,11 @@ def pair(rule: str, problem: Problem, correction: np.ndarray, assignment: np.nda
     pairing = np.full(d2.shape[1], -1, dtype=int)
     pairing[cols] = rows
     return pairing
+
+
+def pairing_at(preop, intraop, transform: np.ndarray, sigma_mm: float) -> np.ndarray:
+    """The ``"assignment"`` rule's pairing (M,) when the ``intraop_from_preop`` transform and the error sigma (mm) are
+    known rather than fitted: the best any method bound by DESIGN §4's pairing can do (``snreg simulate``'s model
+    oracle), since an extra nearer a node than the true one takes the pair whatever the transform."""
+    problem = make_problem(preop, intraop, initial=transform)
+    return assign(problem, np.eye(4), float(sigma_mm))
