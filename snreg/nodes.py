@@ -18,7 +18,12 @@ import numpy as np
 from snreg.errors import NodeFileError
 from snreg.files import atomic_write
 
-__all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes"]
+__all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes", "PREOP_PREFIX", "INTRAOP_PREFIX"]
+
+# The ids snreg itself gives: preop nodes from a SPECT are P1, P2, ... (hottest first), intraop nodes stored in
+# surgery SN1, SN2, ..., so "SN1 -> P3" cannot be misread. Ids read from a user's file may be anything.
+PREOP_PREFIX = "P"
+INTRAOP_PREFIX = "SN"
 
 SLICER_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
@@ -64,8 +69,8 @@ class NodeSet:
         return len(self.xyz)
 
     @classmethod
-    def from_xyz(cls, xyz, labels=None, prefix: str = "SN", **kwargs) -> "NodeSet":
-        """Nodes named ``SN1..SNn`` from bare positions."""
+    def from_xyz(cls, xyz, labels=None, prefix: str = INTRAOP_PREFIX, **kwargs) -> "NodeSet":
+        """Nodes named ``<prefix>1..<prefix>n`` (default ``SN1..SNn``) from bare positions."""
         xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
         labels = list(labels) if labels is not None else [""] * len(xyz)
         return cls([f"{prefix}{k + 1}" for k in range(len(xyz))], labels, xyz, **kwargs)

@@ -21,7 +21,8 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     assert all(node["confidence"] > 0.9 for node in out["nodes"])
     with Session.open(path) as session:
         assert session.intraop_nodes().ids == ["SN1", "SN2", "SN3", "SN4"]
-        assert len(session.preop_nodes()) == 4
+        assert session.preop_nodes().ids == ["P1", "P2", "P3", "P4"]    # never mistaken for the intraop SN1...
+        assert all(node["preop"].startswith("P") for node in out["nodes"])
         assert abs(session.registrations()[0].result.rms_mm - out["rms_mm"]) < 1e-3
         assert len(session.stream("probe")) >= 4 * 20 and len(session.stream("frames")) == out["frames"]
         assert set(session.calibration()) == {"stereo", "chain"}

@@ -42,7 +42,7 @@ def test_writes_and_prints_the_nodes(phantom, tmp_path, capsys):
 
 def test_stations_expected_count_and_threshold(phantom, tmp_path, capsys):
     table = tmp_path / "stations.csv"
-    table.write_text("id,station\nSN1,external iliac\nSN2,OBT\n")
+    table.write_text("id,station\nP1,external iliac\nP2,OBT\n")
     run(phantom, "-o", tmp_path / "nodes.mrk.json", "--nodes", "2", "--threshold", "0.4", "--stations", table)
     nodes = read_nodes(tmp_path / "nodes.mrk.json")
     assert len(nodes) == 2 and nodes.labels[0].startswith("EXT ") and nodes.labels[1].startswith("OBT ")
@@ -88,12 +88,14 @@ def test_bad_input_is_a_user_error(phantom, tmp_path):
     ct = pydicom.dcmread(phantom)
     ct.Modality = "CT"
     ct.save_as(tmp_path / "ct.dcm")
-    (tmp_path / "bad_stations.csv").write_text("id,station\nSN1,kidney\n")
+    (tmp_path / "bad_stations.csv").write_text("id,station\nP1,kidney\n")
+    (tmp_path / "old_stations.csv").write_text("id,station\nSN1,OBT\n")
     cases = [((tmp_path / "x.txt",), "not a readable DICOM"),
              ((tmp_path / "ct.dcm",), "modality CT, not NM"),
              ((phantom, "--threshold", "1.2"), "between 0 and 1"),
              ((phantom, "--stations", tmp_path / "bad_stations.csv"), "not a known station"),
-             ((phantom, "--stations", tmp_path / "missing.csv"), "cannot read the station table")]
+             ((phantom, "--stations", tmp_path / "missing.csv"), "cannot read the station table"),
+             ((phantom, "--stations", tmp_path / "old_stations.csv"), "names SN1, but the nodes found are P1")]
     for argv, message in cases:
         with pytest.raises(UserError, match=message):
             run(*argv, "-o", tmp_path / "nodes.csv")

@@ -25,7 +25,7 @@ def matched_errors(found, truth):
 def test_thesis_phantom_centres_within_1_mm_and_sides_labelled(tmp_path):
     result = segment_nodes(scan(tmp_path, THESIS_SOURCES))
     assert matched_errors(result.nodes.xyz, THESIS_SOURCES).max() < CENTRE_TOLERANCE_MM
-    assert result.nodes.frame == "LPS" and result.nodes.ids == ["SN1", "SN2", "SN3", "SN4"]
+    assert result.nodes.frame == "LPS" and result.nodes.ids == ["P1", "P2", "P3", "P4"]
     for xyz, label in zip(result.nodes.xyz, result.nodes.labels):
         assert label == ("L" if xyz[0] > 0 else "R")      # LPS: +x is the patient's left
     assert result.clusters.max() == 4 and result.threshold > 0
@@ -79,9 +79,15 @@ def test_threshold_above_weak_nodes_drops_them(tmp_path):
 
 def test_stations_and_midline(tmp_path):
     volume = scan(tmp_path, THESIS_SOURCES)
-    result = segment_nodes(volume, stations={"SN1": "EXT", "SN3": "INT"}, midline_x=100.0)
+    result = segment_nodes(volume, stations={"P1": "EXT", "P3": "INT"}, midline_x=100.0)
     assert result.nodes.labels[0] == "EXT R" and result.nodes.labels[2] == "INT R"
     assert set(result.nodes.labels) <= {"EXT R", "INT R", "R"}
+
+
+def test_station_table_naming_no_node_found_is_refused(tmp_path):
+    """A table written for the old ids (SN1...) must not label nothing silently."""
+    with pytest.raises(PreopError, match="names SN1, but the nodes found are P1 to P4"):
+        segment_nodes(scan(tmp_path, THESIS_SOURCES), stations={"SN1": "EXT"})
 
 
 def test_bad_parameters_and_empty_volumes(tmp_path):

@@ -31,7 +31,7 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
                    help="activity threshold as a fraction of the maximum, between 0 and 1")
     p.add_argument("--nodes", type=positive_int, metavar="N",
                    help="expected number of nodes (default: every hot spot and peak found)")
-    p.add_argument("--stations", metavar="CSV", help="station per node id: a CSV with columns id,station")
+    p.add_argument("--stations", metavar="CSV", help="station per node id: a CSV with columns id,station; the nodes are P1, P2, ... hottest first")
     p.add_argument("--midline-x", type=finite_float, metavar="MM",
                    help="patient x of the midline for left/right labels (default: the volume centre)")
     p.set_defaults(func=cmd_preop)

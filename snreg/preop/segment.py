@@ -4,7 +4,8 @@ A threshold relative to the maximum separates sentinel nodes from higher echelon
 components (scipy.ndimage.label, 26-connected) are the hot spots; a hot spot with several
 peaks of the lightly smoothed activity is split by activity-weighted k-means started at those
 peaks (the thesis used k-means for the centres). Centres are activity-weighted centroids in
-LPS mm; nodes are sorted by total activity, the hottest first (``SN1``).
+LPS mm; nodes are sorted by total activity, the hottest first, and named ``P1``, ``P2``... (preop ids never
+look like the intraop ``SN1``... stored in surgery, so a pairing "SN1 -> P3" cannot be misread).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from snreg.labels import parse_label
-from snreg.nodes import NodeSet
+from snreg.nodes import PREOP_PREFIX, NodeSet
 from snreg.preop.volume import PreopError, Volume
 
 __all__ = ["PreopNodes", "segment_nodes", "read_station_table", "side_labels"]
@@ -49,7 +50,8 @@ def segment_nodes(volume: Volume, *, threshold: float = 0.3, n_nodes: int | None
     if too few, merged hot spots are split further. Peaks closer than ``min_separation_mm``
     count as one node (pelvic nodes closer than ~10 mm merge at SPECT resolution).
     Labels: side from x against ``midline_x`` (default the volume centre; LPS +x is the
-    patient's left) and a station from ``stations`` (node id -> station) when given.
+    patient's left) and a station from ``stations`` (node id -> station, ids ``P1``...) when given; a station
+    for an id that is not among the nodes found is a :class:`PreopError` (it would silently label nothing).
     """
     if not 0.0 < threshold < 1.0:
         raise PreopError(f"the threshold is relative to the maximum and must lie between 0 and 1, not {threshold:g}")
@@ -86,7 +88,11 @@ def segment_nodes(volume: Volume, *, threshold: float = 0.3, n_nodes: int | None
     relabel = np.zeros(len(order) + 1, dtype=np.int32)
     relabel[order + 1] = np.arange(1, len(order) + 1)
     xyz = volume.patient_xyz(np.array(centres)[order])
-    ids = [f"SN{k + 1}" for k in range(len(order))]
+    ids = [f"{PREOP_PREFIX}{k + 1}" for k in range(len(order))]
+    unknown = sorted(set(stations or {}) - set(ids))
+    if unknown:
+        raise PreopError(f"the station table names {', '.join(unknown)}, but the nodes found are {ids[0]} to "
+                         f"{ids[-1]} (hottest first); name them so, or change the threshold or node count")
     if midline_x is None:
         midline_x = float(volume.patient_xyz((np.array(voxels.shape) - 1) / 2)[0, 0])
     labels = side_labels(xyz, midline_x, ids, stations)
@@ -103,7 +109,7 @@ def side_labels(xyz, midline_x: float, ids, stations: dict[str, str] | None = No
 
 
 def read_station_table(path) -> dict[str, str]:
-    """Node id -> station code (e.g. ``{"SN1": "OBT"}``) from a CSV with columns ``id,station``."""
+    """Node id -> station code (e.g. ``{"P1": "OBT"}``) from a CSV with columns ``id,station``."""
     path = Path(path)
     try:
         rows = list(csv.DictReader(line for line in path.read_text(encoding="utf-8").splitlines()

@@ -31,7 +31,7 @@ import numpy as np
 
 from snreg import __version__
 from snreg.chain import ChainCalibration
-from snreg.nodes import NodeSet
+from snreg.nodes import INTRAOP_PREFIX, NodeSet
 from snreg.session import reader, writer
 from snreg.session.journal import Journal, fsync_directory, journal_path, read_journal
 from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, StoredRegistration,
@@ -297,7 +297,7 @@ class Session:
         """The events on record, oldest first; only those of ``kind`` if given."""
         return [dict(event) for event in self._events if kind is None or event["kind"] == kind]
 
-    def next_node_id(self, prefix: str = "SN") -> str:
+    def next_node_id(self, prefix: str = INTRAOP_PREFIX) -> str:
         """The first ``<prefix><k>`` (k = 1, 2, ...) not stored: after an undo the id is used again."""
         k = 1
         while f"{prefix}{k}" in self._nodes:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snreg.nodes import NodeSet, read_nodes
+from snreg.nodes import PREOP_PREFIX, NodeSet, read_nodes
 
 __all__ = ["Patient", "synthetic_cohort", "load_cohort", "THESIS_NODE_COUNTS", "STATION_CENTRES"]
 
@@ -74,7 +74,7 @@ def synthetic_cohort(node_counts=THESIS_NODE_COUNTS, seed: int = COHORT_SEED) ->
             if all(np.linalg.norm(xyz - p) >= MIN_SEPARATION_MM for p in points):
                 labels.append(label)
                 points.append(xyz)
-        nodes = NodeSet.from_xyz(np.array(points), labels, frame="LPS")
+        nodes = NodeSet.from_xyz(np.array(points), labels, prefix=PREOP_PREFIX, frame="LPS")
         patients.append(Patient(f"P{k + 1:02d}", nodes))
     return patients
 
