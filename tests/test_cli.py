@@ -187,3 +187,19 @@ def test_register_warns_of_a_far_or_extra_node(node_files, tmp_path, capsys):
     assert len(warnings) == 1 and warnings[0].startswith("SN7 ")
     assert main(["register", str(preop), str(tmp_path / "far.csv")]) == 0
     assert f"warning: {warnings[0]}" in capsys.readouterr().out
+
+
+def test_register_text_names_colliding_preop_ids_apart(node_files, tmp_path, capsys):
+    """A preop file that also says SN1...: the text marks the preop side 'P:', the JSON keeps the file's ids."""
+    preop, intraop = node_files
+    renamed = read_nodes(preop)
+    renamed.ids = [f"SN{k + 1}" for k in range(len(renamed))]
+    write_nodes(renamed, tmp_path / "sn_preop.csv")
+    assert main(["register", str(tmp_path / "sn_preop.csv"), str(intraop), "--labels"]) == 0
+    out = capsys.readouterr().out
+    assert "shown as P:<id>" in out and "SN1 -> P:SN4 " in out and "SN3 -> P:SN1 " in out
+    assert main(["register", str(tmp_path / "sn_preop.csv"), str(intraop), "--labels", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["nodes"][0]["preop_id"] == "SN4"
+    assert main(["register", str(preop), str(intraop), "--labels"]) == 0
+    out = capsys.readouterr().out
+    assert "SN1 -> P4 " in out and "P:" not in out

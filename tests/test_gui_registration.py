@@ -112,8 +112,7 @@ def test_three_view_draws_mapped_preop_intraop_pairs_and_labels(qtbot, pelvic_no
         assert len(x) == 2 * len(intraop)
     assert view.preop_dots[0].opts["symbol"] != view.intraop_dots[0].opts["symbol"]
     preop_texts, intraop_texts = view.label_texts(0)
-    assert preop_texts == [f"{i} {label}" for i, label in zip(preop.ids, preop.labels)]
-    assert intraop_texts == [f"{i} {label}" for i, label in zip(intraop.ids, intraop.labels)]
+    assert preop_texts == preop.ids and intraop_texts == intraop.ids
     panel.shutdown()
 
 
@@ -439,3 +438,55 @@ def test_each_method_has_a_one_sentence_tooltip(panel):
         assert tip and tip.endswith(".") and tip.count(". ") == 0
     combo.setCurrentText("chamfer")
     assert combo.toolTip() == combo.itemData(combo.currentIndex(), Qt.ItemDataRole.ToolTipRole)
+
+
+def _overlaps(boxes) -> list:
+    """Pairs of (left, top, right, bottom) boxes that overlap by more than half a pixel each way."""
+    return [(a, b) for a in range(len(boxes)) for b in range(a + 1, len(boxes))
+            if min(boxes[a][2], boxes[b][2]) - max(boxes[a][0], boxes[b][0]) > 0.5
+            and min(boxes[a][3], boxes[b][3]) - max(boxes[a][1], boxes[b][1]) > 0.5]
+
+
+def test_three_view_labels_of_clustered_nodes_do_not_overlap_and_a_far_node_is_in_range(qtbot, monkeypatch):
+    """Issue 14: labels overlapped into "SNSNSN4" and a node 372 mm away fell outside the view."""
+    monkeypatch.setattr(node_views, "opengl_available", lambda: False)
+    view = make_node_view()
+    qtbot.addWidget(view)
+    view.resize(1000, 450)
+    view.show()
+    qtbot.waitExposed(view)
+    rng = np.random.default_rng(3)
+    preop = NodeSet.from_xyz(rng.normal([0.0, 0.0, 250.0], 3.0, (5, 3)), prefix="P")
+    far = np.vstack([preop.xyz[:4] + rng.normal(0.0, 1.0, (4, 3)), [[372.0, 0.0, 250.0]]])
+    view.show_scene(node_views.NodeScene(preop, NodeSet.from_xyz(far), np.array([0, 1, 2, 3, -1]),
+                                         np.array([0, 0, 0, 0, 1], bool)))
+    for k in range(3):
+        boxes = view.label_boxes(k)
+        assert len(boxes) == 10 and _overlaps(boxes) == []
+        (x0, x1), (y0, y1) = view.plots[k].vb.viewRange()
+        h, v = [(0, 1), (0, 2), (1, 2)][k]
+        assert x0 < far[4, h] < x1 and y0 < far[4, v] < y1
+    assert "not found yet" in view.legend.text and "intraop" in view.legend.text and "paired" in view.legend.text
+    assert len(view.missing_dots[0].getData()[0]) == 1 and len(view.preop_dots[0].getData()[0]) == 4
+
+
+def test_colliding_preop_ids_are_shown_marked(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
+    """A preop node file using SN1... like the intraop nodes: the panel, its summary and the view say P:SN..."""
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    preop.ids = [f"SN{k + 1}" for k in range(len(preop))]
+    intraop.ids = [f"SN{k + 1}" for k in range(len(intraop))]
+    load_preop(qtbot, panel, preop, tmp_path / "sn_preop.csv")
+    panel.set_intraop_nodes(intraop)
+    click_run(qtbot, panel)
+    assert table_column(panel.pairing_table, 0) == intraop.ids
+    assert table_column(panel.pairing_table, 2) == [f"P:SN{n + 1}" for n in truth]
+    preop_texts, intraop_texts = panel.view.scene_shown.texts()
+    assert preop_texts == [f"P:{i}" for i in preop.ids] and intraop_texts == intraop.ids
+    assert panel.preop_box.nodes.ids == preop.ids          # only what is shown is marked
+
+
+def test_node_view_takes_at_least_40_percent_of_the_tab(qtbot, panel):
+    panel.resize(1024, 640)
+    panel.show()
+    qtbot.waitExposed(panel)
+    qtbot.waitUntil(lambda: panel.view.height() >= 0.4 * panel.height(), timeout=TIMEOUT_MS)

@@ -57,6 +57,7 @@ def _inputs(args):
 def cmd_register(args) -> int:
     from snreg.errors import NodeFileError, NoFitError, SessionError
     from snreg.registration import CONFIDENT, register
+    from snreg.registration.naming import PREOP_MARK, ids_collide, marked_missing, marked_rows, pair_text
     from snreg.registration.report import missing_nodes, node_warnings, pair_rows
 
     if args.output:
@@ -91,16 +92,20 @@ def cmd_register(args) -> int:
         print(json.dumps(doc))
         return 0
     print(f"method {result.method}, RMS {result.rms_mm:.2f} mm, pairing rule {result.pairing_rule}")
-    print(f"{'intraop':<10} {'label':<10} {'preop':<10} {'label':<10} {'dist mm':>8} {'loo mm':>7} {'conf':>6}")
-    for row in rows:
+    if ids_collide(preop.ids, intraop.ids):
+        print(f"the preop ids repeat intraop ids: preop nodes are shown as {PREOP_MARK}<id>")
+    print(f"{'intraop -> preop':<22} {'labels':<21} {'dist mm':>8} {'loo mm':>7} {'conf':>6}")
+    shown = marked_rows(rows, preop.ids)
+    for row in shown:
         mark = "" if row.confident else "  (check)"
-        print(f"{row.intraop_id:<10} {row.intraop_label:<10} {row.preop_id:<10} {row.preop_label:<10} "
+        labels = f"{row.intraop_label or '-'} -> {row.preop_label or '-'}" if row.paired else row.intraop_label
+        print(f"{pair_text(row):<22} {labels:<21} "
               f"{row.distance_mm:>8.1f} {row.leave_one_out_mm:>7.1f} {row.confidence:>6.2f}{mark}")
-    for node in missing:
+    for node in marked_missing(missing, intraop.ids, preop.ids):
         x, y, z = node.mapped_xyz
         print(f"missing {node.preop_id} ({node.preop_label or 'no label'}): expected at ({x:.1f}, {y:.1f}, {z:.1f}) mm, "
               f"within {node.bound_mm:.1f} mm (90%)")
-    for text in doc["warnings"]:
+    for text in node_warnings(shown):
         print(f"warning: {text}")
     print("loo: the node's distance when the other pairs alone register (a large value flags a suspect node)")
     return 0

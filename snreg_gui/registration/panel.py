@@ -29,6 +29,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHOD_HELP, METHODS
+from snreg.registration.naming import marked_missing, marked_rows
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
@@ -40,6 +41,7 @@ from snreg_gui.registration.preop import PreopSourceBox
 from snreg_gui.registration.tables import NodeTable, PairingTable
 
 DEFAULT_METHOD = "global"
+VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
 
 
 def _same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
@@ -68,6 +70,11 @@ def _without(nodes: NodeSet, ids: set[str]) -> NodeSet:
 
 def _has_nodes(nodes: NodeSet | None) -> bool:
     return nodes is not None and len(nodes) > 0
+
+
+def _shown_rows(record: RunRecord) -> list:
+    """The record's pairing rows as the panel shows them: preop ids marked "P:" when they repeat intraop ids."""
+    return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
 def _count(nodes: NodeSet) -> str:
@@ -198,19 +205,29 @@ class RegistrationPanel(QWidget):
         for button in self.export_buttons.values():
             exports.addWidget(button)
         results_layout.addLayout(exports)
-        right = QSplitter(Qt.Orientation.Vertical)
+        right = self.view_splitter = QSplitter(Qt.Orientation.Vertical)
         right.addWidget(self.view)
         right.addWidget(results)
         right.setChildrenCollapsible(False)
         self.view.setMinimumHeight(250)            # a GL view hints no size: without this the splitter hides it
         right.setStretchFactor(0, 3)
         right.setStretchFactor(1, 2)
+        self._view_sized = False
         main = QSplitter(Qt.Orientation.Horizontal)
         main.addWidget(left)
         main.addWidget(right)
         main.setStretchFactor(1, 2)
         layout = QVBoxLayout(self)
         layout.addWidget(main)
+
+    def showEvent(self, event) -> None:
+        """The first time the panel is shown, the node view gets :data:`VIEW_SHARE` of the splitter's height (the
+        user moves the handle after that)."""
+        super().showEvent(event)
+        if not self._view_sized and self.view_splitter.height() > 0:
+            self._view_sized = True
+            height = self.view_splitter.height()
+            self.view_splitter.setSizes([round(VIEW_SHARE * height), height - round(VIEW_SHARE * height)])
 
     # -- public API ------------------------------------------------------------
     @property
@@ -336,9 +353,8 @@ class RegistrationPanel(QWidget):
         self._record_current = False
         record = self._record
         if record is not None:
-            rows = pair_rows(record.preop, record.intraop, record.result)
             self.summary.setText(f"OUT OF DATE, inputs changed since: run again "
-                                 f"(was {summary_line(record.result, rows)})")
+                                 f"(was {summary_line(record.result, _shown_rows(record))})")
         self.pairing_table.setEnabled(False)
         self._set_exports_enabled(False)
         if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
@@ -350,7 +366,8 @@ class RegistrationPanel(QWidget):
     def _refresh_view(self) -> None:
         record = self._record
         if record is not None and self._record_current:
-            scene = NodeScene(mapped_preop(record.preop, record.result), record.intraop, record.result.pairing)
+            scene = NodeScene(mapped_preop(record.preop, record.result), record.intraop, record.result.pairing,
+                              record.result.missing)
         else:
             preop = self.preop_box.nodes
             moved = NodeSet(preop.ids, preop.labels, geometry.apply(self.alignment.transform(preop.xyz), preop.xyz)) \
@@ -397,12 +414,13 @@ class RegistrationPanel(QWidget):
     def _show_record(self, record: RunRecord | None) -> None:
         self._record, self._record_current = record, record is not None
         self.last_result = None if record is None else record.result
-        rows = [] if record is None else pair_rows(record.preop, record.intraop, record.result)
+        rows = [] if record is None else _shown_rows(record)
         self.pairing_table.show_rows(rows)
         self.pairing_table.setEnabled(record is not None)
         self.summary.setText("no registration yet" if record is None else "\n".join(
             [summary_line(record.result, rows)] + [f"WARNING: {text}" for text in node_warnings(rows)]))
-        missing = [] if record is None else missing_nodes(record.preop, record.result)
+        missing = [] if record is None else marked_missing(missing_nodes(record.preop, record.result),
+                                                           record.intraop.ids, record.preop.ids)
         self.missing_label.setText("" if record is None else "Not found yet (expected position, trocar frame, 90% "
                                    "bound):\n" + targets_text(missing) if missing else "")
         self.missing_nodes = missing
