@@ -41,7 +41,8 @@ def cmd_info(args) -> int:
         print(json.dumps(info))
         return 0
     streams = ", ".join(f"{name} {n}" for name, n in info["streams"].items())
-    regs = "; ".join(f"#{r['n']} {r['method']} RMS {r['rms_mm']:.2f} mm" for r in info["registrations"]) or "none"
+    regs = "; ".join(f"#{r['n']} {r['method']} RMS {r['rms_mm']:.2f} mm" + (" (final)" if r["final"] else "")
+                     for r in info["registrations"]) or "none"
     print(f"case {info['case_id']}, created {info['created_utc']}, format {info['format_version']}, "
           f"snreg {info['snreg_version']}")
     print(f"nodes: {info['intraop_nodes']} intraop, {info['preop_nodes']} preop; streams: {streams}")

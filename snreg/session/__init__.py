@@ -10,6 +10,10 @@ when a kill left the HDF5 file unreadable (``Session.damaged``); ``snreg session
 file. :meth:`Session.resume` reopens a session to go on recording into it. The journal keeps every node ever
 stored, so an undone node stays on record there.
 
+One stored registration may be marked final, the one that counts (:meth:`Session.set_final_registration`;
+:func:`set_final_in_file` for a closed file): the attribute ``final=True`` on ``registration/<n>``, journal first;
+files without it have none marked.
+
 What happened besides the nodes (a store refused and why, nodes re-expressed under a new calibration with their old
 values, an acquisition started) goes to the ``events`` log (:meth:`Session.log_event`, :meth:`Session.events`),
 journal first as well. A re-expression is one journal line, so a kill during it leaves every node either all old
@@ -39,7 +43,7 @@ from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, Intraop
                                   validate_case_id)
 
 __all__ = ["Session", "SessionError", "IntraopNode", "StoredRegistration", "read_intraop_nodes", "validate_case_id",
-           "calibration_version"]
+           "calibration_version", "set_final_in_file"]
 
 
 def _serialised(method):
@@ -61,6 +65,7 @@ class Session:
         self._calibration: dict[str, dict] = {}
         self._preop: dict | None = None
         self._registrations: list[dict] = []
+        self._final: int | None = None              # the registration marked final, if any
         self._events: list[dict] = []
         self._buffers: dict[str, writer.StreamBuffer] = {}
         self._lock = threading.RLock()
@@ -133,8 +138,8 @@ class Session:
                 raise SessionError(f"{path}: the HDF5 file is damaged; run 'snreg session recover' on it, "
                                    "then continue the recovered file")
             state = (merged.header, merged.intraop_records(), dict(merged._calibration), merged._preop,
-                     list(merged._registrations), list(merged._events))
-        header, nodes, calibration, preop, registrations, events = state
+                     list(merged._registrations), list(merged._events), merged._final)
+        header, nodes, calibration, preop, registrations, events, final = state
         try:
             h5 = h5py.File(path, "r+")
         except OSError as err:
@@ -157,7 +162,8 @@ class Session:
         for data in registrations:
             if data["n"] not in written:
                 writer.write_registration(h5, data)
-        session._registrations = registrations
+        session._registrations, session._final = registrations, final
+        writer.write_final(h5, final)
         writer.rewrite_nodes(h5, nodes)
         h5.flush()
         session._buffers = {name: writer.StreamBuffer(h5, name, stream_flush_s) for name in STREAM_DTYPES}
@@ -182,6 +188,7 @@ class Session:
                 self._events = value
             else:
                 self._registrations = value
+                self._final = next((r["n"] for r in value if r.get("final")), None)
 
     def _replay(self, entries: list) -> None:
         """Merge journal entries over what the HDF5 file holds (the journal is never behind it)."""
@@ -205,6 +212,8 @@ class Session:
             elif kind == "registration" and data["n"] not in known:
                 self._registrations.append(data)
                 known.add(data["n"])
+            elif kind == "final":
+                self._final = data["n"]
 
     # -- writing -------------------------------------------------------------
     @_serialised
@@ -358,6 +367,30 @@ class Session:
         self._registrations.append(data)
         return data["n"]
 
+    @_serialised
+    def set_final_registration(self, n: int | None) -> None:
+        """Mark stored registration ``n`` as the final one, the one that counts (exports use it); None unmarks.
+        At most one is final: marking another moves the mark. Durable when this returns (journal line, then the
+        ``final`` attribute on ``registration/<n>`` and a flush); no node or registration data is rewritten."""
+        self._writable()
+        n = self._known_registration(n)
+        self._journal.append("final", {"n": n})
+        writer.write_final(self._h5, n)
+        self._h5.flush()
+        self._final = n
+
+    def _known_registration(self, n: int | None) -> int | None:
+        if n is None:
+            return None
+        if int(n) not in {r["n"] for r in self._registrations}:
+            raise SessionError(f"{self.path}: there is no stored registration {n} to mark final; "
+                               f"stored: {', '.join(str(r['n']) for r in self._registrations) or 'none'}")
+        return int(n)
+
+    def final_registration(self) -> int | None:
+        """The number of the registration marked final, None if none is."""
+        return self._final
+
     def append_imu(self, t_host_ns, t_device_ns, acc_g, gyro_dps) -> None:
         """IMU samples: times (n,) ns, acceleration (n, 3) g, angular rate (n, 3) deg/s."""
         self._append("imu", t_host_ns=t_host_ns, t_device_ns=t_device_ns, acc_g=acc_g, gyro_dps=gyro_dps)
@@ -419,8 +452,8 @@ class Session:
 
     def registrations(self) -> list[StoredRegistration]:
         """The stored registrations, in order: each :class:`~snreg.registration.RegistrationResult` with the ids of
-        the nodes it paired (None in files written before ids were stored)."""
-        return [StoredRegistration.from_json(r) for r in self._registrations]
+        the nodes it paired (None in files written before ids were stored) and its final mark."""
+        return [StoredRegistration.from_json(r, final=r["n"] == self._final) for r in self._registrations]
 
     def last_initial(self) -> np.ndarray | None:
         """The initial alignment (4, 4) kept with the last registration that kept one, None if none did: where
@@ -449,6 +482,7 @@ class Session:
                 writer.write_preop(h5, self._preop)
             for data in self._registrations:
                 writer.write_registration(h5, data)
+            writer.write_final(h5, self._final)
             for event in self._events:
                 writer.append_event(h5, event)
             for name in STREAM_DTYPES:
@@ -478,6 +512,31 @@ class Session:
 def _plain_values(node: IntraopNode, keys) -> dict:
     return {key: np.asarray(getattr(node, key), dtype=float).tolist() if key.startswith("xyz")
             else str(getattr(node, key)) for key in keys}
+
+
+def set_final_in_file(path: str | Path, n: int | None) -> None:
+    """Mark registration ``n`` final (None: unmark) in a session file that is not open for recording (review).
+
+    Journal line first, then the attribute, as :meth:`Session.set_final_registration`; unlike
+    :meth:`Session.resume` nothing else is rewritten. :class:`SessionError` in one sentence when the file cannot be
+    marked (no such registration, damaged, or open for recording elsewhere)."""
+    path = Path(path)
+    with Session.open(path) as session:
+        if session.damaged:
+            raise SessionError(f"{path}: the HDF5 file is damaged; run 'snreg session recover' before marking it")
+        n = session._known_registration(n)
+    try:
+        h5 = h5py.File(path, "r+")
+    except OSError as err:
+        raise SessionError(f"{path}: cannot be opened for writing ({err}); is it being recorded?") from None
+    with h5:
+        journal = Journal(journal_path(path))
+        try:
+            journal.append("final", {"n": n})
+        finally:
+            journal.close()
+        writer.write_final(h5, n)
+        h5.flush()
 
 
 def read_intraop_nodes(path: str | Path) -> NodeSet:

@@ -25,8 +25,9 @@ def session_info(path: str | Path) -> dict:
                 "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
                 "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
                 "calibration": sorted(session.calibration()),
-                "registrations": [{"n": r.n, "method": r.result.method, "rms_mm": r.result.rms_mm}
+                "registrations": [{"n": r.n, "method": r.result.method, "rms_mm": r.result.rms_mm, "final": r.final}
                                   for r in session.registrations()],
+                "final_registration": session.final_registration(),
                 "events": dict(Counter(event["kind"] for event in session.events())),
                 "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged}
 

@@ -83,6 +83,7 @@ def read_registrations(h5: h5py.File) -> list[dict]:
             data[key] = [_plain(v) for v in group[key][()]] if key in group else None
         for key in ("initial", "target_error_mm", "leave_one_out_mm", "missing"):   # absent in older files
             data[key] = group[key][()].tolist() if key in group else None
+        data["final"] = bool(group.attrs.get("final", False))          # absent: not final (older files: none is)
         out.append(data)
     return out
 

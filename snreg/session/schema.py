@@ -107,15 +107,17 @@ class IntraopNode:
 @dataclass(frozen=True, eq=False)
 class StoredRegistration:
     """A registration as the session keeps it: ``n`` (its number), the result, the ids of the preop and intraop nodes
-    it paired, in the order the result indexes them (None in files written before ids were stored)."""
+    it paired, in the order the result indexes them (None in files written before ids were stored), and whether it
+    is the one marked final."""
 
     n: int
     result: RegistrationResult
     preop_ids: list[str] | None
     intraop_ids: list[str] | None
+    final: bool = False
 
     @classmethod
-    def from_json(cls, data: dict) -> "StoredRegistration":
+    def from_json(cls, data: dict, final: bool = False) -> "StoredRegistration":
         def optional(key, dtype=float):
             return None if data.get(key) is None else np.asarray(data[key], dtype=dtype)
 
@@ -124,7 +126,7 @@ class StoredRegistration:
                                     np.asarray(data["confidence"]), data["pairing_rule"], initial=optional("initial"),
                                     target_error_mm=optional("target_error_mm"), missing=optional("missing", bool),
                                     leave_one_out_mm=optional("leave_one_out_mm"))
-        return cls(int(data["n"]), result, data.get("preop_ids"), data.get("intraop_ids"))
+        return cls(int(data["n"]), result, data.get("preop_ids"), data.get("intraop_ids"), final)
 
 
 def position_mm(value) -> np.ndarray:

@@ -127,6 +127,16 @@ def write_registration(h5: h5py.File, data: dict) -> None:
         group.attrs[key] = data[key]
 
 
+def write_final(h5: h5py.File, n: int | None) -> None:
+    """Attribute ``final=True`` on ``registration/<n>`` and on no other (None: on none); a registration group not in
+    the file yet (only in the journal) is skipped. Touches attributes only, never a table."""
+    for name, group in h5["registration"].items():
+        if n is not None and int(name) == n:
+            group.attrs["final"] = True
+        elif "final" in group.attrs:
+            del group.attrs["final"]
+
+
 class StreamBuffer:
     """Rows waiting for one stream table; :meth:`append` writes them out once ``flush_s`` seconds have passed."""
 
