@@ -87,6 +87,8 @@ class MainWindow(QMainWindow):
         self.wizards = WizardLauncher(self)
         self.live_link = LiveLinkControl(self.settings, self, self._link_state)
         self._menus()
+        self.review.recording_session = lambda: self.session
+        self.review.final_changed.connect(lambda _: self.registration.refresh_stored())
         self.review.failed.connect(self.statusBar().showMessage)
         self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
         self.live_link.failed.connect(self.statusBar().showMessage)

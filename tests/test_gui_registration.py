@@ -490,3 +490,41 @@ def test_node_view_takes_at_least_40_percent_of_the_tab(qtbot, panel):
     panel.show()
     qtbot.waitExposed(panel)
     qtbot.waitUntil(lambda: panel.view.height() >= 0.4 * panel.height(), timeout=TIMEOUT_MS)
+
+
+def test_final_mark_is_kept_in_the_session_and_the_exports_use_it(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    path = tmp_path / "final.h5"
+    with Session.create(path, case_id="gui-final-01") as session:
+        for k in range(len(intraop)):
+            session.add_intraop_node(intraop.ids[k], intraop.labels[k], intraop.xyz[k])
+        panel.set_session(session)
+        load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+        panel.method_combo.setCurrentText("icp")
+        click_run(qtbot, panel)
+        panel.method_combo.setCurrentText("cpd")
+        click_run(qtbot, panel)
+        stored = panel.stored
+        assert stored.table.rowCount() == 2 and not stored.unmark_button.isEnabled()
+        assert "exports write the result shown" in panel.final_label.text()
+        stored.table.selectRow(0)
+        qtbot.mouseClick(stored.mark_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: session.final_registration() == 0, timeout=TIMEOUT_MS)
+        qtbot.waitUntil(lambda: stored.table.item(0, 4).text() == "FINAL", timeout=TIMEOUT_MS)
+        assert stored.table.item(1, 4).text() == "" and "registration 0, marked final" in panel.final_label.text()
+        load_preop(qtbot, panel, NodeSet(preop.ids, preop.labels, preop.xyz + 5.0), tmp_path / "moved.csv")
+        assert not panel.pairing_table.isEnabled()                      # the shown result is out of date...
+        assert panel.export_buttons["pairs"].isEnabled()                # ...but the final one can be exported
+        monkeypatch.setattr(QFileDialog, "getSaveFileName", lambda *a: (str(tmp_path / "pairs.csv"), ""))
+        qtbot.mouseClick(panel.export_buttons["pairs"], Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: not panel.busy and panel.message.text().startswith("Written"), timeout=TIMEOUT_MS)
+        assert "(registration 0, marked final)" in panel.message.text()
+        text = (tmp_path / "pairs.csv").read_text(encoding="utf-8")
+        assert "# registration: registration 0 of the session, marked final" in text and "# method: icp" in text
+        rows = list(csv.DictReader(line for line in text.splitlines() if not line.startswith("#")))
+        assert [r["preop_id"] for r in rows] == [preop.ids[n] for n in truth]
+        qtbot.mouseClick(stored.unmark_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: session.final_registration() is None, timeout=TIMEOUT_MS)
+        qtbot.waitUntil(lambda: not panel.export_buttons["pairs"].isEnabled(), timeout=TIMEOUT_MS)
+    with Session.open(path) as reopened:
+        assert reopened.final_registration() is None and len(reopened.registrations()) == 2

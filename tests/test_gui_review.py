@@ -53,7 +53,8 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     assert regs.list.rowCount() == 1
     assert (regs.list.item(0, 1).text(), regs.list.item(0, 2).text()) == ("global", f"{truth.rms_mm:.2f}")
     assert regs.list.item(0, 3).text() == "3 of 3"
-    assert [regs.pairs.item(r, 1).text() for r in range(3)] == PREOP_IDS[:3]
+    assert [regs.pairs.item(r, 0).text() for r in range(3)] == [f"{i} -> {p}" for i, p in zip(truth.node_ids,
+                                                                                            PREOP_IDS)]
     with h5py.File(path, "r+"):            # the screen holds nothing open
         pass
 
@@ -158,3 +159,29 @@ def test_closing_while_loading_waits_for_the_worker_and_a_later_load_works(qtbot
     screen.show()
     _load(qtbot, screen, path)
     assert emitted == [str(path)] and screen.node_table.rowCount() == len(truth.node_ids)
+
+
+def test_mark_and_unmark_final_in_a_saved_session(qtbot, screen, recorded, tmp_path):
+    import shutil
+
+    from snreg.session import Session
+    from snreg.session.journal import journal_path
+
+    source, _ = recorded
+    path = tmp_path / "copy.h5"
+    shutil.copy(source, path)
+    if journal_path(source).exists():
+        shutil.copy(journal_path(source), journal_path(path))
+    _load(qtbot, screen, path)
+    regs = screen.registrations
+    assert regs.list.item(0, 4).text() == "" and not regs.unmark_button.isEnabled()
+    _click_row(qtbot, regs.list, 0)
+    with qtbot.waitSignal(screen.final_changed) as blocker:
+        qtbot.mouseClick(regs.mark_button, Qt.MouseButton.LeftButton)
+    assert blocker.args == [0] and regs.list.item(0, 4).text() == "FINAL" and regs.unmark_button.isEnabled()
+    with Session.open(path) as session:
+        assert session.final_registration() == 0
+    qtbot.mouseClick(regs.unmark_button, Qt.MouseButton.LeftButton)
+    assert regs.list.item(0, 4).text() == ""
+    with Session.open(path) as session:
+        assert session.final_registration() is None

@@ -92,6 +92,7 @@ class ReviewRegistration:
     method: str
     rms_mm: float
     rows: list[PairRow]
+    final: bool = False         # the one marked final in the session
 
     @property
     def n_paired(self) -> int:
@@ -276,4 +277,4 @@ def _registration(stored: StoredRegistration, intraop_ids: list[str], preop_ids:
     else:
         intraop_ids, preop_ids = stored.intraop_ids, stored.preop_ids
     return ReviewRegistration(stored.n, result.method, float(result.rms_mm),
-                              pair_table(result, preop_ids, intraop_ids))
+                              pair_table(result, preop_ids, intraop_ids), stored.final)

@@ -16,7 +16,7 @@ import numpy as np
 
 from snreg.nodes import NodeSet, write_nodes
 from snreg.registration import RegistrationResult, register
-from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
+from snreg.registration.report import mapped_preop, pair_rows, save_report_png, summary_line, write_pairs_csv
 from snreg.session import Session, SessionError
 from snreg.workflow.chain_change import mixed_calibration_note
 
@@ -50,6 +50,27 @@ class RunRecord:
     result: RegistrationResult
     note: str = ""
     stored: bool = False
+    final_n: int | None = None          # the session's registration number when this is the one marked final
+
+
+def final_record(session: Session) -> RunRecord | None:
+    """The registration marked final in ``session`` with the node sets it paired (the exports use it); None when
+    none is marked. ValueError, in one sentence, when its nodes are no longer the session's (preop set replaced,
+    intraop node undone): its result can then not be put beside them."""
+    n = session.final_registration()
+    if n is None:
+        return None
+    stored = next(r for r in session.registrations() if r.n == n)
+    preop, intraop = session.preop_nodes(), session.intraop_nodes()
+    lost = stored.preop_ids is None or stored.intraop_ids is None or preop is None \
+        or stored.preop_ids != preop.ids or not set(stored.intraop_ids) <= set(intraop.ids)
+    if lost:
+        raise ValueError(f"registration {n} is marked final but the session no longer holds the node sets it paired "
+                         "(preop set replaced or a node undone); mark another one final, or unmark it")
+    keep = [intraop.ids.index(i) for i in stored.intraop_ids]
+    paired = NodeSet(stored.intraop_ids, [intraop.labels[k] for k in keep], intraop.xyz[keep],
+                     None if intraop.counts is None else intraop.counts[keep], frame=intraop.frame)
+    return RunRecord(preop, paired, stored.result, f"Registration {n}, marked final.", True, n)
 
 
 def run_registration(request: RunRequest) -> RunRecord:
@@ -92,13 +113,19 @@ def export_file(kind: str, path: str, record: RunRecord) -> Path:
     suffixes = EXPORTS[kind][2]
     path = Path(path if str(path).lower().endswith(suffixes) else f"{path}{suffixes[0]}")
     partial = path.with_name(f".~{path.name}")            # same ending: the writers choose the format by it
+    final = "" if record.final_n is None else f"registration {record.final_n} of the session, marked final"
     try:
         if kind == "pairs":
             write_pairs_csv(partial, record.preop, record.intraop, record.result)
+            if final:
+                partial.write_text(f"# registration: {final}\n" + partial.read_text(encoding="utf-8"), encoding="utf-8")
         elif kind == "slicer":
-            write_nodes(mapped_preop(record.preop, record.result), partial)
+            mapped = mapped_preop(record.preop, record.result)
+            write_nodes(replace(mapped, comments=mapped.comments + [final] if final else mapped.comments), partial)
         else:
-            save_report_png(partial, record.preop, record.intraop, record.result)
+            title = summary_line(record.result, pair_rows(record.preop, record.intraop, record.result))
+            save_report_png(partial, record.preop, record.intraop, record.result,
+                            title=f"{title}; {final}" if final else "")
         os.replace(partial, path)
     except OSError as err:
         partial.unlink(missing_ok=True)

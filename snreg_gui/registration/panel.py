@@ -33,11 +33,12 @@ from snreg.registration.naming import marked_missing, marked_rows
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, run_registration
+from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, final_record, run_registration
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
 from snreg_gui.registration.preop import PreopSourceBox
+from snreg_gui.registration.stored import StoredList
 from snreg_gui.registration.tables import NodeTable, PairingTable
 
 DEFAULT_METHOD = "global"
@@ -137,6 +138,9 @@ class RegistrationPanel(QWidget):
         self.auto_rerun = QCheckBox("register again after each stored node")
         self.auto_rerun.setChecked(True)
         self.export_buttons = {kind: QPushButton(f"Export {name}...") for kind, (name, _, _) in EXPORTS.items()}
+        self.stored = StoredList()
+        self.final_label = QLabel("")               # which registration the exports write
+        self.final_label.setWordWrap(True)
         self._layout()
         self._set_exports_enabled(False)
         self.preop_box.nodes_changed.connect(self._preop_changed)
@@ -149,6 +153,7 @@ class RegistrationPanel(QWidget):
         self.alignment.centre_button.clicked.connect(self._centre_preop)
         self.run_button.clicked.connect(self.run)
         self.exclude_button.clicked.connect(self._exclude_selected)
+        self.stored.final_requested.connect(self._mark_final)
         self.include_button.clicked.connect(self._include_all)
         for kind, button in self.export_buttons.items():
             button.clicked.connect(lambda _=False, k=kind: self._choose_export(k))
@@ -201,6 +206,8 @@ class RegistrationPanel(QWidget):
         exclusion.addStretch(1)
         results_layout.addLayout(exclusion)
         results_layout.addWidget(self.missing_label)
+        results_layout.addWidget(self.stored)
+        results_layout.addWidget(self.final_label)
         exports = QHBoxLayout()
         for button in self.export_buttons.values():
             exports.addWidget(button)
@@ -241,6 +248,7 @@ class RegistrationPanel(QWidget):
         if session is None:
             self._set_intraop(None, "no intraop nodes: open a session or a node file")
             self._show_record(None)
+            self.refresh_stored()
             return
         preop = session.preop_nodes()
         if preop is not None:
@@ -251,6 +259,14 @@ class RegistrationPanel(QWidget):
         latest = stored[-1] if stored else None
         if latest is not None and preop is not None and _made_from(latest, preop, self._intraop):
             self._show_record(RunRecord(preop, self._intraop, latest.result, f"Registration {latest.n} from the session."))
+        self.refresh_stored()
+
+    def refresh_stored(self) -> None:
+        """Re-read the session's stored registrations and final mark into the list; the exports follow the mark."""
+        session = self._session
+        self.stored.show_stored([] if session is None else session.registrations(),
+                                writable=session is not None and session.writable)
+        self._update_exports()
 
     def refresh_intraop(self, *_) -> None:
         """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""
@@ -356,7 +372,7 @@ class RegistrationPanel(QWidget):
             self.summary.setText(f"OUT OF DATE, inputs changed since: run again "
                                  f"(was {summary_line(record.result, _shown_rows(record))})")
         self.pairing_table.setEnabled(False)
-        self._set_exports_enabled(False)
+        self._update_exports()
         if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
             self.missing_nodes = []
             self.missing_label.setText("")
@@ -381,6 +397,8 @@ class RegistrationPanel(QWidget):
         if record.stored and record.preop is self.preop_box.nodes:
             self._preop_stored = True
         self._show_record(record)
+        if record.stored:
+            self.refresh_stored()
         if self._excluded:
             self._say(f"{record.note} Left out of this registration: {', '.join(sorted(self._excluded))}.".strip())
         self.registered.emit(record.result)
@@ -426,7 +444,7 @@ class RegistrationPanel(QWidget):
         self.missing_nodes = missing
         self.missing_changed.emit(missing)
         self._say("" if record is None else record.note)
-        self._set_exports_enabled(record is not None)
+        self._update_exports()
         self._refresh_view()
 
     # -- exports -------------------------------------------------------------------
@@ -434,19 +452,52 @@ class RegistrationPanel(QWidget):
         for button in self.export_buttons.values():
             button.setEnabled(enabled)
 
-    def _choose_export(self, kind: str) -> None:
+    def _export_record(self) -> tuple[RunRecord | None, str]:
+        """What the exports write, and why: the registration marked final in the session when there is one, else
+        the result shown while it answers the current inputs; (None, the reason) when neither can be exported."""
+        if self._session is not None and self._session.final_registration() is not None:
+            try:
+                record = final_record(self._session)
+            except ValueError as err:
+                return None, sentence(str(err))
+            return record, f"Exports write registration {record.final_n}, marked final."
         if self._record is None or not self._record_current:
-            return self._say("Run a registration with the current inputs before exporting.")
+            return None, "Run a registration with the current inputs before exporting."
+        return self._record, "No registration is marked final: exports write the result shown."
+
+    def _update_exports(self) -> None:
+        record, why = self._export_record()
+        self._set_exports_enabled(record is not None)
+        self.final_label.setText(why if record is not None or self._session is not None and
+                                 self._session.final_registration() is not None else "")
+
+    def _mark_final(self, n) -> None:
+        """Mark registration ``n`` final in the session (None: unmark), in a worker (journal fsync)."""
+        if self._session is None or not self._session.writable:
+            return self._say("Only a session being recorded can be marked here; use the Review tab for a saved one.")
+        self._tasks.start(self._session.set_final_registration, n,
+                          returned=lambda _: self._final_marked(n), errored=self._say_problem)
+
+    def _final_marked(self, n) -> None:
+        self.refresh_stored()
+        self._say("No registration is marked final now." if n is None else
+                  f"Registration {n} is marked final in the session; the exports use it.")
+
+    def _choose_export(self, kind: str) -> None:
+        record, why = self._export_record()
+        if record is None:
+            return self._say(why)
         name, file_filter, _ = EXPORTS[kind]
         path, _ = QFileDialog.getSaveFileName(self, f"Export {name}", "", file_filter)
         if path:
             self._exporting += 1
-            self._tasks.start(export_file, kind, path, self._record,
-                              returned=self._exported, errored=self._export_failed)
+            self._tasks.start(export_file, kind, path, record,
+                              returned=lambda written: self._exported(written, record), errored=self._export_failed)
 
-    def _exported(self, path) -> None:
+    def _exported(self, path, record: RunRecord) -> None:
         self._exporting -= 1
-        self._say(f"Written {path}.")
+        which = "" if record.final_n is None else f" (registration {record.final_n}, marked final)"
+        self._say(f"Written {path}{which}.")
 
     def _export_failed(self, message: str) -> None:
         self._exporting -= 1

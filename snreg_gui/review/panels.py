@@ -12,18 +12,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
-from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel, QTableWidget, QTableWidgetItem,
-                               QVBoxLayout, QWidget)
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel, QPushButton, QTableWidget,
+                               QTableWidgetItem, QVBoxLayout, QWidget)
 
+from snreg.registration.naming import marked_rows, pair_text
 from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
 from snreg_gui.common.feed_view import FeedView
 
 NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "spread (mm)", "frames",
                 "counts")
-REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired")
-PAIRING_COLUMNS = ("intraop node", "preop node", "distance (mm)", "confidence")
+REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
+PAIRING_COLUMNS = ("intraop -> preop", "distance (mm)", "confidence")
 
 
 def header_text(review: SessionReview) -> str:
@@ -105,35 +108,69 @@ class SnapshotPair(QWidget):
 
 
 class StoredRegistrations(QWidget):
-    """The stored registrations (method, RMS, how many nodes paired) and the selected one's pairing table."""
+    """The stored registrations (method, RMS, how many nodes paired, the final mark) and the selected one's pairing
+    table ("SN1 -> P3"); "Mark selected final" / "Unmark final" emit ``final_requested(n or None)``."""
+
+    final_requested = Signal(object)
 
     def __init__(self):
         super().__init__()
         self.list = read_only_table(REGISTRATION_COLUMNS)
         self.pairs = read_only_table(PAIRING_COLUMNS)
         self.empty = QLabel("no registration stored")
+        self.mark_button = QPushButton("Mark selected final")
+        self.mark_button.setToolTip("keep the selected registration in the session file as the one that counts")
+        self.unmark_button = QPushButton("Unmark final")
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.mark_button)
+        buttons.addWidget(self.unmark_button)
+        buttons.addStretch(1)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        for widget in (self.empty, self.list, self.pairs):
+        for widget in (self.empty, self.list):
             layout.addWidget(widget)
+        layout.addLayout(buttons)
+        layout.addWidget(self.pairs)
         self._registrations: list[ReviewRegistration] = []
         self.list.itemSelectionChanged.connect(self._show_selected)
+        self.mark_button.clicked.connect(self._mark)
+        self.unmark_button.clicked.connect(lambda: self.final_requested.emit(None))
+        self._update_buttons()
 
     def show_registrations(self, registrations: Sequence[ReviewRegistration]) -> None:
         """List ``registrations`` and select the last (the newest)."""
         self._registrations = list(registrations)
-        fill_table(self.list, [[str(r.n), r.method, f"{r.rms_mm:.2f}", f"{r.n_paired} of {len(r.intraop_ids)}"]
-                               for r in self._registrations])
+        fill_table(self.list, [[str(r.n), r.method, f"{r.rms_mm:.2f}", f"{r.n_paired} of {len(r.intraop_ids)}",
+                                "FINAL" if r.final else ""] for r in self._registrations])
         self.empty.setVisible(not self._registrations)
         fill_table(self.pairs, [])
         if self._registrations:
             self.list.selectRow(len(self._registrations) - 1)
+        self._update_buttons()
+
+    def show_final(self, n: int | None) -> None:
+        """Show ``n`` as the one marked final (None: none), keeping the selection."""
+        self._registrations = [replace(r, final=r.n == n) for r in self._registrations]
+        for row, reg in enumerate(self._registrations):
+            self.list.setItem(row, REGISTRATION_COLUMNS.index("final"), QTableWidgetItem("FINAL" if reg.final else ""))
+        self._update_buttons()
+
+    def _update_buttons(self) -> None:
+        self.mark_button.setEnabled(bool(self.list.selectionModel().selectedRows()))
+        self.unmark_button.setEnabled(any(r.final for r in self._registrations))
+
+    def _mark(self) -> None:
+        rows = self.list.selectionModel().selectedRows()
+        if rows:
+            self.final_requested.emit(self._registrations[rows[0].row()].n)
 
     def _show_selected(self) -> None:
+        self._update_buttons()
         rows = self.list.selectionModel().selectedRows()
         if not rows:
             fill_table(self.pairs, [])
             return
         reg = self._registrations[rows[0].row()]
-        fill_table(self.pairs, [[row.intraop_id, row.preop_id, _number(row.distance_mm, 2), _number(row.confidence, 2)]
-                                for row in reg.rows])
+        shown = marked_rows(reg.rows, [row.preop_id for row in reg.rows if row.paired])
+        fill_table(self.pairs, [[pair_text(row), _number(row.distance_mm, 2), _number(row.confidence, 2)]
+                                for row in shown])

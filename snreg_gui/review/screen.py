@@ -15,9 +15,12 @@ closed once read, so it can be opened elsewhere while it is shown.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from PySide6.QtCore import QCoreApplication, Qt, Signal
 from PySide6.QtWidgets import QGroupBox, QLabel, QSplitter, QVBoxLayout, QWidget
 
+from snreg.session import SessionError, set_final_in_file
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
 from snreg_gui.common.workers import Worker
 from snreg_gui.review.panels import (NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table, header_text,
@@ -35,6 +38,7 @@ class ReviewScreen(QWidget):
 
     loaded = Signal(str)
     failed = Signal(str)
+    final_changed = Signal(object)      # the registration now marked final in the file shown (None: none)
 
     def __init__(self, parent=None):
         super().__init__(parent)
@@ -55,6 +59,8 @@ class ReviewScreen(QWidget):
         self._fuse_next = False
         self._failed = False
         self._stopped = False                       # closing: start nothing more
+        self.recording_session = lambda: None       # the window's session being recorded (marks go through it)
+        self.registrations.final_requested.connect(self._mark_final)
         QCoreApplication.instance().aboutToQuit.connect(self.shutdown)
 
     def _layout(self) -> None:
@@ -149,6 +155,26 @@ class ReviewScreen(QWidget):
         self.snapshots.show_pair(None, None)
         self.registrations.show_registrations([])
         self.timelines.clear_review()
+
+    # -- final mark ------------------------------------------------------------
+    def _mark_final(self, n) -> None:
+        """Mark registration ``n`` final (None: unmark) in the file shown: through the window's session when it is
+        the one being recorded (HDF5 allows one writer), else in the closed file; journal line and attribute only."""
+        if self._review is None:
+            return
+        session = self.recording_session()
+        try:
+            if session is not None and session.writable and Path(session.path).resolve() == Path(self._path).resolve():
+                session.set_final_registration(n)
+            else:
+                set_final_in_file(self._path, n)
+        except SessionError as err:
+            self.status.setText(str(err))
+            return
+        self.registrations.show_final(n)
+        self.status.setText(f"{self._path}: " + ("no registration is marked final" if n is None else
+                                                 f"registration {n} is marked final; the exports use it"))
+        self.final_changed.emit(n)
 
     # -- selection -------------------------------------------------------------
     def _show_selected_node(self) -> None:
