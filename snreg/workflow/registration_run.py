@@ -16,6 +16,7 @@ import numpy as np
 
 from snreg.nodes import NodeSet, write_nodes
 from snreg.registration import RegistrationResult, register
+from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import mapped_preop, pair_rows, save_report_png, summary_line, write_pairs_csv
 from snreg.session import Session, SessionError
 from snreg.workflow.chain_change import mixed_calibration_note
@@ -124,8 +125,8 @@ def export_file(kind: str, path: str, record: RunRecord) -> Path:
             write_nodes(replace(mapped, comments=mapped.comments + [final] if final else mapped.comments), partial)
         else:
             title = summary_line(record.result, pair_rows(record.preop, record.intraop, record.result))
-            save_report_png(partial, record.preop, record.intraop, record.result,
-                            title=f"{title}; {final}" if final else "")
+            shown = replace(record.preop, ids=shown_preop_ids(record.preop.ids, record.intraop.ids))   # "P:SN4"
+            save_report_png(partial, shown, record.intraop, record.result, title=f"{title}; {final}" if final else "")
         os.replace(partial, path)
     except OSError as err:
         partial.unlink(missing_ok=True)
