@@ -183,7 +183,7 @@ class RegistrationPanel(QWidget):
         form.addRow(self.auto_rerun)
         controls = QWidget()
         column = QVBoxLayout(controls)
-        for widget in (self.preop_box, intraop, settings, self.alignment):
+        for widget in (self.preop_box, intraop, settings, self.alignment, self.stored):
             column.addWidget(widget)
         column.addStretch(1)
         scroll = QScrollArea()
@@ -206,7 +206,6 @@ class RegistrationPanel(QWidget):
         exclusion.addStretch(1)
         results_layout.addLayout(exclusion)
         results_layout.addWidget(self.missing_label)
-        results_layout.addWidget(self.stored)
         results_layout.addWidget(self.final_label)
         exports = QHBoxLayout()
         for button in self.export_buttons.values():
@@ -468,8 +467,9 @@ class RegistrationPanel(QWidget):
     def _update_exports(self) -> None:
         record, why = self._export_record()
         self._set_exports_enabled(record is not None)
-        self.final_label.setText(why if record is not None or self._session is not None and
-                                 self._session.final_registration() is not None else "")
+        self.final_label.setText(why if self._session is not None and (record is not None or
+                                                                       self._session.final_registration() is not None)
+                                 else "")
 
     def _mark_final(self, n) -> None:
         """Mark registration ``n`` final in the session (None: unmark), in a worker (journal fsync)."""
