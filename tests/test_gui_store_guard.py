@@ -160,7 +160,7 @@ def test_paused_for_calibration_the_chain_change_prompt_and_the_question_on_clos
     window.pause_acquisition()                                     # what a wizard does
     screen._last_arrival_ns = 1                                    # the last frame long ago: not "STALE" though
     screen._show_health()
-    assert screen.video_health.text().startswith("video: paused for calibration")
+    assert screen.video_health.text().startswith("camera: paused for calibration")
     assert "STALE" not in screen.video_health.text() and not screen.store_button.isEnabled()
     new = ChainCalibration.manual(trocar_camera_mm=171.5)
     window.session.set_calibration(chain=new)                      # the trocar wizard stores it, then the app applies it

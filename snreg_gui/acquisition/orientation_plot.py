@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pyqtgraph as pg
 
-_COLOURS = {"yaw": "#e6550d", "pitch": "#31a354", "roll": "#3182bd"}
+ANGLE_COLOURS = {"yaw": "#e6550d", "pitch": "#31a354", "roll": "#3182bd"}
 
 
 MIN_SPAN_DEG = 4.0      # the y axis never zooms in further: sensor noise must not look like motion
@@ -34,7 +34,7 @@ class OrientationPlot(pg.PlotWidget):
         self.setMouseEnabled(x=False, y=False)
         self._values = np.full((span, 3), np.nan)
         self._x = np.arange(-span + 1, 1)
-        self._curves = [self.plot(name=name, pen=pg.mkPen(colour)) for name, colour in _COLOURS.items()]
+        self._curves = [self.plot(name=name, pen=pg.mkPen(colour)) for name, colour in ANGLE_COLOURS.items()]
 
     def append(self, euler_deg) -> None:
         """Add one frame's (yaw, pitch, roll) in degrees; shown at the next :meth:`redraw`."""

@@ -12,54 +12,53 @@ While a calibration wizard holds the cameras the screen says "paused for calibra
 
 from __future__ import annotations
 
+import math
 import time
 
-from PySide6.QtCore import QTimer, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
-from PySide6.QtWidgets import (QApplication, QCheckBox, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox,
-                               QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QSizePolicy, QSpinBox,
-                               QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QAbstractItemView, QApplication, QBoxLayout, QCheckBox, QDoubleSpinBox, QFormLayout,
+                               QFrame, QGroupBox, QHBoxLayout, QHeaderView, QLabel, QLineEdit, QMessageBox, QPushButton,
+                               QScrollArea, QSizePolicy, QSpinBox, QSplitter, QTableWidget, QTableWidgetItem,
+                               QVBoxLayout, QWidget)
 
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg.workflow.guidance import guidance_line, targets_text
-from snreg_gui.acquisition.orientation_plot import OrientationPlot
+from snreg_gui.acquisition.live_view import LiveView
+from snreg_gui.acquisition.orientation_plot import ANGLE_COLOURS, OrientationPlot
+from snreg_gui.acquisition.status import BigNumber, StatusLine, ValueRow, spread_colour
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.common.feed_view import FeedView
+from snreg_gui.common.splitters import first_width
 
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send
 UNDO_SHORTCUT = "Ctrl+Z"
 DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
 PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
-_NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread mm", "frames")
+NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread", "counts")
+NODE_TIPS = ("", "station label", "trocar frame, mm", "trocar frame, mm", "trocar frame, mm",
+             "spread of the stored fixes about their median, mm", "gamma counts typed at the store")
+LABEL_HINT = "station, e.g. OBT R"
 PAUSED_TEXT = "paused for calibration (a wizard has the cameras)"
 _WARN, _BAD, _GOOD, _PAUSED = "color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400", "color: #1f4e9e"
 
 
-def _status_label(text: str) -> QLabel:
-    """A label whose text changes at video rate: its width never drives the layout (a relayout per frame would
-    resize the feeds and stall the GUI thread); long text is cut, and the tooltip shows it whole."""
-    label = QLabel(text)
-    label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
-    label.setMinimumWidth(200)
-    return label
+def _row(*parts) -> QHBoxLayout:
+    """A row of widgets; a (widget, stretch) pair gives that widget a stretch factor, an int is a stretchable space."""
+    row = QHBoxLayout()
+    for part in parts:
+        if isinstance(part, int):
+            row.addStretch(part)
+        else:
+            row.addWidget(*part) if isinstance(part, tuple) else row.addWidget(part)
+    return row
 
 
 def _style(label: QLabel, style: str) -> None:
     """Set a label's style sheet only when it changes (a style change per frame would cost the GUI thread)."""
     if label.styleSheet() != style:
         label.setStyleSheet(style)
-
-
-def _wrapped_label(lines: int) -> QLabel:
-    """A status label that wraps over a fixed ``lines`` lines: long reasons are read whole, and the layout never
-    moves when the text changes."""
-    label = QLabel("")
-    label.setWordWrap(True)
-    label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
-    label.setMinimumWidth(200)
-    label.setFixedHeight(label.fontMetrics().lineSpacing() * lines + 4)
-    return label
 
 
 class AcquisitionScreen(QWidget):
@@ -83,39 +82,52 @@ class AcquisitionScreen(QWidget):
         self.confirm_box: QMessageBox | None = None
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
-        self.video_health, self.imu_health = _status_label("video: waiting"), _wrapped_label(2)
-        self.link_health = _status_label("")            # the live link to 3D Slicer, shown while it is on
+        self.angles = ValueRow(("yaw", "pitch", "roll"), "-888.8", tuple(ANGLE_COLOURS.values()), columns=1)
+        self.angles.setToolTip("endoscope orientation from the IMU, degrees (yaw about z, pitch about y, roll about x)")
+        self.tip_values = ValueRow(("x", "y", "z"), "-8888.8")
+        self.tip_values.setToolTip("the probe tip in the trocar frame, mm")
+        self.tip_trocar = StatusLine("no fix yet", 1)
+        self.spread_value = BigNumber("88.88")
+        self.spread_value.setToolTip("how far the fixes of the store window spread about their median: within the "
+                                     "spread limit (green) Store SN stores, beyond it (red) it refuses")
+        self.video_health, self.imu_health = StatusLine("camera: waiting", 1), StatusLine("", 2)
+        self.link_health = StatusLine("", 1)            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
-        self.tip_trocar = _status_label("tip (trocar): no fix")
-        self.missing_list = _status_label("")
+        self.missing_list = StatusLine("", 2)
+        self.missing_list.setVisible(False)
         self.missing_list.setToolTip("SPECT nodes the latest registration left unpaired: where they should be (trocar "
                                      "frame) and the 90% bound on that position")
-        self.guidance = _status_label("")
+        self.guidance = StatusLine("", 1)
+        self.guidance.setVisible(False)
         self._missing: list = []
         self.store_button = QPushButton("Store SN")
-        self.store_reason = _wrapped_label(3)
-        self.store_status = _wrapped_label(4)
-        self.undo_button = QPushButton("Undo last node")
+        self.store_button.setMinimumHeight(self.store_button.sizeHint().height() * 4 // 3)
+        self.store_reason = StatusLine("", 3)
+        self.store_status = StatusLine("", 2)
+        self.undo_button = QPushButton("Undo last")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
         self.auto_store = QCheckBox("auto-store when the probe is held still")
         self.label_edit = QLineEdit()
-        self.label_edit.setPlaceholderText("station, e.g. OBT R")
+        self.label_edit.setPlaceholderText(LABEL_HINT)
+        self.label_edit.setToolTip("the station of the next node; cleared after each store")
         self.counts_edit = QLineEdit()
-        self.counts_edit.setPlaceholderText("gamma counts (optional)")
+        self.counts_edit.setPlaceholderText("optional")
+        self.counts_edit.setToolTip("gamma counts of the next node (optional); cleared after each store")
         self.fixes_spin = QSpinBox()
         self.fixes_spin.setRange(1, 600)
         self.fixes_spin.setValue(fixes_per_node)
         self.spread_spin = QDoubleSpinBox(decimals=1, minimum=0.1, maximum=50.0, singleStep=0.5, suffix=" mm")
         self.spread_spin.setValue(max_spread_mm)
         self.spread_spin.setToolTip("a store whose fixes spread more than this is refused (the probe moved)")
-        self.nodes = QTableWidget(0, len(_NODE_COLUMNS))
-        self.nodes.setHorizontalHeaderLabels(_NODE_COLUMNS)
+        self.nodes = QTableWidget(0, len(NODE_COLUMNS))
+        self.nodes.setHorizontalHeaderLabels(NODE_COLUMNS)
         self._layout()
         self.store_button.clicked.connect(lambda: self.request_store("button"))
         for key in STORE_SHORTCUTS:
             QShortcut(QKeySequence(key), self, activated=lambda key=key: self.request_store(key))
         self.spread_spin.valueChanged.connect(self.max_spread_changed)
+        self.spread_spin.valueChanged.connect(lambda _: self._show_spread())
         self.undo_button.clicked.connect(self.request_undo)
         QShortcut(QKeySequence(UNDO_SHORTCUT), self, activated=self.request_undo)
         self.fixes_spin.valueChanged.connect(self.fixes_per_node_changed)
@@ -129,32 +141,74 @@ class AcquisitionScreen(QWidget):
         self._set_store_enabled(False, "waiting for the first frame")
 
     def _layout(self) -> None:
-        feeds = QHBoxLayout()
-        feeds.addWidget(self.left_feed)
-        feeds.addWidget(self.right_feed)
-        store = QGroupBox("Store SN")
-        form = QFormLayout(store)
-        form.addRow("label", self.label_edit)
-        form.addRow("counts", self.counts_edit)
-        form.addRow("fixes per node", self.fixes_spin)
-        form.addRow("spread limit", self.spread_spin)
+        plot = QWidget()                       # the plot and the angles beside it (below it when the pane is tall)
+        plot_box = QBoxLayout(QBoxLayout.Direction.LeftToRight, plot)
+        plot_box.setContentsMargins(0, 0, 0, 0)
+        plot_box.addWidget(self.orientation, 1)
+        plot_box.addWidget(self.angles, 0, Qt.AlignmentFlag.AlignCenter)
+        self.live = LiveView(self.left_feed, self.right_feed, plot)
+        self.live.arranged.connect(lambda arrangement: self.angles.set_columns(0 if arrangement.stacked else 1))
+        column_widget = QWidget()
+        column = QVBoxLayout(column_widget)
+        column.setContentsMargins(0, 0, 0, 0)
+        for widget in (self._live_box(), self._store_box(), self.nodes):
+            column.addWidget(widget)
+        column.setStretch(2, 1)
+        self._configure_nodes()
+        side = QScrollArea()         # on a screen lower than 700 px it scrolls, rather than grow the window off screen
+        side.setWidget(column_widget)
+        side.setWidgetResizable(True)
+        side.setFrameShape(QFrame.Shape.NoFrame)
+        side.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        side.setMinimumWidth(column_widget.minimumSizeHint().width() + side.verticalScrollBar().sizeHint().width())
+        self.splitter = QSplitter(Qt.Orientation.Horizontal)
+        self.splitter.addWidget(self.live)
+        self.splitter.addWidget(side)
+        self.splitter.setChildrenCollapsible(False)
+        self.splitter.setStretchFactor(0, 3)
+        self.splitter.setStretchFactor(1, 1)
+        first_width(self.splitter, 1, lambda total: max(side.minimumWidth(), total // 4))
+        QVBoxLayout(self).addWidget(self.splitter)
+
+    def _live_box(self) -> QGroupBox:
+        box = QGroupBox("Probe tip (trocar frame, mm) and streams")
+        column = QVBoxLayout(box)
+        column.setSpacing(2)                   # status lines close together: the side column fits 700 px high
+        column.addWidget(self.tip_values, 0, Qt.AlignmentFlag.AlignLeft)
+        for widget in (self.tip_trocar, self.video_health, self.imu_health, self.link_health, self.missing_list,
+                       self.guidance):
+            column.addWidget(widget)
+        return box
+
+    def _store_box(self) -> QGroupBox:
+        box = QGroupBox("Store SN")
+        form = QFormLayout(box)
+        form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.AllNonFixedFieldsGrow)
+        form.setVerticalSpacing(4)
+        form.addRow("label", _row((self.label_edit, 3), QLabel("counts"), (self.counts_edit, 2)))
+        form.addRow("spread", _row(self.spread_value, 1, QLabel("limit"), self.spread_spin))
+        form.addRow("fixes per node", _row(self.fixes_spin, 1))
         form.addRow(self.auto_store)
-        form.addRow(self.store_button)
+        form.addRow(_row((self.store_button, 2), (self.undo_button, 1)))
         form.addRow(self.store_reason)
         form.addRow(self.store_status)
-        form.addRow(self.undo_button)
-        side = QVBoxLayout()
-        for widget in (self.video_health, self.imu_health, self.link_health, self.tip_trocar, self.missing_list,
-                       self.guidance, store, self.nodes):
-            side.addWidget(widget)
-        grid = QGridLayout(self)
-        grid.addLayout(feeds, 0, 0)
-        grid.addWidget(self.orientation, 1, 0)
-        grid.addLayout(side, 0, 1, 2, 1)
-        grid.setRowStretch(0, 3)
-        grid.setRowStretch(1, 1)
-        grid.setColumnStretch(0, 3)
-        grid.setColumnStretch(1, 1)
+        return box
+
+    def _configure_nodes(self) -> None:
+        """Every column readable in a narrow side column: label takes the room left, the rest fit their contents."""
+        table = self.nodes
+        table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        table.verticalHeader().setVisible(False)
+        table.verticalHeader().setDefaultSectionSize(table.fontMetrics().height() + 6)
+        table.setMinimumHeight(table.fontMetrics().height() * 5)
+        table.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Ignored)    # gets the room left
+        header = table.horizontalHeader()
+        header.setMinimumSectionSize(24)
+        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(NODE_COLUMNS.index("label"), QHeaderView.ResizeMode.Stretch)
+        for column, tip in enumerate(NODE_TIPS):
+            table.horizontalHeaderItem(column).setToolTip(tip)
 
     # -- from the worker -----------------------------------------------------
     def show_result(self, result: FrameResult) -> None:
@@ -182,17 +236,27 @@ class AcquisitionScreen(QWidget):
         self._draws += 1
         if self._draws % PLOT_EVERY == 0:
             self.orientation.redraw()
+        if result.left_rgb.shape[1]:
+            self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
+        self.angles.show_values(result.imu.euler_deg)
+        self._show_spread()
         self.guidance.setText(guidance_line(self._missing, outcome.tip_trocar))
-        if outcome.tip_trocar is None:
-            self.tip_trocar.setText(f"tip (trocar): no fix ({outcome.reason})")
-        else:
-            x, y, z = outcome.tip_trocar
-            self.tip_trocar.setText(f"tip (trocar): {x:7.1f} {y:7.1f} {z:7.1f} mm")
+        self.tip_values.show_values(outcome.tip_trocar)
+        self.tip_trocar.setText("tracked" if outcome.tip_trocar is not None else f"no fix ({outcome.reason})")
+
+    def _show_spread(self) -> None:
+        """The store window's spread, coloured against the store guard's limit (the spread limit set here, which the
+        worker refuses by); a dash while the window is not full."""
+        spread = self._last_result.outcome.window_spread_mm if self._last_result is not None else math.nan
+        self.spread_value.show_value(spread, 2)
+        self.spread_value.set_colour(spread_colour(spread, self.spread_spin.value()))
 
     def show_missing(self, missing: list) -> None:
         """The SPECT nodes the latest registration left unpaired (:class:`~snreg.registration.report.MissingNode`)."""
         self._missing = list(missing)
-        self.missing_list.setText("" if not missing else "not found yet:\n" + targets_text(missing))
+        self.missing_list.setText("" if not missing else "not found yet: " + targets_text(missing))
+        self.missing_list.setVisible(bool(missing))
+        self.guidance.setVisible(bool(missing))
         if not missing:
             self.guidance.setText("")
 
@@ -204,11 +268,18 @@ class AcquisitionScreen(QWidget):
         self.undo_button.setEnabled(self.nodes.rowCount() > 0)
 
     def add_node(self, node) -> None:
-        """Append a stored node (an :class:`~snreg.session.IntraopNode`) to the table."""
+        """Append a stored node (an :class:`~snreg.session.IntraopNode`) to the table; the label and counts typed for
+        it are cleared (the next node is another station), and the empty field says what the last one was."""
         self._store_pending = False
         self._append_row(node)
         self.undo_button.setEnabled(True)
-        self._say(f"stored {node.id} (spread {node.spread_mm:.2f} mm over {node.n_frames} fixes)", _GOOD)
+        if self.label_edit.text().strip() == node.label:       # not what was typed meanwhile for the next node
+            self.label_edit.clear()
+            self.counts_edit.clear()
+        self.label_edit.setPlaceholderText(f"{LABEL_HINT} ({node.id} was '{node.label}')" if node.label
+                                           else LABEL_HINT)
+        self._say(f"stored {node.id}{f' {node.label!r}' if node.label else ''} (spread {node.spread_mm:.2f} mm over "
+                  f"{node.n_frames} fixes)", _GOOD)
         self._update_store_state()
 
     def remove_node(self, node) -> None:
@@ -223,9 +294,15 @@ class AcquisitionScreen(QWidget):
     def _append_row(self, node) -> None:
         row = self.nodes.rowCount()
         self.nodes.insertRow(row)
-        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", str(node.n_frames))
+        counts = "" if node.counts is None or math.isnan(node.counts) else f"{node.counts:g}"
+        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", counts)
         for column, text in enumerate(cells):
-            self.nodes.setItem(row, column, QTableWidgetItem(text))
+            item = QTableWidgetItem(text)
+            if column >= 2:
+                item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+            self.nodes.setItem(row, column, item)
+        self.nodes.item(row, NODE_COLUMNS.index("spread")).setToolTip(f"over {node.n_frames} fixes")
+        self.nodes.scrollToBottom()
 
     def show_link_state(self, text: str) -> None:
         """The live link's clients and address (from its ``state_changed`` signal); empty hides the line."""
@@ -334,17 +411,17 @@ class AcquisitionScreen(QWidget):
             self._update_store_state()           # a feed that stopped disables Store SN
         result = self._last_result
         if self._paused:
-            self.video_health.setText(f"video: {self._paused}")
+            self.video_health.setText(f"camera: {self._paused}")
         elif result is None:
-            self.video_health.setText("video: waiting for frames")
+            self.video_health.setText("camera: waiting for frames")
         else:
             age_s = self._feed_age_s()
             stale = f"  STALE {age_s:.1f} s" if age_s > STALE_AFTER_S else ""
-            self.video_health.setText(f"video: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
+            self.video_health.setText(f"camera: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
                                       f"tracking {result.outcome.track_ms:.0f} ms{stale}")
         imu = self._imu.snapshot()
         stale = "  STALE" if imu.stale else ""
         problem = f" ({imu.problem})" if imu.problem else ""
         self.imu_health.setText(f"IMU: {imu.state}, {imu.rate_hz:.0f} Hz, {imu.corrupt} corrupt{stale}{problem}")
-        _style(self.video_health, _PAUSED if self._paused else "color: red" if "STALE" in self.video_health.text() else "")
-        _style(self.imu_health, "color: red" if imu.stale else "")
+        _style(self.video_health, _PAUSED if self._paused else _BAD if "STALE" in self.video_health.text() else "")
+        _style(self.imu_health, _BAD if imu.stale else "")

@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
-                               QLabel, QProgressBar, QPushButton, QScrollArea, QSplitter, QVBoxLayout, QWidget)
+                               QHeaderView, QLabel, QProgressBar, QPushButton, QScrollArea, QSplitter, QVBoxLayout,
+                               QWidget)
 
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
@@ -35,6 +36,7 @@ from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
 from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, final_record, run_registration
 from snreg_gui.common.node_views import NodeScene, make_node_view
+from snreg_gui.common.splitters import first_width
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
 from snreg_gui.registration.preop import PreopSourceBox
@@ -43,6 +45,7 @@ from snreg_gui.registration.tables import NodeTable, PairingTable
 
 DEFAULT_METHOD = "global"
 VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
+LEFT_MIN_WIDTH = 280        # px: the settings column can be narrowed this far by its splitter
 
 
 def _same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
@@ -67,6 +70,18 @@ def _without(nodes: NodeSet, ids: set[str]) -> NodeSet:
         return nodes
     return NodeSet([nodes.ids[k] for k in keep], [nodes.labels[k] for k in keep], nodes.xyz[keep],
                    None if nodes.counts is None else nodes.counts[keep], frame=nodes.frame)
+
+
+def _two_line_headers(table) -> None:
+    """Header captions over two lines ("leave-one-out mm" as "leave-one-out" over "mm"), each column as wide as its
+    contents, so no caption is cut in a narrow window; label columns take the room left."""
+    header = table.horizontalHeader()
+    for column in range(table.columnCount()):
+        item = table.horizontalHeaderItem(column)
+        words = item.text().rsplit(" ", 1)
+        item.setText("\n".join(words))
+        mode = QHeaderView.ResizeMode.Stretch if words[-1] == "label" else QHeaderView.ResizeMode.ResizeToContents
+        header.setSectionResizeMode(column, mode)
 
 
 def _has_nodes(nodes: NodeSet | None) -> bool:
@@ -189,7 +204,7 @@ class RegistrationPanel(QWidget):
         scroll = QScrollArea()
         scroll.setWidgetResizable(True)
         scroll.setWidget(controls)
-        scroll.setMinimumWidth(controls.sizeHint().width() + 20)
+        scroll.setMinimumWidth(LEFT_MIN_WIDTH)               # narrower than its contents it scrolls sideways too
         left = QWidget()
         left_layout = QVBoxLayout(left)                  # Run stays visible below the scrolling settings
         left_layout.setContentsMargins(0, 0, 0, 0)
@@ -199,6 +214,7 @@ class RegistrationPanel(QWidget):
         results = QWidget()
         results_layout = QVBoxLayout(results)
         results_layout.addWidget(self.summary)
+        _two_line_headers(self.pairing_table)
         results_layout.addWidget(self.pairing_table)
         exclusion = QHBoxLayout()
         exclusion.addWidget(self.exclude_button)
@@ -222,7 +238,9 @@ class RegistrationPanel(QWidget):
         main = QSplitter(Qt.Orientation.Horizontal)
         main.addWidget(left)
         main.addWidget(right)
+        main.setChildrenCollapsible(False)
         main.setStretchFactor(1, 2)
+        first_width(main, 0, lambda _: controls.sizeHint().width() + scroll.verticalScrollBar().sizeHint().width() + 4)
         layout = QVBoxLayout(self)
         layout.addWidget(main)
 

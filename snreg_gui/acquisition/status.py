@@ -1,0 +1,153 @@
+"""The acquisition screen's readouts: large numbers that never move the layout, and status lines that are never cut.
+
+Why: the technician reads the tip position, the endoscope angles and the store spread at a glance, from a step
+away, while the values change at video rate. A number sits in a label of fixed size (wide enough for its widest
+value), so a new value never relayouts the window (a relayout per frame would stall the GUI thread); a status line
+wraps over a fixed number of lines and, when its text needs more, ends the last line with an ellipsis and shows the
+whole text as its tooltip: cut text is never passed off as the whole.
+"""
+
+from __future__ import annotations
+
+import math
+
+from PySide6.QtCore import QRect, Qt
+from PySide6.QtGui import QFont, QFontDatabase, QFontMetrics, QPainter
+from PySide6.QtWidgets import QGridLayout, QLabel, QSizePolicy, QWidget
+
+ELLIPSIS = "\u2026"
+NO_VALUE = "\u2014"            # an em dash: no value now (no fix, window not full)
+BIG_SCALE = 1.8                # the large numbers' size, times the application font's
+SPREAD_GOOD, SPREAD_BAD, SPREAD_NONE = "#1a7f1a", "#c00000", "#808080"
+
+
+def big_font(base: QFont) -> QFont:
+    """A fixed-pitch bold font ``BIG_SCALE`` times ``base``: digits keep their places as values change."""
+    font = QFontDatabase.systemFont(QFontDatabase.SystemFont.FixedFont)
+    font.setPointSizeF(base.pointSizeF() * BIG_SCALE)
+    font.setBold(True)
+    return font
+
+
+class BigNumber(QLabel):
+    """A large number in a label of fixed size, wide enough for ``widest`` (e.g. "-888.8")."""
+
+    def __init__(self, widest: str, colour: str = ""):
+        super().__init__(NO_VALUE)
+        self.setFont(big_font(self.font()))
+        self.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+        metrics = self.fontMetrics()
+        self.setFixedSize(metrics.horizontalAdvance(widest) + 6, metrics.height() + 2)
+        self.set_colour(colour)
+
+    def set_colour(self, colour: str) -> None:
+        """Set the text colour (a CSS colour, "" for the default) when it changes (a style change costs)."""
+        style = f"color: {colour}" if colour else ""
+        if self.styleSheet() != style:
+            self.setStyleSheet(style)
+
+    def show_value(self, value: float | None, decimals: int = 1) -> None:
+        """The value with ``decimals`` decimals, or a dash for None or NaN."""
+        missing = value is None or not math.isfinite(value)
+        self.setText(NO_VALUE if missing else f"{round(value, decimals) + 0.0:.{decimals}f}")   # never "-0.0"
+
+
+def fitted_text(text: str, metrics: QFontMetrics, width: int, lines: int) -> str:
+    """``text`` word-wrapped at ``width`` px if it fits in ``lines`` lines, else cut to fit with an ellipsis at the
+    end (the longest such prefix)."""
+    if width <= 0 or not text:
+        return text
+    limit = lines * metrics.lineSpacing()
+
+    def fits(candidate: str) -> bool:
+        box = metrics.boundingRect(QRect(0, 0, width, 100 * limit), Qt.TextFlag.TextWordWrap, candidate)
+        return box.height() <= limit and box.width() <= width
+
+    if fits(text):
+        return text
+    low, high = 0, len(text)              # the longest prefix that fits with the ellipsis: text[:low]
+    while low < high:
+        middle = (low + high + 1) // 2
+        if fits(text[:middle].rstrip() + ELLIPSIS):
+            low = middle
+        else:
+            high = middle - 1
+    return text[:low].rstrip() + ELLIPSIS
+
+
+class StatusLine(QLabel):
+    """A status text over a fixed number of ``lines``: word-wrapped; if longer, its end is an ellipsis and the
+    tooltip holds it whole. ``text()`` is always the whole text; its width never drives the layout."""
+
+    def __init__(self, text: str = "", lines: int = 1, min_width: int = 160):
+        super().__init__(text)
+        self.lines = lines              # wrapped when painted: QLabel's own word wrap would give the layout a
+                                        # height-for-width, and a scroll area around it would size to that
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
+        self.setMinimumWidth(min_width)
+        self.setFixedHeight(self.fontMetrics().lineSpacing() * lines + 4)
+
+    def shown_text(self) -> str:
+        """What is painted now: the text, or its beginning with an ellipsis."""
+        return fitted_text(self.text(), self.fontMetrics(), self.contentsRect().width(), self.lines)
+
+    def setText(self, text: str) -> None:                       # noqa: N802 (Qt's name)
+        if text != self.text():
+            super().setText(text)
+            self.setToolTip(text)
+
+    def paintEvent(self, event) -> None:
+        painter = QPainter(self)
+        painter.setPen(self.palette().color(self.foregroundRole()))
+        painter.setFont(self.font())
+        painter.drawText(self.contentsRect(), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop
+                         | Qt.TextFlag.TextWordWrap, self.shown_text())
+        painter.end()
+
+
+class ValueRow(QWidget):
+    """Captioned large numbers in ``columns`` columns (0: all in one row), e.g. x, y, z or yaw, pitch, roll."""
+
+    def __init__(self, captions: tuple[str, ...], widest: str, colours: tuple[str, ...] = (), columns: int = 0):
+        super().__init__()
+        colours = colours or ("",) * len(captions)
+        self.values = [BigNumber(widest, colour) for colour in colours]
+        self._captions = [QLabel(caption) for caption in captions]
+        for label, colour in zip(self._captions, colours):
+            if colour:
+                label.setStyleSheet(f"color: {colour}")
+        self._grid = QGridLayout(self)
+        self._grid.setContentsMargins(0, 0, 0, 0)
+        self._grid.setHorizontalSpacing(10)
+        self._grid.setVerticalSpacing(0)
+        self.columns = 0
+        self.set_columns(columns)
+        self.setSizePolicy(QSizePolicy.Policy.Fixed, QSizePolicy.Policy.Fixed)
+
+    def set_columns(self, columns: int) -> None:
+        """Lay the numbers out in ``columns`` columns (0: one row); each caption sits above its number."""
+        columns = columns or len(self.values)
+        if columns == self.columns:
+            return
+        self.columns = columns
+        for k, (caption, value) in enumerate(zip(self._captions, self.values)):
+            row, column = divmod(k, columns)
+            self._grid.addWidget(caption, 2 * row, column, Qt.AlignmentFlag.AlignRight)
+            self._grid.addWidget(value, 2 * row + 1, column)
+
+    def show_values(self, values, decimals: int = 1) -> None:
+        """One value per caption (None or NaN shows a dash); ``values`` None shows dashes."""
+        values = values if values is not None else (None,) * len(self.values)
+        for label, value in zip(self.values, values):
+            label.show_value(None if value is None else float(value), decimals)
+
+    def texts(self) -> list[str]:
+        return [label.text() for label in self.values]
+
+
+def spread_colour(spread_mm: float, limit_mm: float) -> str:
+    """The spread's colour against the store guard's limit: green within it, red beyond, grey while the store
+    window is not full (NaN)."""
+    if not math.isfinite(spread_mm):
+        return SPREAD_NONE
+    return SPREAD_GOOD if spread_mm <= limit_mm else SPREAD_BAD
