@@ -185,7 +185,7 @@ class AcquisitionScreen(QWidget):
         form = QFormLayout(box)
         form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.AllNonFixedFieldsGrow)
         form.setVerticalSpacing(4)
-        form.addRow("label", _row((self.label_edit, 3), QLabel("counts"), (self.counts_edit, 2)))
+        form.addRow("label", _row((self.label_edit, 3), QLabel(" counts"), (self.counts_edit, 2)))
         form.addRow("spread", _row(self.spread_value, 1, QLabel("limit"), self.spread_spin))
         form.addRow("fixes per node", _row(self.fixes_spin, 1))
         form.addRow(self.auto_store)
