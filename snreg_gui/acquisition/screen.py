@@ -86,14 +86,14 @@ class AcquisitionScreen(QWidget):
         self.angles.setToolTip("endoscope orientation from the IMU, degrees (yaw about z, pitch about y, roll about x)")
         self.tip_values = ValueRow(("x", "y", "z"), "-8888.8")
         self.tip_values.setToolTip("the probe tip in the trocar frame, mm")
-        self.tip_trocar = StatusLine("no fix yet", 1)
+        self.tip_trocar = StatusLine("no fix yet", 1, 2)
         self.spread_value = BigNumber("88.88")
         self.spread_value.setToolTip("how far the fixes of the store window spread about their median: within the "
                                      "spread limit (green) Store SN stores, beyond it (red) it refuses")
-        self.video_health, self.imu_health = StatusLine("camera: waiting", 1), StatusLine("", 2)
+        self.video_health, self.imu_health = StatusLine("camera: waiting", 1, 2), StatusLine("", 1, 3)
         self.link_health = StatusLine("", 1)            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
-        self.missing_list = StatusLine("", 2)
+        self.missing_list = StatusLine("", 1, 3)
         self.missing_list.setVisible(False)
         self.missing_list.setToolTip("SPECT nodes the latest registration left unpaired: where they should be (trocar "
                                      "frame) and the 90% bound on that position")
@@ -102,8 +102,8 @@ class AcquisitionScreen(QWidget):
         self._missing: list = []
         self.store_button = QPushButton("Store SN")
         self.store_button.setMinimumHeight(self.store_button.sizeHint().height() * 4 // 3)
-        self.store_reason = StatusLine("", 3)
-        self.store_status = StatusLine("", 2)
+        self.store_reason = StatusLine("", 2, 4)
+        self.store_status = StatusLine("", 2, 4)
         self.undo_button = QPushButton("Undo last")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")

@@ -76,27 +76,48 @@ def fitted_text(text: str, metrics: QFontMetrics, width: int, lines: int) -> str
 
 
 class StatusLine(QLabel):
-    """A status text over a fixed number of ``lines``: word-wrapped; if longer, its end is an ellipsis and the
-    tooltip holds it whole. ``text()`` is always the whole text; its width never drives the layout."""
+    """A status text, word-wrapped over ``lines`` lines, growing to ``max_lines`` for a longer text; beyond that its
+    end is an ellipsis and the tooltip holds it whole. ``text()`` is always the whole text; its width never drives
+    the layout, and its height changes only when a new text needs another number of lines (rare, so the layout is
+    not redone at video rate), or grows when the label is first given a width."""
 
-    def __init__(self, text: str = "", lines: int = 1, min_width: int = 160):
+    def __init__(self, text: str = "", lines: int = 1, max_lines: int | None = None, min_width: int = 160):
         super().__init__(text)
-        self.lines = lines              # wrapped when painted: QLabel's own word wrap would give the layout a
-                                        # height-for-width, and a scroll area around it would size to that
+        self.lines, self.max_lines = lines, max(max_lines or lines, lines)
+        # wrapped when painted: QLabel's own word wrap would give the layout a height-for-width, and a scroll area
+        # around it would size to that
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
         self.setMinimumWidth(min_width)
-        self.setFixedHeight(self.fontMetrics().lineSpacing() * lines + 4)
+        self._set_lines(lines)
 
     def shown_text(self) -> str:
         """What is painted now: the text, or its beginning with an ellipsis."""
-        return fitted_text(self.text(), self.fontMetrics(), self.contentsRect().width(), self.lines)
+        return fitted_text(self.text(), self.fontMetrics(), self.contentsRect().width(), self.shown_lines)
 
     def setText(self, text: str) -> None:                       # noqa: N802 (Qt's name)
         if text != self.text():
             super().setText(text)
             self.setToolTip(text)
+            self._set_lines(self._needed_lines())
 
-    def paintEvent(self, event) -> None:
+    def resizeEvent(self, event) -> None:                       # noqa: N802
+        super().resizeEvent(event)
+        self._set_lines(max(self.shown_lines, self._needed_lines()))     # only grows: no loop with a scroll bar
+
+    def _needed_lines(self) -> int:
+        width = self.contentsRect().width()
+        if width <= 0 or self.max_lines == self.lines or not self.text():
+            return self.lines
+        box = self.fontMetrics().boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap, self.text())
+        return min(max(math.ceil(box.height() / self.fontMetrics().lineSpacing()), self.lines), self.max_lines)
+
+    def _set_lines(self, lines: int) -> None:
+        self.shown_lines = lines
+        height = self.fontMetrics().lineSpacing() * lines + 4
+        if self.maximumHeight() != height or self.minimumHeight() != height:
+            self.setFixedHeight(height)
+
+    def paintEvent(self, event) -> None:                        # noqa: N802
         painter = QPainter(self)
         painter.setPen(self.palette().color(self.foregroundRole()))
         painter.setFont(self.font())
