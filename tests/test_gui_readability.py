@@ -17,7 +17,8 @@ from snreg.session import IntraopNode
 from snreg.tracking import ProbeFix
 from snreg.workflow.acquisition import FrameOutcome, StoreCheck
 from snreg_gui.acquisition.live_view import PLOT_MIN, arrange
-from snreg_gui.acquisition.screen import NODE_COLUMNS, AcquisitionScreen
+from snreg_gui.acquisition.node_table import NODE_COLUMNS
+from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.status import (ELLIPSIS, NO_VALUE, SPREAD_BAD, SPREAD_GOOD, SPREAD_NONE, StatusLine,
                                           spread_colour)
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest

@@ -1,6 +1,10 @@
 """The acquisition screen: both feeds with the probe overlay, stream health, IMU plot, trocar tip, Store SN, nodes.
 
-Why: the technician's one view while stored nodes are collected. It only displays what the
+Why: the technician's one view while stored nodes are collected, read at a glance at 1024x700 as at 1920x1080: the
+tip position, the endoscope angles and the store spread are large numbers (the spread green within the store limit,
+red beyond), status lines are never cut unseen (:mod:`snreg_gui.acquisition.status`), the feeds keep the camera's
+shape (:mod:`snreg_gui.acquisition.live_view`) and the side column is a splitter pane that scrolls rather than grow
+the window. The label and counts typed for a node are cleared once it is stored: the next node is another station. It only displays what the
 :class:`AcquisitionWorker` emits and forwards requests (store, undo, window size, spread limit) back to it; nothing
 is computed here. Auto-store only presses Store SN for the technician when the worker says its rule holds.
 
@@ -17,15 +21,15 @@ import time
 
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
-from PySide6.QtWidgets import (QAbstractItemView, QApplication, QBoxLayout, QCheckBox, QDoubleSpinBox, QFormLayout,
-                               QFrame, QGroupBox, QHBoxLayout, QHeaderView, QLabel, QLineEdit, QMessageBox, QPushButton,
-                               QScrollArea, QSizePolicy, QSpinBox, QSplitter, QTableWidget, QTableWidgetItem,
-                               QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QApplication, QBoxLayout, QCheckBox, QDoubleSpinBox, QFormLayout, QFrame, QGroupBox,
+                               QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QScrollArea, QSpinBox,
+                               QSplitter, QVBoxLayout, QWidget)
 
 from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg.workflow.guidance import guidance_line, targets_text
 from snreg_gui.acquisition.live_view import LiveView
+from snreg_gui.acquisition.node_table import StoredNodes
 from snreg_gui.acquisition.orientation_plot import ANGLE_COLOURS, OrientationPlot
 from snreg_gui.acquisition.status import BigNumber, StatusLine, ValueRow, spread_colour
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
@@ -36,9 +40,6 @@ STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually 
 UNDO_SHORTCUT = "Ctrl+Z"
 DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
 PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
-NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread", "counts")
-NODE_TIPS = ("", "station label", "trocar frame, mm", "trocar frame, mm", "trocar frame, mm",
-             "spread of the stored fixes about their median, mm", "gamma counts typed at the store")
 LABEL_HINT = "station, e.g. OBT R"
 PAUSED_TEXT = "paused for calibration (a wizard has the cameras)"
 _WARN, _BAD, _GOOD, _PAUSED = "color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400", "color: #1f4e9e"
@@ -120,8 +121,7 @@ class AcquisitionScreen(QWidget):
         self.spread_spin = QDoubleSpinBox(decimals=1, minimum=0.1, maximum=50.0, singleStep=0.5, suffix=" mm")
         self.spread_spin.setValue(max_spread_mm)
         self.spread_spin.setToolTip("a store whose fixes spread more than this is refused (the probe moved)")
-        self.nodes = QTableWidget(0, len(NODE_COLUMNS))
-        self.nodes.setHorizontalHeaderLabels(NODE_COLUMNS)
+        self.nodes = StoredNodes()
         self._layout()
         self.store_button.clicked.connect(lambda: self.request_store("button"))
         for key in STORE_SHORTCUTS:
@@ -154,7 +154,6 @@ class AcquisitionScreen(QWidget):
         for widget in (self._live_box(), self._store_box(), self.nodes):
             column.addWidget(widget)
         column.setStretch(2, 1)
-        self._configure_nodes()
         side = QScrollArea()         # on a screen lower than 700 px it scrolls, rather than grow the window off screen
         side.setWidget(column_widget)
         side.setWidgetResizable(True)
@@ -193,22 +192,6 @@ class AcquisitionScreen(QWidget):
         form.addRow(self.store_reason)
         form.addRow(self.store_status)
         return box
-
-    def _configure_nodes(self) -> None:
-        """Every column readable in a narrow side column: label takes the room left, the rest fit their contents."""
-        table = self.nodes
-        table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
-        table.verticalHeader().setVisible(False)
-        table.verticalHeader().setDefaultSectionSize(table.fontMetrics().height() + 6)
-        table.setMinimumHeight(table.fontMetrics().height() * 5)
-        table.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Ignored)    # gets the room left
-        header = table.horizontalHeader()
-        header.setMinimumSectionSize(24)
-        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        header.setSectionResizeMode(NODE_COLUMNS.index("label"), QHeaderView.ResizeMode.Stretch)
-        for column, tip in enumerate(NODE_TIPS):
-            table.horizontalHeaderItem(column).setToolTip(tip)
 
     # -- from the worker -----------------------------------------------------
     def show_result(self, result: FrameResult) -> None:
@@ -264,14 +247,14 @@ class AcquisitionScreen(QWidget):
         """Show the nodes already in the session (a continued session); replaces the table."""
         self.nodes.setRowCount(0)
         for node in nodes:
-            self._append_row(node)
+            self.nodes.append(node)
         self.undo_button.setEnabled(self.nodes.rowCount() > 0)
 
     def add_node(self, node) -> None:
         """Append a stored node (an :class:`~snreg.session.IntraopNode`) to the table; the label and counts typed for
         it are cleared (the next node is another station), and the empty field says what the last one was."""
         self._store_pending = False
-        self._append_row(node)
+        self.nodes.append(node)
         self.undo_button.setEnabled(True)
         if self.label_edit.text().strip() == node.label:       # not what was typed meanwhile for the next node
             self.label_edit.clear()
@@ -284,25 +267,9 @@ class AcquisitionScreen(QWidget):
 
     def remove_node(self, node) -> None:
         """Drop an undone node from the table."""
-        for row in range(self.nodes.rowCount()):
-            if self.nodes.item(row, 0).text() == node.id:
-                self.nodes.removeRow(row)
-                break
+        self.nodes.remove(node.id)
         self.undo_button.setEnabled(self.nodes.rowCount() > 0)
         self._say(f"undone: {node.id} (kept on record in the session journal)", "")
-
-    def _append_row(self, node) -> None:
-        row = self.nodes.rowCount()
-        self.nodes.insertRow(row)
-        counts = "" if node.counts is None or math.isnan(node.counts) else f"{node.counts:g}"
-        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", counts)
-        for column, text in enumerate(cells):
-            item = QTableWidgetItem(text)
-            if column >= 2:
-                item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-            self.nodes.setItem(row, column, item)
-        self.nodes.item(row, NODE_COLUMNS.index("spread")).setToolTip(f"over {node.n_frames} fixes")
-        self.nodes.scrollToBottom()
 
     def show_link_state(self, text: str) -> None:
         """The live link's clients and address (from its ``state_changed`` signal); empty hides the line."""

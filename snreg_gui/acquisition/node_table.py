@@ -1,0 +1,56 @@
+"""The acquisition screen's table of stored nodes: id, label, trocar x/y/z, spread and gamma counts.
+
+Why: the technician checks each node as it is stored, in a side column about 350 px wide at 1024x700; every column
+must stay readable there: the label takes the room left, the numbers fit their contents.
+"""
+
+from __future__ import annotations
+
+import math
+
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem
+
+NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread", "counts")
+NODE_TIPS = ("", "station label", "trocar frame, mm", "trocar frame, mm", "trocar frame, mm",
+             "spread of the stored fixes about their median, mm", "gamma counts typed at the store")
+
+
+class StoredNodes(QTableWidget):
+    """Read-only rows of stored nodes (:class:`~snreg.session.IntraopNode`), newest last and scrolled into view."""
+
+    def __init__(self):
+        super().__init__(0, len(NODE_COLUMNS))
+        self.setHorizontalHeaderLabels(NODE_COLUMNS)
+        self.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.verticalHeader().setVisible(False)
+        self.verticalHeader().setDefaultSectionSize(self.fontMetrics().height() + 6)
+        self.setMinimumHeight(self.fontMetrics().height() * 5)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Ignored)    # gets the room left
+        header = self.horizontalHeader()
+        header.setMinimumSectionSize(24)
+        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        header.setSectionResizeMode(NODE_COLUMNS.index("label"), QHeaderView.ResizeMode.Stretch)
+        for column, tip in enumerate(NODE_TIPS):
+            self.horizontalHeaderItem(column).setToolTip(tip)
+
+    def append(self, node) -> None:
+        row = self.rowCount()
+        self.insertRow(row)
+        counts = "" if node.counts is None or math.isnan(node.counts) else f"{node.counts:g}"
+        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", counts)
+        for column, text in enumerate(cells):
+            item = QTableWidgetItem(text)
+            if column >= NODE_COLUMNS.index("x"):
+                item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+            self.setItem(row, column, item)
+        self.item(row, NODE_COLUMNS.index("spread")).setToolTip(f"over {node.n_frames} fixes")
+        self.scrollToBottom()
+
+    def remove(self, node_id: str) -> None:
+        """Drop the row of ``node_id`` (an undone node), if shown."""
+        for row in range(self.rowCount()):
+            if self.item(row, 0).text() == node_id:
+                self.removeRow(row)
+                return
