@@ -17,7 +17,7 @@ from PySide6.QtWidgets import QBoxLayout, QWidget
 GAP = 6                     # px between the feeds and around the plot
 MIN_FEED_WIDTH = 160
 PLOT_MIN = QSize(280, 130)  # the plot with its numbers, below the feeds (wide) or beside them (tall)
-STACK_GAIN = 1.1            # stack the feeds only when that makes them at least this much wider
+STACK_GAIN = 1.05           # stack the feeds only when that makes them at least this much wider
 
 
 @dataclass(frozen=True)

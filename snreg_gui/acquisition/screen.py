@@ -200,6 +200,7 @@ class AcquisitionScreen(QWidget):
         self._undrawn = result
         self.orientation.append(result.imu.euler_deg)
         self._update_store_state()
+        self._show_spread()                  # with the ready line, so both say the same spread
         outcome = result.outcome
         if self.auto_store.isChecked() and outcome.auto_store_due and self.store_button.isEnabled():
             self.request_store("auto")
@@ -222,7 +223,6 @@ class AcquisitionScreen(QWidget):
         if result.left_rgb.shape[1]:
             self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
         self.angles.show_values(result.imu.euler_deg)
-        self._show_spread()
         self.guidance.setText(guidance_line(self._missing, outcome.tip_trocar))
         self.tip_values.show_values(outcome.tip_trocar)
         self.tip_trocar.setText("tracked" if outcome.tip_trocar is not None else f"no fix ({outcome.reason})")
