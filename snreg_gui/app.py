@@ -32,7 +32,7 @@ from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg.workflow.chain_change import calibration_change, id_list, reexpress
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
-from snreg_gui.common import wheel_guard
+from snreg_gui.common import file_places, wheel_guard
 from snreg_gui.common.case_id_dialog import CaseIdDialog
 from snreg_gui.common.live_link import LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
@@ -153,15 +153,19 @@ class MainWindow(QMainWindow):
         if not dialog.exec():
             return
         case_id = dialog.case_id()
-        path, _ = QFileDialog.getSaveFileName(self, "New session file", f"{case_id}.h5", "snreg sessions (*.h5)")
+        path, _ = QFileDialog.getSaveFileName(self, "New session file", file_places.start_path(self.session,
+                                              f"{case_id}.h5"), "snreg sessions (*.h5)")
         if path:
+            file_places.remember(path)
             self.set_session(self._create(path, case_id))
 
     def continue_session(self, path: str | None = None) -> None:
         """Reopen a session to record more nodes into it (after a restart or a crash)."""
-        path = path or QFileDialog.getOpenFileName(self, "Continue session", "", "snreg sessions (*.h5)")[0]
+        path = path or QFileDialog.getOpenFileName(self, "Continue session", file_places.start_path(self.session),
+                                                   "snreg sessions (*.h5)")[0]
         if not path:
             return
+        file_places.remember(path)
         try:
             session = Session.resume(path)
         except SessionError as err:
@@ -170,8 +174,10 @@ class MainWindow(QMainWindow):
         self.set_session(session)
 
     def choose_review(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open session for review", "", "snreg sessions (*.h5)")
+        path, _ = QFileDialog.getOpenFileName(self, "Open session for review", file_places.start_path(self.session),
+                                              "snreg sessions (*.h5)")
         if path:
+            file_places.remember(path)
             self.open_for_review(path)
 
     def open_for_review(self, path: str | Path) -> None:

@@ -10,9 +10,12 @@ from PySide6.QtGui import QGuiApplication
 from PySide6.QtWidgets import QFileDialog
 
 from snreg import geometry
+from snreg.camera import thesis_calibration
+from snreg.chain import ChainCalibration
 from snreg.demo.spect import spect_of_nodes, write_nm
 from snreg.nodes import NodeSet, read_nodes, write_nodes
 from snreg.registration.report import EXTRA, REPORT_DPI, REPORT_SIZE_IN
+from snreg.registration.report_meta import read_report_metadata
 from snreg.session import Session
 from snreg_gui.common import node_views
 from snreg_gui.common.node_views import ThreeViewPlot, make_node_view
@@ -235,10 +238,39 @@ def test_exports_are_written_and_read_back(qtbot, panel, pelvic_nodes, tmp_path,
     assert markups.ids == preop.ids and markups.labels == preop.labels
     assert np.allclose(markups.xyz, geometry.apply(result.transform, preop.xyz))
     png = (tmp_path / "report.png").read_bytes()
-    assert struct.unpack(">II", png[16:24]) == (round(REPORT_SIZE_IN[0] * REPORT_DPI), round(REPORT_SIZE_IN[1] * REPORT_DPI))
+    assert struct.unpack(">I", png[16:20])[0] == round(REPORT_SIZE_IN[0] * REPORT_DPI)
+    assert read_report_metadata(tmp_path / "report.json")["n_extra"] == 1      # the sidecar beside it
 
 
-def test_export_to_an_unwritable_place_is_one_sentence(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
+def test_the_report_is_written_in_a_worker_beside_the_session_with_its_case_and_calibration(
+        qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
+    preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    with Session.create(folder / "case-7.h5", case_id="case-7") as session:
+        session.set_calibration(stereo=thesis_calibration(), chain=ChainCalibration.manual())
+        for k in range(len(intraop)):
+            session.add_intraop_node(intraop.ids[k], intraop.labels[k], intraop.xyz[k])
+        panel.set_session(session)
+        load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+        click_run(qtbot, panel)
+        starts = []
+        monkeypatch.setattr(QFileDialog, "getSaveFileName", lambda _parent, _title, start, _filter: (
+            starts.append(start) or start, ""))
+        qtbot.mouseClick(panel.export_buttons["report"], Qt.MouseButton.LeftButton)
+        assert panel.export_progress.isVisible() and panel.busy             # busy dialog; the GUI thread is free
+        assert not panel.export_buttons["report"].isEnabled()
+        qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+        assert not panel.export_progress.isVisible() and panel.export_buttons["report"].isEnabled()
+    assert starts == [str(folder.resolve() / "case-7_global_report.png")]
+    meta = read_report_metadata(folder / "case-7_global_report.png")
+    assert meta == read_report_metadata(folder / "case-7_global_report.json")
+    assert meta["case_id"] == "case-7" and meta["session_file"] == "case-7.h5" and meta["method"] == "global"
+    assert meta["stereo_rms_px"] is not None and meta["trocar_camera_mm"] == pytest.approx(158.0)
+    assert meta["stereo_version"] and meta["chain_version"]
+
+
+def test_export_to_an_unwritable_place_is_one_sentence_in_a_box(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
     preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
     load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
     panel.set_intraop_nodes(intraop)
@@ -247,6 +279,7 @@ def test_export_to_an_unwritable_place_is_one_sentence(qtbot, panel, pelvic_node
     qtbot.mouseClick(panel.export_buttons["pairs"], Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: not panel.busy and "cannot write" in panel.message.text(), timeout=TIMEOUT_MS)
     assert panel.message.text().endswith("choose another folder.")
+    assert panel.export_problem.isVisible() and panel.export_problem.text() == panel.message.text()
 
 
 def test_writable_session_stores_preop_and_result_review_only_shows(qtbot, panel, pelvic_nodes, tmp_path):

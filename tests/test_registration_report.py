@@ -7,11 +7,12 @@ import struct
 import numpy as np
 import pytest
 
-from snreg import geometry
+from snreg import __version__, geometry
 from snreg.nodes import NodeSet, read_nodes, write_nodes
 from snreg.registration import CONFIDENT, RegistrationResult, register
 from snreg.registration.report import (EXTRA, FAR_NODE_MM, REPORT_DPI, REPORT_SIZE_IN, VIEWS, mapped_preop,
                                        node_warnings, pair_rows, registration_figure, save_report_png, write_pairs_csv)
+from snreg.registration.report_meta import REPORT_KEY, ReportContext, read_report_metadata, sidecar_path
 
 
 @pytest.fixture
@@ -77,12 +78,14 @@ def test_figure_draws_both_sets_in_three_views_with_the_pairs(case):
     views, table = figure.axes[:3], figure.axes[3]
     moved = geometry.apply(result.transform, preop.xyz)
     for ax, (name, h, v) in zip(views, VIEWS):
-        assert ax.get_title().startswith(name)
+        assert ax.get_title().startswith(name) and "trocar frame" in ax.get_title()
+        assert ax.get_xlabel() == f"{'xyz'[h]} trocar (mm)" and ax.get_ylabel() == f"{'xyz'[v]} trocar (mm)"
         preop_dots, intraop_dots = ax.collections[:2]
         assert np.allclose(preop_dots.get_offsets(), moved[:, [h, v]])
         assert np.allclose(intraop_dots.get_offsets(), intraop.xyz[:, [h, v]])
         assert len(ax.lines) == int(np.sum(result.pairing >= 0))
-    assert f"RMS {result.rms_mm:.2f} mm" in figure.get_suptitle()
+    assert any(f"RMS {result.rms_mm:.2f} mm" in text.get_text() for text in figure.texts)
+    assert not {"axial", "coronal", "sagittal"} & {w for ax in views for w in ax.get_title().split()}
     assert "global" in table.get_title()
     cell_texts = {cell.get_text().get_text() for cell in table.tables[0].get_celld().values()}
     assert EXTRA in cell_texts and set(intraop.ids) <= cell_texts
@@ -97,13 +100,60 @@ def test_figure_shades_rows_below_the_confidence_threshold(case):
     assert shaded == {2}                     # table row 0 is the header; intraop node 1 is row 2
 
 
-def test_png_report_has_the_documented_size(case, tmp_path):
-    preop, intraop, result, _, _ = case
-    path = save_report_png(tmp_path / "report.png", preop, intraop, result)
+CONTEXT = ReportContext(case_id="phantom-01", session_path="/data/cases/phantom-01.h5", stereo_rms_px=0.31,
+                        stereo_views=30, stereo_created_utc="2024-05-01T10:00:00+00:00", stereo_version="ab12cd34",
+                        trocar_camera_mm=158.0, chain_version="99ee1122", date_utc="2024-05-02T08:30:00+00:00")
+
+
+def _png_size(path) -> tuple[int, int]:
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    width, height = struct.unpack(">II", data[16:24])
-    assert (width, height) == (round(REPORT_SIZE_IN[0] * REPORT_DPI), round(REPORT_SIZE_IN[1] * REPORT_DPI))
+    return struct.unpack(">II", data[16:24])
+
+
+def test_png_report_is_the_documented_width_and_as_tall_as_its_content(case, tmp_path):
+    preop, intraop, result, _, _ = case
+    path = save_report_png(tmp_path / "report.png", preop, intraop, result)
+    width, height = _png_size(path)
+    assert width == round(REPORT_SIZE_IN[0] * REPORT_DPI) and 600 < height < 1000
+    from PIL import Image
+    grey = np.asarray(Image.open(path).convert("L"), dtype=float)
+    ink_rows = np.flatnonzero((grey < 200).any(axis=1))
+    assert height - ink_rows[-1] < 0.05 * height             # no blank band at the bottom (it was a third)
+    more = NodeSet.from_xyz(np.vstack([intraop.xyz, intraop.xyz + 300.0]), prefix="I")
+    longer = register(preop.xyz, more.xyz, method="icp")
+    assert _png_size(save_report_png(tmp_path / "long.png", preop, more, longer))[1] > height
+
+
+def test_report_metadata_reads_back_from_the_png_text_chunk_and_the_sidecar_json(case, tmp_path):
+    preop, intraop, result, _, _ = case
+    path = save_report_png(tmp_path / "phantom-01_global_report.png", preop, intraop, result, context=CONTEXT)
+    meta = read_report_metadata(path)
+    assert read_report_metadata(sidecar_path(path)) == meta
+    assert sidecar_path(path) == tmp_path / "phantom-01_global_report.json"
+    assert meta["case_id"] == "phantom-01" and meta["session_file"] == "phantom-01.h5"
+    assert meta["date_utc"] == "2024-05-02T08:30:00+00:00" and meta["snreg_version"] == __version__
+    assert meta["method"] == "global" and meta["rms_mm"] == pytest.approx(result.rms_mm, abs=1e-4)
+    assert (meta["n_intraop"], meta["n_paired"], meta["n_extra"]) == (7, 6, 1) and meta["missing_preop_ids"] == []
+    assert meta["stereo_rms_px"] == 0.31 and meta["stereo_views"] == 30 and meta["chain_version"] == "99ee1122"
+    assert "stereo RMS 0.31 px, 30 views" in meta["calibration"] and "158.0 mm" in meta["calibration"]
+    assert np.allclose(meta["intraop_from_preop"], result.transform, atol=1e-5)
+    from PIL import Image
+    with Image.open(path) as image:
+        text = image.info
+    assert text["Software"] == f"snreg {__version__}" and "case phantom-01" in text["Description"]
+    assert REPORT_KEY in text
+    figure_text = " ".join(t.get_text() for t in registration_figure(preop, intraop, result, meta=meta).texts)
+    for fact in ("case phantom-01", "2024-05-02T08:30:00+00:00", "phantom-01.h5", "stereo RMS 0.31 px", __version__,
+                 "RMS", "6 of 7 intraop nodes paired"):
+        assert fact in figure_text
+
+
+def test_a_png_without_report_metadata_is_refused(tmp_path):
+    from PIL import Image
+    Image.new("RGB", (4, 4)).save(tmp_path / "other.png")
+    with pytest.raises(ValueError, match="not an snreg report"):
+        read_report_metadata(tmp_path / "other.png")
 
 
 def test_node_warnings_name_far_pairs_and_extra_nodes(case):

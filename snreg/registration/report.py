@@ -8,12 +8,14 @@ files without a window. Everything here is Qt-free; the figure is drawn with mat
 >>> rows = pair_rows(preop, intraop, result)          # one PairRow per intraop node
 >>> write_pairs_csv("pairs.csv", preop, intraop, result)
 >>> write_nodes(mapped_preop(preop, result), "preop_in_trocar.mrk.json")
->>> save_report_png("report.png", preop, intraop, result)   # 1200 x 800 px at the default size
+>>> save_report_png("report.png", preop, intraop, result, context=ReportContext(case_id="phantom-01"))
+...                                                    # 1200 px wide, and report.json beside it
 """
 
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,7 @@ import numpy as np
 from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, RegistrationResult
+from snreg.registration.report_meta import ReportContext, header_lines, png_text_chunks, report_metadata, sidecar_path
 
 __all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line",
            "node_warnings", "write_pairs_csv", "registration_figure", "save_report_png", "EXTRA", "FAR_NODE_MM", "VIEWS",
@@ -29,9 +32,12 @@ __all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows",
 
 EXTRA = "extra"                 # shown instead of a preop id for an intraop node judged extra (pairing -1)
 FAR_NODE_MM = 20.0              # a paired node farther than this from its mapped partner is warned about
-# The three orthogonal projections (name, horizontal axis, vertical axis): axial x-y, coronal x-z, sagittal y-z.
-VIEWS = (("axial", 0, 1), ("coronal", 0, 2), ("sagittal", 1, 2))
-REPORT_SIZE_IN = (12.0, 8.0)
+# The three orthogonal projections of the trocar frame (name, horizontal axis, vertical axis): looking along its
+# z axis (the endoscope's axis in the reference pose) shows x-y, along y shows x-z, along x shows y-z. Not
+# axial/coronal/sagittal: the trocar frame is not the patient's.
+VIEWS = (("along z", 0, 1), ("along y", 0, 2), ("along x", 1, 2))
+REPORT_SIZE_IN = (12.0, 8.0)    # width; the height follows the content (about 8 in for a handful of nodes)
+_HEADER_LINE_IN, _VIEWS_IN, _ROW_IN = 0.24, 3.4, 0.24
 REPORT_DPI = 100
 PREOP_COLOUR, INTRAOP_COLOUR, PAIR_COLOUR, DOUBT_COLOUR = "#1f77b4", "#d62728", "#7f7f7f", "#fdd0a2"
 _CSV_COLUMNS = ("intraop_id", "intraop_label", "preop_id", "preop_label", "distance_mm", "confidence", "confident")
@@ -174,19 +180,34 @@ def node_warnings(rows: list[PairRow], far_mm: float = FAR_NODE_MM) -> list[str]
     return warnings
 
 
-def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationResult, *, title: str = ""):
-    """A matplotlib ``Figure``: axial/coronal/sagittal scatter of both sets and the pairs, the pair table, RMS.
+def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationResult, *, title: str = "",
+                        meta: dict | None = None):
+    """A matplotlib ``Figure``: a header, three projections of both sets in the trocar frame with the pairs, the
+    pair table and the warnings, its height sized to that content (no blank band) at ``REPORT_SIZE_IN[0]`` wide.
 
-    Preop nodes are drawn after mapping by ``result.transform`` (blue circles), intraop nodes as red
-    crosses, pairs as grey lines; rows whose confidence is below ``CONFIDENT`` are shaded in the table.
+    ``meta`` (:func:`~snreg.registration.report_meta.report_metadata`) gives the header lines (case, date,
+    session, calibration, method, RMS, counts, version); without it the header is the summary line. Preop nodes
+    are drawn after mapping by ``result.transform`` (blue circles), intraop nodes as red crosses, pairs as grey
+    lines; rows whose confidence is below ``CONFIDENT`` are shaded in the table.
     """
     from matplotlib.figure import Figure
 
     rows = pair_rows(preop, intraop, result)
     moved = geometry.apply(result.transform, preop.xyz)
-    figure = Figure(figsize=REPORT_SIZE_IN, dpi=REPORT_DPI)
-    grid = figure.add_gridspec(2, 3, height_ratios=(1.15, 1.0), hspace=0.3, wspace=0.3)
-    figure.suptitle(title or summary_line(result, rows), fontsize=12)
+    header = ([title] if title else []) + (header_lines(meta) if meta is not None else [summary_line(result, rows)])
+    warnings = node_warnings(rows)
+    # inches from the top: header, view titles, views, their axis labels and the table's title, table, warnings
+    header_in = _HEADER_LINE_IN * len(header) + 0.2
+    table_in = _ROW_IN * (len(rows) + 1)
+    notes_in = _HEADER_LINE_IN * len(warnings) + 0.2
+    height = header_in + 0.35 + _VIEWS_IN + 0.75 + table_in + notes_in
+    figure = Figure(figsize=(REPORT_SIZE_IN[0], height), dpi=REPORT_DPI)
+    for k, line in enumerate(header):
+        figure.text(0.01, 1 - (0.1 + _HEADER_LINE_IN * (k + 0.8)) / height, line, fontsize=10 if k else 12,
+                    weight="normal" if k else "bold")
+    views_top = 1 - (header_in + 0.35) / height
+    grid = figure.add_gridspec(1, 3, wspace=0.3, left=0.07, right=0.98, top=views_top,
+                               bottom=views_top - _VIEWS_IN / height)
     for column, (name, h, v) in enumerate(VIEWS):
         ax = figure.add_subplot(grid[0, column])
         for m, n in enumerate(result.pairing):
@@ -201,36 +222,44 @@ def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationRe
         for k, node_id in enumerate(intraop.ids):
             ax.annotate(node_id, intraop.xyz[k, [h, v]], xytext=(4, -9), textcoords="offset points", fontsize=7,
                         color=INTRAOP_COLOUR)
-        ax.set_title(f"{name} ({'xyz'[h]}-{'xyz'[v]})")
-        ax.set_xlabel(f"{'xyz'[h]} (mm)")
-        ax.set_ylabel(f"{'xyz'[v]} (mm)")
+        ax.set_title(f"{name} ({'xyz'[h]}-{'xyz'[v]}, trocar frame)", fontsize=10)
+        ax.set_xlabel(f"{'xyz'[h]} trocar (mm)")
+        ax.set_ylabel(f"{'xyz'[v]} trocar (mm)")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
         if column == 0:
             ax.legend(fontsize=7, loc="best")
-    table_ax = figure.add_subplot(grid[1, :])
+    table_ax = figure.add_axes((0.07, (notes_in + 0.02) / height, 0.91, table_in / height))
     table_ax.axis("off")
     cells = [[r.intraop_id, r.intraop_label, r.preop_id, r.preop_label, f"{r.distance_mm:.1f}", f"{r.confidence:.2f}"]
              for r in rows]
     colours = [["white" if r.confident else DOUBT_COLOUR] * 6 for r in rows]
     if cells:
-        table = table_ax.table(cellText=cells, cellColours=colours, cellLoc="center", loc="upper center",
+        table = table_ax.table(cellText=cells, cellColours=colours, cellLoc="center", bbox=(0.0, 0.0, 1.0, 1.0),
                                colLabels=["intraop id", "intraop label", "preop id", "preop label", "distance mm",
                                           "confidence"])
         table.auto_set_font_size(False)
-        table.set_fontsize(8)
+        table.set_fontsize(9)
     table_ax.set_title(f"method {result.method}, pairing rule {result.pairing_rule}, RMS {result.rms_mm:.2f} mm; "
                        f"shaded: confidence below {CONFIDENT:g}", fontsize=9)
+    for k, text in enumerate(warnings):
+        figure.text(0.01, (notes_in - 0.1 - _HEADER_LINE_IN * (k + 0.8)) / height, f"WARNING: {text}",
+                    fontsize=9, color=INTRAOP_COLOUR)
     return figure
 
 
 def save_report_png(path, preop: NodeSet, intraop: NodeSet, result: RegistrationResult, *, title: str = "",
-                    dpi: int = REPORT_DPI) -> Path:
-    """Write :func:`registration_figure` as a PNG of ``REPORT_SIZE_IN`` x ``dpi`` pixels (1200 x 800 by default)."""
+                    context: ReportContext | None = None, dpi: int = REPORT_DPI) -> Path:
+    """Write :func:`registration_figure` as a PNG ``REPORT_SIZE_IN[0]`` x ``dpi`` pixels wide (1200 by default), as
+    tall as its content, with :func:`~snreg.registration.report_meta.report_metadata` in its text chunks and in
+    a sidecar JSON beside it (:func:`~snreg.registration.report_meta.sidecar_path`); returns the PNG's path."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    figure = registration_figure(preop, intraop, result, title=title)
+    rows = pair_rows(preop, intraop, result)
+    meta = report_metadata(result, rows, missing_nodes(preop, result), context, node_warnings(rows))
+    figure = registration_figure(preop, intraop, result, title=title, meta=meta)
     FigureCanvasAgg(figure)
     path = Path(path)
-    figure.savefig(path, dpi=dpi, format="png")
+    figure.savefig(path, dpi=dpi, format="png", metadata=png_text_chunks(meta))
+    sidecar_path(path).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     return path

@@ -17,7 +17,8 @@ import numpy as np
 from snreg.nodes import NodeSet, write_nodes
 from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import shown_preop_ids
-from snreg.registration.report import mapped_preop, pair_rows, save_report_png, summary_line, write_pairs_csv
+from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
+from snreg.registration.report_meta import ReportContext, sidecar_path
 from snreg.session import Session, SessionError
 from snreg.workflow.chain_change import mixed_calibration_note
 
@@ -106,8 +107,26 @@ def _run(request: RunRequest) -> RunRecord:
     return RunRecord(request.preop, request.intraop, result, f"Stored in the session as registration {n}.", True)
 
 
-def export_file(kind: str, path: str, record: RunRecord) -> Path:
-    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups or ``report`` PNG.
+def report_context(session: Session | None) -> ReportContext:
+    """What the PNG report says about the session a registration comes from: case id, file, and the stereo
+    calibration and chain stored in it now (their quality figures, date and versions); empty without a session."""
+    if session is None:
+        return ReportContext()
+    stored = session.calibration()
+    stereo, chain = stored.get("stereo"), stored.get("chain")
+    stereo_version, chain_version = session.calibration_versions()
+    return ReportContext(case_id=session.case_id, session_path=str(session.path),
+                         stereo_rms_px=None if stereo is None else float(stereo.rms_reprojection_px),
+                         stereo_views=None if stereo is None else int(stereo.n_views or 0),
+                         stereo_created_utc="" if stereo is None else str(stereo.created_utc),
+                         stereo_version=stereo_version,
+                         trocar_camera_mm=None if chain is None else chain.trocar_camera_mm,
+                         chain_version=chain_version)
+
+
+def export_file(kind: str, path: str, record: RunRecord, context: ReportContext | None = None) -> Path:
+    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups or ``report`` PNG (with
+    its sidecar JSON, both carrying ``context``: :func:`report_context`).
 
     Written beside the target under a hidden name and then renamed, so a reader (3D Slicer, a script watching
     the folder) never sees a half-written file and a failed export leaves no file."""
@@ -124,12 +143,15 @@ def export_file(kind: str, path: str, record: RunRecord) -> Path:
             mapped = mapped_preop(record.preop, record.result)
             write_nodes(replace(mapped, comments=mapped.comments + [final] if final else mapped.comments), partial)
         else:
-            title = summary_line(record.result, pair_rows(record.preop, record.intraop, record.result))
             shown = replace(record.preop, ids=shown_preop_ids(record.preop.ids, record.intraop.ids))   # "P:SN4"
-            save_report_png(partial, shown, record.intraop, record.result, title=f"{title}; {final}" if final else "")
+            context = replace(context or ReportContext(), final_registration=record.final_n)
+            save_report_png(partial, shown, record.intraop, record.result, title=final.capitalize(), context=context)
+            os.replace(sidecar_path(partial), sidecar_path(path))
         os.replace(partial, path)
     except OSError as err:
         partial.unlink(missing_ok=True)
+        if kind == "report":
+            sidecar_path(partial).unlink(missing_ok=True)
         raise ValueError(f"{path}: cannot write the {EXPORTS[kind][0]} ({err.strerror or err}); "
                          "choose another folder") from None
     return path

@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
-                               QHeaderView, QLabel, QProgressBar, QPushButton, QScrollArea, QSplitter, QVBoxLayout,
-                               QWidget)
+                               QHeaderView, QLabel, QMessageBox, QProgressBar, QProgressDialog, QPushButton,
+                               QScrollArea, QSplitter, QVBoxLayout, QWidget)
 
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
@@ -34,7 +34,9 @@ from snreg.registration.naming import marked_missing, marked_rows
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, export_file, final_record, run_registration
+from snreg.workflow.registration_run import (EXPORTS, RunRecord, RunRequest, export_file, final_record,
+                                             report_context, run_registration)
+from snreg_gui.common import file_places
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
 from snreg_gui.common.workers import WorkerSet, sentence
@@ -46,6 +48,8 @@ from snreg_gui.registration.tables import NodeTable, PairingTable
 DEFAULT_METHOD = "global"
 VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
 LEFT_MIN_WIDTH = 280        # px: the settings column can be narrowed this far by its splitter
+# what each export's suggested file name ends in, after <case>_<method>_ (snreg_gui.common.file_places.export_name)
+EXPORT_NAMES = {"pairs": "pairs.csv", "slicer": "preop_in_trocar.mrk.json", "report": "report.png"}
 
 
 def _same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
@@ -117,6 +121,8 @@ class RegistrationPanel(QWidget):
         self._auto_pending = False                  # a node stored during a run: register again when it ends
         self._excluded: set[str] = set()             # intraop ids left out of the next runs
         self._exporting = 0
+        self.export_progress: QProgressDialog | None = None    # shown while an export is written
+        self.export_problem: QMessageBox | None = None         # an export that failed, said in a box
         self._tasks = WorkerSet()
         self.preop_box = PreopSourceBox()
         self.intraop_source = QLabel("no intraop nodes: open a session or a node file")
@@ -261,7 +267,7 @@ class RegistrationPanel(QWidget):
 
     def set_session(self, session) -> None:
         """Intraop nodes, and the stored preop set and latest registration if any, from ``session``; None clears."""
-        self._session = session
+        self._session = self.preop_box.session = session
         if session is None:
             self._set_intraop(None, "no intraop nodes: open a session or a node file")
             self._show_record(None)
@@ -370,8 +376,10 @@ class RegistrationPanel(QWidget):
         self._inputs_changed()
 
     def _choose_intraop_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Intraop node file", "", "Node files (*.csv *.mrk.json *.json)")
+        path, _ = QFileDialog.getOpenFileName(self, "Intraop node file", file_places.start_path(self._session),
+                                              "Node files (*.csv *.mrk.json *.json)")
         if path:
+            file_places.remember(path)
             self._tasks.start(read_nodes, path, returned=self.set_intraop_nodes, errored=self._say_problem)
 
     def _centre_preop(self) -> None:
@@ -484,7 +492,7 @@ class RegistrationPanel(QWidget):
 
     def _update_exports(self) -> None:
         record, why = self._export_record()
-        self._set_exports_enabled(record is not None)
+        self._set_exports_enabled(record is not None and self._exporting == 0)
         self.final_label.setText(why if self._session is not None and (record is not None or
                                                                        self._session.final_registration() is not None)
                                  else "")
@@ -501,22 +509,67 @@ class RegistrationPanel(QWidget):
         self._say("No registration is marked final now." if n is None else
                   f"Registration {n} is marked final in the session; the exports use it.")
 
+    def export_start(self, kind: str) -> str:
+        """Where the export dialog of ``kind`` starts: the session's folder (or the last one used) and a suggested
+        name ``<case>_<method>_<what>`` for what the exports write."""
+        case = self._session.case_id if self._session is not None else ""
+        record, _ = self._export_record()
+        method = record.result.method if record is not None else self.method_combo.currentText()
+        return file_places.start_path(self._session, file_places.export_name(case, method, EXPORT_NAMES[kind]))
+
     def _choose_export(self, kind: str) -> None:
         record, why = self._export_record()
         if record is None:
             return self._say(why)
         name, file_filter, _ = EXPORTS[kind]
-        path, _ = QFileDialog.getSaveFileName(self, f"Export {name}", "", file_filter)
+        path, _ = QFileDialog.getSaveFileName(self, f"Export {name}", self.export_start(kind), file_filter)
         if path:
-            self._exporting += 1
-            self._tasks.start(export_file, kind, path, record,
-                              returned=lambda written: self._exported(written, record), errored=self._export_failed)
+            file_places.remember(path)
+            self.export(kind, path)
+
+    def export(self, kind: str, path: str) -> None:
+        """Write what the exports write (:meth:`_export_record`) as ``kind`` (a key of ``EXPORTS``) to ``path`` in a
+        worker, with a busy dialog; the report carries the session's case, file and calibration
+        (:func:`report_context`)."""
+        record, why = self._export_record()
+        if record is None:
+            return self._say(why)
+        self._exporting += 1
+        self._set_exports_enabled(False)
+        context = report_context(self._session) if kind == "report" else None
+        self._show_export_progress(f"Writing the {EXPORTS[kind][0]} to {path} ...")
+        self._tasks.start(export_file, kind, path, record, context,
+                          returned=lambda written: self._exported(written, record), errored=self._export_failed)
+
+    def _show_export_progress(self, text: str) -> None:
+        if self.export_progress is None:
+            dialog = QProgressDialog(self)
+            dialog.setWindowTitle("Exporting")
+            dialog.setRange(0, 0)                     # busy: a figure's rendering reports no steps
+            dialog.setCancelButton(None)             # a file half-written is never left, but it cannot be stopped
+            dialog.setWindowModality(Qt.WindowModality.NonModal)
+            dialog.setAutoClose(False)
+            dialog.setAutoReset(False)
+            self.export_progress = dialog
+        self.export_progress.setLabelText(text)
+        self.export_progress.show()
+
+    def _export_ended(self) -> None:
+        self._exporting -= 1
+        if self._exporting == 0:
+            if self.export_progress is not None:
+                self.export_progress.hide()
+            self._update_exports()
 
     def _exported(self, path, record: RunRecord) -> None:
-        self._exporting -= 1
+        self._export_ended()
         which = "" if record.final_n is None else f" (registration {record.final_n}, marked final)"
-        self._say(f"Written {path}{which}.")
+        extra = "; its facts also in the .json beside it" if str(path).lower().endswith(".png") else ""
+        self._say(f"Written {path}{which}{extra}.")
 
     def _export_failed(self, message: str) -> None:
-        self._exporting -= 1
+        self._export_ended()
         self._say_problem(message)
+        box = QMessageBox(QMessageBox.Icon.Warning, "Export failed", sentence(message), parent=self)
+        self.export_problem = box
+        box.open()

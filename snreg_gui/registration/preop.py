@@ -21,6 +21,7 @@ from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, 
 
 from snreg.nodes import NodeSet, read_nodes
 from snreg.preop import Volume, load_volume, segment_nodes
+from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.tables import NodeTable
 
@@ -67,6 +68,7 @@ class PreopSourceBox(QGroupBox):
     def __init__(self, parent=None):
         super().__init__("Preop nodes (SPECT)", parent)
         self.nodes: NodeSet | None = None
+        self.session = None                  # the panel's session: its folder is where the file dialogs start
         self._volume: Volume | None = None
         self._source = ""
         self._generation = 0
@@ -147,18 +149,23 @@ class PreopSourceBox(QGroupBox):
 
     # -- internals -----------------------------------------------------------
     def _choose_node_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Preop node file", "", "Node files (*.csv *.mrk.json *.json)")
+        path, _ = QFileDialog.getOpenFileName(self, "Preop node file", file_places.start_path(self.session),
+                                              "Node files (*.csv *.mrk.json *.json)")
         if path:
+            file_places.remember(path)
             self.load(path)
 
     def _choose_spect_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "SPECT DICOM file", "", "DICOM (*.dcm *.DCM *.ima);;All files (*)")
+        path, _ = QFileDialog.getOpenFileName(self, "SPECT DICOM file", file_places.start_path(self.session),
+                                              "DICOM (*.dcm *.DCM *.ima);;All files (*)")
         if path:
+            file_places.remember(path)
             self.load(path)
 
     def _choose_spect_folder(self) -> None:
-        path = QFileDialog.getExistingDirectory(self, "SPECT DICOM series folder")
+        path = QFileDialog.getExistingDirectory(self, "SPECT DICOM series folder", file_places.start_path(self.session))
         if path:
+            file_places.remember(path)
             self.load(path)
 
     def _settings_changed(self) -> None:

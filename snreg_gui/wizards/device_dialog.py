@@ -25,6 +25,7 @@ from snreg.imu.reader import DEFAULT_BAUD
 from snreg.rig import CAMERA_MODES, RigConfig, check_source
 from snreg.sources.capture import LAYOUTS
 from snreg.sources.devices import list_cameras, list_serial_ports
+from snreg_gui.common import file_places
 from snreg_gui.common.workers import Worker, WorkerSet
 
 MODE_TEXTS = {"pair": "Two cameras, one per eye", "stacked": "One camera delivering both eyes",
@@ -357,14 +358,18 @@ class DeviceDialog(QDialog):
 
     # -- browsing ------------------------------------------------------------
     def _open_file(self, title: str, current: str, file_filter: str) -> str | None:
-        path, _ = QFileDialog.getOpenFileName(self, title, current, f"{file_filter};;All files (*)")
+        path, _ = QFileDialog.getOpenFileName(self, title, current or file_places.start_path(None),
+                                              f"{file_filter};;All files (*)")
+        file_places.remember(path)
         return path or None
 
     def _image_pattern(self, title: str, current: str) -> str | None:
         """A folder chosen, as a pattern that keeps the current file pattern (``*.png`` by default)."""
-        folder = QFileDialog.getExistingDirectory(self, title, str(Path(current).parent) if current else "")
+        folder = QFileDialog.getExistingDirectory(self, title, str(Path(current).parent) if current
+                                                  else file_places.start_path(None))
         if not folder:
             return None
+        file_places.remember(folder)
         name = Path(current).name if current and any(c in Path(current).name for c in "*?[") else "*.png"
         return str(Path(folder) / name)
 
