@@ -73,6 +73,7 @@ class MainWindow(QMainWindow):
         self._end_confirmed = False
         self.close_prompt: QMessageBox | None = None
         self.calibration_prompt: QMessageBox | None = None
+        self.calibration_notice: QMessageBox | None = None   # "saved to ... and applied" after a wizard's Finish
         self.tabs = QTabWidget()
         self._acquisition_tab = QWidget()
         QVBoxLayout(self._acquisition_tab)
@@ -242,42 +243,64 @@ class MainWindow(QMainWindow):
         self._stop_acquisition()
         self._start_acquisition()
 
-    def apply_stereo_calibration(self, calibration) -> None:
-        """Track with ``calibration`` from now on and store it in the session; stored nodes: say so, offer to
-        re-express them."""
+    def apply_stereo_calibration(self, calibration, saved_to=None) -> None:
+        """Track with ``calibration`` from now on and store it in the session; say in words where it was saved
+        (``saved_to``, the wizard's file) and that it is applied; stored nodes: say so, offer to re-express them."""
         previous, self.rig.calibration = self.rig.calibration, calibration
-        if self.session is not None:
+        stored = self.session is not None and self.session.writable
+        if stored:
             self.session.set_calibration(stereo=calibration)
-        self.statusBar().showMessage(f"stereo calibration applied: RMS {calibration.rms_reprojection_px:.3f} px, "
-                                     f"baseline {calibration.baseline_mm:.2f} mm")
-        self._offer_reexpression(previous)
+        places = [f"saved to {saved_to}"] if saved_to else []
+        places += [f"stored in the session {self.session.path.name}"] if stored else []
+        applied = (f"The stereo calibration (RMS {calibration.rms_reprojection_px:.3f} px, baseline "
+                   f"{calibration.baseline_mm:.2f} mm) is {' and '.join(places + ['applied'])}: tracking uses it "
+                   "from now on.")
+        self._calibration_applied(applied, previous)
 
     def apply_chain(self, chain) -> None:
-        """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session); stored
-        nodes: say so, offer to re-express them."""
+        """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session); say so in
+        words; stored nodes: say so, offer to re-express them."""
         self.rig.chain = chain
-        self.statusBar().showMessage(f"trocar calibration applied: trocar-camera {chain.trocar_camera_mm:.1f} mm")
-        self._offer_reexpression(self.rig.calibration)
+        stored = self.session is not None and self.session.writable
+        where = (f"saved in the session {self.session.path} and applied" if stored else
+                 "applied (not saved: no session is open)")
+        applied = (f"The trocar calibration (trocar-camera {chain.trocar_camera_mm:.1f} mm) is {where}: stored "
+                   "positions use it from now on.")
+        self._calibration_applied(applied, self.rig.calibration)
 
-    def _offer_reexpression(self, previous_stereo) -> None:
+    def _calibration_applied(self, applied: str, previous_stereo) -> None:
+        """Say ``applied`` in the status bar and in a box (:attr:`calibration_notice`), or, when stored nodes were
+        mapped with another calibration, in the box that offers to re-express them (:attr:`calibration_prompt`)."""
+        self.statusBar().showMessage(applied)
+        if self._offer_reexpression(previous_stereo, applied):
+            return
+        box = QMessageBox(QMessageBox.Icon.Information, "Calibration applied", applied, parent=self)
+        box.finished.connect(lambda _: setattr(self, "calibration_notice", None))
+        self.calibration_notice = box
+        box.open()
+
+    def _offer_reexpression(self, previous_stereo, applied: str = "") -> bool:
         """When stored nodes were mapped with another calibration than the rig's now: say so plainly and offer to
-        re-express them (the session keeps their old values on record)."""
+        re-express them (the session keeps their old values on record); True when the box is shown."""
         session = self.session
         if session is None or not session.writable:
-            return
+            return False
         change = calibration_change(session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
         if change is None:
-            return
+            return False
         box = QMessageBox(QMessageBox.Icon.Warning, "Calibration changed: stored nodes", change.message, parent=self)
+        informative = [applied] if applied else []
         if change.question:
-            box.setInformativeText(change.question)
+            box.setInformativeText("\n\n".join(informative + [change.question]))
             box.addButton(f"Re-express {id_list(change.movable)}", QMessageBox.ButtonRole.AcceptRole)
             box.addButton("Keep them as stored", QMessageBox.ButtonRole.RejectRole)
         else:
+            box.setInformativeText(applied)
             box.addButton(QMessageBox.StandardButton.Ok)
         box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo))
         self.calibration_prompt = box
         box.open()
+        return True
 
     def _reexpression_answered(self, box: QMessageBox, previous_stereo) -> None:
         self.calibration_prompt = None

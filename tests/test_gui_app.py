@@ -2,6 +2,7 @@
 chosen in the device dialog, calibration results applied, and the Store SN / undo keys a foot pedal can send."""
 
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -144,15 +145,22 @@ def test_calibration_results_reach_the_rig_and_the_session(qtbot, tmp_path, sett
     window.wizards.stereo()
     wizard = window.wizards.active
     assert window.worker is None                                              # acquisition pauses for the wizard
+    proposed = Path(wizard.save_page.path_edit.text())                        # next to the session, not ./
+    assert proposed.parent == tmp_path.resolve() and proposed.name.startswith("demo_stereo_")
     new = thesis_calibration().scaled(0.5)
+    wizard.save_page.saved_path = proposed                                    # as Finish leaves it
     wizard.calibrated.emit(new)
     wizard.reject()
     qtbot.waitUntil(lambda: window.worker is not None, timeout=10_000)         # and comes back after it
     assert window.rig.calibration is new
     np.testing.assert_allclose(window.session.calibration()["stereo"].K1, new.K1)
+    notice = window.calibration_notice.text()                                 # said in words, in a box
+    assert f"saved to {proposed} and stored in the session demo.h5 and applied" in notice
+    window.calibration_notice.accept()
     chain = ChainCalibration.manual(trocar_camera_mm=150.0)
     window.apply_chain(chain)
     assert window.rig.chain is chain and "150.0 mm" in window.statusBar().currentMessage()
+    assert f"saved in the session {window.session.path} and applied" in window.calibration_notice.text()
     window.shutdown()
 
 

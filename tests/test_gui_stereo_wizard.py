@@ -1,6 +1,7 @@
 """The stereo calibration wizard, driven offscreen on a rendered checkerboard feed with a known calibration."""
 
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,7 +185,8 @@ def test_capture_calibrate_drop_and_save(qtbot, open_wizard, tour, tmp_path):
 
     click(qtbot, wizard, QWizard.WizardButton.NextButton)
     save = wizard.save_page
-    assert save.path_edit.text() == "calibration.yaml"
+    proposed = Path(save.path_edit.text())                       # never a bare relative calibration.yaml
+    assert proposed.is_absolute() and proposed.name.startswith("calibration_stereo_") and proposed.suffix == ".yaml"
     save.path_edit.setText(str(tmp_path / "missing" / "calib.yaml"))
     click(qtbot, wizard, QWizard.WizardButton.FinishButton)
     assert wizard.isVisible() and "does not exist" in save.status.text()
@@ -196,7 +198,7 @@ def test_capture_calibrate_drop_and_save(qtbot, open_wizard, tour, tmp_path):
     assert loaded.n_views == CLICKED_VIEWS - 1 and calibration.n_views == CLICKED_VIEWS - 1
     np.testing.assert_allclose(loaded.K1, calibration.K1)
     np.testing.assert_allclose(loaded.T, calibration.T)
-    assert not wizard.isVisible() and not wizard.has_running_workers()
+    assert not wizard.isVisible() and not wizard.has_running_workers() and wizard.saved_path == path
 
 
 # -- board not visible, feed problems, threads -------------------------------------------

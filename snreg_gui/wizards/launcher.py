@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 
 from snreg.calibration.checkerboard import THESIS_BOARD
+from snreg_gui.common import file_places
 
 _DEVICES_KEY = "devices/config"
 WIZARD_SIZE = (1200, 800)        # live feeds and tables need room
@@ -29,8 +30,11 @@ class WizardLauncher:
         window = self._window
         if not self._have_rig():
             return
-        wizard = StereoCalibrationWizard(window.rig.board_source, THESIS_BOARD, parent=window)
-        wizard.calibrated.connect(window.apply_stereo_calibration)
+        session_path = None if window.session is None else window.session.path
+        wizard = StereoCalibrationWizard(window.rig.board_source, THESIS_BOARD, parent=window,
+                                         save_path=file_places.calibration_path(session_path, file_places.last_folder(),
+                                                                                "stereo"))
+        wizard.calibrated.connect(lambda calibration: window.apply_stereo_calibration(calibration, wizard.saved_path))
         self._open(wizard)
 
     def trocar(self) -> None:
@@ -83,7 +87,9 @@ class WizardLauncher:
         self._window.pause_acquisition()
         self.active = wizard
         wizard.finished.connect(self._closed)
-        wizard.resize(max(wizard.width(), WIZARD_SIZE[0]), max(wizard.height(), WIZARD_SIZE[1]))
+        room = self._window.screen().availableGeometry()           # never larger than the screen (1024 x 700)
+        wizard.resize(min(max(wizard.width(), WIZARD_SIZE[0]), room.width()),
+                      min(max(wizard.height(), WIZARD_SIZE[1]), room.height()))
         wizard.open()
 
     def _closed(self, _result: int) -> None:

@@ -9,7 +9,9 @@ views are good and varied, and to judge and save the result (DESIGN.md §4, Cali
    per eye, warnings for repeated views (:mod:`snreg_gui.wizards.stereo.capture`).
 3. Calibrate: :func:`~snreg.calibration.stereo.calibrate_stereo` in a worker, RMS, per-view errors,
    drop views and recalibrate (:mod:`snreg_gui.wizards.stereo.calibrate`).
-4. Save: :func:`~snreg.camera.save_calibration` to a YAML file.
+4. Save: :func:`~snreg.camera.save_calibration` to a YAML file, by default next to the session
+   (:func:`snreg_gui.common.file_places.calibration_path`), never a bare relative name that lands wherever the
+   app was started.
 
 The feed is read and searched in a worker thread (``make_source`` is called there), and every worker
 is stopped, and the source closed, when the wizard finishes, is cancelled or is closed.
@@ -34,13 +36,13 @@ from snreg.calibration.checkerboard import THESIS_BOARD, Board
 from snreg.calibration.stereo import MIN_VIEWS
 from snreg.camera import save_calibration
 from snreg.sources import FrameSource
+from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet
 from snreg_gui.wizards.stereo.calibrate import CalibratePage
 from snreg_gui.wizards.stereo.capture import CapturePage
 
 __all__ = ["StereoCalibrationWizard"]
 
-DEFAULT_FILE = "calibration.yaml"
 _SHUTDOWN_WAIT_S = 120.0         # a running calibration cannot be interrupted; it ends within seconds
 
 
@@ -94,14 +96,16 @@ class SetupPage(QWizardPage):
 class SavePage(QWizardPage):
     """Where to write the calibration; Finish writes it (``saved_path``), or says why it cannot."""
 
-    def __init__(self, calibrate_page: CalibratePage):
+    def __init__(self, calibrate_page: CalibratePage, default_path: Path):
         super().__init__()
         self.setTitle("Save")
-        self.setSubTitle("Finish writes the calibration file (OpenCV YAML) and hands the calibration to the app.")
+        self.setSubTitle("Finish writes the calibration file (OpenCV YAML) and applies it: tracking uses it from "
+                         "then on, and it is stored in the session.")
         self.setFinalPage(True)
         self._calibrate_page = calibrate_page
         self.saved_path: Path | None = None
-        self.path_edit = QLineEdit(DEFAULT_FILE)
+        self._default_path = Path(default_path)
+        self.path_edit = QLineEdit(str(default_path))
         self.browse_button = QPushButton("Browse ...")
         self.summary, self.status = QLabel(""), QLabel("")
         self.status.setStyleSheet("color: red")
@@ -123,9 +127,11 @@ class SavePage(QWizardPage):
     def validatePage(self) -> bool:
         text = self.path_edit.text().strip()
         if not text:
-            self.status.setText("Enter a file name for the calibration, e.g. calibration.yaml.")
+            self.status.setText(f"Enter a file name for the calibration, e.g. {self._default_path}.")
             return False
         path = Path(text).expanduser().resolve()
+        if path == self._default_path.resolve():
+            path.parent.mkdir(parents=True, exist_ok=True)       # the default folder (~/snreg) on first use
         if not path.parent.is_dir():
             self.status.setText(f"The folder {path.parent} does not exist; choose another place.")
             return False
@@ -145,6 +151,7 @@ class SavePage(QWizardPage):
     def _browse(self) -> None:
         path, _ = QFileDialog.getSaveFileName(self, "Save calibration", self.path_edit.text(), "Calibration (*.yaml *.yml)")
         if path:
+            file_places.remember(path)
             self.path_edit.setText(path)
 
 
@@ -152,13 +159,15 @@ class StereoCalibrationWizard(QWizard):
     """Checkerboard stereo calibration on a live feed; emits ``calibrated(StereoCalibration)`` on Finish.
 
     ``make_source`` builds the stereo :class:`~snreg.sources.FrameSource` (called in a worker thread);
-    ``board`` gives the setup page's defaults (thesis board 10 x 7 inner corners of 10 mm when None).
+    ``board`` gives the setup page's defaults (thesis board 10 x 7 inner corners of 10 mm when None);
+    ``save_path`` the file the save page proposes (next to the session; without one, in the last folder used
+    or ``~/snreg``). After Finish, ``saved_path`` is where the calibration was written.
     """
 
     calibrated = Signal(object)
 
     def __init__(self, make_source: Callable[[], FrameSource], board: Board | None = None, *,
-                 target_views: int = 30, parent=None):
+                 target_views: int = 30, save_path: Path | None = None, parent=None):
         super().__init__(parent)
         self.setWindowTitle("Stereo calibration")
         self._workers = WorkerSet()
@@ -166,11 +175,17 @@ class StereoCalibrationWizard(QWizard):
         self.capture_page = CapturePage(make_source, self.setup_page.board, self.setup_page.target_views.value,
                                         self._workers.run)
         self.calibrate_page = CalibratePage(lambda: self.capture_page.views, self.setup_page.board, self._workers.run)
-        self.save_page = SavePage(self.calibrate_page)
+        self.save_page = SavePage(self.calibrate_page, save_path or file_places.calibration_path(
+            None, file_places.last_folder(), "stereo"))
         for page in (self.setup_page, self.capture_page, self.calibrate_page, self.save_page):
             self.addPage(page)
         self.currentIdChanged.connect(self._page_changed)
         self.resize(1200, 800)
+
+    @property
+    def saved_path(self) -> Path | None:
+        """Where Finish wrote the calibration (None before)."""
+        return self.save_page.saved_path
 
     def has_running_workers(self) -> bool:
         """Whether any of the wizard's threads (feed, calibration) is still running."""
