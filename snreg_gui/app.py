@@ -185,6 +185,7 @@ class MainWindow(QMainWindow):
         self.recent.add(path)
         self.review.load(str(path))
         self.tabs.setCurrentWidget(self.review)
+        self._update_title()
 
     def _create(self, path, case_id: str) -> Session | None:
         try:
@@ -411,8 +412,12 @@ class MainWindow(QMainWindow):
 
     # -- window --------------------------------------------------------------
     def _update_title(self) -> None:
-        mode = "demo" if self.demo else (str(self.session.path) if self.session else "no session")
-        self.setWindowTitle(f"snreg {__version__} - {mode}")
+        """The window says what it records into (demo, a session file) and which file the review tab shows."""
+        reviewed = Path(self.review.path).name if self.review.path else ""
+        mode = "demo" if self.demo else (str(self.session.path) if self.session else "" if reviewed else "no session")
+        parts = [f"snreg {__version__}"] + [mode] * bool(mode) + [f"reviewing {reviewed}"] * bool(reviewed)
+        self.setWindowTitle(" - ".join(parts))
+        self.tabs.setTabText(self.tabs.indexOf(self.review), f"Review: {reviewed}" if reviewed else "Review")
 
     def _restore_layout(self) -> None:
         geometry = self.settings.value("window/geometry")

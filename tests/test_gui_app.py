@@ -43,9 +43,12 @@ def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, s
     qtbot.addWidget(first)
     with qtbot.waitExposed(first):
         first.show()
+    assert "no session" in first.windowTitle()
     first.open_for_review(str(path))
     qtbot.waitSignal(first.review.loaded, timeout=10_000)
     assert first.tabs.currentWidget() is first.review
+    assert first.windowTitle().endswith("reviewing old.h5") and "no session" not in first.windowTitle()
+    assert first.tabs.tabText(first.tabs.indexOf(first.review)) == "Review: old.h5"
     first.resize(first.minimumWidth(), 640)                 # within the offscreen screen (800x800) and a 1024x700 one
     remembered = (first.width(), first.height())
     assert remembered[1] == 640

@@ -8,6 +8,7 @@ from test_session_timeline import (CAMERA_LAG_S, DURATION_S, FRAME_RATE_HZ, LOST
                                    YAW_TURN_DEG, damaged_copy, record_session)
 
 from snreg_gui.review.screen import ReviewScreen
+from snreg_gui.review.timelines import label_rows
 
 LOAD_TIMEOUT_MS = 20_000
 
@@ -185,3 +186,35 @@ def test_mark_and_unmark_final_in_a_saved_session(qtbot, screen, recorded, tmp_p
     assert regs.list.item(0, 4).text() == ""
     with Session.open(path) as session:
         assert session.final_registration() is None
+
+
+def test_axes_never_scale_degrees_with_an_si_prefix(qtbot, screen, recorded):
+    path, _ = recorded
+    _load(qtbot, screen, path)
+    for plot in screen.timelines.plots:
+        plot.setYRange(-0.004, 0.004)                                # would read "(x0.001)" with the prefix on
+        for side in ("left", "bottom"):
+            axis = plot.getAxis(side)
+            assert not axis.autoSIPrefix and "(x" not in axis.labelString()
+    assert screen.timelines.angles.getAxis("left").labelString().startswith("<span")
+    assert "IMU (deg)" in screen.timelines.angles.getAxis("left").labelString()
+
+
+def test_node_labels_close_in_time_go_on_different_rows():
+    assert label_rows([0.0, 0.1, 0.2, 5.0, 5.05], 1.0) == [0, 1, 2, 0, 1]
+    assert label_rows([5.0, 0.0, 0.1], 1.0) == [0, 0, 1]                  # in time order, whatever the input order
+    assert label_rows([0.0, 2.0, 4.0], 1.0) == [0, 0, 0]                  # far apart: one row
+    assert label_rows(np.arange(8) * 0.01, 1.0) == [0, 1, 2, 3, 4, 5, 0, 1]  # a bounded number of rows
+
+
+def test_refresh_reads_a_session_still_being_recorded_again(qtbot, screen, tmp_path):
+    from snreg.session import Session
+    assert not screen.refresh_button.isEnabled()
+    with Session.create(tmp_path / "live.h5", case_id="live-1") as session:
+        session.add_intraop_node("SN1", "", [1.0, 2.0, 3.0])
+        _load(qtbot, screen, session.path)
+        assert screen.node_table.rowCount() == 1 and "Refresh reads it again" in screen.status.text()
+        session.add_intraop_node("SN2", "", [4.0, 5.0, 6.0])            # stored after the screen read the file
+        with qtbot.waitSignal(screen.loaded, timeout=LOAD_TIMEOUT_MS):
+            qtbot.mouseClick(screen.refresh_button, Qt.MouseButton.LeftButton)
+        assert screen.node_table.rowCount() == 2 and screen.path == str(session.path)

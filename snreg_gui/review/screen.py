@@ -5,7 +5,8 @@ probe tip, tracking quality and frame rate on one time axis with the stored node
 snapshots, and the stored registrations. Reading and fusing run in workers
 (:func:`snreg.session.timeline.load_review`, then :func:`~snreg.session.timeline.fuse_imu_blocks`,
 whose blocks are drawn as they come), so an hour-long session never blocks the GUI; the file is
-closed once read, so it can be opened elsewhere while it is shown.
+closed once read, so it can be opened elsewhere while it is shown. A session still being recorded (by this app
+or another) is readable while it is written: Refresh reads it again to show what was added since.
 
 >>> screen = ReviewScreen()
 >>> screen.loaded.connect(lambda path: ...)      # everything is shown
@@ -15,10 +16,11 @@ closed once read, so it can be opened elsewhere while it is shown.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from PySide6.QtCore import QCoreApplication, Qt, Signal
-from PySide6.QtWidgets import QGroupBox, QLabel, QSplitter, QVBoxLayout, QWidget
+from PySide6.QtWidgets import QGroupBox, QHBoxLayout, QLabel, QPushButton, QSplitter, QVBoxLayout, QWidget
 
 from snreg.session import SessionError, set_final_in_file
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
@@ -44,6 +46,11 @@ class ReviewScreen(QWidget):
         super().__init__(parent)
         self.status = QLabel("no session loaded")
         self.status.setWordWrap(True)
+        self.refresh_button = QPushButton("Refresh")
+        self.refresh_button.setToolTip("read the session file again: a session still being recorded shows what "
+                                       "was stored since")
+        self.refresh_button.setEnabled(False)
+        self.refresh_button.clicked.connect(self.refresh)
         self.header = QLabel("")
         self.header.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.node_table = read_only_table(NODE_COLUMNS)
@@ -77,19 +84,33 @@ class ReviewScreen(QWidget):
         body.addWidget(self.timelines)
         body.setSizes([600, 900])
         layout = QVBoxLayout(self)
-        layout.addWidget(self.status)
+        top = QHBoxLayout()
+        top.addWidget(self.status, 1)
+        top.addWidget(self.refresh_button)
+        layout.addLayout(top)
         layout.addWidget(self.header)
         layout.addWidget(body, stretch=1)
 
     # -- loading ---------------------------------------------------------------
+    @property
+    def path(self) -> str:
+        """The session file shown or being read ("" before the first :meth:`load`)."""
+        return self._pending or self._path
+
     def load(self, path) -> None:
         """Read the session at ``path`` in a worker; ``loaded`` or ``failed`` tells how it went."""
+        self.refresh_button.setEnabled(True)
         self._pending, self._stopped = str(path), False
         self.status.setText(f"loading {self._pending} ...")
         if self._worker is None:
             self._start_pending()
         else:
             self._worker.quit()                      # a fusion stops after its block; a read runs out, ignored
+
+    def refresh(self) -> None:
+        """Read the file shown again (a session still being recorded has more in it by now)."""
+        if self.path:
+            self.load(self.path)
 
     def _start_pending(self) -> None:
         self._path, self._pending = self._pending, None
@@ -146,7 +167,8 @@ class ReviewScreen(QWidget):
         elif not self._failed:
             nodes, registrations = len(self._review.nodes), len(self._review.registrations)
             self.status.setText(f"{self._path}: {nodes} stored node{'' if nodes == 1 else 's'}, "
-                                f"{registrations} registration{'' if registrations == 1 else 's'}")
+                                f"{registrations} registration{'' if registrations == 1 else 's'} (as read at "
+                                f"{time.strftime('%H:%M:%S')}; Refresh reads it again)")
             self.loaded.emit(self._path)
 
     def _clear(self) -> None:

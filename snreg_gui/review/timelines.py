@@ -23,6 +23,24 @@ _MARKER_PEN = pg.mkPen("#bbbbbb", width=1, style=pg.QtCore.Qt.PenStyle.DashLine)
 _CURSOR_PEN = pg.mkPen("#ffd700", width=2)
 _GAP_PEN = pg.mkPen("#de2d26", width=6)
 PROGRESS_POINTS = 20_000       # IMU points per curve drawn while the fusion is still running
+LABEL_GAP = 0.06               # node labels closer than this fraction of the time span go on different rows
+LABEL_TOP, LABEL_STEP, LABEL_ROWS = 0.95, 0.12, 6     # label rows, as fractions of the top plot's height
+
+
+def label_rows(times_s, min_gap_s: float) -> list[int]:
+    """A row for each node label (0 = top), so that labels closer in time than ``min_gap_s`` are on different
+    rows (they overlapped as "SNSNSN4"): each takes the highest row whose last label is far enough behind it,
+    in time order; past :data:`LABEL_ROWS` rows they start again at the top."""
+    times = np.asarray(times_s, dtype=float)
+    rows = [0] * len(times)
+    last: list[float] = []                     # the time of the last label on each row
+    for k in np.argsort(times, kind="stable"):
+        row = next((r for r, t in enumerate(last) if times[k] - t >= min_gap_s), len(last))
+        if row == len(last):
+            last.append(times[k])
+        last[row] = times[k]
+        rows[k] = row % LABEL_ROWS
+    return rows
 
 
 class TimelinePlots(pg.GraphicsLayoutWidget):
@@ -59,6 +77,8 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
 
     def _plot(self, row: int, label: str) -> pg.PlotItem:
         plot = self.addPlot(row=row, col=0)
+        for side in ("left", "bottom"):          # degrees stay degrees: no "(x0.001)" SI scaling of the axis
+            plot.getAxis(side).enableAutoSIPrefix(False)
         plot.setLabel("left", label)
         if row < 2:
             plot.addLegend(offset=(5, 5))
@@ -99,11 +119,13 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         samples = np.arange(len(review.imu.t_s))
         self._imu_rows = samples + np.searchsorted(imu_gaps, samples, side="left")   # each sample's row after the NaNs
         self._euler = np.full((len(self._imu_t), 3), np.nan)
-        for node in review.nodes:
-            self._add_marker(node.id, node.t_s)
         ends = [t[[0, -1]] for t in (review.imu.t_s, review.probe.t_s, frames.t_s) if len(t)]
         ends.append(np.array([node.t_s for node in review.nodes]))
         span = np.concatenate(ends)
+        width = float(np.ptp(span)) if len(span) else 0.0
+        rows = label_rows([node.t_s for node in review.nodes], LABEL_GAP * width)
+        for node, row in zip(review.nodes, rows):
+            self._add_marker(node.id, node.t_s, LABEL_TOP - LABEL_STEP * row)
         if len(span):
             self.angles.setXRange(float(span.min()), float(span.max()), padding=0.02)
 
@@ -132,10 +154,13 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
             cursor.setValue(t_s)
             cursor.show()
 
-    def _add_marker(self, node_id: str, t_s: float) -> None:
+    def _add_marker(self, node_id: str, t_s: float, label_position: float = LABEL_TOP) -> None:
+        """A dashed line at ``t_s`` on every plot, labelled on the top plot at ``label_position`` (fraction of its
+        height)."""
         escaped = node_id.replace("{", "{{").replace("}", "}}")         # InfiniteLine labels are format strings
         lines = [pg.InfiniteLine(t_s, angle=90, pen=_MARKER_PEN, label=escaped if plot is self.angles else None,
-                                 labelOpts={"position": 0.92, "color": "#dddddd"})
+                                 labelOpts={"position": label_position, "color": "#dddddd",
+                                            "fill": (0, 0, 0, 160)})
                  for plot in self.plots]
         for plot, line in zip(self.plots, lines):
             plot.addItem(line, ignoreBounds=True)
