@@ -298,15 +298,17 @@ class MainWindow(QMainWindow):
         else:
             box.setInformativeText(applied)
             box.addButton(QMessageBox.StandardButton.Ok)
-        box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo))
+        offered = bool(change.question)
+        box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo, offered))
         self.calibration_prompt = box
         box.open()
         return True
 
-    def _reexpression_answered(self, box: QMessageBox, previous_stereo) -> None:
+    def _reexpression_answered(self, box: QMessageBox, previous_stereo, offered: bool) -> None:
+        """``offered``: the box asked (Re-express / Keep); an OK on a box that only told re-expresses nothing."""
         self.calibration_prompt = None
         role = box.buttonRole(box.clickedButton()) if box.clickedButton() is not None else None
-        if role != QMessageBox.ButtonRole.AcceptRole or self.session is None:
+        if not offered or role != QMessageBox.ButtonRole.AcceptRole or self.session is None:
             self.statusBar().showMessage("stored nodes kept as measured: a registration will say it mixes calibrations")
             return
         try:

@@ -1,13 +1,15 @@
-"""Screenshots of every screen of the demo in a real window, for a person to look at (not golden images).
+"""Screenshots of every tab and every wizard page of the demo, at 1024x700 and 1920x1080, for a person to look at.
 
-    xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/python -m snreg_gui.screenshots -o screenshots/
+    xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python -m snreg_gui.screenshots -o screenshots/
+    QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots -o screenshots/ --only trocar
 
-Why: offscreen tests prove behaviour, not that a screen reads well. This drives the demo as an operator
-would (auto-store the four phantom nodes, register against the phantom SPECT, review the session, open
-both calibration wizards on their rendered scenes) and grabs each window from the X screen. Issue 12's states
-too: acquisition "paused for calibration" beside an open wizard, the prompt after a new trocar calibration (the
-chain a pivot calibration might give, applied as the wizard applies it), a store refused with the IMU simulator
-killed, and the question on close.
+Why: offscreen tests prove behaviour, not that a screen reads well. This drives the demo as an operator would
+(auto-store the four phantom nodes, register against the phantom SPECT, go through both calibration wizards
+page by page on their rendered scenes and finish them, refuse a store with the IMU unplugged, ask on close,
+review the session) and saves each screen as ``<name>-<W>x<H>.png``. Under X (Xvfb) a shot is what the X
+server shows; offscreen, the widget's own rendering. A shot is taken only once every camera feed on it shows a
+frame, and the run fails (exit status 1) when any shot is blank: the whole image, or a feed's area, one flat
+colour (:func:`blank_reason`), as the trocar wizard's shot once was, taken before its first frame.
 """
 
 from __future__ import annotations
@@ -18,12 +20,49 @@ import tempfile
 import time
 from pathlib import Path
 
-from PySide6.QtCore import QSettings
-from PySide6.QtWidgets import QApplication, QWidget
+import numpy as np
+from PySide6.QtCore import QPoint, QSettings
+from PySide6.QtGui import QImage, QPainter
+from PySide6.QtWidgets import QApplication, QMessageBox, QWidget, QWizard
 
-from snreg.chain import ChainCalibration
-from snreg.demo.rig import DemoRig
-from snreg.demo.scene import NODE_CENTRES_MM, Schedule
+SIZES = ((1024, 700), (1920, 1080))
+FEED_TIMEOUT_S = 180.0            # a rendered scene's first frame, on a loaded machine
+UNIFORM_IMAGE = 0.999            # a whole shot this uniform is blank (a page of text is far from it)
+UNIFORM_FEED = 0.985             # a feed's area this uniform shows no frame (a caption on black)
+# the shots, by the part of the run that takes them (--only picks parts of these names)
+PHASES = {"tabs": ("tab-1-acquisition", "tab-2-registration", "tab-3-review"),
+          "stereo": ("stereo-1-setup", "stereo-2-capture", "paused-for-calibration", "stereo-3-calibrate",
+                     "stereo-4-save", "stereo-5-applied"),
+          "trocar": ("trocar-1-method", "trocar-2-pivot", "trocar-3-arc", "trocar-4-manual", "trocar-5-summary",
+                     "trocar-6-applied"),
+          "refusal": ("refused-store", "close-question")}
+
+
+def blank_reason(grey: np.ndarray, uniform: float = UNIFORM_IMAGE, tolerance: int = 6) -> str | None:
+    """Why a (H, W) 8-bit grey image counts as blank, or None: more than ``uniform`` of its pixels within
+    ``tolerance`` of its median (all black, all grey, a caption on black)."""
+    grey = np.asarray(grey)
+    if grey.size == 0:
+        return "empty image"
+    median = float(np.median(grey))
+    flat = float(np.mean(np.abs(grey.astype(np.int16) - median) <= tolerance))
+    return f"{flat:.1%} of the pixels are the one value {median:.0f}" if flat > uniform else None
+
+
+def grey_pixels(image: QImage) -> np.ndarray:
+    """(H, W) uint8 grey levels of a QImage."""
+    grey = image.convertToFormat(QImage.Format.Format_Grayscale8)
+    width, height, stride = grey.width(), grey.height(), grey.bytesPerLine()
+    if width == 0 or height == 0:
+        return np.zeros((0, 0), np.uint8)
+    return np.frombuffer(grey.constBits(), np.uint8, stride * height).reshape(height, stride)[:, :width].copy()
+
+
+def _spin(seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        QApplication.processEvents()
+        time.sleep(0.01)
 
 
 def wait_until(condition, timeout_s: float, what: str) -> None:
@@ -36,106 +75,221 @@ def wait_until(condition, timeout_s: float, what: str) -> None:
         time.sleep(0.01)
 
 
-def _spin(seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        QApplication.processEvents()
-        time.sleep(0.01)
+class Shooter:
+    """Saves shots of a widget (or a window with a box over it) at each size and keeps the blank ones' reasons."""
+
+    def __init__(self, out: Path, sizes, only: list[str]):
+        self.out, self.sizes, self.only = out, sizes, only
+        self.x11 = QApplication.instance().platformName() == "xcb"
+        self.written: list[Path] = []
+        self.blank: list[str] = []
+
+    def wanted(self, *names: str) -> bool:
+        """Whether any of these shots is asked for (``--only``: parts of their names; none: all)."""
+        return not self.only or any(part in name for name in names for part in self.only)
+
+    def shoot(self, name: str, widget: QWidget, box: QWidget | None = None, centre_box: bool = True) -> None:
+        """``widget`` resized to each size, once its feeds show frames; ``box`` over it, centred on it (as a message
+        box opens) or where it stands."""
+        if not self.wanted(name):
+            return
+        from snreg_gui.common.feed_view import FeedView
+        for width, height in self.sizes:
+            widget.move(0, 0)                        # all of it on the screen, whatever its size
+            widget.resize(width, height)
+            _spin(0.8)
+            if box is not None and centre_box:
+                box.move(widget.mapToGlobal(widget.rect().center()) - box.rect().center())
+            feeds = [f for f in widget.findChildren(FeedView) if f.isVisible()]
+            wait_until(lambda: all(f._image is not None for f in feeds), FEED_TIMEOUT_S, f"a frame on {name}'s feeds")
+            _spin(0.7)
+            image = self._grab(widget, box)
+            path = self.out / f"{name}-{width}x{height}.png"
+            image.save(str(path))
+            self.written.append(path)
+            self._check(path, image, widget, feeds)
+            print(f"wrote {path} ({image.width()}x{image.height()})", flush=True)
+
+    def _grab(self, widget: QWidget, box: QWidget | None) -> QImage:
+        widget.raise_()
+        widget.activateWindow()
+        if box is not None:
+            box.raise_()
+        _spin(0.3)
+        if self.x11:                                 # what the X server shows: the window and any box over it
+            top = widget.mapToGlobal(QPoint(0, 0))
+            return widget.screen().grabWindow(0, top.x(), top.y(), widget.width(), widget.height()).toImage()
+        image = widget.grab().toImage().convertToFormat(QImage.Format.Format_RGB32)
+        if box is not None:
+            painter = QPainter(image)
+            corner = box.mapToGlobal(QPoint(0, 0)) - widget.mapToGlobal(QPoint(0, 0))
+            painter.drawPixmap(corner, box.grab())
+            painter.end()
+        return image
+
+    def _check(self, path: Path, image: QImage, widget: QWidget, feeds) -> None:
+        grey = grey_pixels(image)
+        problems = [reason for reason in [blank_reason(grey)] if reason]
+        for feed in feeds:
+            corner = feed.mapTo(widget, QPoint(0, 0))
+            area = grey[corner.y():corner.y() + feed.height(), corner.x():corner.x() + feed.width()]
+            reason = blank_reason(area, UNIFORM_FEED)
+            if reason:
+                problems.append(f"feed '{feed.title}': {reason}")
+        for reason in problems:
+            self.blank.append(f"{path.name}: {reason}")
+            print(f"BLANK {path.name}: {reason}", flush=True)
 
 
-def grab(widget: QWidget, path: Path) -> None:
-    """The window as the X server shows it (not a widget render), saved as PNG."""
-    widget.raise_()
-    widget.activateWindow()
-    _spin(0.5)
-    widget.screen().grabWindow(widget.winId()).save(str(path))
-    print(f"wrote {path}")
-
-
-def grab_screen(path: Path) -> None:
-    """The whole X screen (a window and the dialog beside or over it)."""
-    _spin(0.5)
-    QApplication.primaryScreen().grabWindow(0).save(str(path))
-    print(f"wrote {path}")
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m snreg_gui.screenshots", description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", default="screenshots", help="folder for the PNG files")
-    args = parser.parse_args(argv)
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    app = QApplication.instance() or QApplication(sys.argv[:1])
-    if app.platformName() == "offscreen":
-        raise SystemExit("screenshots: needs a real window; run it under xvfb-run (see the module docstring)")
-    from snreg_gui.app import MainWindow
-
-    work = Path(tempfile.mkdtemp(prefix="snreg-screens-"))
-    settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
-    window = MainWindow(str(work / "phantom.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240)),
-                        settings=settings)
-    window.resize(1600, 1000)
-    window.show()
+def _store_and_register(shots: Shooter, window) -> None:
+    from snreg.demo.scene import NODE_CENTRES_MM
     screen, panel = window.acquisition, window.registration
     screen.auto_store.setChecked(True)
-    wait_until(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), 300, "the four nodes to be stored")
-    _spin(1.0)
-    grab(window, out / "1-acquisition.png")
-
+    wait_until(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), 400, "the four nodes to be stored")
+    screen.auto_store.setChecked(False)
+    shots.shoot("tab-1-acquisition", window)
     window.tabs.setCurrentWidget(panel)
-    wait_until(lambda: panel.preop_box.nodes is not None, 30, "the phantom SPECT")
+    wait_until(lambda: panel.preop_box.nodes is not None, 60, "the phantom SPECT")
+    panel.auto_rerun.setChecked(False)
     panel.alignment.centre_button.click()
     panel.run_button.click()
-    wait_until(lambda: panel.last_result is not None, 60, "the registration")
-    grab(window, out / "2-registration.png")
-
+    wait_until(lambda: panel.last_result is not None and not panel.busy, 120, "the registration")
+    shots.shoot("tab-2-registration", window)
     window.tabs.setCurrentWidget(window._acquisition_tab)
+
+
+def _stereo_wizard(shots: Shooter, window) -> None:
+    from snreg.calibration.stereo import MIN_VIEWS
     window.wizards.stereo()
     wizard = window.wizards.active
-    wizard.next()                                 # setup -> capture
-    _spin(6.0)
-    grab(wizard, out / "4-stereo-wizard.png")
-    wizard.move(0, 150)                           # beside the acquisition's side panel, which says it is paused
-    grab_screen(out / "6-paused-for-calibration.png")
-    wizard.reject()
-    _spin(1.0)
+    shots.shoot("stereo-1-setup", wizard)
+    wizard.next()
+    capture = wizard.capture_page
+    capture.auto_capture.setChecked(True)
+    wait_until(lambda: len(capture.views) >= MIN_VIEWS + 1, 400, "the stereo views to be captured")
+    capture.auto_capture.setChecked(False)
+    shots.shoot("stereo-2-capture", wizard)
+    wizard.resize(700, 560)
+    wizard.move(0, 130)                               # beside the acquisition side panel, which says it is paused
+    shots.shoot("paused-for-calibration", window, box=wizard, centre_box=False)
+    wizard.next()
+    wait_until(lambda: wizard.calibrate_page.isComplete(), 300, "the stereo calibration")
+    shots.shoot("stereo-3-calibrate", wizard)
+    wizard.next()
+    shots.shoot("stereo-4-save", wizard)
+    wizard.button(QWizard.WizardButton.FinishButton).click()
+    wait_until(lambda: window.wizards.active is None, 60, "the stereo wizard to finish")
+    _shoot_calibration_box(shots, window, "stereo-5-applied")
 
+
+def _shoot_calibration_box(shots: Shooter, window, name: str) -> None:
+    """The box that says where the calibration was saved and that it is applied (or offers to re-express)."""
+    wait_until(lambda: window.calibration_notice is not None or window.calibration_prompt is not None, 30,
+               f"the box after {name}")
+    box = window.calibration_prompt or window.calibration_notice
+    shots.shoot(name, window, box=box)
+    keep = [b for b in box.buttons() if box.buttonRole(b) == QMessageBox.ButtonRole.RejectRole]
+    (keep or box.buttons())[0].click()
+    _spin(0.5)
+
+
+def _trocar_wizard(shots: Shooter, window) -> None:
     window.wizards.trocar()
     wizard = window.wizards.active
-    wizard.next()                                 # method (pivot) -> live pivot page
-    wait_until(lambda: "IMU at frame" in wizard.pivot_page.imu_label.text(), 180, "the pivot scene's first frame")
-    _spin(4.0)                                    # (rejecting while it pre-renders would wait on the render)
-    grab(wizard, out / "5-trocar-wizard.png")
-    new_chain = ChainCalibration.manual(imu_trocar_mm=452.0, trocar_camera_mm=171.5)
-    window.session.set_calibration(chain=new_chain)    # what the trocar wizard does when it finishes
-    window.apply_chain(new_chain)
-    wait_until(lambda: window.calibration_prompt is not None, 10, "the calibration-change prompt")
-    grab_screen(out / "7-chain-change-prompt.png")
-    [reexpress] = [b for b in window.calibration_prompt.buttons() if b.text().startswith("Re-express")]
-    reexpress.click()
-    wizard.reject()
-    _spin(1.0)
+    shots.shoot("trocar-1-method", wizard)
+    if not shots.wanted(*PHASES["trocar"][1:]):
+        return wizard.reject()
+    wizard.next()                                    # pivot (recommended)
+    page = wizard.pivot_page
+    wait_until(lambda: len(page.samples) >= 3, FEED_TIMEOUT_S, "the pivot page's first samples")
+    shots.shoot("trocar-2-pivot", wizard)
+    if not shots.wanted(*PHASES["trocar"][2:]):
+        return wizard.reject()
+    wizard.back()
+    wizard.method_page.arc_button.setChecked(True)
+    wizard.next()
+    shots.shoot("trocar-3-arc", wizard)
+    wizard.back()
+    wizard.method_page.manual_button.setChecked(True)
+    wizard.next()
+    shots.shoot("trocar-4-manual", wizard)
+    wizard.next()
+    shots.shoot("trocar-5-summary", wizard)
+    wizard.button(QWizard.WizardButton.FinishButton).click()
+    wait_until(lambda: window.wizards.active is None, 60, "the trocar wizard to save and finish")
+    _shoot_calibration_box(shots, window, "trocar-6-applied")
 
-    screen = window.acquisition                   # a new screen since acquisition restarted (auto-store off)
-    window.rig._simulator.kill()                  # the IMU unplugged: its samples stop
+
+def _refusal_and_close(shots: Shooter, window) -> None:
+    screen = window.acquisition                      # a new screen since acquisition restarted
+    window.rig._simulator.kill()                     # the IMU unplugged: its samples stop
     wait_until(lambda: "IMU is stale" in screen.store_reason.text(), 60, "the IMU to go stale")
-    screen.request_store("F5")                    # the foot pedal
+    screen.request_store("F5")                       # the foot pedal
     wait_until(lambda: screen.store_status.text().startswith("Refused (F5)"), 10, "the refusal")
-    grab(window, out / "8-refused-store.png")
+    shots.shoot("refused-store", window)
     window.close()
     wait_until(lambda: window.close_prompt is not None, 10, "the question on close")
-    grab_screen(out / "9-close-question.png")
+    shots.shoot("close-question", window, box=window.close_prompt)
     [keep] = [b for b in window.close_prompt.buttons() if b.text() == "Keep recording"]
     keep.click()
 
+
+def _review(shots: Shooter, window) -> None:
     path = window.session.path
     window.pause_acquisition()
     window.session.close()
     window.session = None
     window.open_for_review(path)
-    wait_until(lambda: window.review.node_table.rowCount() == len(NODE_CENTRES_MM), 60, "the review")
-    _spin(1.0)
-    grab(window, out / "3-review.png")
-    window.shutdown()
-    return 0
+    review = window.review
+    wait_until(lambda: review.node_table.rowCount() > 0 and not review.status.text().startswith(("loading", "fusing")),
+               120, "the review")
+    review.node_table.selectRow(0)                   # its snapshots fill the two feeds
+    shots.shoot("tab-3-review", window)
 
+
+def _size(text: str) -> tuple[int, int]:
+    width, height = text.lower().split("x")
+    return int(width), int(height)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m snreg_gui.screenshots", description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", default="screenshots", help="folder for the PNG files")
+    parser.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES),
+                        help="window sizes, e.g. 1024x700,1920x1080")
+    parser.add_argument("--only", default="", help="comma-separated parts of shot names (e.g. trocar,tab-1)")
+    args = parser.parse_args(argv)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    shots = Shooter(out, [_size(s) for s in args.sizes.split(",")], [p for p in args.only.split(",") if p])
+    from snreg.demo.rig import DemoRig
+    from snreg.demo.scene import Schedule
+    from snreg_gui.app import MainWindow
+
+    work = Path(tempfile.mkdtemp(prefix="snreg-screens-"))
+    settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
+    window = MainWindow(str(work / "phantom.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=60)),
+                        settings=settings)
+    window.resize(*shots.sizes[0])
+    window.show()
+    try:
+        stored = shots.wanted(*PHASES["tabs"], *PHASES["refusal"])
+        if stored:
+            _store_and_register(shots, window)
+        if shots.wanted(*PHASES["stereo"]):
+            _stereo_wizard(shots, window)
+        if shots.wanted(*PHASES["trocar"]):
+            _trocar_wizard(shots, window)
+        if shots.wanted(*PHASES["refusal"]):
+            _refusal_and_close(shots, window)
+        if stored and shots.wanted("tab-3-review"):
+            _review(shots, window)
+    finally:
+        window._end_confirmed = True              # no question on close: the run is over
+        window.shutdown()
+        app.processEvents()
+    print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank", flush=True)
+    for reason in shots.blank:
+        print(f"blank: {reason}", file=sys.stderr)
+    return 1 if shots.blank or not shots.written else 0

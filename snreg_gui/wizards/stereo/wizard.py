@@ -29,8 +29,8 @@ from pathlib import Path
 
 import cv2
 from PySide6.QtCore import Signal
-from PySide6.QtWidgets import (QDoubleSpinBox, QFileDialog, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton,
-                               QSpinBox, QVBoxLayout, QWizard, QWizardPage)
+from PySide6.QtWidgets import (QDialog, QDoubleSpinBox, QFileDialog, QFormLayout, QHBoxLayout, QLabel, QLineEdit,
+                               QPushButton, QSpinBox, QVBoxLayout, QWizard, QWizardPage)
 
 from snreg.calibration.checkerboard import THESIS_BOARD, Board
 from snreg.calibration.stereo import MIN_VIEWS
@@ -197,13 +197,19 @@ class StereoCalibrationWizard(QWizard):
         self._workers.shutdown(round(_SHUTDOWN_WAIT_S * 1000))
 
     def done(self, result: int) -> None:
-        """Finish, Cancel, Escape and closing the window all end here."""
+        """Finish, Cancel, Escape and closing the window all end here. Finish saves first (QWizard validates the
+        save page inside ``done``): only a calibration saved is emitted, with :attr:`saved_path` set; a save that
+        fails keeps the wizard open, saying why."""
+        if result != QWizard.DialogCode.Accepted:
+            self.shutdown()
+            return super().done(result)
+        if not self.validateCurrentPage():
+            return
         self.shutdown()
         calibration = self.calibrate_page.result
-        if result == QWizard.DialogCode.Accepted and calibration is not None:
+        if calibration is not None:
             self.calibrated.emit(calibration.calibration)
-        super().done(result)
-
+        QDialog.done(self, result)             # not QWizard.done: it would validate (save) the page again
 
     def _page_changed(self, _page_id: int) -> None:
         self.capture_page.pause_feed(self.currentPage() is not self.capture_page)
