@@ -1,11 +1,13 @@
-"""The screenshot script (python -m snreg_gui.screenshots): its blank-shot detector, and one real shot offscreen
-taken only once the trocar wizard's feed shows a frame (it was once all black, taken before the first frame)."""
+"""The screenshot script (python -m snreg_gui.screenshots): its blank-shot detector, and shots that wait for a frame
+on their feeds (the trocar wizard's was once all black, taken before the first frame). The whole run takes minutes:
+it is run by hand (see its docstring), not here."""
 
 import numpy as np
 import pytest
 from PySide6.QtGui import QColor, QImage
 
-from snreg_gui.tools.screenshots import UNIFORM_FEED, blank_reason, grey_pixels, main
+from snreg_gui.tools import screenshots
+from snreg_gui.tools.screenshots import UNIFORM_FEED, Shooter, blank_reason, grey_pixels
 
 
 def test_blank_images_are_told_from_pages_and_frames():
@@ -37,10 +39,36 @@ def test_grey_pixels_read_a_qimage_with_padded_rows():
     assert grey.shape == (5, 33) and grey[0, 0] == 200 and grey[4, 32] == 0
 
 
-@pytest.mark.slow
-def test_the_trocar_wizard_shot_waits_for_a_frame_and_is_not_blank(qtbot, tmp_path):
-    assert main(["-o", str(tmp_path), "--sizes", "640x480", "--only", "trocar-2"]) == 0
-    [shot] = tmp_path.glob("*.png")
-    assert shot.name == "trocar-2-pivot-640x480.png"
-    image = QImage(str(shot))
-    assert (image.width(), image.height()) == (640, 480) and blank_reason(grey_pixels(image)) is None
+def _feed_window(qtbot):
+    from PySide6.QtWidgets import QVBoxLayout, QWidget
+
+    from snreg_gui.common.feed_view import FeedView
+    window = QWidget()
+    qtbot.addWidget(window)
+    feed = FeedView("left")
+    QVBoxLayout(window).addWidget(feed)
+    window.show()
+    return window, feed
+
+
+def test_a_shot_waits_for_the_first_frame_on_its_feeds(qtbot, tmp_path):
+    """The trocar wizard's shot was all black: taken before its first frame. A shot now waits for one."""
+    from PySide6.QtCore import QTimer
+    window, feed = _feed_window(qtbot)
+    frame = np.random.default_rng(1).integers(0, 255, (120, 160, 3)).astype(np.uint8)
+    QTimer.singleShot(2500, lambda: feed.show_frame(frame))         # after the shot's own settling time
+    shots = Shooter(tmp_path, [(320, 240)], [])
+    shots.shoot("feed", window)
+    assert shots.blank == [] and [p.name for p in shots.written] == ["feed-320x240.png"]
+    assert blank_reason(grey_pixels(QImage(str(shots.written[0])))) is None
+
+
+def test_a_feed_without_a_frame_is_reported_blank_or_stops_the_run(qtbot, tmp_path, monkeypatch):
+    window, feed = _feed_window(qtbot)
+    monkeypatch.setattr(screenshots, "FEED_TIMEOUT_S", 0.5)
+    with pytest.raises(SystemExit, match="a frame on feed's feeds"):
+        Shooter(tmp_path, [(320, 240)], []).shoot("feed", window)
+    feed.show_frame(np.zeros((120, 160, 3), np.uint8))                  # a frame, all black
+    shots = Shooter(tmp_path, [(320, 240)], [])
+    shots.shoot("feed", window)
+    assert len(shots.blank) == 1 and "feed 'left'" in shots.blank[0]
