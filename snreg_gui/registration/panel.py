@@ -34,8 +34,8 @@ from snreg.registration.naming import marked_missing, marked_rows
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import (EXPORTS, RunRecord, RunRequest, export_file, final_record,
-                                             report_context, run_registration)
+from snreg.workflow.registration_run import (EXPORTS, RunRecord, RunRequest, export_file, final_record, report_context,
+                                             run_registration)
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
