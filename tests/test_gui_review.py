@@ -200,6 +200,14 @@ def test_axes_never_scale_degrees_with_an_si_prefix(qtbot, screen, recorded):
     assert "IMU (deg)" in screen.timelines.angles.getAxis("left").labelString()
 
 
+def test_curve_colours_are_named_above_the_plots_where_node_labels_cannot_cover_them(screen):
+    timelines = screen.timelines
+    assert all(plot.legend is None for plot in timelines.plots)          # an in-plot legend sat under the labels
+    key = timelines.key.text
+    assert all(word in key for word in ("yaw", "pitch", "roll", "tip"))
+    assert timelines.getItem(0, 0) is timelines.key and timelines.getItem(1, 0) is timelines.angles
+
+
 def test_node_labels_close_in_time_go_on_different_rows():
     assert label_rows([0.0, 0.1, 0.2, 5.0, 5.05], 1.0) == [0, 1, 2, 0, 1]
     assert label_rows([5.0, 0.0, 0.1], 1.0) == [0, 0, 1]                  # in time order, whatever the input order

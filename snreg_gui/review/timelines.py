@@ -43,6 +43,13 @@ def label_rows(times_s, min_gap_s: float) -> list[int]:
     return rows
 
 
+def _colour_key() -> str:
+    """One line naming the curves' colours (an in-plot legend sat under the node labels)."""
+    def names(title: str, words) -> str:
+        return f"{title}: " + " ".join(f"<span style='color:{c}'>{w}</span>" for c, w in zip(_XYZ_COLOURS, words))
+    return f"{names('IMU', ('yaw', 'pitch', 'roll'))} &nbsp;&nbsp; {names('tip', 'xyz')}"
+
+
 class TimelinePlots(pg.GraphicsLayoutWidget):
     """Four stacked plots with linked x (seconds from the first sample); node markers and a cursor on each.
 
@@ -51,6 +58,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
 
     def __init__(self):
         super().__init__()
+        self.key = self.addLabel(_colour_key(), row=0, col=0)      # above the plots: node labels never cover it
         self.angles = self._plot(0, "IMU (deg)")
         self.tip = self._plot(1, "tip, camera (mm)")
         self.quality = self._plot(2, "tracking quality")
@@ -76,12 +84,10 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self._imu_filled = 0
 
     def _plot(self, row: int, label: str) -> pg.PlotItem:
-        plot = self.addPlot(row=row, col=0)
+        plot = self.addPlot(row=row + 1, col=0)
         for side in ("left", "bottom"):          # degrees stay degrees: no "(x0.001)" SI scaling of the axis
             plot.getAxis(side).enableAutoSIPrefix(False)
         plot.setLabel("left", label)
-        if row < 2:
-            plot.addLegend(offset=(5, 5))
         return plot
 
     @staticmethod
