@@ -39,7 +39,7 @@ def pair(rule: str, problem: Problem, correction: np.ndarray, assignment: np.nda
 
 def pairing_at(preop, intraop, transform: np.ndarray, sigma_mm: float) -> np.ndarray:
     """The ``"assignment"`` rule's pairing (M,) when the ``intraop_from_preop`` transform and the error sigma (mm) are
-    known rather than fitted: the best any method bound by DESIGN §4's pairing can do (``snreg simulate``'s model
-    oracle), since an extra nearer a node than the true one takes the pair whatever the transform."""
+    known rather than fitted: ``snreg simulate``'s model oracle, which separates what the unknown transform costs from
+    what DESIGN §4's pairing costs (an extra nearer a node than the true one takes the pair whatever the transform)."""
     problem = make_problem(preop, intraop, initial=transform)
     return assign(problem, np.eye(4), float(sigma_mm))
