@@ -118,7 +118,8 @@ class TrialOutcome:
 
 def oracle_success(trial: Trial) -> dict[str, bool]:
     """Pairing success with the true transform: nearest-neighbour, one-to-one assignment, and the model's partial
-    pairing at the true sigma (what global's own pairing rule reaches once the transform is known; :func:`pairing_at`)."""
+    pairing at the true sigma (what global's own pairing rule reaches once the transform is known;
+    :func:`pairing_at`)."""
     true = trial.truth >= 0
     d2 = cdist(trial.preop, trial.intraop, "sqeuclidean")
     nearest = np.argmin(d2, axis=0)

@@ -218,7 +218,8 @@ def markdown_report(study: StudyResult, command: str = "") -> str:
             "Success: every remaining true intraop node paired with its own preop node. Oracles use the true "
             "transform; one-to-one pairing (DESIGN §4: an extra is never paired) cannot reach the nearest oracle "
             "where an extra lies closer to a mapped node than the true node does. Oracle model: the partial pairing "
-            "global reports, made with the true transform and sigma: what a DESIGN §4 pairing reaches once the transform is known.",
+            "global reports, made with the true transform and sigma: what a DESIGN §4 pairing reaches once the "
+            "transform is known.",
             missing_table(study),
             "## Where the missing nodes are: target-error bound coverage",
             coverage_table(study),
