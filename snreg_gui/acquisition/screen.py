@@ -31,7 +31,7 @@ from snreg.workflow.guidance import guidance_line, targets_text
 from snreg_gui.acquisition.live_view import LiveView
 from snreg_gui.acquisition.node_table import StoredNodes
 from snreg_gui.acquisition.orientation_plot import ANGLE_COLOURS, OrientationPlot
-from snreg_gui.acquisition.status import BigNumber, StatusLine, ValueRow, spread_colour
+from snreg_gui.acquisition.status import BigNumber, StatusLine, ValueRow, set_style, spread_colour
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.common.feed_view import FeedView
 from snreg_gui.common.splitters import first_width
@@ -54,12 +54,6 @@ def _row(*parts) -> QHBoxLayout:
         else:
             row.addWidget(*part) if isinstance(part, tuple) else row.addWidget(part)
     return row
-
-
-def _style(label: QLabel, style: str) -> None:
-    """Set a label's style sheet only when it changes (a style change per frame would cost the GUI thread)."""
-    if label.styleSheet() != style:
-        label.setStyleSheet(style)
 
 
 class AcquisitionScreen(QWidget):
@@ -331,7 +325,7 @@ class AcquisitionScreen(QWidget):
     def _say(self, text: str, style: str) -> None:
         self.store_status.setText(text)
         self.store_status.setToolTip(text)
-        _style(self.store_status, style)
+        set_style(self.store_status, style)
 
     def request_undo(self) -> None:
         if self.undo_button.isEnabled():
@@ -367,7 +361,7 @@ class AcquisitionScreen(QWidget):
         self.store_button.setToolTip(reason)
         self.store_reason.setText(reason)
         self.store_reason.setToolTip(reason)
-        _style(self.store_reason, style)
+        set_style(self.store_reason, style)
 
     # -- health --------------------------------------------------------------
     def _feed_age_s(self) -> float:
@@ -390,5 +384,5 @@ class AcquisitionScreen(QWidget):
         stale = "  STALE" if imu.stale else ""
         problem = f" ({imu.problem})" if imu.problem else ""
         self.imu_health.setText(f"IMU: {imu.state}, {imu.rate_hz:.0f} Hz, {imu.corrupt} corrupt{stale}{problem}")
-        _style(self.video_health, _PAUSED if self._paused else _BAD if "STALE" in self.video_health.text() else "")
-        _style(self.imu_health, _BAD if imu.stale else "")
+        set_style(self.video_health, _PAUSED if self._paused else _BAD if "STALE" in self.video_health.text() else "")
+        set_style(self.imu_health, _BAD if imu.stale else "")

@@ -29,6 +29,12 @@ def big_font(base: QFont) -> QFont:
     return font
 
 
+def set_style(widget: QWidget, style: str) -> None:
+    """Set a widget's style sheet only when it changes: a style change per frame would cost the GUI thread."""
+    if widget.styleSheet() != style:
+        widget.setStyleSheet(style)
+
+
 class BigNumber(QLabel):
     """A large number in a label of fixed size, wide enough for ``widest`` (e.g. "-888.8")."""
 
@@ -41,10 +47,8 @@ class BigNumber(QLabel):
         self.set_colour(colour)
 
     def set_colour(self, colour: str) -> None:
-        """Set the text colour (a CSS colour, "" for the default) when it changes (a style change costs)."""
-        style = f"color: {colour}" if colour else ""
-        if self.styleSheet() != style:
-            self.setStyleSheet(style)
+        """Set the text colour (a CSS colour, "" for the default)."""
+        set_style(self, f"color: {colour}" if colour else "")
 
     def show_value(self, value: float | None, decimals: int = 1) -> None:
         """The value with ``decimals`` decimals, or a dash for None or NaN."""
