@@ -14,7 +14,8 @@ from snreg.chain import ChainCalibration
 from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError, read_intraop_nodes
-from snreg.session.export import recover, session_info
+from snreg.session.export import session_info
+from snreg.session.recovery import recover
 from snreg.session.journal import journal_path
 from snreg.session.reader import HEADER_KEYS
 
@@ -151,7 +152,7 @@ def test_damaged_hdf5_is_read_from_the_journal_and_recovered(tmp_path, rng, pelv
         assert len(s.registrations()) == 1 and set(s.calibration()) == {"stereo", "chain"}
         assert s.stream("imu").shape == (0,)
     assert session_info(path)["journal_damaged_lines"] == 1
-    out = recover(path, tmp_path / "clean.h5")
+    out = recover(path, tmp_path / "clean.h5").path
     with Session.open(out) as s:
         assert not s.damaged and s.intraop_nodes().ids == ["SN1", "SN2", "SN3"] and s.case_id == "phantom-01"
     recover(path)                                                      # in place, the original kept aside

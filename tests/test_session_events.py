@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from snreg.session import Session, SessionError
-from snreg.session.export import recover
+from snreg.session.recovery import recover
 from snreg.session.journal import journal_path
 
 

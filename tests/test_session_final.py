@@ -7,7 +7,8 @@ import pytest
 from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError, set_final_in_file
-from snreg.session.export import recover, session_info
+from snreg.session.export import session_info
+from snreg.session.recovery import recover
 
 
 def _session(path, pelvic_nodes, runs: int = 3) -> None:
@@ -64,7 +65,7 @@ def test_a_mark_that_reached_only_the_journal_survives(tmp_path, pelvic_nodes):
     assert _finals(path)[1] is False
     with Session.open(path) as s:
         assert s.final_registration() == 1
-    recovered = recover(path, tmp_path / "clean.h5")
+    recovered = recover(path, tmp_path / "clean.h5").path
     assert _finals(recovered) == {0: False, 1: True, 2: False}
 
 

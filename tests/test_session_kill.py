@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from snreg.session import Session
-from snreg.session.export import recover
+from snreg.session.recovery import recover
 from snreg.session.schema import SessionError
 
 KILLS = 60

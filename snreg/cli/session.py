@@ -43,12 +43,16 @@ def cmd_info(args) -> int:
     streams = ", ".join(f"{name} {n}" for name, n in info["streams"].items())
     regs = "; ".join(f"#{r['n']} {r['method']} RMS {r['rms_mm']:.2f} mm" + (" (final)" if r["final"] else "")
                      for r in info["registrations"]) or "none"
-    print(f"case {info['case_id']}, created {info['created_utc']}, format {info['format_version']}, "
-          f"snreg {info['snreg_version']}")
+    print(f"case {info['case_id'] or '(none)'}, created {info['created_utc'] or '(unknown)'}, "
+          f"format {info['format_version']}, snreg {info['snreg_version'] or '(unknown)'}")
     print(f"nodes: {info['intraop_nodes']} intraop, {info['preop_nodes']} preop; streams: {streams}")
     print(f"calibration: {', '.join(info['calibration']) or 'none'}; registrations: {regs}")
+    for problem in info["problems"]:
+        print(f"damaged: {problem}")
     if info["damaged"]:
-        print("the HDF5 file is damaged; nodes were read from the journal; run 'snreg session recover'")
+        source = ("the journal holds what it recorded (nodes, registrations, calibration), shown above"
+                  if info["journal"] else "there is no journal beside it: only what the file still holds is shown")
+        print(f"the session file is damaged; {source}; run 'snreg session recover' to write a clean copy")
     return 0
 
 
@@ -66,11 +70,12 @@ def cmd_export(args) -> int:
 
 
 def cmd_recover(args) -> int:
-    from snreg.session.export import recover
+    from snreg.session.recovery import recover
     if args.output is not None and Path(args.output).resolve() != Path(args.session).resolve():
         check_output_file(args.output, "recovered session", new=True)
-    out = _guard(recover, args.session, args.output)
-    print(f"recovered session written to {out}")
+        check_output_file(f"{args.output}.journal", "recovered session", new=True)
+    report = _guard(recover, args.session, args.output)
+    print("\n".join(report.lines()))
     return 0
 
 

@@ -36,8 +36,8 @@ import numpy as np
 from snreg import __version__
 from snreg.chain import ChainCalibration
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
-from snreg.session import reader, writer
-from snreg.session.journal import Journal, fsync_directory, journal_path, read_journal
+from snreg.session import opening, reader, salvage, writer
+from snreg.session.journal import Journal, fsync_directory, journal_path
 from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, StoredRegistration,
                                   calibration_version, jpeg_bytes, position_mm, stereo_from_dict, stereo_to_dict,
                                   validate_case_id)
@@ -69,6 +69,9 @@ class Session:
         self._events: list[dict] = []
         self._buffers: dict[str, writer.StreamBuffer] = {}
         self._lock = threading.RLock()
+        self._check = None                          # what a child could read of the file (opened sessions)
+        self.problems: list[str] = []               # what could not be read, in words (opened sessions)
+        self.has_journal = journal is not None
 
     # -- opening -------------------------------------------------------------
     @classmethod
@@ -97,33 +100,17 @@ class Session:
 
     @classmethod
     def open(cls, path: str | Path) -> "Session":
-        """Read a session (never opened for writing); :class:`SessionError` in one sentence when it cannot be."""
+        """Read a session (never opened for writing); :class:`SessionError` in one sentence when it cannot be.
+
+        Whatever can still be read is: the HDF5 file is read first in a child process (:mod:`.filecheck`), so damage
+        that would crash libhdf5 marks the session ``damaged``; ``problems`` says in words what could not be read."""
         path = Path(path)
-        entries = read_journal(journal_path(path)).entries
-        if not path.exists() and not entries:
-            raise SessionError(f"{path}: no such session file")
-        journal_header = next((data for kind, data in entries if kind == "session"), None)
-        h5, header = None, None
-        try:
-            h5 = h5py.File(path, "r")
-            header = reader.read_header(h5, path)
-        except SessionError:
-            newer = "format_version" in h5.attrs and int(h5.attrs["format_version"]) > FORMAT_VERSION
-            h5.close()
-            h5 = None
-            if journal_header is None or newer:   # foreign or newer; else a kill before the header was flushed
-                raise
-        except (OSError, ValueError, KeyError):
-            if h5 is not None:
-                h5.close()
-            h5 = None
-            if journal_header is None:
-                raise SessionError(f"{path}: not a readable snreg session file (corrupt, truncated or foreign); "
-                                   "if it was being recorded, run 'snreg session recover'") from None
-        session = cls(path, header or dict(journal_header), h5, None, damaged=h5 is None)
-        if h5 is not None:
+        opened = opening.open_parts(path)
+        session = cls(path, opened.header, opened.h5, None, damaged=opened.damaged)
+        session._check, session.problems, session.has_journal = opened.check, opened.problems, opened.journal
+        if opened.h5 is not None:
             session._load_hdf5()
-        session._replay(entries)
+        session._replay(opened.entries)
         return session
 
     @classmethod
@@ -170,25 +157,15 @@ class Session:
         return session
 
     def _load_hdf5(self) -> None:
-        for part, load in (("nodes", reader.read_nodes), ("calibration", reader.read_calibration),
-                           ("preop", reader.read_preop), ("registrations", reader.read_registrations),
-                           ("events", reader.read_events)):
-            try:
-                value = load(self._h5)
-            except (OSError, ValueError, KeyError, RuntimeError):
-                self.damaged = True
-                continue
-            if part == "nodes":
-                self._nodes.update({node.id: node for node in value})
-            elif part == "calibration":
-                self._calibration.update(value)
-            elif part == "preop":
-                self._preop = value
-            elif part == "events":
-                self._events = value
-            else:
-                self._registrations = value
-                self._final = next((r["n"] for r in value if r.get("final")), None)
+        parts = salvage.read_parts(self._h5, self._check)
+        self._nodes.update({node.id: node for node in parts.nodes})
+        self._calibration.update(parts.calibration)
+        self._preop, self._events, self._registrations = parts.preop, parts.events, parts.registrations
+        self._final = next((r["n"] for r in parts.registrations if r.get("final")), None)
+        problems = parts.problems + [p for name in STREAM_DTYPES
+                                     if (p := salvage.stream_problem(self._h5, name, self._check))]
+        self.problems += problems
+        self.damaged = self.damaged or bool(problems)
 
     def _replay(self, entries: list) -> None:
         """Merge journal entries over what the HDF5 file holds (the journal is never behind it)."""
@@ -420,7 +397,7 @@ class Session:
     # -- reading -------------------------------------------------------------
     @property
     def case_id(self) -> str:
-        return str(self.header["case_id"])
+        return str(self.header.get("case_id", ""))
 
     def intraop_records(self) -> list[IntraopNode]:
         return list(self._nodes.values())
@@ -462,13 +439,11 @@ class Session:
         return np.asarray(kept[-1], dtype=float) if kept else None
 
     def stream(self, name: str):
-        """The ``streams/<name>`` table, lazily (an h5py dataset); empty when the HDF5 file is unreadable."""
+        """The ``streams/<name>`` table, lazily (an h5py dataset); its readable rows (an array) when it is damaged, none
+        when the HDF5 file is unreadable."""
         if name not in STREAM_DTYPES:
             raise SessionError(f"no stream {name!r}; streams are {', '.join(STREAM_DTYPES)}")
-        try:
-            return self._h5[f"streams/{name}"]
-        except (TypeError, KeyError, OSError, ValueError):
-            return np.zeros(0, STREAM_DTYPES[name])
+        return salvage.stream_rows(self._h5, name, self._check)
 
     def save_as(self, path: str | Path) -> None:
         """Write everything this session holds, streams up to their first unreadable block, to a clean HDF5 file."""

@@ -1,17 +1,15 @@
-"""Summaries, node export and recovery of session files (the work behind ``snreg session``)."""
+"""Summaries and node export of session files (the work behind ``snreg session info|export``)."""
 
 from __future__ import annotations
 
 import json
-import os
-import time
 from collections import Counter
 from pathlib import Path
 
 from snreg.files import atomic_write
 from snreg.session import Session
 from snreg.session.journal import journal_path, read_journal
-from snreg.session.schema import STREAM_DTYPES, SessionError
+from snreg.session.schema import STREAM_DTYPES
 
 
 def session_info(path: str | Path) -> dict:
@@ -29,7 +27,8 @@ def session_info(path: str | Path) -> dict:
                                   for r in session.registrations()],
                 "final_registration": session.final_registration(),
                 "events": dict(Counter(event["kind"] for event in session.events())),
-                "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged}
+                "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged,
+                "journal": session.has_journal, "problems": list(session.problems)}
 
 
 def export_nodes(path: str | Path, fmt: str, out: str | Path) -> int:
@@ -40,25 +39,3 @@ def export_nodes(path: str | Path, fmt: str, out: str | Path) -> int:
     with atomic_write(out) as temporary:
         temporary.write_text(text, encoding="utf-8")
     return len(nodes)
-
-
-def recover(path: str | Path, out: str | Path | None = None) -> Path:
-    """Rebuild a clean session from whatever of the HDF5 file is readable plus the journal.
-
-    Without ``out`` the file is replaced in place and the original kept beside it as
-    ``<name>.damaged-<unix time>``; returns the path written.
-    """
-    path = Path(path)
-    target = Path(out) if out is not None else path
-    try:
-        session = Session.open(path)
-    except SessionError as err:
-        if "recover" not in str(err):
-            raise
-        raise SessionError(f"{path}: nothing to recover: neither the file nor a journal beside it holds a "
-                           "snreg session") from None
-    with session, atomic_write(target) as temporary:
-        session.save_as(temporary)
-        if target == path and path.exists():
-            os.replace(path, path.with_name(f"{path.name}.damaged-{int(time.time())}"))
-    return target

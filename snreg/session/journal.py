@@ -10,9 +10,11 @@ from __future__ import annotations
 import json
 import os
 import zlib
-from dataclasses import dataclass
+import stat
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from snreg.errors import SessionError
 from snreg.session.schema import JOURNAL_SUFFIX
 
 
@@ -23,10 +25,12 @@ def journal_path(session_path: str | Path) -> Path:
 
 @dataclass(frozen=True)
 class JournalEntries:
-    """The readable entries, in order, as (kind, data) pairs, and how many lines were damaged."""
+    """The readable entries, in order, as (kind, data) pairs, how many lines were damaged, and the line number of each
+    entry (for messages)."""
 
     entries: list
     damaged: int
+    lines: list = field(default_factory=list)
 
 
 def fsync_directory(path: str | Path) -> None:
@@ -74,13 +78,19 @@ class Journal:
 
 
 def read_journal(path: str | Path) -> JournalEntries:
-    """Every line whose checksum holds; a missing journal has no entries."""
+    """Every line whose checksum holds; a missing journal has no entries. :class:`SessionError` when the journal is not
+    a regular file (a folder, a device, a pipe) or cannot be read."""
+    path = Path(path)
     try:
-        raw = Path(path).read_bytes()
+        if not stat.S_ISREG(path.stat().st_mode):
+            raise SessionError(f"{path}: the session's journal is not a regular file; move it away and try again")
+        raw = path.read_bytes()
     except FileNotFoundError:
         return JournalEntries([], 0)
-    entries, damaged = [], 0
-    for line in raw.split(b"\n"):
+    except OSError as err:
+        raise SessionError(f"{path}: cannot read the session's journal ({err.strerror or err})") from None
+    entries, damaged, lines = [], 0, []
+    for number, line in enumerate(raw.split(b"\n"), start=1):
         if not line:
             continue
         crc, _, payload = line.partition(b" ")
@@ -89,6 +99,7 @@ def read_journal(path: str | Path) -> JournalEntries:
                 raise ValueError
             record = json.loads(payload)
             entries.append((str(record["kind"]), record["data"]))
-        except (ValueError, KeyError, TypeError):
+            lines.append(number)
+        except (ValueError, KeyError, TypeError, RecursionError):
             damaged += 1
-    return JournalEntries(entries, damaged)
+    return JournalEntries(entries, damaged, lines)

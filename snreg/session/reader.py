@@ -54,14 +54,11 @@ def read_events(h5: h5py.File) -> list[dict]:
     return out
 
 
-def read_calibration(h5: h5py.File) -> dict:
-    """``{"stereo": dict, "chain": dict}`` for those present, in the journal's JSON form."""
-    out = {}
-    for kind, group in h5["calibration"].items():
-        data = {key: _plain(value) for key, value in group.attrs.items()}
-        data.update({key: ds[()].tolist() for key, ds in group.items()})
-        out[kind] = data
-    return out
+def read_calibration(group: h5py.Group) -> dict:
+    """One ``calibration/<kind>`` group in the journal's JSON form (matrices as lists, scalars from attributes)."""
+    data = {key: _plain(value) for key, value in group.attrs.items()}
+    data.update({key: ds[()].tolist() for key, ds in group.items()})
+    return data
 
 
 def read_preop(h5: h5py.File) -> dict | None:
@@ -73,19 +70,16 @@ def read_preop(h5: h5py.File) -> dict | None:
             "frame": _plain(group.attrs.get("frame", ""))}
 
 
-def read_registrations(h5: h5py.File) -> list[dict]:
-    out = []
-    for name in sorted(h5["registration"], key=int):
-        group = h5["registration"][name]
-        data = {key: group[key][()].tolist() for key in ("transform", "pairing", "distances_mm", "confidence")}
-        data.update({key: _plain(group.attrs[key]) for key in ("method", "rms_mm", "pairing_rule")}, n=int(name))
-        for key in ("preop_ids", "intraop_ids"):       # absent in files written before they were stored
-            data[key] = [_plain(v) for v in group[key][()]] if key in group else None
-        for key in ("initial", "target_error_mm", "leave_one_out_mm", "missing"):   # absent in older files
-            data[key] = group[key][()].tolist() if key in group else None
-        data["final"] = bool(group.attrs.get("final", False))          # absent: not final (older files: none is)
-        out.append(data)
-    return out
+def read_registration(group: h5py.Group, n: int) -> dict:
+    """``registration/<n>`` in the journal's JSON form."""
+    data = {key: group[key][()].tolist() for key in ("transform", "pairing", "distances_mm", "confidence")}
+    data.update({key: _plain(group.attrs[key]) for key in ("method", "rms_mm", "pairing_rule")}, n=n)
+    for key in ("preop_ids", "intraop_ids"):       # absent in files written before they were stored
+        data[key] = [_plain(v) for v in group[key][()]] if key in group else None
+    for key in ("initial", "target_error_mm", "leave_one_out_mm", "missing"):   # absent in older files
+        data[key] = group[key][()].tolist() if key in group else None
+    data["final"] = bool(group.attrs.get("final", False))          # absent: not final (older files: none is)
+    return data
 
 
 def readable_rows(dataset: h5py.Dataset, block: int = 4096) -> np.ndarray:

@@ -1,0 +1,316 @@
+"""Read a possibly damaged HDF5 file where a crash of libhdf5 cannot take the caller down.
+
+Why: libhdf5 trusts a file's metadata. One flipped byte in an object header, a B-tree node or a heap can make it read
+out of bounds and end the process with a segmentation fault (no exception, nothing on stderr), or loop forever. So
+before a session file is read, :func:`check_file` forks a child that reads all of it the way the readers will: every
+group's members, every attribute, every dataset (chunked ones chunk by chunk). The child names each object before it
+touches it; when the child dies or stops making progress, the object it named is marked unreadable and a new child
+reads the rest, leaving it out. The caller then reads only what a child read without harm, so a damaged file costs
+what is damaged and no more. Nothing is cached between calls: every file is read afresh, as it is now.
+
+Keys name what was read: ``/nodes/intraop`` (the object), ``/nodes/intraop/*`` (its member list), ``/x@*`` (the
+attribute list of ``/x``), ``/x@case_id`` (one attribute), ``/streams/imu#2048`` (the rows of the block starting at
+row 2048; one block per chunk), ``/events#`` (a dataset read whole). A fork is cheap (the child shares the parent's
+memory); a file this process already has open (the session being recorded) is not checked: libhdf5 reads that one
+from what it holds in memory.
+"""
+
+from __future__ import annotations
+
+import faulthandler
+import gc
+import json
+import mmap
+import os
+import select
+import signal
+import struct
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+
+__all__ = ["FileCheck", "check_file", "STALL_S", "MAX_RUNS"]
+
+STALL_S = 10.0         # a child that reports nothing for this long is stuck in libhdf5 (a B-tree that loops)
+MAX_RUNS = 24          # children per file: each run leaves out one more object that crashed or hung the last one
+_WHOLE = 1 << 20       # a contiguous dataset up to this many elements is read whole; larger ones by blocks of rows
+_LOCKED = "unable to lock file"
+_LOG_BYTES = 64 << 20  # shared memory for the child's messages (touched only as far as written)
+_POLL_S = 0.2
+_BLOCK_CHUNKS = 16     # chunks read at once: fewer calls into h5py; a block that fails is read again chunk by chunk
+
+
+@dataclass(frozen=True)
+class FileCheck:
+    """What a child could read of one file: ``problems`` maps each key it could not read to why (a key names an
+    object, a member list, an attribute or a block of rows: module docstring); ``opens`` is False when the file
+    itself cannot be opened, and ``why`` then says why (damaged, locked by a writer, no permission, not HDF5)."""
+
+    path: Path
+    opens: bool
+    problems: dict[str, str] = field(default_factory=dict)
+    why: str = ""
+    runs: int = 0
+    seconds: float = 0.0
+
+    def clean(self, name: str) -> bool:
+        """True when the object ``name`` (e.g. ``/nodes/intraop``), its attributes and everything under it read
+        without a problem, and so did every group on the way to it."""
+        if not self.opens:
+            return False
+        parts = name.strip("/").split("/") if name.strip("/") else []
+        ancestors = ["/" + "/".join(parts[:k]) for k in range(len(parts))]
+        for key in self.problems:
+            if key == name or key.startswith((name.rstrip("/") + "/", name + "@", name + "#")):
+                return False
+            if any(key in (a, a.rstrip("/") + "/*") for a in ancestors):
+                return False
+        return True
+
+    def attribute_ok(self, name: str, attribute: str) -> bool:
+        """True when attribute ``attribute`` of object ``name`` was read (and its object and attribute list too)."""
+        return (self.opens and not ({f"{name}@*", f"{name}@{attribute}"} & set(self.problems))
+                and self.clean_path(name))
+
+    def clean_path(self, name: str) -> bool:
+        """True when ``name`` itself and every group on the way to it opened (what is under it may be damaged)."""
+        parts = name.strip("/").split("/") if name.strip("/") else []
+        on_the_way = {"/" + "/".join(parts[:k]) for k in range(len(parts) + 1)}
+        return self.opens and not any(key in on_the_way or key in {p.rstrip("/") + "/*" for p in on_the_way}
+                                      for key in self.problems)
+
+    def cause(self, name: str) -> str:
+        """Why ``name`` is not clean: the first problem at it, under it or on the way to it ("" when it is clean)."""
+        parts = name.strip("/").split("/") if name.strip("/") else []
+        on_the_way = {"/" + "/".join(parts[:k]) for k in range(len(parts) + 1)}
+        for key, why in self.problems.items():
+            if key.startswith((name.rstrip("/") + "/", name + "@", name + "#")) or key in on_the_way or \
+                    key in {p.rstrip("/") + "/*" for p in on_the_way}:
+                return why
+        return self.why
+
+    def dataset_opens(self, name: str) -> bool:
+        """True when dataset ``name`` opens and its shape reads (its rows may still be partly damaged)."""
+        return self.clean_path(name) and not ({f"{name}#", f"{name}#shape"} & set(self.problems))
+
+    def bad_blocks(self, name: str) -> set[int]:
+        """First rows of the blocks of dataset ``name`` that could not be read."""
+        prefix = name + "#"
+        return {int(key[len(prefix):]) for key in self.problems
+                if key.startswith(prefix) and key[len(prefix):].isdigit()}
+
+    @property
+    def damaged(self) -> bool:
+        return not self.opens or bool(self.problems)
+
+
+def check_file(path: str | Path, *, stall_s: float = STALL_S) -> FileCheck:
+    """Read all of ``path`` in forked children (module docstring); never raises for what the file holds."""
+    path = Path(path)
+    start = time.perf_counter()
+    if _open_here(path) or not hasattr(os, "fork"):
+        return FileCheck(path, True, seconds=time.perf_counter() - start)
+    problems: dict[str, str] = {}
+    refine: set[str] = set()           # blocks of rows that crashed a child: the next reads them chunk by chunk
+    runs, why = 0, ""
+    while True:
+        runs += 1
+        finished, current, cause = _run_child(path, set(problems) | refine, problems, stall_s)
+        if finished:
+            break
+        if current is None or runs >= MAX_RUNS:
+            problems["/"] = problems.get("/") or (cause or "libhdf5 could not read it")
+            break
+        if "-" in current.rpartition("#")[2]:
+            refine.add(current)
+        else:
+            problems[current] = cause
+    if "/" in problems:
+        why = problems.pop("/")
+        return FileCheck(path, False, problems, why, runs, time.perf_counter() - start)
+    return FileCheck(path, True, problems, "", runs, time.perf_counter() - start)
+
+
+def _open_here(path: Path) -> bool:
+    """Is ``path`` open in this process already (the session being recorded)?"""
+    try:
+        target = path.resolve()
+        ids = h5py.h5f.get_obj_ids(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE)
+        return any(Path(os.fsdecode(h5py.h5f.FileID.get_name(fid))).resolve() == target for fid in ids)
+    except (OSError, ValueError, RuntimeError, TypeError):
+        return False
+
+
+def _run_child(path: Path, skip: set[str], problems: dict[str, str], stall_s: float):
+    """One child: (finished, the key it was reading when it stopped, why it stopped). The child logs to shared memory
+    (no system call per key); a pipe only tells when it has ended."""
+    log = mmap.mmap(-1, _LOG_BYTES)
+    read_end, write_end = os.pipe()
+    with warnings.catch_warnings():          # Python >= 3.12 warns about fork in a process with threads; h5py resets
+        warnings.simplefilter("ignore", DeprecationWarning)   # its own lock at fork, and the child uses nothing else
+        pid = os.fork()
+    if pid == 0:                                                        # the child
+        os.close(read_end)
+        code = 0
+        try:
+            _child(path, skip, _Log(log))
+        except BaseException:                                           # noqa: BLE001 - the child must only exit
+            code = 1
+        os._exit(code)
+    os.close(write_end)
+    cause, seen, last_progress = "", -1, time.monotonic()
+    try:
+        while not select.select([read_end], [], [], _POLL_S)[0]:
+            written = _Log.length(log)
+            if written != seen:
+                seen, last_progress = written, time.monotonic()
+            elif time.monotonic() - last_progress > stall_s:
+                cause = f"libhdf5 makes no progress reading it ({stall_s:g} s)"
+                os.kill(pid, signal.SIGKILL)
+                break
+    except BaseException:
+        os.kill(pid, signal.SIGKILL)
+        raise
+    finally:
+        os.close(read_end)
+        _, status = os.waitpid(pid, 0)
+    current, finished = None, False
+    for message in _Log.messages(log):
+        if message[0] == "start":
+            current = message[1]
+        elif message[0] == "ok":
+            current = None
+        elif message[0] == "error":
+            problems[message[1]] = message[2]
+            current = None
+        elif message[0] == "done":
+            finished = True
+    log.close()
+    if not finished and not cause:
+        cause = (f"reading it crashes libhdf5 (signal {os.WTERMSIG(status)})" if os.WIFSIGNALED(status)
+                 else "reading it stopped the reader")
+    return finished, current, cause
+
+
+class _Log:
+    """Messages appended to shared memory: each record is written whole before the length in front is moved past
+    it, so a child killed in the middle of a record leaves the ones before it readable."""
+
+    def __init__(self, memory: mmap.mmap):
+        self._memory, self._end = memory, 8
+
+    def write(self, message) -> None:
+        data = json.dumps(message).encode("utf-8") + b"\n"
+        if self._end + len(data) > len(self._memory):
+            raise MemoryError("file check log full")
+        self._memory[self._end:self._end + len(data)] = data
+        self._end += len(data)
+        struct.pack_into("<Q", self._memory, 0, self._end)
+
+    @staticmethod
+    def length(memory: mmap.mmap) -> int:
+        return struct.unpack_from("<Q", memory, 0)[0]
+
+    @staticmethod
+    def messages(memory: mmap.mmap):
+        end = _Log.length(memory)
+        return [json.loads(line) for line in memory[8:end].split(b"\n") if line]
+
+
+def _child(path: Path, skip: set[str], log: _Log) -> None:
+    """Read everything not in ``skip``, naming each key before touching it (``start``) and after (``ok``/``error``)."""
+    gc.disable()            # objects inherited from the parent (its open files) must never be finalised here
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    faulthandler.disable()  # a crash here is expected and reported by the parent, not dumped on the user's terminal
+    quiet = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(quiet, 2)
+
+    def say(*message) -> None:
+        log.write(message)
+
+    def attempt(key: str, read, quiet: bool = False):
+        if key in skip:
+            return None
+        say("start", key)
+        try:
+            value = read()
+        except Exception as err:                                        # noqa: BLE001 - any failure marks the key
+            say("ok" if quiet else "error", key, _reason(err))          # quiet: the caller looks closer itself
+            return None
+        say("ok", key)
+        return value if value is not None else True
+
+    def walk(obj, name: str) -> None:
+        names = attempt(f"{name}@*", lambda: list(obj.attrs))
+        for attribute in names if isinstance(names, list) else ():
+            attempt(f"{name}@{attribute}", lambda a=attribute: obj.attrs[a])
+        if isinstance(obj, h5py.Group):
+            members = attempt(f"{name.rstrip('/')}/*", lambda: list(obj.keys()))
+            for member in members if isinstance(members, list) else ():
+                child = f"{name.rstrip('/')}/{member}"
+                sub = attempt(child, lambda m=member: obj[m])
+                if sub not in (None, True):
+                    walk(sub, child)
+        elif isinstance(obj, h5py.Dataset):
+            _read_dataset(obj, name, attempt, skip)
+
+    if "/" in skip:
+        say("done")
+        return
+    say("start", "/")
+    try:
+        h5 = h5py.File(path, "r", locking=False)
+    except Exception as err:                                            # noqa: BLE001
+        say("error", "/", _open_reason(err))
+        say("done")
+        return
+    say("ok", "/")
+    walk(h5, "/")
+    say("done")
+
+
+def _read_dataset(dataset: h5py.Dataset, name: str, attempt, skip: set[str]) -> None:
+    """Every row of a dataset: whole when small and contiguous, else in blocks of ``_BLOCK_CHUNKS`` chunks; a block
+    that fails (or crashed a child before) is read again chunk by chunk, so only its bad chunks are lost."""
+    shape = attempt(f"{name}#shape", lambda: (dataset.shape, dataset.chunks))
+    if not isinstance(shape, tuple):
+        return
+    dims, chunks = shape
+    if not dims or (chunks is None and int(_size(dims)) <= _WHOLE) or dims[0] == 0:
+        attempt(f"{name}#", lambda: dataset[()])
+        return
+    step = chunks[0] if chunks else max(1, _WHOLE // max(1, int(_size(dims[1:]))))
+    block = step * _BLOCK_CHUNKS
+    for first in range(0, dims[0], block):
+        end = min(first + block, dims[0])
+        coarse = f"{name}#{first}-{end}"
+        if coarse not in skip and attempt(coarse, lambda f=first, e=end: dataset[f:e], quiet=True) is not None:
+            continue
+        for start in range(first, end, step):
+            attempt(f"{name}#{start}", lambda f=start: dataset[f:f + step])
+
+
+def _size(dims) -> int:
+    n = 1
+    for d in dims:
+        n *= int(d)
+    return n
+
+
+def _reason(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text[:200]
+
+
+def _open_reason(err: BaseException) -> str:
+    text = str(err)
+    if _LOCKED in text:
+        return "it is open for writing in another program (being recorded?)"
+    if isinstance(err, PermissionError) or "Permission denied" in text or "errno = 13" in text:
+        return "no permission to read it"
+    if "file signature not found" in text or "not an HDF5 file" in text.lower():
+        return "it is not an HDF5 file"
+    return f"libhdf5 cannot open it ({_reason(err)})"

@@ -1,0 +1,249 @@
+"""Reading what is still readable of a session's HDF5 file, part by part, after :mod:`.filecheck` has read it safely.
+
+Why: a damaged file should cost what is damaged and no more. A part (nodes, calibration, preop, registrations,
+events, each stream) that a checking child read whole is read with the ordinary readers of :mod:`.reader`; a part
+with damage in it is read around the damage (other registrations, other calibrations, the node rows whose id, label
+and position survive, the stream rows outside the unreadable chunks); whatever is read is checked as a journal entry
+would be (:mod:`.entries`), so a wrong type in the file is reported rather than raised. Every part left out or cut
+short is named in ``problems``, in words.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import h5py
+import numpy as np
+
+from snreg.session import reader
+from snreg.session.entries import EntryError, check_entry, check_node
+from snreg.session.filecheck import FileCheck
+from snreg.session.schema import STREAM_DTYPES, IntraopNode
+
+__all__ = ["FileParts", "read_parts", "stream_rows"]
+
+_ESSENTIAL = ("id", "label", "xyz_trocar")          # a node row is kept when these survive
+_DEFAULTS = {"time_ns": 0, "xyz_camera": [float("nan")] * 3, "spread_mm": float("nan"), "n_frames": 0,
+             "counts": float("nan"), "left_jpeg": "", "right_jpeg": "", "earth_from_imu": None,
+             "stereo_version": "", "chain_version": ""}
+
+
+@dataclass
+class FileParts:
+    """The parts read from the file (JSON forms, as the journal holds them; nodes as :class:`IntraopNode`) and one
+    sentence per part that was damaged."""
+
+    nodes: list = field(default_factory=list)
+    calibration: dict = field(default_factory=dict)
+    preop: dict | None = None
+    registrations: list = field(default_factory=list)
+    events: list = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+
+def read_parts(h5: h5py.File, check: FileCheck | None) -> FileParts:
+    """Every part of the session in ``h5`` that can be read (``check`` None: the file is trusted whole)."""
+    parts = FileParts()
+    for name, read in (("nodes", _nodes), ("calibration", _calibration), ("preop", _preop),
+                       ("registrations", _registrations), ("events", _events)):
+        try:
+            setattr(parts, name, read(h5, check, parts.problems))
+        except Exception as err:                        # noqa: BLE001 - any other surprise in a part costs that part
+            parts.problems.append(f"{name}: unreadable ({_short(err)})")
+    return parts
+
+
+def stream_rows(h5: h5py.File | None, name: str, check: FileCheck | None):
+    """``streams/<name>``: the dataset when it is whole (lazily read), else its readable rows as an array."""
+    dtype = STREAM_DTYPES[name]
+    path = f"/streams/{name}"
+    if h5 is None or (check is not None and not check.clean_path(path)):
+        return np.zeros(0, dtype)
+    try:
+        dataset = h5[path]
+        if not isinstance(dataset, h5py.Dataset) or dataset.dtype != dtype or dataset.ndim != 1:
+            return np.zeros(0, dtype)
+        if check is None or check.clean(path):
+            return dataset
+        return _rows_around(dataset, check.bad_blocks(path))
+    except (KeyError, OSError, ValueError, RuntimeError, TypeError):
+        return np.zeros(0, dtype)
+
+
+def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> str | None:
+    """One sentence when ``streams/<name>`` is missing, of the wrong kind or partly unreadable, else None."""
+    path = f"/streams/{name}"
+    if h5 is None:
+        return None
+    if check is not None and not check.clean_path(path):
+        return f"stream {name}: unreadable ({check.cause(path)})"
+    try:
+        dataset = h5[path]
+    except (KeyError, OSError, ValueError, RuntimeError, TypeError):
+        return f"stream {name}: missing"
+    if not isinstance(dataset, h5py.Dataset) or dataset.dtype != STREAM_DTYPES[name] or dataset.ndim != 1:
+        return f"stream {name}: not a {name} table (wrong columns); left out"
+    bad = check.bad_blocks(path) if check is not None else set()
+    if bad:
+        step = dataset.chunks[0] if dataset.chunks else 1
+        lost = sum(min(step, dataset.shape[0] - first) for first in bad)
+        return (f"stream {name}: {lost} of {dataset.shape[0]} rows unreadable ({check.cause(path)}); "
+                "the rest kept")
+    return None
+
+
+def _rows_around(dataset: h5py.Dataset, bad: set[int]) -> np.ndarray:
+    """Every row outside the blocks starting at ``bad`` (each one chunk long)."""
+    step = dataset.chunks[0] if dataset.chunks else max(1, dataset.shape[0])
+    parts = [dataset[first:first + step] for first in range(0, dataset.shape[0], step) if first not in bad]
+    return np.concatenate(parts) if parts else np.zeros(0, dataset.dtype)
+
+
+def _nodes(h5, check, problems) -> list[IntraopNode]:
+    if "nodes" not in h5 or "intraop" not in h5["nodes"]:
+        problems.append("nodes: the nodes/intraop table is missing")
+        return []
+    if check is None or check.clean("/nodes/intraop"):
+        try:
+            records = reader.read_nodes(h5)
+        except (OSError, ValueError, KeyError, RuntimeError, TypeError, IndexError):
+            records = None
+        if records is not None:
+            return _checked_nodes([record.to_json() for record in records], problems)
+    return _nodes_by_column(h5["nodes/intraop"], check, problems)
+
+
+def _checked_nodes(rows: list[dict], problems: list[str]) -> list[IntraopNode]:
+    nodes, bad = [], []
+    for k, row in enumerate(rows):
+        try:
+            nodes.append(IntraopNode.from_json(check_node(row)))
+        except (EntryError, ValueError, TypeError) as err:
+            bad.append(f"row {k + 1} {err}")
+    if bad:
+        problems.append(f"nodes/intraop: {len(bad)} of {len(rows)} rows left out ({'; '.join(bad[:3])})")
+    return nodes
+
+
+def _nodes_by_column(group: h5py.Group, check: FileCheck | None, problems: list[str]) -> list[IntraopNode]:
+    """Node rows read column by column around the damage: a row is kept when its id, label and position survive."""
+    columns = {}
+    for name in list(_ESSENTIAL) + list(_DEFAULTS):
+        path = f"/nodes/intraop/{name}"
+        if check is not None and not check.dataset_opens(path):
+            continue
+        try:
+            dataset = group[name]
+            bad = check.bad_blocks(path) if check is not None else set()
+            step = dataset.chunks[0] if dataset.chunks else max(1, dataset.shape[0])
+            values = [None] * dataset.shape[0]
+            for first in range(0, dataset.shape[0], step):
+                if first not in bad:
+                    values[first:first + step] = list(dataset[first:first + step])
+        except (KeyError, OSError, ValueError, RuntimeError, TypeError):
+            continue
+        columns[name] = values
+    missing = [name for name in _ESSENTIAL if name not in columns]
+    if missing:
+        problems.append(f"nodes/intraop: the {', '.join(missing)} column(s) cannot be read; no node read from the file")
+        return []
+    rows = []
+    for k in range(min(len(columns[name]) for name in _ESSENTIAL)):
+        row = {}
+        for name in list(_ESSENTIAL) + list(_DEFAULTS):
+            value = columns[name][k] if name in columns and k < len(columns[name]) else None
+            row[name] = _DEFAULTS.get(name) if value is None else _plain(name, value)
+        if row["earth_from_imu"] is None:
+            del row["earth_from_imu"]
+        rows.append(row)
+    if check is not None and not check.clean("/nodes/intraop"):
+        problems.append(f"nodes/intraop: damaged ({check.cause('/nodes/intraop')}); read around the damage")
+    return _checked_nodes(rows, problems)
+
+
+def _plain(name: str, value):
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if name in ("left_jpeg", "right_jpeg"):
+        return bytes(np.asarray(value, dtype=np.uint8)).hex()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _calibration(h5, check, problems) -> dict:
+    if "calibration" not in h5:
+        return {}
+    out = {}
+    for kind in list(h5["calibration"]):
+        path = f"/calibration/{kind}"
+        if check is not None and not check.clean(path):
+            problems.append(f"calibration {kind}: left out ({check.cause(path)})")
+            continue
+        group = h5["calibration"][kind]
+        try:
+            out[kind] = check_entry("calibration", {"kind": kind, "data": reader.read_calibration(group)})["data"]
+        except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError, AttributeError) as err:
+            problems.append(f"calibration {kind}: left out ({_short(err)})")
+    return out
+
+
+def _preop(h5, check, problems) -> dict | None:
+    if check is not None and not check.clean("/nodes/preop"):
+        problems.append(f"preop nodes: left out ({check.cause('/nodes/preop')})")
+        return None
+    try:
+        data = reader.read_preop(h5)
+        return None if data is None else check_entry("preop", data)
+    except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError) as err:
+        problems.append(f"preop nodes: left out ({_short(err)})")
+        return None
+
+
+def _registrations(h5, check, problems) -> list[dict]:
+    if "registration" not in h5:
+        return []
+    if check is not None and not check.clean_path("/registration") or \
+            (check is not None and "/registration/*" in check.problems):
+        problems.append(f"registrations: none read from the file ({check.cause('/registration')})")
+        return []
+    out = []
+    for name in sorted(h5["registration"], key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n)):
+        path = f"/registration/{name}"
+        if not name.isdigit() or (check is not None and not check.clean(path)):
+            problems.append(f"registration {name}: left out ({check.cause(path) if check else 'not a number'})")
+            continue
+        try:
+            out.append(check_entry("registration", reader.read_registration(h5["registration"][name], int(name))))
+        except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError) as err:
+            problems.append(f"registration {name}: left out ({_short(err)})")
+    return out
+
+
+def _events(h5, check, problems) -> list[dict]:
+    if "events" not in h5:
+        return []
+    dataset = h5["events"]
+    if check is not None and not check.clean_path("/events"):
+        problems.append(f"events: left out ({check.cause('/events')})")
+        return []
+    bad = check.bad_blocks("/events") if check is not None else set()
+    raw = _rows_around(dataset, bad) if bad else dataset[()]
+    out, left_out = [], 0
+    for value in np.atleast_1d(raw):
+        try:
+            out.append(check_entry("event", json.loads(_plain("event", value))))
+        except (EntryError, ValueError, TypeError, AttributeError, RecursionError):
+            left_out += 1
+    if left_out or bad:
+        problems.append(f"events: {left_out} unreadable row(s) left out"
+                        + (f", and damaged chunks ({check.cause('/events')})" if bad else ""))
+    return out
+
+
+def _short(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 120 else text[:117] + "..."
