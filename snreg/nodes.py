@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from snreg.errors import NodeFileError
-from snreg.files import atomic_write
+from snreg.files import atomic_write, read_text_file
 
 __all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes", "PREOP_PREFIX", "INTRAOP_PREFIX"]
 
@@ -24,6 +24,8 @@ __all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes", "PREOP_PREFI
 # surgery SN1, SN2, ..., so "SN1 -> P3" cannot be misread. Ids read from a user's file may be anything.
 PREOP_PREFIX = "P"
 INTRAOP_PREFIX = "SN"
+
+MAX_NODE_FILE_BYTES = 16 << 20        # a node file holds tens of nodes; 16 MB holds hundreds of thousands
 
 SLICER_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
@@ -109,12 +111,19 @@ class NodeSet:
                 body_lines.append(line_no)
         if not body:
             raise NodeFileError(f"{source}: no header line; expected 'id,label,x,y,z'")
-        rows = list(csv.reader(body))
+        try:
+            rows = list(csv.reader(body))
+        except csv.Error as err:
+            raise NodeFileError(f"{source}: not a readable CSV ({err}); expected 'id,label,x,y,z' rows of a few "
+                                "fields") from None
         header = [h.strip().lower() for h in rows[0]]
         missing = [c for c in ("id", "label", "x", "y", "z") if c not in header]
         if missing:
-            raise NodeFileError(f"{source}: header lacks {', '.join(missing)}; expected 'id,label,x,y,z[,counts]'")
-        col = {name: header.index(name) for name in header}
+            raise NodeFileError(f"{source}: header lacks {', '.join(missing)}; expected 'id,label,x,y,z[,counts]'"
+                                + _separator_hint(body[0]))
+        col = {}
+        for index, name in enumerate(header):
+            col.setdefault(name, index)
         ids, labels, xyz, counts = [], [], [], []
         has_counts = "counts" in col
         for row_no, row in enumerate(rows[1:], start=1):
@@ -174,6 +183,8 @@ class NodeSet:
                 xyz.append([float(v) for v in point["position"]])
         except (KeyError, IndexError, TypeError, ValueError, AttributeError):
             raise NodeFileError(f"{source}: not a 3D Slicer fiducial list (.mrk.json with markups/controlPoints)") from None
+        except OverflowError:
+            raise NodeFileError(f"{source}: a control point position is a number too large for mm") from None
         ragged = [k + 1 for k, p in enumerate(xyz) if len(p) != 3]
         if ragged:
             raise NodeFileError(f"{source}: control point {ragged[0]} has a position of {len(xyz[ragged[0] - 1])} numbers; "
@@ -190,21 +201,14 @@ class NodeSet:
 def read_nodes(path: str | Path) -> NodeSet:
     """Read a node CSV or a Slicer ``.mrk.json``; :class:`NodeFileError` says what is wrong."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")    # -sig: Excel's "CSV UTF-8" starts with a byte-order mark
-    except FileNotFoundError:
-        raise NodeFileError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise NodeFileError(f"{path} is a folder; give a node file (.csv or .mrk.json)") from None
-    except OSError as err:
-        raise NodeFileError(f"{path}: cannot read the node file ({err.strerror})") from None
-    except UnicodeDecodeError:
-        raise NodeFileError(f"{path}: not a text node file (expected UTF-8 CSV or .mrk.json)") from None
+    text = read_text_file(path, "node", NodeFileError, max_bytes=MAX_NODE_FILE_BYTES)
     if path.name.lower().endswith(".json"):
         try:
             doc = json.loads(text)
-        except json.JSONDecodeError:
-            raise NodeFileError(f"{path}: not valid JSON") from None
+        except RecursionError:
+            raise NodeFileError(f"{path}: nested too deeply to be a 3D Slicer markups file") from None
+        except ValueError as err:                 # JSONDecodeError, or an integer of more than 4300 digits
+            raise NodeFileError(f"{path}: not valid JSON ({str(err).split(':')[0]})") from None
         return NodeSet.from_slicer(doc, str(path))
     return NodeSet.from_csv(text, str(path))
 
@@ -216,6 +220,17 @@ def write_nodes(nodes: NodeSet, path: str | Path) -> None:
     text = json.dumps(nodes.to_slicer(), indent=2) if path.name.lower().endswith(".json") else nodes.to_csv()
     with atomic_write(path) as temporary:
         temporary.write_text(text, encoding="utf-8")
+
+
+def _separator_hint(header: str) -> str:
+    """A note naming the separator when the header line was written with one other than a comma."""
+    for separator, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
+        if separator in header and "," not in header:
+            return (f"; the header is separated by {name}: node files are comma-separated (save as 'CSV UTF-8 (comma "
+                    "delimited)', with a point as the decimal mark)")
+    if "," not in header and len(header.split()) >= 5:
+        return "; the header is separated by spaces: node files are comma-separated"
+    return ""
 
 
 def _fmt(value: float) -> str:

@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from snreg.files import atomic_write, open_for_reading
+from snreg.files import atomic_write, read_storage
 
 __all__ = ["ProbeModel", "load_probe_model", "save_probe_model", "default_probe_model", "DEFAULT_PROBE_PATH"]
 
@@ -69,30 +69,30 @@ def save_probe_model(model: ProbeModel, path: str | Path) -> None:
 def load_probe_model(path: str | Path | None = None) -> ProbeModel:
     """Read a probe model file (the default when ``path`` is None); ValueError says what is wrong."""
     path = Path(path) if path is not None else DEFAULT_PROBE_PATH
-    fs = open_for_reading(path, "probe model")
-    try:
-        def number(key):
-            node = fs.getNode(key)
-            if node.empty():
-                raise ValueError(f"{path}: probe model lacks {key}")
-            return float(node.real())
+    stored = read_storage(path, "probe model", ValueError)
 
-        def row(key, n=None):
-            node = fs.getNode(key)
-            if node.empty() or not node.isMap():
-                raise ValueError(f"{path}: probe model lacks {key}")
-            values = np.asarray(node.mat(), dtype=float).ravel()
-            if n is not None and len(values) != n:
-                raise ValueError(f"{path}: {key} needs {n} values")
-            return values
+    def number(key):
+        if key not in stored.numbers:
+            raise ValueError(f"{path}: probe model lacks {key}" if key not in stored.keys else
+                             f"{path}: {key} is {stored.kind(key)}; it must be a number")
+        return stored.numbers[key]
 
-        model = ProbeModel(number("diameter_mm"), number("length_mm"), tuple(float(v) for v in row("stripe_centres_mm")),
-                           number("stripe_width_mm"),
-                           *(tuple(int(v) for v in row(k, 3)) for k in ("stripe_bgr", "body_bgr", "hsv_low", "hsv_high")),
-                           **({} if fs.getNode("working_range_mm").empty() else
-                              {"working_range_mm": tuple(float(v) for v in row("working_range_mm", 2))}))
-    finally:
-        fs.release()
+    def row(key, n=None):
+        if key not in stored.matrices:
+            raise ValueError(f"{path}: probe model lacks {key}" if key not in stored.keys else
+                             f"{path}: {key} is {stored.kind(key)}; it must be an opencv-matrix")
+        values = stored.matrices[key].ravel()
+        if n is not None and len(values) != n:
+            raise ValueError(f"{path}: {key} needs {n} values")
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"{path}: {key} holds NaN or infinite values")
+        return values
+
+    model = ProbeModel(number("diameter_mm"), number("length_mm"), tuple(float(v) for v in row("stripe_centres_mm")),
+                       number("stripe_width_mm"),
+                       *(tuple(int(v) for v in row(k, 3)) for k in ("stripe_bgr", "body_bgr", "hsv_low", "hsv_high")),
+                       **({} if "working_range_mm" not in stored.keys else
+                          {"working_range_mm": tuple(float(v) for v in row("working_range_mm", 2))}))
     if model.diameter_mm <= 0 or len(model.stripe_centres_mm) < 2:
         raise ValueError(f"{path}: a probe needs a positive diameter and at least two stripes")
     near, far = model.working_range_mm

@@ -1,4 +1,6 @@
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -81,8 +83,34 @@ def test_foreign_files_give_a_clear_error(tmp_path):
     (tmp_path / "bin.csv").write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
     with pytest.raises(NodeFileError, match="not a text node file"):
         read_nodes(tmp_path / "bin.csv")
-    with pytest.raises(NodeFileError, match="no such file"):
+    with pytest.raises(NodeFileError, match="no such node file"):
         read_nodes(tmp_path / "missing.csv")
+
+
+def test_special_files_are_not_read(tmp_path):
+    os.mkfifo(tmp_path / "fifo.csv")                 # a pipe would block the reader, /dev/zero never end
+    for path in (tmp_path / "fifo.csv", Path("/dev/zero"), Path("/dev/null")):
+        with pytest.raises(NodeFileError, match="not a regular file"):
+            read_nodes(path)
+    (tmp_path / "folder.csv").mkdir()
+    with pytest.raises(NodeFileError, match="is a folder"):
+        read_nodes(tmp_path / "folder.csv")
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("semicolon.csv", "id;label;x;y;z\nP1;a;1;2;3\n", "separated by semicolons: node files are comma-separated"),
+    ("tab.csv", "id\tlabel\tx\ty\tz\nP1\ta\t1\t2\t3\n", "separated by tabs"),
+    ("field.csv", "id,label,x,y,z\nP1," + "A" * 140_000 + ",1,2,3\n", "not a readable CSV"),
+    ("huge.csv", "id,label,x,y,z\nP1,a," + "9" * 400 + ",2,3\n", "must be finite"),
+    ("deep.mrk.json", "[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    ("huge.mrk.json", '{"markups":[{"controlPoints":[{"position":[' + "9" * 400 + ',0,0]}]}]}', "too large for mm"),
+    ("digits.mrk.json", '{"markups":[{"controlPoints":[{"position":[' + "9" * 5000 + ',0,0]}]}]}', "not valid JSON"),
+])
+def test_hostile_node_files_are_refused_in_one_sentence(tmp_path, name, content, message):
+    (tmp_path / name).write_text(content)
+    with pytest.raises(NodeFileError, match=message) as err:
+        read_nodes(tmp_path / name)
+    assert "\n" not in str(err.value)
 
 
 label_text = st.text(alphabet=st.characters(blacklist_categories=("Cs", "Cc")), max_size=12).map(str.strip)

@@ -10,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from snreg.files import read_image
+
 __all__ = ["expand_globs", "read_grey"]
 
 
@@ -28,7 +30,4 @@ def expand_globs(patterns: str | Sequence[str], side: str) -> list[str]:
 
 def read_grey(path: str) -> np.ndarray:
     """An image file as 8-bit grey; ValueError when it is not a readable image."""
-    image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise ValueError(f"{path}: not a readable image")
-    return image
+    return read_image(path, cv2.IMREAD_GRAYSCALE)

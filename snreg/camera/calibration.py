@@ -18,7 +18,8 @@ import numpy as np
 
 from snreg import __version__
 from snreg.errors import CalibrationFileError
-from snreg.files import atomic_write, open_for_reading
+from snreg.camera.plausibility import check_bounds, check_rectification
+from snreg.files import atomic_write, read_storage
 
 __all__ = ["StereoCalibration", "CalibrationFileError", "load_calibration", "save_calibration", "thesis_calibration",
            "calibration_from_arrays", "missing_keys_message", "REQUIRED_KEYS", "THESIS_CALIBRATION_PATH"]
@@ -98,30 +99,28 @@ def save_calibration(calib: StereoCalibration, path: str | Path) -> None:
 
 
 def load_calibration(path: str | Path) -> StereoCalibration:
-    """Read a snreg calibration file; :class:`CalibrationFileError` names the keys found and those expected.
+    """Read a snreg calibration file; :class:`CalibrationFileError` names the keys found and those expected, or the
+    value that is wrong.
 
     The rectification ``R1 R2 P1 P2 Q`` may be absent: it is then computed (``cv2.stereoRectify``, as
     :meth:`StereoCalibration.from_pair`) from the rest and the image size.
     """
     path = Path(path)
-    fs = open_for_reading(path, "calibration", CalibrationFileError)
-    try:
-        keys = tuple(fs.root().keys())
-        matrices = {name: np.asarray(fs.getNode(name).mat(), dtype=float) for name in _MATRICES
-                    if not fs.getNode(name).empty() and fs.getNode(name).isMap()}
-        numbers = {key: fs.getNode(key).real() for key in ("image_width", "image_height", "rms_reprojection_px",
-                                                           "board_cols", "board_rows", "square_mm", "n_views")
-                   if fs.getNode(key).isReal() or fs.getNode(key).isInt()}
-        texts = {key: fs.getNode(key).string() for key in ("created_utc", "snreg_version")
-                 if not fs.getNode(key).empty() and fs.getNode(key).isString()}
-    finally:
-        fs.release()
+    stored = read_storage(path, "calibration", CalibrationFileError)
+    matrices = {name: stored.matrices[name] for name in _MATRICES if name in stored.matrices}
+    numbers = {key: stored.numbers[key] for key in ("image_width", "image_height", "rms_reprojection_px", "board_cols",
+                                                    "board_rows", "square_mm", "n_views") if key in stored.numbers}
+    texts = {key: stored.texts[key] for key in ("created_utc", "snreg_version") if key in stored.texts}
+    wrong = [k for k in REQUIRED_KEYS + _RECTIFICATION if k in stored.keys and k not in matrices and k not in numbers]
+    if wrong:
+        expected = "a whole number of pixels" if wrong[0].startswith("image_") else "an opencv-matrix"
+        raise CalibrationFileError(f"{path}: {wrong[0]} is {stored.kind(wrong[0])}; it must be {expected}")
     missing = [k for k in REQUIRED_KEYS if k not in matrices and k not in numbers]
     if missing:
-        raise CalibrationFileError(f"{path}: {missing_keys_message(keys, missing)}")
+        raise CalibrationFileError(f"{path}: {missing_keys_message(stored.keys, missing)}")
     meta = {"rms_reprojection_px": numbers.get("rms_reprojection_px", float("nan")),
-            "board_cols": int(numbers.get("board_cols", 0)), "board_rows": int(numbers.get("board_rows", 0)),
-            "square_mm": numbers.get("square_mm", 0.0), "n_views": int(numbers.get("n_views", 0)), **texts}
+            "board_cols": _count(numbers.get("board_cols", 0)), "board_rows": _count(numbers.get("board_rows", 0)),
+            "square_mm": numbers.get("square_mm", 0.0), "n_views": _count(numbers.get("n_views", 0)), **texts}
     size = (numbers["image_width"], numbers["image_height"])
     rectification = [k for k in _RECTIFICATION if k in matrices]
     if rectification and len(rectification) < len(_RECTIFICATION):
@@ -132,6 +131,11 @@ def load_calibration(path: str | Path) -> StereoCalibration:
         return calibration_from_arrays(size, matrices, meta)
     except ValueError as err:
         raise CalibrationFileError(f"{path}: {err}") from None
+
+
+def _count(value: float) -> int:
+    """A count from the file's metadata (views, board corners); 0 when it is not a sensible whole number."""
+    return int(value) if np.isfinite(value) and 0 <= value < 1e9 else 0
 
 
 def missing_keys_message(found: tuple[str, ...], missing: list[str]) -> str:
@@ -147,9 +151,10 @@ def missing_keys_message(found: tuple[str, ...], missing: list[str]) -> str:
 def calibration_from_arrays(image_size, matrices: dict[str, np.ndarray], meta: dict | None = None) -> StereoCalibration:
     """A checked :class:`StereoCalibration` from ``K1 D1 K2 D2 R T`` (and optionally ``R1 R2 P1 P2 Q``).
 
-    Rectification is computed when absent; given, it must agree with ``T`` (the rectified baseline).
-    Raises ``ValueError`` saying which value is wrong: non-positive image size, wrong shape, NaN or
-    infinite entries, a focal length that is not positive, an ``R`` that is not a rotation, a zero ``T``.
+    Rectification is computed when absent; given, it must follow from ``R`` and ``T``
+    (:func:`~snreg.camera.plausibility.check_rectification`). Raises ``ValueError`` saying which value is wrong:
+    non-positive image size, wrong shape, NaN or infinite entries, a focal length that is not positive, an ``R`` that
+    is not a rotation, a zero ``T``, a value beyond any plausible camera (:func:`~snreg.camera.plausibility.check_bounds`).
     """
     meta = dict(meta or {})
     width, height = (float(v) for v in image_size)
@@ -183,16 +188,18 @@ def calibration_from_arrays(image_size, matrices: dict[str, np.ndarray], meta: d
     R = values["R"]
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
         raise ValueError("R is not a rotation matrix (R R^T must be the identity and det R = +1)")
-    baseline = float(np.linalg.norm(values["T"]))
-    if not baseline > 0:
+    with np.errstate(over="ignore"):
+        baseline = float(np.linalg.norm(values["T"]))
+    if not baseline > 1e-6:
         raise ValueError("T is zero: the two cameras cannot be in one place")
+    check_bounds(size, values)
     if "R1" not in values:
         return StereoCalibration.from_pair(size, *(values[k] for k in ("K1", "D1", "K2", "D2", "R", "T")), **meta)
-    P2 = values["P2"]
-    rectified_baseline = float(np.hypot(P2[0, 3], P2[1, 3]) / P2[0, 0]) if P2[0, 0] else float("nan")
-    if not abs(rectified_baseline - baseline) <= 0.01 * baseline:
-        raise ValueError(f"the rectification (P2: baseline {rectified_baseline:g}) does not belong to T "
-                         f"(baseline {baseline:g}); leave R1 R2 P1 P2 Q out and snreg computes them")
+    try:
+        check_rectification(values)
+    except ValueError as err:
+        raise ValueError(f"the given rectification does not follow from K1 D1 K2 D2 R T: {err}; leave R1 R2 P1 P2 Q "
+                         "out and snreg computes them") from None
     return StereoCalibration(size, **values, **meta)
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from snreg.camera.calibration import StereoCalibration, calibration_from_arrays
 from snreg.errors import CalibrationFileError
-from snreg.files import open_for_reading
+from snreg.files import read_storage, read_text_file
 
 __all__ = ["ImportedCalibration", "import_calibration", "LAYOUTS"]
 
@@ -44,6 +44,7 @@ _NIFTK_ROLES = {"left intrinsics": r"calib\.left\.intrinsics?\.(txt|xml)", "left
                 "l2r": r"calib\.l2r\.(txt|4x4)"}
 _NIFTK_NAME = re.compile(r"(^|\.)calib\.(left|right|r2l|l2r)\.")
 _STORAGE_SUFFIXES = (".yml", ".yaml", ".xml", ".json", ".gz")
+_MATRIX_KEYS = ("M1", "M2", "K1", "K2", "D1", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q")
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ def import_calibration(sources: Sequence[str | Path], image_size: tuple[int, int
         layout, size, matrices = _file_storage([f for f in files if f.suffix.lower() in _STORAGE_SUFFIXES] or files,
                                                _label(sources))
     if size is not None and image_size is not None and tuple(size) != tuple(image_size):
-        raise CalibrationFileError(f"{_label(sources)}: the files are for {size[0]}x{size[1]} images but "
+        raise CalibrationFileError(f"{_label(sources)}: the files are for {size[0]:g}x{size[1]:g} images but "
                                    f"{image_size[0]}x{image_size[1]} was given; give the size the calibration was made at")
     size = size if size is not None else image_size
     if size is None:
@@ -109,26 +110,26 @@ def _file_storage(files: list[Path], label: str) -> tuple[str, tuple[int, int] |
     values: dict[str, np.ndarray] = {}
     numbers: dict[str, float] = {}
     origin: dict[str, str] = {}
+    broken: dict[str, str] = {}
     for path in files:
-        fs = open_for_reading(path, "calibration", CalibrationFileError)
-        try:
-            for key in fs.root().keys():
-                node = fs.getNode(key)
-                if key in origin:
-                    raise CalibrationFileError(f"{label}: {key} appears in both {origin[key]} and {path.name}; "
-                                               "give each key once")
-                origin[key] = path.name
-                if node.isMap() and node.mat() is not None:
-                    values[key] = np.asarray(node.mat(), dtype=float)
-                elif node.isReal() or node.isInt():
-                    numbers[key] = node.real()
-        finally:
-            fs.release()
+        stored = read_storage(path, "calibration", CalibrationFileError)
+        for key in stored.keys:
+            if key in origin:
+                raise CalibrationFileError(f"{label}: {key} appears in both {origin[key]} and {path.name}; "
+                                           "give each key once")
+            origin[key] = path.name
+        values.update(stored.matrices)
+        numbers.update(stored.numbers)
+        broken.update({key: why for key, why in stored.broken.items() if key in _MATRIX_KEYS})
     opencv = "M1" in values or "M2" in values
     if opencv and ("K1" in values or "K2" in values):
         raise CalibrationFileError(f"{label}: holds both M1/M2 (OpenCV) and K1/K2 (snreg) camera matrices; give one set")
     names = {"K1": "M1", "K2": "M2"} if opencv else {}
     expected = [names.get(k, k) for k in ("K1", "D1", "K2", "D2", "R", "T")]
+    wrong = [k for k in expected if k in broken or (k in origin and k not in values)]
+    if wrong:
+        raise CalibrationFileError(f"{label}: {wrong[0]} in {origin[wrong[0]]} is "
+                                   f"{broken.get(wrong[0]) or 'a single number or text'}; it must be an opencv-matrix")
     missing = [k for k in expected if k not in values]
     if missing:
         found = "; ".join(f"{name}: {', '.join(k for k, o in origin.items() if o == name)}"
@@ -141,7 +142,7 @@ def _file_storage(files: list[Path], label: str) -> tuple[str, tuple[int, int] |
         matrices.update({k: values[k] for k in rectification})
     size = None
     if "image_width" in numbers and "image_height" in numbers:
-        size = (int(numbers["image_width"]), int(numbers["image_height"]))
+        size = (numbers["image_width"], numbers["image_height"])
     return ("OpenCV stereo_calib" if opencv else "snreg keys"), size, matrices
 
 
@@ -191,21 +192,15 @@ def _rigid(matrix: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray]:
 def _matrix(path: Path) -> np.ndarray:
     """The numbers of a text file (rows of whitespace- or comma-separated numbers) or the one matrix of an XML/YAML file."""
     if path.suffix.lower() in _STORAGE_SUFFIXES:
-        fs = open_for_reading(path, "calibration matrix", CalibrationFileError)
-        try:
-            keys = fs.root().keys()
-            node = fs.getNode(keys[0]) if keys else None
-            matrix = node.mat() if node is not None and node.isMap() else None
-        finally:
-            fs.release()
-        if matrix is None:
-            raise CalibrationFileError(f"{path}: holds no OpenCV matrix (expected one <type_id=\"opencv-matrix\"> node)")
-        return np.asarray(matrix, dtype=float)
+        stored = read_storage(path, "calibration matrix", CalibrationFileError)
+        first = stored.keys[0] if stored.keys else None
+        if first not in stored.matrices:
+            raise CalibrationFileError(f"{path}: holds no OpenCV matrix (expected one <type_id=\"opencv-matrix\"> node"
+                                       + (f"; {first} is {stored.kind(first)})" if first else ")"))
+        return stored.matrices[first]
+    text = read_text_file(path, "calibration matrix", CalibrationFileError, max_bytes=1 << 20).replace(",", " ")
     try:
-        text = path.read_text(encoding="utf-8").replace(",", " ")
         rows = [[float(v) for v in line.split()] for line in text.splitlines() if line.strip()]
-    except (OSError, UnicodeDecodeError):
-        raise CalibrationFileError(f"{path}: cannot read it as a text file of numbers") from None
     except ValueError:
         raise CalibrationFileError(f"{path}: holds something that is not a number; expected rows of numbers") from None
     if not rows or len({len(r) for r in rows}) != 1:

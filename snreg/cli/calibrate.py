@@ -158,6 +158,9 @@ def _frame_size(path: str) -> tuple[int, int]:
     """(width, height) of an image file."""
     import cv2
 
+    from snreg.files import require_regular_file
+
+    require_regular_file(path, "--frame image", UserError)
     image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise UserError(f"{path}: not a readable image; give --frame an image from the calibrated camera, or --image-size WxH")

@@ -36,9 +36,8 @@ def add_track_parser(subparsers) -> None:
 
 
 def cmd_track(args) -> int:
-    import cv2
-
     from snreg.camera import CalibrationFileError, load_calibration
+    from snreg.files import read_image
     from snreg.probe import load_probe_model
     from snreg.tracking import StereoTracker, TrackingError
 
@@ -47,12 +46,7 @@ def cmd_track(args) -> int:
         probe = load_probe_model(args.probe)
     except (CalibrationFileError, ValueError) as err:
         raise UserError(str(err)) from None
-    images = []
-    for path in (args.left, args.right):
-        image = cv2.imread(path, cv2.IMREAD_COLOR)
-        if image is None:
-            raise UserError(f"{path}: not a readable image")
-        images.append(image)
+    images = [read_image(path, error=UserError) for path in (args.left, args.right)]
     try:
         tracker = StereoTracker(calibration, probe, method=args.method, depth_range_mm=args.depth_range)
         fix = tracker.track(*images)

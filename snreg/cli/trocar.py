@@ -155,17 +155,21 @@ def _read_orientations(path: str, n_images: int):
     import numpy as np
     from scipy.spatial.transform import Rotation
 
+    from snreg.files import read_text_file
+
+    text = read_text_file(path, "IMU orientation", ValueError, max_bytes=16 << 20)
     try:
-        with open(path, newline="", encoding="utf-8-sig") as stream:
-            rows = list(csv.DictReader(line for line in stream if not line.lstrip().startswith("#")))
-    except (OSError, UnicodeDecodeError) as err:
-        raise ValueError(f"{path}: cannot read the IMU file ({getattr(err, 'strerror', None) or 'not UTF-8 text'})") from None
+        rows = list(csv.DictReader(line for line in text.splitlines() if not line.lstrip().startswith("#")))
+    except csv.Error as err:
+        raise ValueError(f"{path}: not a readable CSV ({err})") from None
     if not rows or not {"yaw", "pitch", "roll"} <= set(rows[0]):
         raise ValueError(f"{path}: the IMU file needs a header with the columns yaw,pitch,roll (degrees)")
     try:
         angles = np.array([[float(row["yaw"]), float(row["pitch"]), float(row["roll"])] for row in rows])
     except (TypeError, ValueError):
         raise ValueError(f"{path}: yaw, pitch and roll must be numbers (degrees) in every row") from None
+    if not np.all(np.isfinite(angles)):
+        raise ValueError(f"{path}: yaw, pitch and roll must be finite numbers (degrees) in every row")
     if len(angles) != n_images:
         raise ValueError(f"{path} has {len(angles)} IMU rows for {n_images} images; give one row per image")
     return Rotation.from_euler("ZYX", angles, degrees=True)

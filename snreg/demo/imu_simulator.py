@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.demo.imu_motion import MotionProfile, still
+from snreg.files import read_text_file
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US, StreamCounts, format_info, format_line
 
 __all__ = ["SensorModel", "Faults",
@@ -214,13 +215,13 @@ class CsvReplay(_LineSource):
     def __init__(self, path, *, faults: Faults = Faults(), seed: int = 0):
         super().__init__(faults, seed)
         self.path = str(path)
+        text = read_text_file(path, "IMU CSV", ValueError)
         try:
-            with open(path, newline="", encoding="utf-8") as f:
-                rows = list(csv.reader(f))
+            rows = list(csv.reader(text.splitlines()))
             columns = [rows[0].index(name) for name in _CSV_COLUMNS]
             text = [[row[c] for c in columns] for row in rows[1:] if row]
             values = np.array(text, dtype=float)
-        except (OSError, UnicodeDecodeError, IndexError, ValueError) as err:
+        except (csv.Error, IndexError, ValueError) as err:
             raise ValueError(f"{path}: not a readable IMU CSV with columns {', '.join(_CSV_COLUMNS)} ({err})") from None
         steps = np.diff(values[:, 0]) if len(values) else np.array([])
         if len(values) < 2 or not np.all(np.isfinite(values)) or np.any(steps <= 0):

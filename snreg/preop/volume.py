@@ -10,14 +10,18 @@ node positions are then only meaningful relative to each other.
 
 from __future__ import annotations
 
+import struct
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pydicom
 from pydicom.errors import InvalidDicomError
+from pydicom.multival import MultiValue
 
 from snreg.errors import PreopError
+from snreg.files import require_regular_file
 
 __all__ = ["Volume", "PreopError", "load_volume"]
 
@@ -52,8 +56,15 @@ class Volume:
 def load_volume(path, *, modality: str | None = None) -> Volume:
     """The volume in ``path``: a multi-frame file, a directory of one series, or a list of files.
 
-    ``modality`` (e.g. ``"NM"``) rejects files of another modality. Raises :class:`PreopError`.
+    ``modality`` (e.g. ``"NM"``) rejects files of another modality. Raises :class:`PreopError`; pydicom's own
+    warnings about a file's oddities stay off the terminal (what matters is checked and said here).
     """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return _load(path, modality)
+
+
+def _load(path, modality: str | None) -> Volume:
     datasets = _read_all(path)
     found = {str(ds.get("Modality", "")) for ds in datasets}
     if modality and found != {modality}:
@@ -84,9 +95,12 @@ def _read_all(path) -> list:
         files = sorted(p for p in path.iterdir() if p.is_file()) if skip_non_dicom else [path]
     datasets = []
     for file in files:
+        if not skip_non_dicom:
+            require_regular_file(file, "DICOM", PreopError)
         try:
             datasets.append(pydicom.dcmread(file))
-        except (InvalidDicomError, OSError, ValueError, EOFError):
+        except (InvalidDicomError, OSError, ValueError, EOFError, TypeError, KeyError, AttributeError, IndexError,
+                OverflowError, NotImplementedError, struct.error):      # what pydicom raises on a damaged file
             if not skip_non_dicom:
                 raise PreopError(f"{file} is not a readable DICOM file") from None
     if not datasets:
@@ -105,8 +119,12 @@ def _pixels(ds, source: str) -> np.ndarray:
         if syntax is None or not syntax.is_compressed:
             expected = (int(ds.get("Rows", 0)) * int(ds.get("Columns", 0)) * int(ds.get("NumberOfFrames", 1) or 1)
                         * int(ds.get("SamplesPerPixel", 1)) * int(ds.get("BitsAllocated", 16)) // 8)
-            raise PreopError(f"{source}: the uncompressed pixel data is incomplete ({len(ds.PixelData)} of {expected} "
-                             "bytes; the file is probably truncated); copy or export it again") from None
+            if len(ds.PixelData) < expected:
+                raise PreopError(f"{source}: the uncompressed pixel data is incomplete ({len(ds.PixelData)} of "
+                                 f"{expected} bytes; the file is probably truncated); copy or export it again") from None
+            raise PreopError(f"{source}: the pixel data ({len(ds.PixelData)} bytes) does not match what Rows, Columns, "
+                             f"NumberOfFrames, SamplesPerPixel and BitsAllocated say ({expected} bytes); the file's "
+                             "header is broken") from None
         raise PreopError(f"{source}: the pixel data ({syntax.name}) cannot be decoded by the installed decoders; "
                          "export it uncompressed") from None
     if ds.get("SamplesPerPixel", 1) != 1:
@@ -114,14 +132,71 @@ def _pixels(ds, source: str) -> np.ndarray:
     return np.asarray(raw, dtype=np.float32).reshape(-1, ds.Rows, ds.Columns)
 
 
-def _real_units(ds, stored: np.ndarray) -> np.ndarray:
+def _real_units(ds, stored: np.ndarray, source: str = "the file") -> np.ndarray:
     """Stored values to real units: a simple linear RealWorldValueMapping for NM, else Rescale."""
-    slope, intercept = float(ds.get("RescaleSlope", 1) or 1), float(ds.get("RescaleIntercept", 0) or 0)
+    names = ("RescaleSlope", "RescaleIntercept")
+    slope, intercept = ds.get("RescaleSlope", 1) or 1, ds.get("RescaleIntercept", 0) or 0
     mapping = ds.get("RealWorldValueMappingSequence")
     if ds.get("Modality") == "NM" and mapping and "RealWorldValueSlope" in mapping[0]:
-        slope = float(mapping[0].RealWorldValueSlope)
-        intercept = float(mapping[0].get("RealWorldValueIntercept", 0))
-    return (stored * np.float32(slope) + np.float32(intercept)).astype(np.float32)
+        names = ("RealWorldValueSlope", "RealWorldValueIntercept")
+        slope, intercept = mapping[0].RealWorldValueSlope, mapping[0].get("RealWorldValueIntercept", 0)
+    slope, intercept = (float(_numbers(v, 1, name, source)[0]) for v, name in zip((slope, intercept), names))
+    with np.errstate(over="ignore", invalid="ignore"):
+        voxels = (stored * np.float32(slope) + np.float32(intercept)).astype(np.float32)
+    if not np.all(np.isfinite(voxels)):
+        raise PreopError(f"{source}: {names[0]} {slope:g} and {names[1]} {intercept:g} take the values beyond what a "
+                         "volume can hold; the file's header is broken")
+    return voxels
+
+
+MAX_PATIENT_MM = 1e5           # 100 m from the scanner's origin: anything beyond is a broken header
+MAX_VOXEL_MM = 1000.0
+MIN_VOXEL_MM = 1e-3            # a micrometre: no SPECT or CT voxel is smaller
+_UNIT_TOLERANCE = 1e-3         # DICOM writes direction cosines to a few decimals
+
+
+def _numbers(value, count: int, name: str, source: str) -> np.ndarray:
+    """``count`` finite numbers from a DICOM multi-value, else a PreopError naming the attribute."""
+    items = list(value) if isinstance(value, (list, tuple, MultiValue)) else [value]
+    try:
+        values = np.array([float(v) for v in items], dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise PreopError(f"{source}: {name} holds something that is not a number") from None
+    if values.size != count:
+        raise PreopError(f"{source}: {name} has {values.size} value(s), not {count}")
+    if not np.all(np.isfinite(values)):
+        raise PreopError(f"{source}: {name} holds NaN or infinite values")
+    return values
+
+
+def _orientation(iop, source: str) -> np.ndarray:
+    """ImageOrientationPatient as two unit, perpendicular direction cosines (6,)."""
+    values = _numbers(iop, 6, "ImageOrientationPatient", source)
+    row, column = values[:3], values[3:]
+    if abs(np.linalg.norm(row) - 1) > _UNIT_TOLERANCE or abs(np.linalg.norm(column) - 1) > _UNIT_TOLERANCE:
+        raise PreopError(f"{source}: ImageOrientationPatient is not two unit vectors (lengths "
+                         f"{np.linalg.norm(row):.3g} and {np.linalg.norm(column):.3g}); the file's geometry is broken")
+    if abs(float(np.dot(row, column))) > _UNIT_TOLERANCE:
+        raise PreopError(f"{source}: ImageOrientationPatient gives rows and columns that are not perpendicular "
+                         f"(cosine {float(np.dot(row, column)):.3g}); the file's geometry is broken")
+    return values
+
+
+def _pixel_spacing(spacing, source: str) -> np.ndarray:
+    """PixelSpacing (row, column) mm: two positive finite numbers."""
+    values = _numbers(spacing, 2, "PixelSpacing", source)
+    if not np.all((values >= MIN_VOXEL_MM) & (values <= MAX_VOXEL_MM)):
+        raise PreopError(f"{source}: PixelSpacing {values[0]:g}, {values[1]:g} mm is not a voxel size (each must lie "
+                         f"from {MIN_VOXEL_MM:g} to {MAX_VOXEL_MM:g} mm)")
+    return values
+
+
+def _position(ipp, source: str) -> np.ndarray:
+    values = _numbers(ipp, 3, "ImagePositionPatient", source)
+    if np.abs(values).max() > MAX_PATIENT_MM:
+        raise PreopError(f"{source}: ImagePositionPatient lies {np.abs(values).max():.3g} mm from the origin; the "
+                         "file's geometry is broken")
+    return values
 
 
 def _affine(iop, ipp, pixel_spacing, slice_vector) -> np.ndarray:
@@ -134,13 +209,17 @@ def _affine(iop, ipp, pixel_spacing, slice_vector) -> np.ndarray:
     return affine
 
 
-def _slice_spacing(ds) -> float | None:
+def _slice_spacing(ds, name: str = "the file") -> float | None:
     for source in (ds, _shared_item(ds, "PixelMeasuresSequence")):
         if source is None:
             continue
         for key in ("SpacingBetweenSlices", "SliceThickness"):
             if source.get(key):
-                return abs(float(source.get(key)))
+                step = abs(float(_numbers(source.get(key), 1, key, name)[0]))
+                if not MIN_VOXEL_MM <= step <= MAX_VOXEL_MM:
+                    raise PreopError(f"{name}: {key} {step:g} mm is not a slice spacing (it must lie from "
+                                     f"{MIN_VOXEL_MM:g} to {MAX_VOXEL_MM:g} mm)")
+                return step
     return None
 
 
@@ -158,7 +237,7 @@ def _from_multiframe(ds, source: str) -> Volume:
         raise PreopError(f"{source} holds NM {image_type[2].lower()} images, not a reconstructed SPECT volume")
     if len(stored) < 2:
         raise PreopError(f"{source} is a single 2D image, not a volume")
-    voxels = _real_units(ds, stored)
+    voxels = _real_units(ds, stored, source)
     spacing = ds.get("PixelSpacing") or getattr(_shared_item(ds, "PixelMeasuresSequence"), "PixelSpacing", None)
     iop, ipp = ds.get("ImageOrientationPatient"), ds.get("ImagePositionPatient")
     detector = ds.get("DetectorInformationSequence")
@@ -166,14 +245,16 @@ def _from_multiframe(ds, source: str) -> Volume:
         iop, ipp = detector[0].ImageOrientationPatient, detector[0].get("ImagePositionPatient")
     orientation = _shared_item(ds, "PlaneOrientationSequence")
     per_frame = ds.get("PerFrameFunctionalGroupsSequence")
+    spacing = None if spacing is None else _pixel_spacing(spacing, source)
     if iop is None and orientation is not None and per_frame:
-        iop = orientation.ImageOrientationPatient
-        positions = [np.asarray(f.PlanePositionSequence[0].ImagePositionPatient, float) for f in per_frame]
+        iop = _orientation(orientation.ImageOrientationPatient, source)
+        positions = [_position(f.PlanePositionSequence[0].ImagePositionPatient, source) for f in per_frame]
         return _volume(voxels, iop, positions, spacing, None, ds, source)
-    slice_step = _slice_spacing(ds)
+    slice_step = _slice_spacing(ds, source)
     if iop is None or ipp is None or spacing is None or slice_step is None:
         return _default_placement(voxels, spacing, slice_step, ds, source)
-    normal = np.cross(np.asarray(iop[:3], float), np.asarray(iop[3:], float))
+    iop, ipp = _orientation(iop, source), _position(ipp, source)
+    normal = np.cross(iop[:3], iop[3:])
     return Volume(voxels, _affine(iop, ipp, spacing, normal * slice_step), str(ds.Modality))
 
 
@@ -183,10 +264,12 @@ def _from_slices(datasets, source: str) -> Volume:
     if iop is None or spacing is None or any("ImagePositionPatient" not in ds for ds in datasets):
         raise PreopError(f"{source}: the slices lack ImagePositionPatient/ImageOrientationPatient/PixelSpacing, "
                          "so they cannot be stacked in order")
-    normal = np.cross(np.asarray(iop[:3], float), np.asarray(iop[3:], float))
-    datasets = sorted(datasets, key=lambda ds: float(np.dot(normal, np.asarray(ds.ImagePositionPatient, float))))
-    stored = np.concatenate([_real_units(ds, _pixels(ds, source)) for ds in datasets])
-    positions = [np.asarray(ds.ImagePositionPatient, float) for ds in datasets]
+    iop, spacing = _orientation(iop, source), _pixel_spacing(spacing, source)
+    normal = np.cross(iop[:3], iop[3:])
+    where = {id(ds): _position(ds.ImagePositionPatient, source) for ds in datasets}
+    datasets = sorted(datasets, key=lambda ds: float(np.dot(normal, where[id(ds)])))
+    stored = np.concatenate([_real_units(ds, _pixels(ds, source), source) for ds in datasets])
+    positions = [where[id(ds)] for ds in datasets]
     return _volume(stored, iop, positions, spacing, normal, first, source)
 
 
@@ -205,11 +288,11 @@ def _volume(voxels, iop, positions, spacing, normal, ds, source: str) -> Volume:
 
 
 def _default_placement(voxels, spacing, slice_step, ds, source: str) -> Volume:
-    pixel = [float(v) for v in spacing] if spacing else [1.0, 1.0]
+    pixel = [float(v) for v in spacing] if spacing is not None else [1.0, 1.0]
     step = slice_step or 1.0
     affine = np.diag([pixel[1], pixel[0], step, 1.0])
     warning = (f"{source} carries no patient position/orientation; the volume is placed with identity "
                f"orientation at the origin ({pixel[1]:g} x {pixel[0]:g} x {step:g} mm voxels"
-               f"{'' if spacing and slice_step else ', some sizes assumed 1 mm'}), so node positions are "
+               f"{'' if spacing is not None and slice_step else ', some sizes assumed 1 mm'}), so node positions are "
                "relative to the volume corner, not to the patient")
     return Volume(voxels, affine, str(ds.get("Modality", "")), placed_by_default=True, warnings=(warning,))
