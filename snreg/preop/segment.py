@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
+from snreg.files import read_text_file
 from snreg.labels import parse_label
 from snreg.nodes import PREOP_PREFIX, NodeSet
 from snreg.preop.volume import PreopError, Volume
@@ -24,6 +26,7 @@ from snreg.preop.volume import PreopError, Volume
 __all__ = ["PreopNodes", "segment_nodes", "read_station_table", "side_labels"]
 
 KMEANS_ITERATIONS = 30
+MAX_NODES = 100          # more peaks than this above the threshold: the threshold is in the noise, not the nodes
 
 
 @dataclass(frozen=True)
@@ -55,8 +58,8 @@ def segment_nodes(volume: Volume, *, threshold: float = 0.3, n_nodes: int | None
     """
     if not 0.0 < threshold < 1.0:
         raise PreopError(f"the threshold is relative to the maximum and must lie between 0 and 1, not {threshold:g}")
-    if n_nodes is not None and n_nodes < 1:
-        raise PreopError(f"the number of nodes must be at least 1, not {n_nodes}")
+    if n_nodes is not None and not 1 <= n_nodes <= MAX_NODES:
+        raise PreopError(f"the number of nodes must be at least 1 and at most {MAX_NODES}, not {n_nodes}")
     voxels = volume.voxels
     peak_value = float(voxels.max()) if voxels.size else 0.0
     if not np.isfinite(peak_value) or peak_value <= 0 or float(voxels.min()) >= peak_value:
@@ -69,10 +72,16 @@ def segment_nodes(volume: Volume, *, threshold: float = 0.3, n_nodes: int | None
     seeds = _seeds(smooth, mask, components, n_components, spacing_zyx, min_separation_mm)
     if n_nodes is not None:
         seeds = _choose(seeds, smooth, n_nodes, components, spacing_zyx, min_separation_mm)
+    found = sum(len(chosen) for chosen in seeds.values())
+    if found > MAX_NODES:
+        raise PreopError(f"the threshold {threshold:g} x maximum selects {int(mask.sum())} voxels in {n_components} hot "
+                         f"spot(s) with {found} peaks: more than the {MAX_NODES} nodes a SPECT of sentinel nodes "
+                         "shows; raise --threshold (0.3 is usual) or give --nodes")
     clusters = np.zeros(voxels.shape, dtype=np.int32)
     centres, peaks, totals = [], [], []
+    voxels_of = _component_voxels(components, list(seeds))
     for component, component_seeds in seeds.items():
-        index = np.argwhere(components == component)
+        index = voxels_of[component]
         weight = voxels[tuple(index.T)] - level      # zero at the mask edge: the cut-off adds no bias
         assignment = _kmeans(index * spacing_zyx, weight, component_seeds, spacing_zyx)
         for k in range(len(component_seeds)):
@@ -111,16 +120,17 @@ def side_labels(xyz, midline_x: float, ids, stations: dict[str, str] | None = No
 def read_station_table(path) -> dict[str, str]:
     """Node id -> station code (e.g. ``{"P1": "OBT"}``) from a CSV with columns ``id,station``."""
     path = Path(path)
+    text = read_text_file(path, "station table", PreopError, max_bytes=1 << 20)
     try:
-        rows = list(csv.DictReader(line for line in path.read_text(encoding="utf-8").splitlines()
+        rows = list(csv.DictReader(line for line in text.splitlines()
                                    if line.strip() and not line.lstrip().startswith("#")))
-    except (OSError, UnicodeDecodeError) as err:
-        raise PreopError(f"{path}: cannot read the station table ({err.__class__.__name__})") from None
+    except csv.Error as err:
+        raise PreopError(f"{path}: not a readable station table ({err})") from None
     if not rows or not {"id", "station"} <= {k.strip().lower() for k in rows[0]}:
         raise PreopError(f"{path}: a station table needs a header 'id,station' and one row per node")
     table = {}
     for row in rows:
-        row = {k.strip().lower(): (v or "").strip() for k, v in row.items()}
+        row = {k.strip().lower(): (v or "").strip() for k, v in row.items() if isinstance(k, str) and not isinstance(v, list)}
         station, _ = parse_label(row["station"])
         if not station:
             raise PreopError(f"{path}: '{row['station']}' for {row['id']} is not a known station "
@@ -130,21 +140,41 @@ def read_station_table(path) -> dict[str, str]:
 
 
 def _seeds(smooth, mask, components, n_components, spacing_zyx, min_separation_mm) -> dict[int, list]:
-    """Per component (1..n): its peaks (voxel indices), strongest first, at least min_separation_mm apart."""
+    """Per component (1..n): its peaks (voxel indices), strongest first, at least min_separation_mm apart.
+
+    Linear in the number of candidate peaks: chosen peaks are kept in a grid of cells ``min_separation_mm`` wide, so a
+    candidate is compared with the few chosen in the 27 cells around it, not with all of them."""
     local_max = (smooth == ndimage.maximum_filter(smooth, size=3)) & mask
     candidates = np.argwhere(local_max)
     values = smooth[tuple(candidates.T)]
     seeds: dict[int, list] = {c: [] for c in range(1, n_components + 1)}
+    cell_mm = max(float(min_separation_mm), 1e-9)
+    grid: dict[tuple, list] = {}
+    offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
     for k in np.argsort(values, kind="stable")[::-1]:
         peak = candidates[k]
-        chosen = seeds[int(components[tuple(peak)])]
-        if all(np.linalg.norm((peak - other) * spacing_zyx) >= min_separation_mm for other in chosen):
-            chosen.append(peak)
-    for component, chosen in seeds.items():   # a plateau-free component still has its maximum
-        if not chosen:
-            index = np.argwhere(components == component)
-            chosen.append(index[np.argmax(smooth[tuple(index.T)])])
+        component = int(components[tuple(peak)])
+        position = peak * spacing_zyx
+        cell = tuple(int(v) for v in np.floor(position / cell_mm))
+        near = (other for d in offsets for other in grid.get((component, cell[0] + d[0], cell[1] + d[1], cell[2] + d[2]), ()))
+        if all(np.linalg.norm(position - other) >= min_separation_mm for other in near):
+            seeds[component].append(peak)
+            grid.setdefault((component, *cell), []).append(position)
+    empty = [c for c, chosen in seeds.items() if not chosen]     # a plateau-free component still has its maximum
+    if empty:
+        for component, where in zip(empty, ndimage.maximum_position(smooth, components, empty)):
+            seeds[component].append(np.array(where))
     return seeds
+
+
+def _component_voxels(components: np.ndarray, wanted) -> dict[int, np.ndarray]:
+    """Voxel indices (n, 3) of each wanted component, found in one pass (not one full scan per component)."""
+    flat = components.ravel()
+    inside = np.flatnonzero(flat)
+    order = inside[np.argsort(flat[inside], kind="stable")]
+    labels, starts = np.unique(flat[order], return_index=True)
+    bounds = dict(zip(labels.tolist(), zip(starts, list(starts[1:]) + [len(order)])))
+    return {c: np.stack(np.unravel_index(order[slice(*bounds[c])], components.shape), axis=1) for c in wanted}
 
 
 def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zyx,
@@ -163,7 +193,8 @@ def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zy
                     key=lambda e: -e[0])
     for _, component, i in extras[:n_nodes - len(kept)]:
         chosen[component].append(seeds[component][i])
-    size = {c: int(np.count_nonzero(components == c)) for c in chosen}
+    counts = np.bincount(components.ravel())
+    size = {c: int(counts[c]) for c in chosen}
     full: set[int] = set()
     while sum(len(s) for s in chosen.values()) < n_nodes:
         open_components = [c for c in chosen if c not in full]
@@ -182,14 +213,18 @@ def _choose(seeds: dict[int, list], smooth, n_nodes: int, components, spacing_zy
 
 
 def _kmeans(points_mm, weight, seeds, spacing_zyx) -> np.ndarray:
-    """(P,) cluster of each point: activity-weighted Lloyd iterations from the seed voxels (deterministic)."""
+    """(P,) cluster of each point: activity-weighted Lloyd iterations from the seed voxels (deterministic); each
+    iteration is one nearest-centre query (``cKDTree``) and weighted sums (``bincount``), linear in the points."""
     centres = np.array(seeds, float) * spacing_zyx
     if len(centres) == 1:
         return np.zeros(len(points_mm), dtype=int)
+    w = weight + 1e-12
     for _ in range(KMEANS_ITERATIONS):
-        assignment = np.argmin(((points_mm[:, None, :] - centres[None]) ** 2).sum(-1), axis=1)
-        updated = np.array([np.average(points_mm[assignment == k], axis=0, weights=weight[assignment == k] + 1e-12)
-                            if np.any(assignment == k) else centres[k] for k in range(len(centres))])
+        assignment = cKDTree(centres).query(points_mm)[1]
+        mass = np.bincount(assignment, weights=w, minlength=len(centres))
+        sums = np.stack([np.bincount(assignment, weights=w * points_mm[:, a], minlength=len(centres))
+                         for a in range(3)], axis=1)
+        updated = np.where(mass[:, None] > 0, sums / np.maximum(mass, 1e-300)[:, None], centres)
         if np.allclose(updated, centres, atol=1e-3):
             break
         centres = updated
