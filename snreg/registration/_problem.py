@@ -78,7 +78,24 @@ def _as_points(name: str, value, minimum: int) -> np.ndarray:
     if np.abs(points).max() > MAX_COORDINATE_MM:
         raise ValueError(f"{name} node coordinates reach {np.abs(points).max():.3g} mm; positions must be in mm "
                          f"within {MAX_COORDINATE_MM:.0e} mm of the origin: check the units of the node file")
+    _spans_a_plane(name, points)
     return points
+
+
+DEGENERATE_MM = 0.01          # nodes closer than this to one point or one line do not fix a rotation
+
+
+def _spans_a_plane(name: str, points: np.ndarray) -> None:
+    """ValueError naming a degenerate set: all nodes at one point, or all on one line (a rotation about that line
+    would fit them equally well, so no registration is determined)."""
+    centred = points - points.mean(axis=0)
+    singular = np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))   # RMS spread along each axis
+    if singular[0] < DEGENERATE_MM:
+        raise ValueError(f"the {name} nodes coincide (all {len(points)} within {DEGENERATE_MM:g} mm of one point): "
+                         "a registration needs nodes that span a plane; check the node positions")
+    if singular[1] < DEGENERATE_MM:
+        raise ValueError(f"the {name} nodes are collinear (all {len(points)} within {DEGENERATE_MM:g} mm of one line): "
+                         "a registration needs nodes that span a plane; check the node positions")
 
 
 def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, initial=None,
