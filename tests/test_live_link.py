@@ -210,3 +210,84 @@ def test_a_taken_port_is_one_sentence(link):
         LiveLink(link.port)
     with pytest.raises(LiveLinkError, match="between 1 and 65535"):
         LiveLink(70000)
+
+
+def test_clients_beyond_the_cap_are_told_why_and_closed_and_the_others_keep_their_stream(igtl_client):
+    with LiveLink(0, max_clients=2, stall_drop_s=60.0) as link:
+        reader = igtl_client(link.port)
+        other = socket.create_connection(("127.0.0.1", link.port))
+        deadline = time.monotonic() + 10.0
+        while link.clients < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        extra = socket.create_connection(("127.0.0.1", link.port))
+        extra.settimeout(10.0)
+        said = b""
+        while chunk := extra.recv(4096):            # one Status message, then the server closes it
+            said += chunk
+        assert "clients are connected already (at most 2)" in unpack(said).string
+        assert link.clients == 2 and link.stats().refused == 1
+        for k in range(20):
+            link.show_frame(frame(make_transform(np.eye(3), [k, 0.0, 0.0])))
+            assert reader.wait_for(lambda c: len(c.messages("ProbeTipToTrocar")) == k + 1)
+        other.close()
+        extra.close()
+
+
+# Run in a process of its own whose descriptors run out: the good client connects first, then connections are
+# opened until the process has none left, so the link's accept() meets EMFILE while poses go out one by one.
+EMFILE_SCRIPT = r"""
+import resource, socket, struct, sys, threading, time
+import numpy as np
+from types import SimpleNamespace
+from snreg.workflow.live_link import LiveLink
+
+resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+link = LiveLink(0, max_clients=10_000, stall_drop_s=60.0)
+good = socket.create_connection(("127.0.0.1", link.port))
+received = []
+
+def read():
+    data = b""
+    while chunk := good.recv(65536):
+        data += chunk
+        while len(data) >= 58:
+            size = 58 + struct.unpack(">Q", data[42:50])[0]
+            if len(data) < size:
+                break
+            received.append(data[14:34].rstrip(b"\0").decode())
+            data = data[size:]
+
+threading.Thread(target=read, daemon=True).start()
+flood = []
+try:
+    while True:
+        flood.append(socket.create_connection(("127.0.0.1", link.port), timeout=1.0))
+except OSError:
+    pass
+time.sleep(0.5)                                  # the link meets EMFILE on the connections still waiting
+for k in range(40):
+    link.show_frame(SimpleNamespace(trocar_from_probe=np.eye(4)))
+    deadline = time.monotonic() + 10.0
+    while received.count("ProbeTipToTrocar") < k + 1 and time.monotonic() < deadline:
+        time.sleep(0.002)
+    if received.count("ProbeTipToTrocar") < k + 1:
+        break                                    # the link stopped serving: no use waiting for the rest
+link.set_registration(SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5))
+deadline = time.monotonic() + 10.0
+while "TrocarToRas" not in received and time.monotonic() < deadline:
+    time.sleep(0.01)
+stats = link.stats()
+print(received.count("ProbeTipToTrocar"), received.count("TrocarToRas"), len(flood), stats.refused,
+      link._thread.is_alive())
+"""
+
+
+def test_running_out_of_descriptors_never_stops_the_link_for_the_clients_it_serves():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", EMFILE_SCRIPT], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    poses, registrations, flood, refused, alive = done.stdout.split()
+    assert (int(poses), int(registrations), alive) == (40, 1, "True"), done.stdout
+    assert int(flood) > 10 and int(refused) >= 1, done.stdout       # the descriptors did run out at the link
