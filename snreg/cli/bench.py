@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from snreg.cli.common import positive_int
+from snreg.cli.common import int_range
 
 __all__ = ["add_bench_parser", "cmd_bench"]
 
@@ -13,9 +13,9 @@ def add_bench_parser(subparsers) -> None:
     p = subparsers.add_parser("bench", help="time the registration methods and the tracker",
                               description="Time every registration method on simulated cases (one process) and the "
                                           "tracker on rendered 1920x1080 stereo pairs.")
-    p.add_argument("--reps", type=positive_int, default=2, help="cases per patient and extras count")
+    p.add_argument("--reps", type=int_range(1, 1000), default=2, help="cases per patient and extras count")
     p.add_argument("--compare", action="store_true", help="also probreg CPD and Open3D ICP where installed")
-    p.add_argument("--pairs", type=positive_int, default=40, help="stereo pairs to track")
+    p.add_argument("--pairs", type=int_range(1, 10_000), default=40, help="stereo pairs to track")
     p.set_defaults(func=cmd_bench)
 
 

@@ -19,7 +19,8 @@ from pathlib import Path
 from snreg.errors import UserError
 from snreg.files import atomic_write
 
-__all__ = ["Parser", "floats", "ints", "positive_int", "non_negative_int", "seed", "positive_float", "finite_float",
+__all__ = ["Parser", "floats", "ints", "positive_int", "non_negative_int", "int_range", "float_range", "workers", "seed",
+           "positive_float", "finite_float",
            "fraction", "image_size", "depth_range", "check_output_file", "check_output_folder", "writing", "write_text",
            "read_initial", "session_initial", "progress"]
 
@@ -84,6 +85,37 @@ def _integer(text: str, low: int, what: str) -> int:
 
 def positive_int(text: str) -> int:
     return _integer(text, 1, "a whole number of at least 1")
+
+
+def int_range(low: int, high: int, unit: str = ""):
+    """An argument type: a whole number from ``low`` to ``high`` (both included)."""
+    what = f"a whole number from {low} to {high}{' ' + unit if unit else ''}"
+
+    def parse(text: str) -> int:
+        value = _integer(text, low, what)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+        return value
+    return parse
+
+
+def float_range(low: float, high: float, unit: str = "", *, low_open: bool = True):
+    """An argument type: a finite number in ``(low, high]`` (``[low, high]`` when not ``low_open``)."""
+    what = f"a number {'above' if low_open else 'from'} {low:g} {'and at most' if low_open else 'to'} {high:g}" + \
+        (f" {unit}" if unit else "")
+
+    def parse(text: str) -> float:
+        value = finite_float(text)
+        if not ((value > low) if low_open else (value >= low)) or value > high:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+    return parse
+
+
+def workers(text: str) -> int:
+    """Worker processes: 0 (one per CPU) up to the CPUs this machine has."""
+    cpus = os.cpu_count() or 1
+    return int_range(0, cpus, f"(0: one per CPU; this machine has {cpus})")(text)
 
 
 def non_negative_int(text: str) -> int:
@@ -204,11 +236,10 @@ def read_initial(path: str | None):
 
     import numpy as np
 
+    from snreg.files import read_text_file
+
     expected = 'expected a 4x4 matrix as text rows or JSON (a list of 4 rows, or {"transform": [[...], ...]})'
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as err:
-        raise UserError(f"{path}: cannot read the initial transform ({getattr(err, 'strerror', None) or err})") from None
+    text = read_text_file(path, "initial transform", UserError, max_bytes=1 << 20)
     try:
         if path.lower().endswith(".json"):
             data = json.loads(text)
@@ -220,7 +251,7 @@ def read_initial(path: str | None):
         else:
             data = np.loadtxt(text.splitlines(), delimiter="," if "," in text else None, ndmin=2)
         matrix = np.asarray(data, dtype=float)
-    except (ValueError, TypeError):
+    except (ValueError, TypeError, OverflowError, RecursionError):
         raise UserError(f"{path}: not a matrix of numbers; {expected}") from None
     if matrix.shape != (4, 4):
         raise UserError(f"{path}: the initial transform must be 4x4, got shape {matrix.shape}; {expected}")

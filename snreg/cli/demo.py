@@ -11,10 +11,11 @@ import json
 import sys
 from pathlib import Path
 
-from snreg.cli.common import check_output_file, positive_int, seed
+from snreg.cli.common import check_output_file, int_range, seed
 from snreg.errors import UserError
 
 CLIENT_WAIT_S = 30.0
+MAX_FIXES = 1000              # ~30 s of video per node
 
 
 def add_demo_parser(subparsers) -> None:
@@ -22,10 +23,11 @@ def add_demo_parser(subparsers) -> None:
     p.add_argument("--headless", action="store_true", help="no window: record, register and report (required here; "
                    "the window is 'snreg-gui --demo')")
     p.add_argument("-o", "--output", required=True, help="session file to create (.h5); the SPECT is written beside it")
-    p.add_argument("--fixes", type=positive_int, default=60, help="valid fixes per stored node (thesis: 60)")
+    p.add_argument("--fixes", type=int_range(1, MAX_FIXES), default=60,
+                   help="valid fixes per stored node (thesis: 60)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the rendered scene and the simulated IMU")
     p.add_argument("--json", action="store_true", help='print one JSON object: {"rms_mm", "pairing", "nodes", ...}')
-    p.add_argument("--igtl", type=int, metavar="PORT", default=None,
+    p.add_argument("--igtl", type=int_range(0, 65535), metavar="PORT", default=None,
                    help="serve the live link to 3D Slicer (OpenIGTLink) on this port of localhost; waits up to "
                    f"{CLIENT_WAIT_S:.0f} s for the first client before starting")
     p.set_defaults(func=cmd_demo)

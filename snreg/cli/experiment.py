@@ -9,18 +9,21 @@ from snreg.cli.common import finite_float, positive_int, progress, seed
 
 __all__ = ["add_experiment_parser"]
 
+MAX_FRAMES = 10_000
+
 
 def _frames(text: str) -> int:
     value = positive_int(text)
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"expected at least 2 frames per position (the spread needs two), got {value}")
+    if not 2 <= value <= MAX_FRAMES:
+        raise argparse.ArgumentTypeError(f"expected 2 (the spread needs two) to {MAX_FRAMES} frames per position, "
+                                         f"got {value}")
     return value
 
 
 def _noise(text: str) -> float:
     value = finite_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a noise sigma of 0 or more grey levels, got {text!r}")
+    if not 0 <= value <= 255:
+        raise argparse.ArgumentTypeError(f"expected a noise sigma from 0 to 255 grey levels, got {text!r}")
     return value
 
 

@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 
-from snreg.cli.common import check_output_file, fraction, positive_float, positive_int, seed, writing
+from snreg.cli.common import check_output_file, float_range, fraction, int_range, positive_int, seed, writing
 from snreg.errors import UserError
 
 __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
@@ -19,6 +19,9 @@ __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
 DEFAULT_BAUD = 230400        # snreg.imu.reader.DEFAULT_BAUD, the firmware's (a test keeps them equal)
 _QUEUE_SIZE = 1 << 17         # ~10 min at 208 Hz: the monitor never falls that far behind
 _STATUS_EVERY_S = 0.2
+MAX_BAUD = 12_000_000         # the fastest USB serial adapters
+MAX_SECONDS = 7 * 86400.0
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 6667.0     # the LSM6DSOX's output data rates run from 1.6 Hz (low power) to 6667 Hz
 
 
 def add_imu_parser(subparsers) -> None:
@@ -28,15 +31,17 @@ def add_imu_parser(subparsers) -> None:
 
     m = imu.add_parser("monitor", help="live yaw, pitch and roll from an IMU serial port")
     m.add_argument("port", help="serial port: /dev/ttyACM0, COM3, or a simulator's pty or --port-link")
-    m.add_argument("--baud", type=positive_int, default=DEFAULT_BAUD, help="bits per second, as the firmware")
-    m.add_argument("--seconds", type=positive_float, help="stop after this many seconds (default: at Ctrl-C)")
+    m.add_argument("--baud", type=int_range(50, MAX_BAUD), default=DEFAULT_BAUD, help="bits per second, as the firmware")
+    m.add_argument("--seconds", type=float_range(0, MAX_SECONDS, "s"),
+                   help="stop after this many seconds, at most a week (default: at Ctrl-C)")
     m.add_argument("--csv", help="write t_host_s,t_device_s,yaw,pitch,roll per sample (s since start, device s, degrees)")
     m.add_argument("--json", action="store_true", help='print {"samples", "corrupt", "dropped"} as JSON at exit')
     m.set_defaults(func=cmd_imu_monitor)
 
     s = imu.add_parser("simulate", help="an IMU on a pseudo-terminal, protractor moves or a replayed CSV (until Ctrl-C)")
     s.add_argument("--port-link", help="also make this symlink to the pty, e.g. /tmp/snreg-imu")
-    s.add_argument("--rate", type=positive_float, help="sample rate in Hz (default 208)")
+    s.add_argument("--rate", type=float_range(MIN_RATE_HZ, MAX_RATE_HZ, "Hz", low_open=False),
+                   help=f"sample rate in Hz, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} as the LSM6DSOX (default 208)")
     s.add_argument("--replay", help="play a recorded CSV (Time (s), Gyroscope X (deg/s), ..., Accelerometer X (g), ...)")
     s.add_argument("--seed", type=seed, default=0, help="seed for noise, bias and faults")
     s.add_argument("--garbage", type=fraction, default=0.0, help="fraction of samples that come with a corrupt line")

@@ -6,7 +6,7 @@ import argparse
 import shlex
 import sys
 
-from snreg.cli.common import check_output_folder, floats, ints, non_negative_int, positive_int, seed
+from snreg.cli.common import check_output_folder, floats, int_range, ints, seed, workers
 from snreg.errors import UserError
 
 __all__ = ["add_simulate_parser", "cmd_simulate", "DEFAULTS"]
@@ -16,10 +16,15 @@ DEFAULTS = {"reps": 25, "sigmas": (2.0, 5.0, 10.0, 15.0, 20.0), "extras": (0, 1,
             "methods": ("icp", "cpd", "chamfer", "global")}
 
 
+MAX_REPS = 10_000            # 400 times the default study: days on 2 cores
+MAX_SIGMA_MM = 1000.0        # beyond any intraop error; larger ones overflow the fits
+
+
 def _sigmas(text: str) -> tuple[float, ...]:
     values = floats(text)
-    if not values or min(values) <= 0:
-        raise argparse.ArgumentTypeError(f"expected positive error sigmas in mm, e.g. 2,5,10, got {text!r}")
+    if not values or min(values) <= 0 or max(values) > MAX_SIGMA_MM:
+        raise argparse.ArgumentTypeError(f"expected error sigmas above 0 and at most {MAX_SIGMA_MM:g} mm, e.g. 2,5,10, "
+                                         f"got {text!r}")
     return values
 
 
@@ -41,7 +46,8 @@ def add_simulate_parser(subparsers) -> None:
     p = subparsers.add_parser("simulate", help="the thesis' registration simulation study on a cohort",
                               description="The thesis' simulation study (§5.4): every patient x sigma x extras x "
                                           "repetition, every method; about 2 minutes with the defaults on 2 cores.")
-    p.add_argument("--reps", type=positive_int, default=DEFAULTS["reps"], help="repetitions per patient, sigma and extras")
+    p.add_argument("--reps", type=int_range(1, MAX_REPS), default=DEFAULTS["reps"],
+                   help="repetitions per patient, sigma and extras")
     p.add_argument("--sigmas", type=_sigmas, default=DEFAULTS["sigmas"], help="intraop error sigma per axis, mm")
     p.add_argument("--extras", type=_extras, default=DEFAULTS["extras"], help="numbers of extra intraop nodes")
     p.add_argument("--missing", type=_extras, default=(0,),
@@ -51,7 +57,7 @@ def add_simulate_parser(subparsers) -> None:
                    help="e.g. icp,cpd,chamfer,global,global+labels (';' to separate specs with options, e.g. 'cpd:w=0.1')")
     p.add_argument("--cohort", help="directory of preop node CSVs, one per patient (default: synthetic cohort)")
     p.add_argument("--seed", type=seed, default=0, help="random seed of the study")
-    p.add_argument("--workers", type=non_negative_int, default=0, help="processes (0: one per core)")
+    p.add_argument("--workers", type=workers, default=0, help="processes, at most one per core (0: one per core)")
     p.add_argument("-o", "--output", default="snreg-simulation", help="report directory")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=cmd_simulate)
@@ -71,6 +77,9 @@ def cmd_simulate(args) -> int:
     except ValueError as err:
         raise UserError(str(err)) from None
     largest = max(patients, key=lambda patient: len(patient.nodes))
+    if len(largest.nodes) - max(args.missing) < 3:
+        raise UserError(f"--missing {max(args.missing)}: the largest patient ({largest.name}) has {len(largest.nodes)} "
+                        "nodes and at least 3 must remain found; give smaller counts")
     if len(largest.nodes) + max(args.extras) > MAX_NODES:
         raise UserError(f"{largest.name} has {len(largest.nodes)} nodes, with {max(args.extras)} extras "
                         f"{len(largest.nodes) + max(args.extras)}: registration handles at most {MAX_NODES} per set")

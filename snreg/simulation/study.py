@@ -17,6 +17,7 @@ import numpy as np
 from snreg.registration import register
 from snreg.simulation.cohort import Patient
 from snreg.simulation.protocol import Trial, error_stats, make_trial, oracle_success, run_trial
+from snreg.simulation.workers import end_with_parent, worker_count
 
 __all__ = ["parse_method", "check_method", "StudyConfig", "StudyResult", "run_study", "DEFAULT_METHODS", "DEFAULT_SIGMAS", "DEFAULT_EXTRAS"]
 
@@ -33,7 +34,7 @@ class StudyConfig:
     extras: tuple[int, ...] = DEFAULT_EXTRAS
     reps: int = DEFAULT_REPS
     seed: int = 0
-    workers: int = 0            # 0: one per core
+    workers: int = 0            # 0: one per core; never more than the cores
     missing: tuple[int, ...] = (0,)   # true intraop nodes left out (0: the thesis protocol)
 
     @property
@@ -162,14 +163,14 @@ def _incremental(patient: Patient, patient_index: int, sigma_index: int, config:
 def run_study(patients: list[Patient], config: StudyConfig, progress=True) -> StudyResult:
     """All trials of the study; deterministic under ``config.seed`` whatever the worker count."""
     blocks = [(p, k, s) for k, p in enumerate(patients) for s in range(len(config.sigmas))]
-    workers = config.workers or os.cpu_count() or 1
+    workers = worker_count(config.workers)
     results: list[_Collected | None] = [None] * len(blocks)
     if workers == 1:
         for i, (p, k, s) in enumerate(blocks):
             results[i] = _run_block(p, k, s, config)
             _progress(progress, i + 1, len(blocks))
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with ProcessPoolExecutor(max_workers=workers, initializer=end_with_parent, initargs=(os.getpid(),)) as pool:
             futures = {pool.submit(_run_block, p, k, s, config): i for i, (p, k, s) in enumerate(blocks)}
             for done, future in enumerate(as_completed(futures), start=1):
                 results[futures[future]] = future.result()
