@@ -58,7 +58,45 @@ def files(tmp_path_factory):
     with Session.create(d / "session.h5", case_id="bad-input") as session:
         session.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0])
     (d / "imu_bad.csv").write_text("no,header\n1,2\n")
+    _hostile(d, text, truth)
     return d
+
+
+def _hostile(d: Path, text: str, truth: StereoCalibration) -> None:
+    """Issue 21's inputs: special files, other separators, degenerate node sets, broken calibrations and DICOM."""
+    import cv2
+    import pydicom
+
+    os.mkfifo(d / "fifo.csv")
+    os.mkfifo(d / "fifo.h5")
+    (d / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    (d / "semicolon.csv").write_text("id;label;x;y;z\nA;;1;2;3\nB;;4;5;6\nC;;7;8;10\n")
+    (d / "collinear.csv").write_text("id,label,x,y,z\nA,,0,0,0\nB,,10,0,0\nC,,20,0,0\nD,,35,0,0\n")
+    (d / "coincident.csv").write_text("id,label,x,y,z\nA,,1,2,3\nB,,1,2,3\nC,,1,2,3\n")
+    (d / "header_only.yaml").write_text("%YAML:1.0\n")
+    (d / "short_data.yaml").write_text(text.replace("data: [ 0., 0., 0., 0., 0. ]", "data: [ 0., 0. ]", 1))
+    (d / "cut.yaml").write_text(text[:text.index("data", 300) + 20])
+    (d / "wide.yaml").write_text(text.replace("image_width: 1920", "image_width: 1000000000"))
+    (d / "nan_width.yaml").write_text(text.replace("image_width: 1920", "image_width: .Nan"))
+    (d / "abc_width.yaml").write_text(text.replace("image_width: 1920", 'image_width: "abc"'))
+    (d / "far_T.yaml").write_text(text.replace("data: [ -4.3014683359121166, 0., 0. ]", "data: [ -1e200, 0., 0. ]"))
+    (d / "deep.yaml").write_text("%YAML:1.0\na: " + "[" * 50_000 + "]" * 50_000 + "\n")
+    for name, key, value in (("zero_Q", "Q", np.zeros((4, 4))), ("zero_P1", "P1", np.zeros((3, 4))),
+                             ("vertical_T", "T", np.array([[0.0], [-4.3], [0.0]]))):
+        fs = cv2.FileStorage(str(d / f"{name}.yaml"), cv2.FILE_STORAGE_WRITE)
+        fs.write("image_width", 1920)
+        fs.write("image_height", 1080)
+        for k in ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q"):
+            fs.write(k, value if k == key else np.asarray(getattr(truth, k), dtype=float))
+        fs.release()
+    for name, attribute, value in (("iop3", "ImageOrientationPatient", [1, 0, 0]),
+                                   ("iop_zero", "ImageOrientationPatient", [0] * 6),
+                                   ("iop_parallel", "ImageOrientationPatient", [1, 0, 0, 1, 0, 0]),
+                                   ("spacing1", "PixelSpacing", [4.8]), ("spacing0", "PixelSpacing", [0, 0])):
+        ds = pydicom.dcmread(d / "phantom.dcm")
+        where = ds.DetectorInformationSequence[0] if attribute == "ImageOrientationPatient" else ds
+        setattr(where, attribute, value)
+        ds.save_as(d / f"{name}.dcm", enforce_file_format=False)
 
 
 MISSING = "/nonexistent-folder-13"
@@ -75,12 +113,20 @@ CASES = [
     (["register", "{preop.csv}", "{intraop.csv}", "--initial", "{initial_object.json}"], '"transform"'),
     (["register", "{preop.csv}", "{intraop.csv}", "--initial", "{initial_bottom.txt}"], "0 0 0 1"),
     (["register", "{preop.csv}", "{intraop.csv}", "--initial", "{initial_3x3.txt}"], "4x4"),
-    (["register", "{preop.csv}", "{intraop.csv}", "--initial", "{missing.txt}"], "cannot read the initial transform"),
+    (["register", "{preop.csv}", "{intraop.csv}", "--initial", "{missing.txt}"], "no such initial transform file"),
+    (["register", "{preop.csv}", "{intraop.csv}", "--initial", "{deep.json}"], "not a matrix of numbers"),
+    (["register", "{preop.csv}", "{intraop.csv}", "--initial", "/dev/zero"], "not a regular file"),
+    (["register", "{preop.csv}", "{fifo.csv}"], "not a regular file"),
+    (["register", "{preop.csv}", "/dev/zero"], "not a regular file"),
+    (["register", "{preop.csv}", "{semicolon.csv}"], "separated by semicolons"),
+    (["register", "{preop.csv}", "{collinear.csv}"], "intraop nodes are collinear"),
+    (["register", "{coincident.csv}", "{intraop.csv}"], "preop nodes coincide"),
+    (["register", "{fifo.h5}"], "not a regular file"),
     (["register", "{preop.csv}", "{intraop.csv}", "-o", MISSING + "/result.json"], "does not exist"),
     (["register", "{preop.csv}", "{intraop.csv}", "-o", "{folder}"], "is a folder"),
     (["register", "{n300.csv}", "{intraop.csv}"], "at most 50"),
     (["register", "{preop.csv}", "{n300.csv}"], "at most 50"),
-    (["register", "{missing.csv}", "{intraop.csv}"], "no such file"),
+    (["register", "{missing.csv}", "{intraop.csv}"], "no such node file"),
     (["register", "{folder}", "{intraop.csv}"], "is a folder"),
     (["register", "{preop.csv}", "{empty_id.csv}"], "empty id"),
     (["register", "{preop.csv}", "{bad_counts.csv}"], "counts that are not a number"),
@@ -97,6 +143,10 @@ CASES = [
     (["simulate", "--methods", "cpd:w=abc"], "cpd:w=abc"),
     (["simulate", "--methods", "cpd:w=2"], "cpd:w=2"),
     (["simulate", "--workers", "-1"], "--workers"),
+    (["simulate", "--workers", "100000"], "this machine has"),
+    (["simulate", "--reps", "99999999999999999999"], "--reps"),
+    (["simulate", "--sigmas", "1e308"], "--sigmas"),
+    (["simulate", "--missing", "100", "--methods", "icp", "-o", "{sim}"], "--missing 100"),
     (["simulate", "--reps", "0"], "--reps"),
     (["simulate", "--extras", "-1"], "--extras"),
     (["simulate", "-o", "{existing.txt}"], "is a file, not a folder"),
@@ -107,6 +157,17 @@ CASES = [
     (["track", "{l.png}", "{r.png}", "--calib", "{nan_T.yaml}"], "NaN"),
     (["track", "{l.png}", "{r.png}", "--calib", "{only_K1.yaml}"], "image_width"),
     (["track", "{l.png}", "{r.png}", "--calib", "{missing.yaml}"], "no such calibration"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{header_only.yaml}"], "holds no keys"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{short_data.yaml}"], "more or fewer values than rows x cols"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{cut.yaml}"], "not an OpenCV calibration file"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{wide.yaml}"], "beyond any camera"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{nan_width.yaml}"], "positive whole numbers"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{abc_width.yaml}"], "image_width is the text 'abc'"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{far_T.yaml}"], "check T's units"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{deep.yaml}"], "nested"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{zero_Q.yaml}"], "Q does not follow from P1 and P2"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{zero_P1.yaml}"], "P1 is not a rectified projection"),
+    (["track", "{l.png}", "{r.png}", "--calib", "{vertical_T.yaml}"], "P2 does not hold the vertical baseline"),
     (["track", "{not_an_image.png}", "{not_an_image.png}", "--calib", CALIB], "not a readable image"),
     (["track", "{missing.png}", "{missing.png}", "--calib", CALIB], "missing.png"),
     (["track", "{l.png}", "{r.png}", "--calib", CALIB, "--method", "laser"], "--method"),
@@ -144,11 +205,19 @@ CASES = [
     # preop
     (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--midline-x", "nan"], "--midline-x"),
     (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--midline-x", "inf"], "--midline-x"),
-    (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--nodes", "1000"], "ask for at most"),
+    (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--nodes", "50"], "ask for at most"),
+    (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--nodes", "1000"], "at most 100"),
     (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--nodes", "0"], "--nodes"),
     (["preop", "{phantom.dcm}", "-o", "{x.h5}"], ".csv or .mrk.json"),
     (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--threshold", "1.5"], "between 0 and 1"),
     (["preop", "{truncated.dcm}", "-o", "{nodes.csv}"], "truncated"),
+    (["preop", "{phantom.dcm}", "-o", "{nodes.csv}", "--threshold", "1e-300"], "raise --threshold"),
+    (["preop", "{iop3.dcm}", "-o", "{nodes.csv}"], "ImageOrientationPatient has 3 value(s)"),
+    (["preop", "{iop_zero.dcm}", "-o", "{nodes.csv}"], "not two unit vectors"),
+    (["preop", "{iop_parallel.dcm}", "-o", "{nodes.csv}"], "not perpendicular"),
+    (["preop", "{spacing1.dcm}", "-o", "{nodes.csv}"], "PixelSpacing has 1 value(s)"),
+    (["preop", "{spacing0.dcm}", "-o", "{nodes.csv}"], "is not a voxel size"),
+    (["preop", "/dev/zero", "-o", "{nodes.csv}"], "not a regular file"),
     (["preop", "{missing.dcm}", "-o", "{nodes.csv}"], "does not exist"),
     (["preop", "{phantom.dcm}", "-o", MISSING + "/nodes.csv"], "does not exist"),
     # session
@@ -163,6 +232,9 @@ CASES = [
     (["imu", "simulate", "--parent", "999999"], "--parent 999999"),
     (["imu", "simulate", "--parent", "-1"], "--parent"),
     (["imu", "simulate", "--rate", "0"], "--rate"),
+    (["imu", "simulate", "--rate", "1e12"], "--rate"),
+    (["imu", "simulate", "--rate", "1e-9"], "--rate"),
+    (["imu", "monitor", "/dev/null", "--seconds", "1e308"], "--seconds"),
     (["imu", "simulate", "--dropout", "2"], "--dropout"),
     (["imu", "monitor", "/dev/null", "--csv", MISSING + "/imu.csv"], "does not exist"),
     (["imu", "monitor", "/dev/null", "--baud", "fast"], "--baud"),
@@ -171,6 +243,8 @@ CASES = [
     (["demo", "--headless", "-o", MISSING + "/demo.h5"], "does not exist"),
     (["demo", "--headless", "-o", "{existing.txt}"], "already exists"),
     (["demo", "--headless", "-o", "{demo.h5}", "--fixes", "0"], "--fixes"),
+    (["demo", "--headless", "-o", "{demo.h5}", "--fixes", "1000000000"], "--fixes"),
+    (["demo", "--headless", "-o", "{demo.h5}", "--igtl", "99999"], "--igtl"),
     (["demo", "--headless", "-o", "{demo.h5}", "--seed", "-1"], "--seed"),
     (["bench", "--pairs", "0"], "--pairs"),
     (["bench", "--reps", "-2"], "--reps"),
