@@ -54,7 +54,10 @@ def read_image(path: str | Path, flags: int | None = None, error: type[Exception
     import cv2
 
     require_regular_file(path, "image", error)
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR if flags is None else flags)
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR if flags is None else flags)
+    except cv2.error:                  # e.g. a header claiming more pixels than OpenCV's limit (2^30)
+        image = None
     if image is None:
         raise error(f"{path}: not a readable image")
     return image

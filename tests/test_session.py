@@ -15,9 +15,9 @@ from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError, read_intraop_nodes
 from snreg.session.export import session_info
-from snreg.session.recovery import recover
 from snreg.session.journal import journal_path
 from snreg.session.reader import HEADER_KEYS
+from snreg.session.recovery import recover
 
 
 def _image(rng):
@@ -70,10 +70,11 @@ def test_round_trip(tmp_path, rng, pelvic_nodes):
         assert reg.result.target_error_mm.shape == (6,) and reg.result.leave_one_out_mm.shape == (3,)
         assert reg.intraop_ids == ["SN1", "SN2", "SN3"] and reg.preop_ids == [f"SN{k + 1}" for k in range(6)]
         np.testing.assert_array_equal(reg.result.initial, np.eye(4))
-        imu = s.stream("imu")
-        assert isinstance(imu, h5py.Dataset) and imu.shape == (2080,)   # lazy: a dataset, not an array
-        assert imu.chunks is not None and imu.compression == "gzip"
+        imu = s.stream("imu")                         # read once, by a child process, when first asked for
+        assert isinstance(imu, np.ndarray) and imu.shape == (2080,) and s.stream("imu") is imu
         assert s.stream("probe").shape == (300,) and s.stream("frames")["index"][-1] == 299
+    with h5py.File(path, "r") as h5:
+        assert h5["streams/imu"].chunks is not None and h5["streams/imu"].compression == "gzip"
     assert read_intraop_nodes(path).ids == ["SN1", "SN2", "SN3"]
 
 

@@ -30,6 +30,8 @@ __all__ = ["Board", "find_corners", "THESIS_BOARD"]
 _SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
+MAX_CORNERS = 200                        # inner corners a side
+MIN_SQUARE_MM, MAX_SQUARE_MM = 0.01, 1000.0
 
 
 @dataclass(frozen=True)
@@ -44,8 +46,12 @@ class Board:
         if self.cols < 2 or self.rows < 2 or self.cols == self.rows:
             raise ValueError(f"a checkerboard needs at least 2 x 2 inner corners and cols != rows "
                              f"(so its orientation is defined), got {self.cols}x{self.rows}")
-        if not self.square_mm > 0:
-            raise ValueError(f"the square size must be positive (mm), got {self.square_mm}")
+        if max(self.cols, self.rows) > MAX_CORNERS:
+            raise ValueError(f"a checkerboard of {self.cols}x{self.rows} inner corners is beyond any printed board "
+                             f"(at most {MAX_CORNERS} a side)")
+        if not MIN_SQUARE_MM <= self.square_mm <= MAX_SQUARE_MM:
+            raise ValueError(f"the square size must lie from {MIN_SQUARE_MM:g} to {MAX_SQUARE_MM:g} mm, got "
+                             f"{self.square_mm:g}")
 
     @classmethod
     def parse(cls, text: str, square_mm: float) -> "Board":

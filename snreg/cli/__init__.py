@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import os
 import sys
+import warnings
 
 from snreg import __version__
 from snreg.cli.bench import add_bench_parser
@@ -54,6 +55,8 @@ def build_parser() -> Parser:
 def main(argv=None) -> int:
     """Run ``snreg`` with ``argv`` (default: the command line); returns the exit status."""
     _quiet_opencv()
+    if not sys.warnoptions:             # numpy's and pydicom's warnings are not ours to print: snreg says what matters
+        warnings.simplefilter("ignore")
     try:
         args = build_parser().parse_args(argv)         # argparse's errors: one line and exit 2 (common.Parser)
         status = args.func(args)

@@ -161,7 +161,10 @@ def _frame_size(path: str) -> tuple[int, int]:
     from snreg.files import require_regular_file
 
     require_regular_file(path, "--frame image", UserError)
-    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    try:
+        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    except cv2.error:                  # a header claiming more pixels than OpenCV's limit
+        image = None
     if image is None:
         raise UserError(f"{path}: not a readable image; give --frame an image from the calibrated camera, or --image-size WxH")
     return int(image.shape[1]), int(image.shape[0])

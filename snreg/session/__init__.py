@@ -70,6 +70,7 @@ class Session:
         self._buffers: dict[str, writer.StreamBuffer] = {}
         self._lock = threading.RLock()
         self._check = None                          # what a child could read of the file (opened sessions)
+        self._streams: dict[str, np.ndarray] = {}   # stream rows read so far (opened sessions)
         self.problems: list[str] = []               # what could not be read, in words (opened sessions)
         self.has_journal = journal is not None
 
@@ -439,11 +440,15 @@ class Session:
         return np.asarray(kept[-1], dtype=float) if kept else None
 
     def stream(self, name: str):
-        """The ``streams/<name>`` table, lazily (an h5py dataset); its readable rows (an array) when it is damaged, none
-        when the HDF5 file is unreadable."""
+        """The ``streams/<name>`` table: lazily (an h5py dataset) in a session being recorded; in one opened for
+        reading, its rows outside any damage (an array, read once by a child process), none when unreadable."""
         if name not in STREAM_DTYPES:
             raise SessionError(f"no stream {name!r}; streams are {', '.join(STREAM_DTYPES)}")
-        return salvage.stream_rows(self._h5, name, self._check)
+        if self._check is None:                         # being recorded: the table itself, as it grows
+            return salvage.stream_rows(self._h5, None)[1][name]
+        if not self._streams:                           # read once, all together, by a child (.filecheck)
+            self._check, self._streams = salvage.stream_rows(self._h5, self._check)
+        return self._streams[name]
 
     def save_as(self, path: str | Path) -> None:
         """Write everything this session holds, streams up to their first unreadable block, to a clean HDF5 file."""

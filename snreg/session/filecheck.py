@@ -17,6 +17,7 @@ from what it holds in memory.
 
 from __future__ import annotations
 
+import dataclasses
 import faulthandler
 import gc
 import json
@@ -29,10 +30,14 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 
-__all__ = ["FileCheck", "check_file", "STALL_S", "MAX_RUNS"]
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["FileCheck", "check_file", "read_rows", "STALL_S", "MAX_RUNS", "DEFERRED"]
 
 STALL_S = 10.0         # a child that reports nothing for this long is stuck in libhdf5 (a B-tree that loops)
 MAX_RUNS = 24          # children per file: each run leaves out one more object that crashed or hung the last one
@@ -40,6 +45,7 @@ _WHOLE = 1 << 20       # a contiguous dataset up to this many elements is read w
 _LOCKED = "unable to lock file"
 _LOG_BYTES = 64 << 20  # shared memory for the child's messages (touched only as far as written)
 _POLL_S = 0.2
+DEFERRED = ("/streams/",)   # most of a file's bytes, not needed to open it: their rows are read when they are used
 _BLOCK_CHUNKS = 16     # chunks read at once: fewer calls into h5py; a block that fails is read again chunk by chunk
 
 
@@ -55,6 +61,8 @@ class FileCheck:
     why: str = ""
     runs: int = 0
     seconds: float = 0.0
+    deferred: tuple[str, ...] = ()                  # prefixes of datasets whose rows are left to read_rows
+    rows_read: frozenset[str] = frozenset()         # deferred datasets whose rows read_rows has read
 
     def clean(self, name: str) -> bool:
         """True when the object ``name`` (e.g. ``/nodes/intraop``), its attributes and everything under it read
@@ -107,44 +115,88 @@ class FileCheck:
         return not self.opens or bool(self.problems)
 
 
-def check_file(path: str | Path, *, stall_s: float = STALL_S) -> FileCheck:
-    """Read all of ``path`` in forked children (module docstring); never raises for what the file holds."""
+def check_file(path: str | Path, *, defer: tuple[str, ...] = DEFERRED, stall_s: float = STALL_S) -> FileCheck:
+    """Read all of ``path`` in forked children (module docstring); never raises for what the file holds.
+
+    The rows of datasets under a ``defer`` prefix (the streams: most of a file's bytes, and not needed to open a
+    session) are left for :func:`read_rows`; their objects, attributes, shapes and chunk indexes are read."""
     path = Path(path)
     start = time.perf_counter()
     if _open_here(path) or not hasattr(os, "fork"):
         return FileCheck(path, True, seconds=time.perf_counter() - start)
-    problems: dict[str, str] = {}
+    problems, runs = _children(path, {}, _Job(defer=tuple(defer)), stall_s)
+    why = problems.pop("/", "")
+    return FileCheck(path, not why, problems, why, runs, time.perf_counter() - start, tuple(defer))
+
+
+def read_rows(check: FileCheck, datasets: list[h5py.Dataset]) -> tuple[FileCheck, dict[str, np.ndarray]]:
+    """Every readable row of deferred ``datasets`` of the file checked, read once, by children (through these very
+    handles, as this process would), into memory shared with this process; and ``check`` with what they could not
+    read. Each array (by dataset name) holds every row outside the damaged chunks, in order."""
+    import numpy as np
+
+    start = time.perf_counter()
+    sinks = [mmap.mmap(-1, max(1, int(d.shape[0]) * d.dtype.itemsize)) for d in datasets]
+    problems, runs = _children(check.path, dict(check.problems), _Job(only=tuple(zip(datasets, sinks))), STALL_S)
+    if "/" in problems:                          # a child stopped outside any block: these rows cannot be trusted
+        why = problems.pop("/")
+        problems.update({f"{d.name}#": why for d in datasets})
+    out = {}
+    for dataset, sink in zip(datasets, sinks):
+        name, rows = dataset.name, int(dataset.shape[0])
+        got = np.frombuffer(sink, dataset.dtype, count=rows).copy()
+        sink.close()
+        keep = np.full(rows, not ({f"{name}#", f"{name}#shape"} & set(problems)))
+        step = block_rows(dataset.shape, dataset.chunks)
+        for first in {int(k[len(name) + 1:]) for k in problems if k.startswith(name + "#") and k[len(name) + 1:].isdigit()}:
+            keep[first:first + step] = False
+        out[name] = got[keep]
+    check = dataclasses.replace(check, problems=problems, runs=check.runs + runs, seconds=check.seconds +
+                                time.perf_counter() - start, rows_read=check.rows_read | {d.name for d in datasets})
+    return check, out
+
+
+@dataclass(frozen=True)
+class _Job:
+    """What a child reads: the whole file (rows under ``defer`` left out), or only the rows of the datasets in
+    ``only`` (open handles of this process), each copied into its sink (shared memory) at their place."""
+
+    only: tuple = ()                             # (dataset, sink) pairs
+    defer: tuple[str, ...] = ()
+
+
+def _children(path: Path, problems: dict[str, str], job: _Job, stall_s: float):
+    """Children until one finishes, each leaving out what crashed or hung the one before: (problems, runs)."""
     refine: set[str] = set()           # blocks of rows that crashed a child: the next reads them chunk by chunk
-    runs, why = 0, ""
+    runs = 0
     while True:
         runs += 1
-        finished, current, cause = _run_child(path, set(problems) | refine, problems, stall_s)
+        finished, current, cause = _run_child(path, set(problems) | refine, problems, stall_s, job)
         if finished:
-            break
+            return problems, runs
         if current is None or runs >= MAX_RUNS:
             problems["/"] = problems.get("/") or (cause or "libhdf5 could not read it")
-            break
+            return problems, runs
         if "-" in current.rpartition("#")[2]:
             refine.add(current)
         else:
             problems[current] = cause
-    if "/" in problems:
-        why = problems.pop("/")
-        return FileCheck(path, False, problems, why, runs, time.perf_counter() - start)
-    return FileCheck(path, True, problems, "", runs, time.perf_counter() - start)
 
 
 def _open_here(path: Path) -> bool:
-    """Is ``path`` open in this process already (the session being recorded)?"""
+    """Is ``path`` open for writing in this process (the session being recorded)? libhdf5 then reads it from what it
+    holds in memory, and a child must not touch that file's state."""
     try:
         target = path.resolve()
-        ids = h5py.h5f.get_obj_ids(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE)
-        return any(Path(os.fsdecode(h5py.h5f.FileID.get_name(fid))).resolve() == target for fid in ids)
-    except (OSError, ValueError, RuntimeError, TypeError):
-        return False
+        for fid in h5py.h5f.get_obj_ids(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE):
+            if fid.get_intent() & h5py.h5f.ACC_RDWR and Path(os.fsdecode(fid.name)).resolve() == target:
+                return True
+    except (OSError, ValueError, RuntimeError, TypeError, AttributeError):
+        pass
+    return False
 
 
-def _run_child(path: Path, skip: set[str], problems: dict[str, str], stall_s: float):
+def _run_child(path: Path, skip: set[str], problems: dict[str, str], stall_s: float, job: _Job):
     """One child: (finished, the key it was reading when it stopped, why it stopped). The child logs to shared memory
     (no system call per key); a pipe only tells when it has ended."""
     log = mmap.mmap(-1, _LOG_BYTES)
@@ -156,7 +208,7 @@ def _run_child(path: Path, skip: set[str], problems: dict[str, str], stall_s: fl
         os.close(read_end)
         code = 0
         try:
-            _child(path, skip, _Log(log))
+            _child(path, skip, _Log(log), job)
         except BaseException:                                           # noqa: BLE001 - the child must only exit
             code = 1
         os._exit(code)
@@ -220,8 +272,9 @@ class _Log:
         return [json.loads(line) for line in memory[8:end].split(b"\n") if line]
 
 
-def _child(path: Path, skip: set[str], log: _Log) -> None:
-    """Read everything not in ``skip``, naming each key before touching it (``start``) and after (``ok``/``error``)."""
+def _child(path: Path, skip: set[str], log: _Log, job: _Job) -> None:
+    """Read what ``job`` says except what is in ``skip``, naming each key before touching it (``start``) and after
+    (``ok``/``error``)."""
     gc.disable()            # objects inherited from the parent (its open files) must never be finalised here
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     faulthandler.disable()  # a crash here is expected and reported by the parent, not dumped on the user's terminal
@@ -255,14 +308,19 @@ def _child(path: Path, skip: set[str], log: _Log) -> None:
                 if sub not in (None, True):
                     walk(sub, child)
         elif isinstance(obj, h5py.Dataset):
-            _read_dataset(obj, name, attempt, skip)
+            _read_dataset(obj, name, attempt, skip, rows=not name.startswith(job.defer))
 
+    if job.only:
+        for dataset, sink in job.only:
+            _read_dataset(dataset, dataset.name, attempt, skip, rows=True, sink=sink)
+        say("done")
+        return
     if "/" in skip:
         say("done")
         return
     say("start", "/")
     try:
-        h5 = h5py.File(path, "r", locking=False)
+        h5 = h5py.File(path, "r")
     except Exception as err:                                            # noqa: BLE001
         say("error", "/", _open_reason(err))
         say("done")
@@ -272,25 +330,55 @@ def _child(path: Path, skip: set[str], log: _Log) -> None:
     say("done")
 
 
-def _read_dataset(dataset: h5py.Dataset, name: str, attempt, skip: set[str]) -> None:
+def _read_dataset(dataset: h5py.Dataset, name: str, attempt, skip: set[str], rows: bool, sink=None) -> None:
     """Every row of a dataset: whole when small and contiguous, else in blocks of ``_BLOCK_CHUNKS`` chunks; a block
-    that fails (or crashed a child before) is read again chunk by chunk, so only its bad chunks are lost."""
+    that fails (or crashed a child before) is read again chunk by chunk, so only its bad chunks are lost. Without
+    ``rows``, only the shape and the chunk index (where each chunk lies) are read. With a ``sink`` (shared memory),
+    the rows read are copied into it at their place."""
     shape = attempt(f"{name}#shape", lambda: (dataset.shape, dataset.chunks))
     if not isinstance(shape, tuple):
         return
     dims, chunks = shape
-    if not dims or (chunks is None and int(_size(dims)) <= _WHOLE) or dims[0] == 0:
-        attempt(f"{name}#", lambda: dataset[()])
+    if not rows:
+        if chunks is not None:
+            attempt(f"{name}#index", lambda: _chunk_index(dataset))
         return
-    step = chunks[0] if chunks else max(1, _WHOLE // max(1, int(_size(dims[1:]))))
+
+    def take(first: int, end: int | None):
+        values = dataset[()] if end is None else dataset[first:end]
+        if sink is not None:
+            data = values.tobytes()
+            offset = first * dataset.dtype.itemsize
+            sink[offset:offset + len(data)] = data
+        return True
+
+    if not dims or (chunks is None and int(_size(dims)) <= _WHOLE) or dims[0] == 0:
+        attempt(f"{name}#", lambda: take(0, None))
+        return
+    step = block_rows(dims, chunks)
     block = step * _BLOCK_CHUNKS
     for first in range(0, dims[0], block):
         end = min(first + block, dims[0])
         coarse = f"{name}#{first}-{end}"
-        if coarse not in skip and attempt(coarse, lambda f=first, e=end: dataset[f:e], quiet=True) is not None:
+        if coarse not in skip and attempt(coarse, lambda f=first, e=end: take(f, e), quiet=True) is not None:
             continue
         for start in range(first, end, step):
-            attempt(f"{name}#{start}", lambda f=start: dataset[f:f + step])
+            attempt(f"{name}#{start}", lambda f=start: take(f, min(f + step, dims[0])))
+
+
+def block_rows(shape: tuple, chunks: tuple | None) -> int:
+    """The rows of one block, the unit in which damage is found: a chunk, or a slice of a contiguous dataset."""
+    return int(chunks[0]) if chunks else max(1, _WHOLE // max(1, _size(shape[1:])))
+
+
+def _chunk_index(dataset: h5py.Dataset) -> int:
+    """Walk the chunk index (where each chunk lies in the file) without reading a chunk; the number of chunks."""
+    found = []
+    if hasattr(dataset.id, "chunk_iter"):
+        dataset.id.chunk_iter(found.append)
+    else:                                                   # libhdf5 before 1.14: one lookup per chunk
+        found = [dataset.id.get_chunk_info(k) for k in range(dataset.id.get_num_chunks())]
+    return len(found)
 
 
 def _size(dims) -> int:

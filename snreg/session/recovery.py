@@ -24,7 +24,7 @@ from pathlib import Path
 import h5py
 
 from snreg.files import atomic_write
-from snreg.session import Session
+from snreg.session import Session, salvage
 from snreg.session.entries import checked_entries
 from snreg.session.journal import journal_path, read_journal
 from snreg.session.schema import STREAM_DTYPES, SessionError
@@ -178,8 +178,10 @@ def _write(session: Session, path: Path, target: Path, in_place: bool) -> Recove
             raise SessionError(f"{path}: the recovered file would hold fewer {', '.join(short)} rows than were "
                                "readable; nothing was replaced")
         backup = _keep_damaged(path) if in_place and path.exists() else None
+    rows = [problem for name in STREAM_DTYPES                  # what reading the rows found (after the open)
+            if (problem := salvage.stream_problem(session._h5, name, session._check)) not in (None, *session.problems)]
     return Recovery(target, backup, session.has_journal, report["nodes"], report["registrations"],
-                    report["calibration"], report["preop"], report["events"], written, list(session.problems))
+                    report["calibration"], report["preop"], report["events"], written, list(session.problems) + rows)
 
 
 def _report(session: Session, entries: list) -> dict:

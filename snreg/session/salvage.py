@@ -18,6 +18,7 @@ import numpy as np
 
 from snreg.session import reader
 from snreg.session.entries import EntryError, check_entry, check_node
+from snreg.session import filecheck
 from snreg.session.filecheck import FileCheck
 from snreg.session.schema import STREAM_DTYPES, IntraopNode
 
@@ -54,21 +55,31 @@ def read_parts(h5: h5py.File, check: FileCheck | None) -> FileParts:
     return parts
 
 
-def stream_rows(h5: h5py.File | None, name: str, check: FileCheck | None):
-    """``streams/<name>``: the dataset when it is whole (lazily read), else its readable rows as an array."""
-    dtype = STREAM_DTYPES[name]
-    path = f"/streams/{name}"
-    if h5 is None or (check is not None and not check.clean_path(path)):
-        return np.zeros(0, dtype)
-    try:
-        dataset = h5[path]
-        if not isinstance(dataset, h5py.Dataset) or dataset.dtype != dtype or dataset.ndim != 1:
-            return np.zeros(0, dtype)
-        if check is None or check.clean(path):
-            return dataset
-        return _rows_around(dataset, check.bad_blocks(path))
-    except (KeyError, OSError, ValueError, RuntimeError, TypeError):
-        return np.zeros(0, dtype)
+def stream_rows(h5: h5py.File | None, check: FileCheck | None) -> tuple[FileCheck | None, dict]:
+    """(``check``, every ``streams/<name>``): the datasets themselves in a session being recorded (``check`` None,
+    lazily read); else their readable rows as arrays, read by one child when the check left them for later (``check``
+    then says what it could not read). No rows for a stream missing, unreadable or not a stream table."""
+    out, deferred = {name: np.zeros(0, dtype) for name, dtype in STREAM_DTYPES.items()}, []
+    for name, dtype in STREAM_DTYPES.items():
+        path = f"/streams/{name}"
+        if h5 is None or (check is not None and not check.dataset_opens(path)):
+            continue
+        try:
+            dataset = h5[path]
+            if not isinstance(dataset, h5py.Dataset) or dataset.dtype != dtype or dataset.ndim != 1:
+                continue
+            if check is None:
+                out[name] = dataset
+            elif path.startswith(check.deferred) and path not in check.rows_read:
+                deferred.append(dataset)
+            else:
+                out[name] = dataset[()] if check.clean(path) else _rows_around(dataset, check.bad_blocks(path))
+        except (KeyError, OSError, ValueError, RuntimeError, TypeError):
+            continue
+    if deferred:
+        check, rows = filecheck.read_rows(check, deferred)
+        out.update({name.rpartition("/")[2]: values for name, values in rows.items()})
+    return check, out
 
 
 def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> str | None:
@@ -86,7 +97,7 @@ def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> 
         return f"stream {name}: not a {name} table (wrong columns); left out"
     bad = check.bad_blocks(path) if check is not None else set()
     if bad:
-        step = dataset.chunks[0] if dataset.chunks else 1
+        step = filecheck.block_rows(dataset.shape, dataset.chunks)
         lost = sum(min(step, dataset.shape[0] - first) for first in bad)
         return (f"stream {name}: {lost} of {dataset.shape[0]} rows unreadable ({check.cause(path)}); "
                 "the rest kept")
@@ -94,8 +105,8 @@ def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> 
 
 
 def _rows_around(dataset: h5py.Dataset, bad: set[int]) -> np.ndarray:
-    """Every row outside the blocks starting at ``bad`` (each one chunk long)."""
-    step = dataset.chunks[0] if dataset.chunks else max(1, dataset.shape[0])
+    """Every row outside the blocks starting at ``bad`` (each one block long: :func:`.filecheck.block_rows`)."""
+    step = filecheck.block_rows(dataset.shape, dataset.chunks)
     parts = [dataset[first:first + step] for first in range(0, dataset.shape[0], step) if first not in bad]
     return np.concatenate(parts) if parts else np.zeros(0, dataset.dtype)
 
@@ -136,7 +147,7 @@ def _nodes_by_column(group: h5py.Group, check: FileCheck | None, problems: list[
         try:
             dataset = group[name]
             bad = check.bad_blocks(path) if check is not None else set()
-            step = dataset.chunks[0] if dataset.chunks else max(1, dataset.shape[0])
+            step = filecheck.block_rows(dataset.shape, dataset.chunks)
             values = [None] * dataset.shape[0]
             for first in range(0, dataset.shape[0], step):
                 if first not in bad:
