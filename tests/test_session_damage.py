@@ -149,5 +149,5 @@ def test_special_files_are_refused_in_one_sentence(tmp_path, session):
         Session.open(fifo)
     journal_path(session).unlink()
     os.mkfifo(journal_path(session))
-    with pytest.raises(SessionError, match="journal is not a regular file"):
+    with pytest.raises(SessionError, match="journal: not a regular file"):
         Session.open(session)

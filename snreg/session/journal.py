@@ -10,11 +10,11 @@ from __future__ import annotations
 import json
 import os
 import zlib
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from snreg.errors import SessionError
+from snreg.files import require_regular_file
 from snreg.session.schema import JOURNAL_SUFFIX
 
 
@@ -81,14 +81,13 @@ def read_journal(path: str | Path) -> JournalEntries:
     """Every line whose checksum holds; a missing journal has no entries. :class:`SessionError` when the journal is not
     a regular file (a folder, a device, a pipe) or cannot be read."""
     path = Path(path)
-    try:
-        if not stat.S_ISREG(path.stat().st_mode):
-            raise SessionError(f"{path}: the session's journal is not a regular file; move it away and try again")
-        raw = path.read_bytes()
-    except FileNotFoundError:
+    if not path.exists() and not path.is_symlink():
         return JournalEntries([], 0)
+    require_regular_file(path, "session journal", SessionError)
+    try:
+        raw = path.read_bytes()
     except OSError as err:
-        raise SessionError(f"{path}: cannot read the session's journal ({err.strerror or err})") from None
+        raise SessionError(f"{path}: cannot read the session journal ({err.strerror or err})") from None
     entries, damaged, lines = [], 0, []
     for number, line in enumerate(raw.split(b"\n"), start=1):
         if not line:

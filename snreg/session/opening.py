@@ -11,12 +11,12 @@ is taken for a session when it has a session's groups.
 from __future__ import annotations
 
 import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
 
+from snreg.files import require_regular_file
 from snreg.session.entries import checked_entries
 from snreg.session.filecheck import FileCheck, check_file
 from snreg.session.journal import journal_path, read_journal
@@ -45,17 +45,11 @@ class Opened:
 
 
 def regular_file(path: Path, what: str) -> bool:
-    """True when ``path`` is a regular file, False when it does not exist; :class:`SessionError` for anything else."""
-    try:
-        mode = path.stat().st_mode
-    except FileNotFoundError:
+    """True when ``path`` is a regular file we may read, False when it does not exist; :class:`SessionError` for
+    anything else (a folder, a device or pipe, no permission)."""
+    if not path.exists() and not path.is_symlink():
         return False
-    except OSError as err:
-        raise SessionError(f"{path}: cannot read the {what} ({err.strerror or err})") from None
-    if stat.S_ISDIR(mode):
-        raise SessionError(f"{path} is a folder; give a session file (.h5)")
-    if not stat.S_ISREG(mode):
-        raise SessionError(f"{path}: not a regular file (a device, pipe or socket); give a session file (.h5)")
+    require_regular_file(path, what, SessionError)
     if not os.access(path, os.R_OK):
         raise SessionError(f"{path}: no permission to read the {what}")
     return True
@@ -63,7 +57,7 @@ def regular_file(path: Path, what: str) -> bool:
 
 def open_parts(path: Path) -> Opened:
     """Check ``path`` and its journal and open what can be read; :class:`SessionError` when nothing can."""
-    exists = regular_file(path, "session file")
+    exists = regular_file(path, "session")
     journal = read_journal(journal_path(path))
     entries, problems = checked_entries(journal.entries, journal.lines)
     if journal.damaged:

@@ -194,11 +194,10 @@ def _calibration(h5, check, problems) -> dict:
         if check is not None and not check.clean(path):
             problems.append(f"calibration {kind}: left out ({check.cause(path)})")
             continue
-        group = h5["calibration"][kind]
-        try:
-            out[kind] = check_entry("calibration", {"kind": kind, "data": reader.read_calibration(group)})["data"]
-        except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError, AttributeError) as err:
-            problems.append(f"calibration {kind}: left out ({_short(err)})")
+        data = _read(problems, f"calibration {kind}", lambda k=kind: check_entry(
+            "calibration", {"kind": k, "data": reader.read_calibration(h5["calibration"][k])}))
+        if data is not None:
+            out[kind] = data["data"]
     return out
 
 
@@ -206,12 +205,8 @@ def _preop(h5, check, problems) -> dict | None:
     if check is not None and not check.clean("/nodes/preop"):
         problems.append(f"preop nodes: left out ({check.cause('/nodes/preop')})")
         return None
-    try:
-        data = reader.read_preop(h5)
-        return None if data is None else check_entry("preop", data)
-    except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError) as err:
-        problems.append(f"preop nodes: left out ({_short(err)})")
-        return None
+    data = _read(problems, "preop nodes", lambda: reader.read_preop(h5))
+    return None if data is None else _read(problems, "preop nodes", lambda: check_entry("preop", data))
 
 
 def _registrations(h5, check, problems) -> list[dict]:
@@ -227,10 +222,10 @@ def _registrations(h5, check, problems) -> list[dict]:
         if not name.isdigit() or (check is not None and not check.clean(path)):
             problems.append(f"registration {name}: left out ({check.cause(path) if check else 'not a number'})")
             continue
-        try:
-            out.append(check_entry("registration", reader.read_registration(h5["registration"][name], int(name))))
-        except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError) as err:
-            problems.append(f"registration {name}: left out ({_short(err)})")
+        data = _read(problems, f"registration {name}", lambda n=name: check_entry(
+            "registration", reader.read_registration(h5["registration"][n], int(n))))
+        if data is not None:
+            out.append(data)
     return out
 
 
@@ -253,6 +248,15 @@ def _events(h5, check, problems) -> list[dict]:
         problems.append(f"events: {left_out} unreadable row(s) left out"
                         + (f", and damaged chunks ({check.cause('/events')})" if bad else ""))
     return out
+
+
+def _read(problems: list[str], what: str, read):
+    """``read()``, or None with one sentence in ``problems`` when the file's content makes it fail."""
+    try:
+        return read()
+    except (EntryError, OSError, ValueError, KeyError, RuntimeError, TypeError, AttributeError) as err:
+        problems.append(f"{what}: left out ({_short(err)})")
+        return None
 
 
 def _short(err: BaseException) -> str:
