@@ -285,9 +285,9 @@ def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, c
     (["imu", "monitor", "/nonexistent/ttyACM0"], "Cannot open the IMU port"),
     (["imu", "monitor", "/dev/null", "--seconds", "0"], "--seconds"),
     (["imu", "monitor", "/dev/null", "--baud", "0"], "--baud"),
-    (["imu", "simulate", "--rate", "-5"], "positive"),
+    (["imu", "simulate", "--rate", "-5"], "from 1 to 6667 Hz"),
     (["imu", "simulate", "--garbage", "1.5"], "fraction"),
-    (["imu", "simulate", "--replay", "/nonexistent.csv"], "not a readable IMU CSV"),
+    (["imu", "simulate", "--replay", "/nonexistent.csv"], "no such IMU CSV file"),
     (["imu", "simulate", "--replay", "x.csv", "--rate", "100"], "--rate does not apply"),
     (["imu", "simulate", "--port-link", "/nonexistent/dir/imu"], "cannot create the link"),
 ])

@@ -94,7 +94,7 @@ def test_bad_input_is_a_user_error(phantom, tmp_path):
              ((tmp_path / "ct.dcm",), "modality CT, not NM"),
              ((phantom, "--threshold", "1.2"), "between 0 and 1"),
              ((phantom, "--stations", tmp_path / "bad_stations.csv"), "not a known station"),
-             ((phantom, "--stations", tmp_path / "missing.csv"), "cannot read the station table"),
+             ((phantom, "--stations", tmp_path / "missing.csv"), "no such station table file"),
              ((phantom, "--stations", tmp_path / "old_stations.csv"), "names SN1, but the nodes found are P1")]
     for argv, message in cases:
         with pytest.raises(UserError, match=message):

@@ -78,7 +78,6 @@ def _as_points(name: str, value, minimum: int) -> np.ndarray:
     if np.abs(points).max() > MAX_COORDINATE_MM:
         raise ValueError(f"{name} node coordinates reach {np.abs(points).max():.3g} mm; positions must be in mm "
                          f"within {MAX_COORDINATE_MM:.0e} mm of the origin: check the units of the node file")
-    _spans_a_plane(name, points)
     return points
 
 
@@ -103,6 +102,8 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
     """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`."""
     preop = _as_points("preop", preop, 3)
     intraop = _as_points("intraop", intraop, 3)
+    _spans_a_plane("preop", preop)
+    _spans_a_plane("intraop", intraop)
     if initial is None:
         initial = np.eye(4)
     initial = np.asarray(initial, dtype=float)
