@@ -2,17 +2,19 @@
 
 Why: libhdf5 trusts a file's metadata. One flipped byte in an object header, a B-tree node or a heap can make it read
 out of bounds and end the process with a segmentation fault (no exception, nothing on stderr), or loop forever. So
-before a session file is read, :func:`check_file` forks a child that reads all of it the way the readers will: every
-group's members, every attribute, every dataset (chunked ones chunk by chunk). The child names each object before it
-touches it; when the child dies or stops making progress, the object it named is marked unreadable and a new child
-reads the rest, leaving it out. The caller then reads only what a child read without harm, so a damaged file costs
-what is damaged and no more. Nothing is cached between calls: every file is read afresh, as it is now.
+before a session file is read, :func:`check_file` forks a child that reads it the way the readers will: every
+group's members, every attribute, every dataset, in blocks of chunks. The child names each key before it touches it
+(in memory shared with the parent, no system call per key); when the child dies or stops making progress, the key it
+named is marked unreadable and a new child reads the rest, leaving it out. The caller then reads only what a child
+read without harm, so a damaged file costs what is damaged and no more. The streams' rows, most of a file's bytes and
+not needed to open it, are left for :func:`read_rows`: one child reads them through the caller's own handle into
+shared memory, so they are decompressed once. Nothing is cached between calls: every file is read afresh.
 
 Keys name what was read: ``/nodes/intraop`` (the object), ``/nodes/intraop/*`` (its member list), ``/x@*`` (the
 attribute list of ``/x``), ``/x@case_id`` (one attribute), ``/streams/imu#2048`` (the rows of the block starting at
 row 2048; one block per chunk), ``/events#`` (a dataset read whole). A fork is cheap (the child shares the parent's
-memory); a file this process already has open (the session being recorded) is not checked: libhdf5 reads that one
-from what it holds in memory.
+memory pages); a file this process has open for writing (the session being recorded) is not checked: libhdf5 reads
+that one from what it holds in memory, and a child must not touch that state.
 """
 
 from __future__ import annotations

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import errno
 import logging
-import os
 import selectors
 import socket
 import threading
@@ -37,15 +36,13 @@ import numpy as np
 
 from snreg.errors import LiveLinkError
 from snreg.workflow import live_messages as msg
+from snreg.workflow.live_door import MAX_CLIENTS, Door
 
 __all__ = ["LiveLink", "LinkStats", "LiveLinkError", "STALL_DROP_S", "SEND_BUFFER_BYTES", "MAX_CLIENTS"]
 
 log = logging.getLogger(__name__)
 
 STALL_DROP_S = 10.0             # a client that takes nothing for this long while messages wait is dropped
-MAX_CLIENTS = 16                # 3D Slicer and a few viewers; more are refused politely (a Status line, then closed)
-ACCEPT_PAUSE_S = 0.5            # out of file descriptors: accepting pauses this long (the clients served keep going)
-_ACCEPTS_PER_ROUND = 64         # a flood of connections cannot hold up the clients already served
 STATUS_PERIOD_S = 1.0           # the Status string is recomputed (and sent if it changed) this often
 SEND_BUFFER_BYTES = 8 * 1024    # per client (Linux doubles it): bounds how stale the poses a slow reader gets can be
 _STATE = (msg.INTRAOP_NODES, msg.PREOP_NODES, msg.TROCAR_TO_RAS, msg.STATUS)   # re-sent whole to every new client
@@ -134,9 +131,7 @@ class LiveLink:
         self._listener.setblocking(False)
         self.host, self.port = self._listener.getsockname()[:2]
         self._on_clients, self._stall_drop_s, self._send_buffer = on_clients, float(stall_drop_s), int(send_buffer_bytes)
-        self._max_clients = max(1, int(max_clients))
-        self._reserve: int | None = os.open(os.devnull, os.O_RDONLY)   # given up to close a connection at EMFILE
-        self._accept_paused_until = 0.0
+        self._door = Door(self._listener, max_clients, _LISTEN)          # the cap, and no end at EMFILE
         self._wake_r, self._wake_w = socket.socketpair()
         for end in (self._wake_r, self._wake_w):
             end.setblocking(False)
@@ -150,8 +145,7 @@ class LiveLink:
         self._clients: list[_Client] = []               # server thread only
         self._client_count = self._waiting = 0
         self._current: dict[str, bytes] = {}           # the packed state, server thread only
-        self._counts = dict(clients_seen=0, messages_sent=0, messages_replaced=0, dropped_stalled=0, disconnected=0,
-                            refused=0)
+        self._counts = dict(clients_seen=0, messages_sent=0, messages_replaced=0, dropped_stalled=0, disconnected=0)
         self._cpu_s = 0.0
         self._connected = threading.Event()
         self._drained = threading.Event()
@@ -226,7 +220,8 @@ class LiveLink:
 
     def stats(self) -> LinkStats:
         with self._lock:
-            return LinkStats(self._client_count, self._waiting, **self._counts, cpu_s=self._cpu_s)
+            return LinkStats(self._client_count, self._waiting, **self._counts, refused=self._door.refused,
+                             cpu_s=self._cpu_s)
 
     def close(self, flush_timeout_s: float = 1.0) -> None:
         """Send what is queued (waiting up to ``flush_timeout_s``), then close every socket; safe to call twice."""
@@ -278,13 +273,8 @@ class LiveLink:
         next_status = time.monotonic() + STATUS_PERIOD_S
         try:
             while not self._closing:
-                if self._accept_paused_until and time.monotonic() >= self._accept_paused_until:
-                    self._accept_paused_until = 0.0
-                    selector.register(self._listener, selectors.EVENT_READ, _LISTEN)
-                wait = next_status - time.monotonic()
-                if self._accept_paused_until:
-                    wait = min(wait, self._accept_paused_until - time.monotonic())
-                for key, mask in selector.select(max(0.0, wait)):
+                self._door.resume_if_due(selector)
+                for key, mask in selector.select(max(0.0, self._door.timeout(next_status - time.monotonic()))):
                     if key.data == _LISTEN:
                         self._accept(selector)
                     elif key.data == _WAKE:
@@ -307,25 +297,10 @@ class LiveLink:
             selector.close()
             for sock in (self._listener, self._wake_r, self._wake_w):
                 sock.close()
-            if self._reserve is not None:
-                os.close(self._reserve)
-                self._reserve = None
+            self._door.close()
 
     def _accept(self, selector) -> None:
-        for _ in range(_ACCEPTS_PER_ROUND):
-            try:
-                sock, peer = self._listener.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as err:
-                if err.errno not in (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM):
-                    raise
-                self._out_of_descriptors(selector)
-                return
-            if len(self._clients) >= self._max_clients:
-                self._refuse(sock, f"snreg: {len(self._clients)} clients are connected already (at most "
-                                   f"{self._max_clients}); this connection is closed")
-                continue
+        for sock, address in self._door.accept(selector, len(self._clients)):
             try:
                 sock.setblocking(False)
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -333,7 +308,7 @@ class LiveLink:
             except OSError:
                 sock.close()
                 continue
-            client = _Client(sock, f"{peer[0]}:{peer[1]}")
+            client = _Client(sock, address)
             for device in _STATE:
                 if device in self._current:
                     client.queue(device, self._current[device])
@@ -341,37 +316,6 @@ class LiveLink:
             selector.register(sock, selectors.EVENT_READ, client)
             self._set_count(+1)
             self._connected.set()
-
-    def _refuse(self, sock: socket.socket, why: str) -> None:
-        """Tell a connection why it is not served (one Status message, if its buffer takes it) and close it."""
-        self._count("refused")
-        try:
-            sock.setblocking(False)
-            sock.send(msg.status(why))
-        except OSError:
-            pass
-        sock.close()
-
-    def _out_of_descriptors(self, selector) -> None:
-        """EMFILE: free the reserve descriptor to take the waiting connection and close it, then stop accepting for
-        ``ACCEPT_PAUSE_S`` (the listener stays readable, so trying again at once would spin)."""
-        log.warning("live link: out of file descriptors; a connection was refused and accepting pauses %.1f s",
-                    ACCEPT_PAUSE_S)
-        if self._reserve is not None:
-            os.close(self._reserve)
-            self._reserve = None
-            try:
-                sock, _ = self._listener.accept()
-                sock.close()
-            except OSError:
-                pass
-            try:
-                self._reserve = os.open(os.devnull, os.O_RDONLY)
-            except OSError:
-                self._reserve = None
-        self._count("refused")
-        selector.unregister(self._listener)
-        self._accept_paused_until = time.monotonic() + ACCEPT_PAUSE_S
 
     def _read(self, selector, client: _Client) -> None:
         """Take and ignore what a client sends (Slicer may query or echo); an empty read means it has gone."""
