@@ -120,6 +120,7 @@ def test_a_damaged_file_says_so_and_shows_its_journal(qtbot, screen, recorded, t
     damaged = damaged_copy(path, tmp_path)
     _load(qtbot, screen, damaged)
     assert "DAMAGED" in screen.header.text() and "streams: IMU 0 samples" in screen.header.text()
+    assert "the HDF5 file cannot be read" in screen.header.text()      # what is damaged, in words
     assert screen.node_table.rowCount() == len(truth.node_ids) and screen.timelines.imu_shown == 0
 
 

@@ -136,6 +136,7 @@ class SessionReview:
     frames: FrameSeries
     nodes: list[ReviewNode]
     registrations: list[ReviewRegistration]
+    problems: tuple[str, ...] = ()          # what could not be read, in words (Session.problems)
 
 
 def load_review(path: str | Path) -> SessionReview:
@@ -147,7 +148,7 @@ def load_review(path: str | Path) -> SessionReview:
             preop = session.preop_nodes()
             registrations = session.registrations()
             calibration = session.calibration()
-            header, damaged = dict(session.header), session.damaged
+            header, damaged, problems = dict(session.header), session.damaged, tuple(session.problems)
     except SessionError:
         raise
     except (OSError, ValueError, KeyError, RuntimeError) as err:
@@ -170,7 +171,7 @@ def load_review(path: str | Path) -> SessionReview:
         [ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
                     np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
                     _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg)) for r in records],
-        [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations])
+        [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations], problems)
 
 
 def frame_series(t_s: np.ndarray) -> FrameSeries:

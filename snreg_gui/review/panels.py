@@ -35,8 +35,10 @@ def header_text(review: SessionReview) -> str:
              f"case {review.case_id}, created {review.created_utc or 'unknown'} (UTC), snreg {review.snreg_version}, "
              f"format version {review.format_version}"]
     if review.damaged:
-        lines.append("DAMAGED: the HDF5 file was unreadable in part; what it lost was read from its journal "
-                     "(streams may be missing); 'snreg session recover' rebuilds a clean file")
+        what = review.problems[0] if review.problems else "the HDF5 file was unreadable in part"
+        more = f" (and {len(review.problems) - 1} more)" if len(review.problems) > 1 else ""
+        lines.append(f"DAMAGED: {what}{more}; the rest was read around it, the journal's records from the journal; "
+                     "'snreg session recover' rebuilds a clean file")
     rms = review.stereo_rms_px
     stereo = ("stereo not stored" if rms is None else
               "stereo RMS not recorded" if math.isnan(rms) else f"stereo RMS {rms:.2f} px")
