@@ -16,7 +16,7 @@ from snreg.chain import ChainCalibration
 from snreg.cli import main
 from snreg.nodes import NodeSet
 from snreg.registration import register
-from snreg.session import Session, SessionError
+from snreg.session import Session, SessionError, opening
 from snreg.session.filecheck import check_file
 from snreg.session.journal import journal_path
 from snreg.session.recovery import RecoverLock, recover
@@ -151,3 +151,10 @@ def test_special_files_are_refused_in_one_sentence(tmp_path, session):
     os.mkfifo(journal_path(session))
     with pytest.raises(SessionError, match="journal: not a regular file"):
         Session.open(session)
+
+
+def test_a_file_we_may_not_read_is_said_so_not_called_damaged(session, monkeypatch):
+    monkeypatch.setattr(opening.os, "access", lambda path, mode: False)    # as for another user's file (not root)
+    with pytest.raises(SessionError, match="no permission to read the session") as err:
+        Session.open(session)
+    assert "damaged" not in str(err.value) and "recover" not in str(err.value)
