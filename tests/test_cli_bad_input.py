@@ -196,6 +196,7 @@ CASES = [
      "found in no pair"),
     (["calibrate", "trocar", "manual", "--imu-trocar", "nan", "--trocar-camera", "158"], "--imu-trocar"),
     (["calibrate", "trocar", "manual", "--imu-trocar", "460", "--trocar-camera", "-5"], "positive"),
+    (["calibrate", "trocar", "manual", "--imu-trocar", "1e308", "--trocar-camera", "158"], "at most 5000 mm"),
     (["calibrate", "trocar", "manual", "--imu-trocar", "460", "--trocar-camera", "158", "-o", MISSING + "/chain.json"],
      "does not exist"),
     (["calibrate", "trocar", "pivot", "--images", "{none*.png}", "--board", "9x6", "--square", "10", "--calib", CALIB],

@@ -24,6 +24,17 @@ __all__ = ["add_trocar_parser"]
 
 THESIS_IMU_TROCAR_MM = 460.0    # snreg.chain.THESIS_IMU_TROCAR_MM (a test keeps them equal)
 
+MAX_DISTANCE_MM = 5000.0         # an endoscope is well under a metre long
+
+
+def _distance(text: str) -> float:
+    """A distance along the endoscope, mm, at most ``MAX_DISTANCE_MM`` (its sign is the chain's to check)."""
+    value = finite_float(text)
+    if abs(value) > MAX_DISTANCE_MM:
+        raise argparse.ArgumentTypeError(f"expected a distance of at most {MAX_DISTANCE_MM:g} mm, got {text!r}")
+    return value
+
+
 def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
     """Add ``trocar`` with its modes ``pivot`` and ``manual`` to the ``calibrate`` subparsers; returns its parser."""
     trocar = calibrate_subparsers.add_parser("trocar", help="trocar and IMU calibration of the chain (thesis §3.5, §4.1)")
@@ -37,15 +48,16 @@ def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
     p.add_argument("--calib", required=True, help="stereo calibration file (.yaml); its left camera is used")
     p.add_argument("--imu-csv", metavar="CSV", help="IMU orientation per image: columns yaw,pitch,roll (degrees), "
                                                     "rows in sorted image order")
-    p.add_argument("--imu-trocar", type=finite_float, default=THESIS_IMU_TROCAR_MM, metavar="MM",
+    p.add_argument("--imu-trocar", type=_distance, default=THESIS_IMU_TROCAR_MM, metavar="MM",
                    help=f"IMU-trocar distance for the chain file, mm (default {THESIS_IMU_TROCAR_MM:g}, thesis manual; "
                         "it cancels out of the chain)")
     p.add_argument("-o", "--output", metavar="JSON", help="write the chain constants as JSON")
     p.set_defaults(func=cmd_trocar_pivot)
     p = modes.add_parser("manual", help="hand-measured distances (thesis §4.1)",
                          description="Chain constants from measured distances, IMU axes aligned with the camera's by eye.")
-    p.add_argument("--imu-trocar", required=True, type=finite_float, metavar="MM", help="IMU-trocar distance, mm (thesis 460)")
-    p.add_argument("--trocar-camera", required=True, type=finite_float, metavar="MM",
+    p.add_argument("--imu-trocar", required=True, type=_distance, metavar="MM",
+                   help="IMU-trocar distance, mm (thesis 460)")
+    p.add_argument("--trocar-camera", required=True, type=_distance, metavar="MM",
                    help="trocar-camera distance, mm (thesis 158)")
     p.add_argument("-o", "--output", metavar="JSON", help="also write the chain constants to this file")
     p.set_defaults(func=cmd_trocar_manual)
