@@ -110,7 +110,7 @@ class Session:
         session = cls(path, opened.header, opened.h5, None, damaged=opened.damaged)
         session._check, session.problems, session.has_journal = opened.check, opened.problems, opened.journal
         if opened.h5 is not None:
-            session._load_hdf5()
+            session._load_hdf5(opened.parts)
         session._replay(opened.entries)
         return session
 
@@ -157,8 +157,9 @@ class Session:
         session._buffers = {name: writer.StreamBuffer(h5, name, stream_flush_s) for name in STREAM_DTYPES}
         return session
 
-    def _load_hdf5(self) -> None:
-        parts = salvage.read_parts(self._h5, self._check)
+    def _load_hdf5(self, parts: salvage.FileParts | None = None) -> None:
+        """The file's parts (``parts``: as a checking child already read them), streams' problems said in words."""
+        parts = parts or salvage.read_parts(self._h5, self._check)
         self._nodes.update({node.id: node for node in parts.nodes})
         self._calibration.update(parts.calibration)
         self._preop, self._events, self._registrations = parts.preop, parts.events, parts.registrations

@@ -16,7 +16,7 @@ import numpy as np
 
 from snreg.chain import ChainCalibration
 from snreg.nodes import NodeSet
-from snreg.session.schema import FORMAT, IntraopNode, StoredRegistration, stereo_from_dict
+from snreg.session.schema import FORMAT, StoredRegistration, stereo_from_dict
 
 __all__ = ["EntryError", "check_entry", "checked_entries", "check_node", "KINDS"]
 
@@ -103,6 +103,7 @@ _REGISTRATION = {"n": _integer, "method": _text, "rms_mm": _number, "pairing_rul
                  "intraop_ids": _optional(_texts), "initial": _optional(_array((4, 4), finite=True)),
                  "target_error_mm": _optional(_array((-1,))), "missing": _optional(_array((-1,))),
                  "leave_one_out_mm": _optional(_array((-1,))), "final": _optional(lambda v: bool(v))}
+_DROPPED_WHEN_NULL = {"earth_from_imu", "stereo_version", "chain_version"}   # null there means "not recorded"
 _PREOP = {"ids": _texts, "labels": _texts, "xyz": _array((-1, 3), finite=True), "counts": _optional(_array((-1,))),
           "frame": _text}
 
@@ -113,8 +114,9 @@ def _fields(data, spec: dict, extra: bool = True) -> dict:
         raise EntryError(f"is {_kind(data)}, not a record")
     out = dict(data) if extra else {}
     for key, check in spec.items():
-        if key not in data:
+        if key not in data or (data[key] is None and getattr(check, "optional", False) and key in _DROPPED_WHEN_NULL):
             if getattr(check, "optional", False):
+                out.pop(key, None)                  # the reader's default stands for a missing optional field
                 continue
             raise EntryError(f"lacks {key!r}")
         try:
@@ -125,10 +127,9 @@ def _fields(data, spec: dict, extra: bool = True) -> dict:
 
 
 def check_node(data) -> dict:
-    """A node in the journal's JSON form (:meth:`IntraopNode.to_json`), checked; it builds an :class:`IntraopNode`."""
-    data = _fields(data, _NODE)
-    IntraopNode.from_json(data)
-    return data
+    """A node in the journal's JSON form (:meth:`IntraopNode.to_json`), checked field by field: it builds an
+    :class:`IntraopNode`."""
+    return _fields(data, _NODE)
 
 
 def _event(data) -> dict:
@@ -178,6 +179,7 @@ def _registration(data) -> dict:
 
 def _preop(data) -> dict:
     data = _fields(data, _PREOP)
+    data.setdefault("counts", None)                  # not given: no counts (the readers expect the key)
     try:
         NodeSet(data["ids"], data["labels"], data["xyz"], data["counts"], frame=data["frame"])
     except ValueError as err:

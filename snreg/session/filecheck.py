@@ -25,6 +25,7 @@ import gc
 import json
 import mmap
 import os
+import pickle
 import select
 import signal
 import struct
@@ -39,13 +40,15 @@ import h5py
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["FileCheck", "check_file", "read_rows", "STALL_S", "MAX_RUNS", "DEFERRED"]
+__all__ = ["FileCheck", "check_file", "read_checked", "read_rows", "walk_chunk_index", "STALL_S", "MAX_RUNS",
+           "DEFERRED"]
 
 STALL_S = 10.0         # a child that reports nothing for this long is stuck in libhdf5 (a B-tree that loops)
 MAX_RUNS = 24          # children per file: each run leaves out one more object that crashed or hung the last one
 _WHOLE = 1 << 20       # a contiguous dataset up to this many elements is read whole; larger ones by blocks of rows
 _LOCKED = "unable to lock file"
 _LOG_BYTES = 64 << 20  # shared memory for the child's messages (touched only as far as written)
+_PAYLOAD_BYTES = 256 << 20  # shared memory for read_checked's value (likewise; a session's parts are a few MB)
 _POLL_S = 0.2
 DEFERRED = ("/streams/",)   # most of a file's bytes, not needed to open it: their rows are read when they are used
 _BLOCK_CHUNKS = 16     # chunks read at once: fewer calls into h5py; a block that fails is read again chunk by chunk
@@ -131,6 +134,39 @@ def check_file(path: str | Path, *, defer: tuple[str, ...] = DEFERRED, stall_s: 
     return FileCheck(path, not why, problems, why, runs, time.perf_counter() - start, tuple(defer))
 
 
+def read_checked(path: str | Path, read, *, defer: tuple[str, ...] = DEFERRED) -> tuple[FileCheck, object]:
+    """(check, ``read(h5)``): ``read`` run first in a child on the file opened read-only, its value handed back (pickled,
+    through shared memory). When it returns, the file is healthy for everything ``read`` touches (which must be all the
+    caller reads when opening it): the check is clean and the caller need not read those parts again. When it fails
+    (an exception, a crash, a hang), :func:`check_file` walks the file to say what is damaged, and the value is None.
+    A file open for writing in this process is not read here: (a trusting check, None)."""
+    path = Path(path)
+    start = time.perf_counter()
+    if _open_here(path) or not hasattr(os, "fork"):
+        return FileCheck(path, True, seconds=time.perf_counter() - start), None
+    sink = mmap.mmap(-1, _PAYLOAD_BYTES)
+    finished, _, _ = _run_child(path, set(), {}, STALL_S, _Job(read=read, sink=sink))
+    value = None
+    if finished:
+        size = struct.unpack_from("<Q", sink, 0)[0]
+        value = pickle.loads(sink[8:8 + size]) if size else None
+    sink.close()
+    if value is not None:
+        return FileCheck(path, True, runs=1, seconds=time.perf_counter() - start, deferred=tuple(defer)), value
+    check = check_file(path, defer=defer)
+    return dataclasses.replace(check, runs=check.runs + 1, seconds=time.perf_counter() - start), None
+
+
+def walk_chunk_index(dataset: h5py.Dataset) -> int:
+    """Walk the chunk index (where each chunk lies in the file) without reading a chunk; the number of chunks."""
+    found = []
+    if hasattr(dataset.id, "chunk_iter"):
+        dataset.id.chunk_iter(found.append)
+    else:                                                   # libhdf5 before 1.14: one lookup per chunk
+        found = [dataset.id.get_chunk_info(k) for k in range(dataset.id.get_num_chunks())]
+    return len(found)
+
+
 def read_rows(check: FileCheck, datasets: list[h5py.Dataset]) -> tuple[FileCheck, dict[str, np.ndarray]]:
     """Every readable row of deferred ``datasets`` of the file checked, read once, by children (through these very
     handles, as this process would), into memory shared with this process; and ``check`` with what they could not
@@ -165,6 +201,8 @@ class _Job:
 
     only: tuple = ()                             # (dataset, sink) pairs
     defer: tuple[str, ...] = ()
+    read: object = None                          # a function of the open file, run whole (read_checked)
+    sink: mmap.mmap | None = None                # where read's value goes, pickled
 
 
 def _children(path: Path, problems: dict[str, str], job: _Job, stall_s: float):
@@ -312,6 +350,14 @@ def _child(path: Path, skip: set[str], log: _Log, job: _Job) -> None:
         elif isinstance(obj, h5py.Dataset):
             _read_dataset(obj, name, attempt, skip, rows=not name.startswith(job.defer))
 
+    if job.read is not None:
+        with h5py.File(path, "r") as h5:
+            data = pickle.dumps(job.read(h5), protocol=pickle.HIGHEST_PROTOCOL)
+        if 8 + len(data) <= len(job.sink):
+            job.sink[8:8 + len(data)] = data
+            struct.pack_into("<Q", job.sink, 0, len(data))
+        say("done")
+        return
     if job.only:
         for dataset, sink in job.only:
             _read_dataset(dataset, dataset.name, attempt, skip, rows=True, sink=sink)
@@ -337,13 +383,13 @@ def _read_dataset(dataset: h5py.Dataset, name: str, attempt, skip: set[str], row
     that fails (or crashed a child before) is read again chunk by chunk, so only its bad chunks are lost. Without
     ``rows``, only the shape and the chunk index (where each chunk lies) are read. With a ``sink`` (shared memory),
     the rows read are copied into it at their place."""
-    shape = attempt(f"{name}#shape", lambda: (dataset.shape, dataset.chunks))
+    shape = attempt(f"{name}#shape", lambda: (dataset.shape, dataset.chunks, dataset.dtype))
     if not isinstance(shape, tuple):
         return
-    dims, chunks = shape
+    dims, chunks, _ = shape
     if not rows:
         if chunks is not None:
-            attempt(f"{name}#index", lambda: _chunk_index(dataset))
+            attempt(f"{name}#index", lambda: walk_chunk_index(dataset))
         return
 
     def take(first: int, end: int | None):
@@ -371,16 +417,6 @@ def _read_dataset(dataset: h5py.Dataset, name: str, attempt, skip: set[str], row
 def block_rows(shape: tuple, chunks: tuple | None) -> int:
     """The rows of one block, the unit in which damage is found: a chunk, or a slice of a contiguous dataset."""
     return int(chunks[0]) if chunks else max(1, _WHOLE // max(1, _size(shape[1:])))
-
-
-def _chunk_index(dataset: h5py.Dataset) -> int:
-    """Walk the chunk index (where each chunk lies in the file) without reading a chunk; the number of chunks."""
-    found = []
-    if hasattr(dataset.id, "chunk_iter"):
-        dataset.id.chunk_iter(found.append)
-    else:                                                   # libhdf5 before 1.14: one lookup per chunk
-        found = [dataset.id.get_chunk_info(k) for k in range(dataset.id.get_num_chunks())]
-    return len(found)
 
 
 def _size(dims) -> int:

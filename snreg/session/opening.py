@@ -18,10 +18,11 @@ import h5py
 
 from snreg.files import require_regular_file
 from snreg.session.entries import checked_entries
-from snreg.session.filecheck import FileCheck, check_file
+from snreg.session.filecheck import FileCheck, read_checked, walk_chunk_index
 from snreg.session.journal import journal_path, read_journal
 from snreg.session.reader import HEADER_KEYS
-from snreg.session.schema import FORMAT, FORMAT_VERSION, SessionError
+from snreg.session.salvage import FileParts, read_parts, stream_problem
+from snreg.session.schema import FORMAT, FORMAT_VERSION, STREAM_DTYPES, SessionError
 
 __all__ = ["Opened", "open_parts", "regular_file"]
 
@@ -42,6 +43,7 @@ class Opened:
     journal: bool
     damaged: bool
     problems: list[str] = field(default_factory=list)
+    parts: FileParts | None = None           # the file's parts as read by the checking child, when it read them whole
 
 
 def regular_file(path: Path, what: str) -> bool:
@@ -66,7 +68,7 @@ def open_parts(path: Path) -> Opened:
     has_journal = bool(journal.entries) or journal.damaged > 0
     if not exists and not entries:
         raise SessionError(f"{path}: no such session file")
-    check = check_file(path) if exists else None
+    check, parts = read_checked(path, _read_whole) if exists else (None, None)
     if check is not None and not check.opens:
         if journal_header is None:
             raise SessionError(_unreadable(path, check.why))
@@ -93,7 +95,21 @@ def open_parts(path: Path) -> Opened:
         return Opened(dict(journal_header), None, check, entries, has_journal, True, problems)
     problems += header_problems + [_problem(key, why) for key, why in check.problems.items()
                                    if not key.startswith(_PARTS)]
-    return Opened(header, h5, check, entries, has_journal, bool(check.problems or header_problems), problems)
+    return Opened(header, h5, check, entries, has_journal, bool(check.problems or header_problems), problems, parts)
+
+
+def _read_whole(h5: h5py.File) -> FileParts | None:
+    """All that opening a session reads of its file, run in a child (:func:`.filecheck.read_checked`): the root
+    attributes, every part, each stream's table and chunk index. None, so that the file is walked to find the damage,
+    when anything is amiss."""
+    for key in list(h5.attrs):
+        h5.attrs[key]
+    parts = read_parts(h5, None)
+    if parts.problems or any(stream_problem(h5, name, None) for name in STREAM_DTYPES):
+        return None
+    for name in STREAM_DTYPES:
+        walk_chunk_index(h5[f"streams/{name}"])
+    return parts
 
 
 def _header(h5: h5py.File, check: FileCheck, journal_header: dict | None, path: Path):

@@ -91,9 +91,15 @@ def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> 
         return f"stream {name}: unreadable ({check.cause(path)})"
     try:
         dataset = h5[path]
-    except (KeyError, OSError, ValueError, RuntimeError, TypeError):
+    except KeyError:
         return f"stream {name}: missing"
-    if not isinstance(dataset, h5py.Dataset) or dataset.dtype != STREAM_DTYPES[name] or dataset.ndim != 1:
+    except (OSError, ValueError, RuntimeError, TypeError) as err:
+        return f"stream {name}: unreadable ({_short(err)})"
+    try:
+        wrong = not isinstance(dataset, h5py.Dataset) or dataset.dtype != STREAM_DTYPES[name] or dataset.ndim != 1
+    except (OSError, ValueError, RuntimeError, TypeError) as err:     # e.g. a column name that is not UTF-8
+        return f"stream {name}: its columns cannot be read ({_short(err)}); left out"
+    if wrong:
         return f"stream {name}: not a {name} table (wrong columns); left out"
     bad = check.bad_blocks(path) if check is not None else set()
     if bad:
