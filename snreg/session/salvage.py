@@ -22,7 +22,7 @@ from snreg.session import filecheck
 from snreg.session.filecheck import FileCheck
 from snreg.session.schema import STREAM_DTYPES, IntraopNode
 
-__all__ = ["FileParts", "read_parts", "stream_rows"]
+__all__ = ["FileParts", "read_parts", "stream_rows", "stream_problem"]
 
 _ESSENTIAL = ("id", "label", "xyz_trocar")          # a node row is kept when these survive
 _DEFAULTS = {"time_ns": 0, "xyz_camera": [float("nan")] * 3, "spread_mm": float("nan"), "n_frames": 0,
