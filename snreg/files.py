@@ -129,6 +129,7 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
 
 MAX_STORAGE_BYTES = 16 << 20     # a calibration is a few kB
 MAX_NESTING = 64                 # a calibration nests two levels deep (a matrix in the root map)
+ISOLATED_TIMEOUT_S = 10.0        # parsing a FileStorage file of at most MAX_STORAGE_BYTES takes well under a second
 _INDENT = re.compile(r"^[ \t]*", re.MULTILINE)
 
 
@@ -170,24 +171,84 @@ def read_storage(path: str | Path, what: str, error: type[Exception]) -> Storage
         if not text.strip():
             raise error(f"{path}: empty; not an OpenCV {what} file (YAML/XML FileStorage)")
         source, flags = text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY
+    outcome = _isolated(lambda: _parse(source, flags, what))
+    if outcome is None:
+        raise error(f"{path}: OpenCV's parser failed on it (it crashed or never ended); not an OpenCV {what} file")
+    if isinstance(outcome, str):
+        raise error(f"{path}: {outcome}")
+    return outcome
+
+
+def _parse(source: str, flags: int, what: str) -> StorageValues | str:
+    """The root values of a FileStorage text (or path), or why it is not one (a phrase)."""
+    import cv2
+
+    not_one = f"not an OpenCV {what} file (YAML/XML FileStorage)"
     try:
         fs = cv2.FileStorage(source, flags)
     except (cv2.error, SystemError):                   # OpenCV 5 wraps its parse error in a SystemError
-        raise error(f"{path}: not an OpenCV {what} file (YAML/XML FileStorage)") from None
+        return not_one
     try:
         if not fs.isOpened():
-            raise error(f"{path}: not an OpenCV {what} file (YAML/XML FileStorage)")
+            return not_one
         root = fs.root()
         if root.empty() or not root.isMap():
-            raise error(f"{path}: holds no keys (an empty file, or only a header); not an OpenCV {what} file")
+            return f"holds no keys (an empty file, or only a header); not an OpenCV {what} file"
         values = StorageValues(tuple(root.keys()))
         for key in values.keys:
             _take(fs.getNode(key), key, values)
         return values
     except (cv2.error, SystemError):
-        raise error(f"{path}: not an OpenCV {what} file (YAML/XML FileStorage)") from None
+        return not_one
     finally:
         fs.release()
+
+
+def _isolated(work, timeout_s: float = ISOLATED_TIMEOUT_S):
+    """``work()`` run in a forked child and its (pickled) value handed back, so that a crash of the C++ code it calls
+    (OpenCV's parser has aborted on rare malformed files) ends the child, not this process: None then. A child that
+    never ends is killed after ``timeout_s``, and ``work`` is run here instead (a lock held by another thread of this
+    process at the fork could be what stopped it). Without fork, ``work`` runs here."""
+    import pickle
+    import select
+    import signal
+    import warnings
+
+    if not hasattr(os, "fork"):
+        return work()
+    read_end, write_end = os.pipe()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)        # Python >= 3.12 on fork with threads
+        pid = os.fork()
+    if pid == 0:
+        os.close(read_end)
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
+            data = pickle.dumps(work())
+            while data:
+                data = data[os.write(write_end, data):]
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    chunks, ended = [], True
+    try:
+        while True:
+            if not select.select([read_end], [], [], timeout_s)[0]:
+                ended = False
+                os.kill(pid, signal.SIGKILL)
+                break
+            chunk = os.read(read_end, 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(read_end)
+        _, status = os.waitpid(pid, 0)
+    if not ended:
+        return work()
+    if os.WIFSIGNALED(status) or not chunks:
+        return None
+    return pickle.loads(b"".join(chunks))
 
 
 def _take(node, key: str, values: StorageValues) -> None:
