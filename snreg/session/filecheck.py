@@ -40,8 +40,8 @@ import h5py
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["FileCheck", "check_file", "read_checked", "read_rows", "walk_chunk_index", "STALL_S", "MAX_RUNS",
-           "DEFERRED"]
+__all__ = ["FileCheck", "check_file", "read_checked", "read_rows", "walk_chunk_index", "held_rows", "block_rows",
+           "STALL_S", "MAX_RUNS", "DEFERRED"]
 
 STALL_S = 10.0         # a child that reports nothing for this long is stuck in libhdf5 (a B-tree that loops)
 MAX_RUNS = 24          # children per file: each run leaves out one more object that crashed or hung the last one
@@ -51,6 +51,7 @@ _LOG_BYTES = 64 << 20  # shared memory for the child's messages (touched only as
 _PAYLOAD_BYTES = 256 << 20  # shared memory for read_checked's value (likewise; a session's parts are a few MB)
 _POLL_S = 0.2
 DEFERRED = ("/streams/",)   # most of a file's bytes, not needed to open it: their rows are read when they are used
+_MAX_RATIO = 1000     # no compressed chunk holds more than this many times its bytes (gzip of zeros: ~1000)
 _BLOCK_CHUNKS = 16     # chunks read at once: fewer calls into h5py; a block that fails is read again chunk by chunk
 
 
@@ -167,6 +168,25 @@ def walk_chunk_index(dataset: h5py.Dataset) -> int:
     return len(found)
 
 
+def held_rows(dataset: h5py.Dataset) -> int:
+    """The rows a dataset really holds: its shape, but no more than its chunks (or its contiguous storage) cover, so a
+    damaged shape claiming 2^60 rows is not believed (reading or allocating them would never end)."""
+    rows = int(dataset.shape[0]) if dataset.shape else 1
+    if dataset.chunks:
+        starts = []
+        try:
+            if hasattr(dataset.id, "chunk_iter"):
+                dataset.id.chunk_iter(lambda info: starts.append(info.chunk_offset[0]))
+            else:                                           # libhdf5 before 1.14: one lookup per chunk
+                starts += [dataset.id.get_chunk_info(k).chunk_offset[0] for k in range(dataset.id.get_num_chunks())]
+        except (RuntimeError, OSError, ValueError):         # a damaged index: believe the shape, within reason
+            row_bytes = max(1, dataset.dtype.itemsize * _size(dataset.shape[1:]))
+            return min(rows, _MAX_RATIO * os.path.getsize(dataset.file.filename) // row_bytes)
+        return min(rows, max(starts) + dataset.chunks[0]) if starts else 0
+    row_bytes = max(1, dataset.dtype.itemsize * _size(dataset.shape[1:]))
+    return min(rows, dataset.id.get_storage_size() // row_bytes)
+
+
 def read_rows(check: FileCheck, datasets: list[h5py.Dataset]) -> tuple[FileCheck, dict[str, np.ndarray]]:
     """Every readable row of deferred ``datasets`` of the file checked, read once, by children (through these very
     handles, as this process would), into memory shared with this process; and ``check`` with what they could not
@@ -174,14 +194,15 @@ def read_rows(check: FileCheck, datasets: list[h5py.Dataset]) -> tuple[FileCheck
     import numpy as np
 
     start = time.perf_counter()
-    sinks = [mmap.mmap(-1, max(1, int(d.shape[0]) * d.dtype.itemsize)) for d in datasets]
+    held = [held_rows(d) for d in datasets]
+    sinks = [mmap.mmap(-1, max(1, rows * d.dtype.itemsize)) for d, rows in zip(datasets, held)]
     problems, runs = _children(check.path, dict(check.problems), _Job(only=tuple(zip(datasets, sinks))), STALL_S)
     if "/" in problems:                          # a child stopped outside any block: these rows cannot be trusted
         why = problems.pop("/")
         problems.update({f"{d.name}#": why for d in datasets})
     out = {}
-    for dataset, sink in zip(datasets, sinks):
-        name, rows = dataset.name, int(dataset.shape[0])
+    for dataset, sink, rows in zip(datasets, sinks, held):
+        name = dataset.name
         got = np.frombuffer(sink, dataset.dtype, count=rows).copy()
         sink.close()
         keep = np.full(rows, not ({f"{name}#", f"{name}#shape"} & set(problems)))
@@ -403,15 +424,18 @@ def _read_dataset(dataset: h5py.Dataset, name: str, attempt, skip: set[str], row
     if not dims or (chunks is None and int(_size(dims)) <= _WHOLE) or dims[0] == 0:
         attempt(f"{name}#", lambda: take(0, None))
         return
+    rows = attempt(f"{name}#extent", lambda: held_rows(dataset))
+    if not isinstance(rows, int) or isinstance(rows, bool):
+        return
     step = block_rows(dims, chunks)
     block = step * _BLOCK_CHUNKS
-    for first in range(0, dims[0], block):
-        end = min(first + block, dims[0])
+    for first in range(0, rows, block):
+        end = min(first + block, rows)
         coarse = f"{name}#{first}-{end}"
         if coarse not in skip and attempt(coarse, lambda f=first, e=end: take(f, e), quiet=True) is not None:
             continue
         for start in range(first, end, step):
-            attempt(f"{name}#{start}", lambda f=start: take(f, min(f + step, dims[0])))
+            attempt(f"{name}#{start}", lambda f=start: take(f, min(f + step, rows)))
 
 
 def block_rows(shape: tuple, chunks: tuple | None) -> int:

@@ -27,6 +27,7 @@ from snreg.session.schema import FORMAT, FORMAT_VERSION, STREAM_DTYPES, SessionE
 __all__ = ["Opened", "open_parts", "regular_file"]
 
 _SESSION_GROUPS = ("streams", "nodes", "calibration", "registration")
+_PLAUSIBLE_VERSION = 1000       # a format_version beyond this is a damaged attribute, not a newer snreg
 _RECOVER = "run 'snreg session recover'"
 _PARTS = ("/@", "/nodes", "/calibration", "/registration", "/events", "/streams")   # reported part by part (.salvage)
 
@@ -133,8 +134,14 @@ def _header(h5: h5py.File, check: FileCheck, journal_header: dict | None, path: 
         problems.append(f"the root attribute format_version is {version!r}, not a whole number")
         values.pop("format_version")
     elif version is not None and version > FORMAT_VERSION:
-        raise SessionError(f"{path}: session format version {version} is newer than this snreg reads "
-                           f"({FORMAT_VERSION}); update snreg")
+        journal_version = (journal_header or {}).get("format_version")
+        if journal_version is not None and journal_version <= FORMAT_VERSION or version > _PLAUSIBLE_VERSION:
+            problems.append(f"the root attribute format_version is {version}, not a version of this file"
+                            + (f" (its journal says {journal_version})" if journal_version is not None else ""))
+            values.pop("format_version")
+        else:
+            raise SessionError(f"{path}: session format version {version} is newer than this snreg reads "
+                               f"({FORMAT_VERSION}); update snreg")
     if values.get("format") != FORMAT:
         looks = sum(name in h5 for name in _SESSION_GROUPS if check.clean_path(f"/{name}")) >= 2
         if not looks:

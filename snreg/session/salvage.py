@@ -73,7 +73,7 @@ def stream_rows(h5: h5py.File | None, check: FileCheck | None) -> tuple[FileChec
             elif path.startswith(check.deferred) and path not in check.rows_read:
                 deferred.append(dataset)
             else:
-                out[name] = dataset[()] if check.clean(path) else _rows_around(dataset, check.bad_blocks(path))
+                out[name] = _rows_around(dataset, check.bad_blocks(path))
         except (KeyError, OSError, ValueError, RuntimeError, TypeError):
             continue
     if deferred:
@@ -102,18 +102,21 @@ def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> 
     if wrong:
         return f"stream {name}: not a {name} table (wrong columns); left out"
     bad = check.bad_blocks(path) if check is not None else set()
+    held = filecheck.held_rows(dataset)
     if bad:
         step = filecheck.block_rows(dataset.shape, dataset.chunks)
-        lost = sum(min(step, dataset.shape[0] - first) for first in bad)
-        return (f"stream {name}: {lost} of {dataset.shape[0]} rows unreadable ({check.cause(path)}); "
-                "the rest kept")
+        lost = sum(min(step, held - first) for first in bad)
+        return f"stream {name}: {lost} of {held} rows unreadable ({check.cause(path)}); the rest kept"
+    if held < dataset.shape[0]:
+        return f"stream {name}: claims {dataset.shape[0]} rows but its chunks hold {held}; those {held} kept"
     return None
 
 
 def _rows_around(dataset: h5py.Dataset, bad: set[int]) -> np.ndarray:
     """Every row outside the blocks starting at ``bad`` (each one block long: :func:`.filecheck.block_rows`)."""
     step = filecheck.block_rows(dataset.shape, dataset.chunks)
-    parts = [dataset[first:first + step] for first in range(0, dataset.shape[0], step) if first not in bad]
+    held = filecheck.held_rows(dataset)
+    parts = [dataset[first:min(first + step, held)] for first in range(0, held, step) if first not in bad]
     return np.concatenate(parts) if parts else np.zeros(0, dataset.dtype)
 
 
@@ -154,10 +157,11 @@ def _nodes_by_column(group: h5py.Group, check: FileCheck | None, problems: list[
             dataset = group[name]
             bad = check.bad_blocks(path) if check is not None else set()
             step = filecheck.block_rows(dataset.shape, dataset.chunks)
-            values = [None] * dataset.shape[0]
-            for first in range(0, dataset.shape[0], step):
+            held = filecheck.held_rows(dataset)
+            values = [None] * held
+            for first in range(0, held, step):
                 if first not in bad:
-                    values[first:first + step] = list(dataset[first:first + step])
+                    values[first:first + step] = list(dataset[first:min(first + step, held)])
         except (KeyError, OSError, ValueError, RuntimeError, TypeError):
             continue
         columns[name] = values
