@@ -93,7 +93,8 @@ class MainWindow(QMainWindow):
         self.review.failed.connect(self.statusBar().showMessage)
         self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
         self.live_link.failed.connect(self.statusBar().showMessage)
-        self.registration.registered.connect(self.live_link.set_registration)
+        self.registration.registered.connect(
+            lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
         self.registration.preop_box.nodes_changed.connect(self.live_link.set_preop_nodes)
         self.resize(1500, 900)
         self._restore_layout()
@@ -381,9 +382,12 @@ class MainWindow(QMainWindow):
             self.registration.refresh_intraop()
 
     def _link_state(self) -> tuple:
-        """What a live-link client sees first: the stored nodes, the preop nodes, the registration shown."""
+        """What a live-link client sees first: the stored nodes, the preop nodes, the registration shown (with its
+        pairs line; None without one)."""
         records = self.session.intraop_records() if self.session is not None else []
-        return records, self.registration.preop_box.nodes, self.registration.last_result
+        result = self.registration.last_result
+        return records, self.registration.preop_box.nodes, None if result is None else (result,
+                                                                                      self.registration.pairs_line())
 
     def _stop_acquisition(self) -> None:
         self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say

@@ -57,7 +57,7 @@ def cmd_demo(args) -> int:
         return 0
     print(f"stored {len(out['nodes'])} nodes in {out['frames']} frames into {out['session']}; SPECT {out['spect']}")
     for node in out["nodes"]:
-        print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'extra':<4} "
+        print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'none':<4} "
               f"{node['distance_mm']:6.2f} mm  confidence {node['confidence']:.3f}")
     print(f"{out['method']}: RMS after registration {out['rms_mm']:.2f} mm; "
           f"pairing {'matches' if out['pairing_correct'] else 'DOES NOT match'} the phantom's truth")

@@ -26,6 +26,7 @@ from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
+from snreg.registration.naming import pairs_line
 from snreg.registration.report import pair_table
 from snreg.session import Session
 from snreg.workflow.acquisition import Acquisition, ImuReading
@@ -115,7 +116,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
                               intraop_labels=intraop.labels, initial=rough_alignment(preop.xyz, intraop.xyz), seed=seed)
             session.add_registration(result, preop.ids, intraop.ids)
-            feed("set_registration", result)
+            feed("set_registration", result, pairs_line(preop, intraop, result))
     finally:
         rig.close()
     truth = _true_pairing(preop.xyz, sources, tips, session.intraop_records())

@@ -12,6 +12,7 @@ import time
 import h5py
 import numpy as np
 
+from snreg.registration.pairing import shared
 from snreg.session.schema import FORMAT_VERSION, STREAM_DTYPES, IntraopNode
 
 _BYTES = h5py.vlen_dtype(np.uint8)
@@ -109,12 +110,14 @@ def write_preop(h5: h5py.File, data: dict) -> None:
 
 
 def write_registration(h5: h5py.File, data: dict) -> None:
-    """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing, distances (mm), confidence, the ids of
-    the preop and intraop nodes paired; when known the initial alignment (4, 4), the target-error bounds and missing
-    flags (per preop node) and the leave-one-out distances (per intraop node); method, RMS as attributes."""
+    """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing (the hot spot each intraop node came from,
+    -1 for none), shares (another node came from the same hot spot), distances (mm), confidence, the ids of the preop
+    and intraop nodes paired; when known the initial alignment (4, 4), the target-error bounds and missing flags (per
+    preop node) and the leave-one-out distances (per intraop node); method, RMS as attributes."""
     group = h5["registration"].create_group(str(data["n"]))
     for key in ("transform", "pairing", "distances_mm", "confidence"):
         group.create_dataset(key, data=np.asarray(data[key], dtype=int if key == "pairing" else float))
+    group.create_dataset("shares", data=shared(data["pairing"]))
     for key in ("preop_ids", "intraop_ids"):
         if data.get(key) is not None:
             group.create_dataset(key, data=np.array(data[key], dtype=object), dtype=_STR)

@@ -26,7 +26,7 @@ from snreg_gui.common.feed_view import FeedView
 NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "spread (mm)", "frames",
                 "counts")
 REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
-PAIRING_COLUMNS = ("intraop -> preop", "distance (mm)", "confidence")
+PAIRING_COLUMNS = ("intraop -> hot spot", "distance (mm)", "confidence")
 
 
 def header_text(review: SessionReview) -> str:
