@@ -35,6 +35,7 @@ EXTRA_FROM_NODE_MM2 = 10.0        # two stored nodes' independent tracking error
 ANYWHERE_LOG = float(np.log((1.0 - EXTRA_NEAR_FRACTION) / EXTRA_VOLUME_MM3))
 _LOG_2PI = np.log(2.0 * np.pi)
 _SHELL_BINS = 12
+_SEARCH_SPREAD_MM2 = 108.3        # per axis: the mean square of 5-15 mm, the thesis' offsets
 
 
 def logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
@@ -81,9 +82,11 @@ def _nats(near: np.ndarray, n: int) -> np.ndarray:
 
 def extra_nats(d2: np.ndarray, sigma) -> np.ndarray:
     """(..., M) cost of each intraop node being extra, given its squared distances (..., N, M) to the mapped hot spots
-    and the error sigma (scalar, or broadcasting against the leading axes), before any hot spot's own node is known."""
+    and the error sigma (scalar, or broadcasting against the leading axes), before any hot spot's own node is known:
+    the search's cheap stand-in for the density (a Gaussian of the offsets' spread), which the score then replaces."""
     s2 = np.asarray(sigma, dtype=float) ** 2
-    return _nats(_near_log(d2, s2[..., None, None] if s2.ndim else s2), d2.shape[-2])
+    spread2 = _SEARCH_SPREAD_MM2 + (s2[..., None, None] if s2.ndim else s2)
+    return _nats(-d2 / (2.0 * spread2) - 1.5 * (_LOG_2PI + np.log(spread2)), d2.shape[-2])
 
 
 def anchored(intraop: np.ndarray, assignments: np.ndarray, d2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -33,6 +33,7 @@ __all__ = ["solve_global", "local_moves", "no_fit_message"]
 _FORBIDDEN = 1e9
 _LOCAL_ROUNDS = 2
 _LOOSE_SIGMA_MM = 30.0        # assignment sigma when none of ASSIGN_SIGMAS_MM keeps 3 pairs
+_LEANING = 1.5                # triplet fits this far past a bound are pulled onto it as starting points; farther, dropped
 _SCREENED = 400               # hypotheses kept by the robust residual for the quick score
 _SCREEN_MM = 20.0             # its cap: a node farther than this from every mapped preop node counts as this far
 _SCREENED_OUTSIDE = 100       # hypotheses beyond the bounds given a quick score
@@ -162,8 +163,11 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
     triplet_labels = problem.label_nats[pre_idx[keep], intra_idx[keep]].sum(axis=1)
     inside = problem.within_bounds(corrections)
     outside_best = _best_outside(problem, corrections[~inside], triplet_labels[~inside])
-    corrections[~inside] = _pulled_within(problem, corrections[~inside])   # a noisy triplet may lean past a bound
-    corrections, triplet_labels = _screened(problem, corrections, triplet_labels, _SCREENED)
+    angle, shift = problem.correction_size(corrections)
+    leaning = ~inside & (angle <= _LEANING * problem.max_rotation_deg) & (shift <= _LEANING * problem.max_translation_mm)
+    corrections[leaning] = _pulled_within(problem, corrections[leaning])   # a noisy triplet may lean past a bound
+    corrections, triplet_labels = _screened(problem, corrections[inside | leaning], triplet_labels[inside | leaning],
+                                            _SCREENED)
 
     quick, patterns = _quick_scores(problem, corrections, triplet_labels)
     order = np.argsort(quick, kind="stable")

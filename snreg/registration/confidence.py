@@ -23,6 +23,7 @@ __all__ = ["posterior_weights", "source_probabilities", "claim_confidence", "SCO
 # out: the candidates are a handful of the pairings, and at high noise the ones not found hold real weight (issue 20's
 # note). The target-error bounds weigh the candidates as the model says (temperature 1).
 SCORE_TEMPERATURE = 2.0
+_NEGLIGIBLE = 1e-4                # candidates weighing less change no claim's confidence by more than a few thousandths
 
 
 def posterior_weights(candidates: list[Candidate], temperature: float = 1.0) -> tuple[list[Candidate], np.ndarray]:
@@ -42,8 +43,9 @@ def source_probabilities(problem: Problem, candidates: list[Candidate]) -> tuple
     """((M, N + 1) probability that intraop m came from hot spot n, column N: from none; (M,) probability that m is
     an extra) over the candidates weighed at :data:`SCORE_TEMPERATURE`."""
     candidates, weights = posterior_weights(candidates, SCORE_TEMPERATURE)
-    sources = sum(w * source_posterior(problem, c) for c, w in zip(candidates, weights))
-    extra = sum(w * (c.assignment < 0) for c, w in zip(candidates, weights))
+    kept = [(c, w) for c, w in zip(candidates, weights) if w > _NEGLIGIBLE]
+    sources = sum(w * source_posterior(problem, c) for c, w in kept)
+    extra = sum(w * (c.assignment < 0) for c, w in kept)
     return sources, np.asarray(extra, dtype=float)
 
 
