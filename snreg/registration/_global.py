@@ -165,6 +165,8 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
     outside_best = _best_outside(problem, corrections[~inside], triplet_labels[~inside])
     angle, shift = problem.correction_size(corrections)
     leaning = ~inside & (angle <= _LEANING * problem.max_rotation_deg) & (shift <= _LEANING * problem.max_translation_mm)
+    if not (inside | leaning).any():              # a few very noisy nodes: every triplet fit leans far
+        leaning = ~inside
     corrections[leaning] = _pulled_within(problem, corrections[leaning])   # a noisy triplet may lean past a bound
     corrections, triplet_labels = _screened(problem, corrections[inside | leaning], triplet_labels[inside | leaning],
                                             _SCREENED)
