@@ -26,6 +26,7 @@ from PySide6.QtWidgets import (QApplication, QFileDialog, QLabel, QMainWindow, Q
                                QWidget)
 
 from snreg import __version__
+from snreg.demo.errors import load_error_model
 from snreg.demo.rig import DemoRig
 from snreg.session import Session, SessionError
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
@@ -491,11 +492,14 @@ class MainWindow(QMainWindow):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="snreg-gui", description="snreg acquisition, registration and review app")
     parser.add_argument("--demo", action="store_true", help="simulated devices, no hardware")
+    parser.add_argument("--errors", metavar="ideal|thesis|FILE", help="with --demo: the error model the simulated rig "
+                        "runs with (default ideal: nothing errs but the render's noise; thesis: the thesis' phantom)")
     parser.add_argument("session", nargs="?", help="session file: an existing one opens for review, a new name is "
                         "created for recording (demo default: a new file in the temp folder)")
     args = parser.parse_args(argv)
+    errors = _error_model(parser, args)
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    window = MainWindow(args.session, demo=args.demo)
+    window = MainWindow(args.session, demo=args.demo, rig=DemoRig(errors=errors) if errors is not None else None)
     for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
         signal.signal(signum, lambda *_: window.quit_without_asking())
     wake = QTimer(interval=200, timeout=lambda: None)      # lets Python run those handlers while Qt waits
@@ -504,6 +508,18 @@ def main(argv=None) -> int:
     status = app.exec()
     window.shutdown()
     return status
+
+
+def _error_model(parser, args):
+    """The demo's error model (None: ideal, today's demo); a bad name or file ends the start in one line (exit 2)."""
+    if args.errors is None or args.errors == "ideal":
+        return None
+    if not args.demo:
+        parser.error("--errors applies to the demo only; add --demo")
+    try:
+        return load_error_model(args.errors)
+    except ValueError as err:
+        parser.error(str(err))
 
 
 if __name__ == "__main__":

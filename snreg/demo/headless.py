@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment, true_sources_lps, write_phantom_spect
+from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
 from snreg.preop.segment import segment_nodes
@@ -91,13 +91,14 @@ class _TimedLink:
 
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
-                 link=None) -> HeadlessResult:
+                 link=None, errors=None) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
-    ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None."""
+    ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
+    :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo)."""
     session_path = Path(session_path)
     # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs
-    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed)
+    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed, errors=errors)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
@@ -106,8 +107,8 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             frames = _record(rig, session, fixes_per_node, feed)
             recording_s = time.perf_counter() - started
             tips = phantom_tips(rig.probe)
-            sources = true_sources_lps(tips, rig.chain)
-            spect = write_phantom_spect(sources, spect_path_for(session_path), seed=seed)
+            sources = rig.phantom_sources_lps()
+            spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
             session.set_preop_nodes(preop)

@@ -62,12 +62,14 @@ class BudgetConfig:
 
 @dataclass(frozen=True)
 class Figure:
-    """One configuration over the repetitions: registration RMS (R,), node errors (R * N,), TRE (R * N,) mm, pairing."""
+    """One configuration over the repetitions: registration RMS (R,), node errors (R * N,), TRE (R * N,) mm, pairing
+    right (R,), the length of the error all nodes share (R,: a shift the registration cannot see), refusals."""
 
     rms_mm: np.ndarray
     node_error_mm: np.ndarray
     tre_mm: np.ndarray
     paired: np.ndarray
+    common_mm: np.ndarray
     failed: int = 0
 
     def to_json(self) -> dict:
@@ -228,24 +230,26 @@ def _repetition(job) -> dict:
 
 
 def _outcome(scenario, config: BudgetConfig, r: int) -> tuple:
-    """(rms, node errors (N,), TRE at the nodes (N,), pairing right?) of one registration; NaNs when it refused."""
-    errors = np.linalg.norm(scenario.node_errors, axis=1)
+    """(rms, node errors (N,), TRE at the nodes (N,), pairing right?, common error) of one registration; NaNs when it
+    refused."""
+    vectors = scenario.node_errors
+    errors, common = np.linalg.norm(vectors, axis=1), float(np.linalg.norm(vectors.mean(axis=0)))
     try:
         result = register(scenario.preop, scenario.intraop, method=config.method,
                           preop_labels=scenario.preop_labels, intraop_labels=scenario.intraop_labels,
                           initial=rough_alignment(scenario.preop, scenario.intraop), seed=config.seed + r)
     except (NoFitError, ValueError):
-        return float("nan"), errors, np.full(len(errors), np.nan), False
+        return float("nan"), errors, np.full(len(errors), np.nan), False, common
     truth = apply(scenario.trocar_from_patient, scenario.sources_lps)
     tre = np.linalg.norm(apply(result.transform, scenario.sources_lps) - truth, axis=1)
     paired = bool(np.array_equal(result.pairing, np.arange(len(scenario.intraop))))
-    return float(result.rms_mm), errors, tre, paired
+    return float(result.rms_mm), errors, tre, paired, common
 
 
 def _figure(outcomes: list) -> Figure:
     rms = np.array([o[0] for o in outcomes])
     return Figure(rms, np.concatenate([o[1] for o in outcomes]), np.concatenate([o[2] for o in outcomes]),
-                  np.array([o[3] for o in outcomes]), int(np.isnan(rms).sum()))
+                  np.array([o[3] for o in outcomes]), np.array([o[4] for o in outcomes]), int(np.isnan(rms).sum()))
 
 
 def _prediction(figure: Figure, layout: np.ndarray) -> tuple[float, float, float]:

@@ -99,8 +99,9 @@ def markdown_report(result: BudgetResult, command: str = "", seconds: float = fl
               f"West, for a least-squares rigid fit of these {_n(result)} nodes: TRE at the nodes "
               f"{result.tre_predicted_mm:.2f} mm RMS, RMS after registration (FRE) {result.fre_predicted_mm:.2f} mm. "
               f"Monte Carlo ({result.config.method}): TRE {result.tre_mc_mm:.2f} mm RMS, RMS median {total:.2f} mm. "
-              "A gap between the two says the method is not a least-squares fit (chamfer's step sizes and its "
-              "sphere overlap) or the errors are not isotropic.", "",
+              f"Of the node error, a median {np.median(figures['all'].common_mm):.2f} mm is common to all nodes (a "
+              "shift: it adds to the TRE but never to the RMS). A gap between the two says the errors are not "
+              "independent and isotropic, or the method is not a least-squares fit (chamfer's step sizes).", "",
               "## Against the phantom", ""] + phantom_gap(result) + ["", "## Magnitudes and where they come from", ""]
     for source in result.sources:
         factor = model.on(source)
@@ -132,7 +133,7 @@ def plot_tornado(result: BudgetResult, path: str | Path) -> Path:
 
     total = result.figures["all"].rms_median
     order = sorted(result.sources, key=lambda s: result.figures[f"all_but:{s}"].rms_median, reverse=True)
-    fig, ax = plt.subplots(figsize=(8, 0.5 * len(order) + 2.2), dpi=110)
+    fig, ax = plt.subplots(figsize=(8, 0.5 * len(order) + 2.4), dpi=110)
     low, high = PHANTOM_RANGE_MM
     ax.axvspan(low, high, color="0.9", zorder=0)
     for value in PHANTOM_RMS_MM:
@@ -140,14 +141,16 @@ def plot_tornado(result: BudgetResult, path: str | Path) -> Path:
     for y, source in enumerate(order):
         without = result.figures[f"all_but:{source}"].rms_median
         alone = result.figures[f"alone:{source}"].rms_median
-        ax.barh(y, total - without, left=without, color="tab:red", height=0.6, zorder=2)
-        ax.plot([alone], [y], "o", color="tab:blue", zorder=3)
-    ax.axvline(total, color="black", zorder=3)
+        ax.barh(y, total - without, left=without, color="tab:red", height=0.6, zorder=2,
+                label="saved by removing it" if y == len(order) - 1 else None)
+        ax.plot([alone], [y], "o", color="tab:blue", zorder=3, label="the source alone" if y == len(order) - 1 else None)
+    ax.axvline(total, color="black", zorder=3, label=f"all sources: {total:.1f} mm")
+    ax.axvspan(0, 0, color="0.9", label=f"phantom {low:.1f}-{high:.1f} mm (thesis Fig. 16)")
     ax.set_yticks(range(len(order)), order)
-    ax.set_xlabel("registration RMS, median (mm)")
+    ax.set_xlabel(f"registration RMS, median over {result.config.reps} repetitions ({result.config.method}), mm")
     ax.set_xlim(0, max(high, total) * 1.05)
-    ax.set_title(f"Error budget ({result.model.name}): red bar = what removing the source saves from "
-                 f"{total:.1f} mm; dot = the source alone; grey = phantom (thesis Fig. 16)", fontsize=8, loc="left")
+    ax.set_title(f"Error budget: {result.model.name}", loc="left")
+    ax.legend(loc="lower right", fontsize=8, framealpha=0.95)
     fig.tight_layout()
     path = Path(path)
     with atomic_write(path) as temporary:
