@@ -22,14 +22,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.chain import THESIS_IMU_TROCAR_MM, THESIS_TROCAR_CAMERA_MM, ChainCalibration, camera_to_trocar, trocar_from_camera
+from snreg.demo.error_stages import imu_session_errors
 from snreg.demo.errors import ErrorModel
+from snreg.demo.imu_simulator import SensorModel
 from snreg.demo.phantom import NOMINAL_TILT_DEG, PHANTOM_LABELS, setup_patient_from_trocar
 from snreg.demo.scene import PROBE_AXIS, phantom_tips
 from snreg.geometry import apply, invert
 from snreg.probe import ProbeModel
 
 __all__ = ["PhantomGeometry", "ErrorDraw", "Scenario", "phantom_geometry", "draw_errors", "compose",
-           "camera_displacements", "ENDOSCOPE_TILT_DEG"]
+           "camera_displacements", "fused_imu_errors", "cohort_geometry", "ENDOSCOPE_TILT_DEG"]
 
 ENDOSCOPE_TILT_DEG = 34.0          # the demo set-up's endoscope below the horizontal (snreg.demo.phantom)
 
@@ -61,6 +63,45 @@ def phantom_geometry(probe: ProbeModel) -> PhantomGeometry:
     return PhantomGeometry(phantom_tips(probe), PROBE_AXIS.copy(), poses, order, labels, earth_from_imu)
 
 
+def cohort_geometry(nodes_lps: np.ndarray, labels, phantom: PhantomGeometry, turn_deg: float) -> PhantomGeometry:
+    """A patient's nodes (N, 3) LPS mm with their labels as the phantom experiment would meet them: turned into the
+    trocar frame by the nominal set-up with their centroid where the phantom's nodes are, stored left first (side from
+    the label, else from x: LPS +x is the patient's left), each seen from its side's pose (the camera turned
+    ``turn_deg`` for the right side) as the phantom's are."""
+    nodes = np.asarray(nodes_lps, float)
+    sides = [str(label).strip()[-1:] if str(label).strip()[-1:] in ("L", "R") else ("L" if x > nodes[:, 0].mean()
+             else "R") for label, x in zip(labels, nodes[:, 0])]
+    poses = np.array([1 if side == "R" else 0 for side in sides])
+    reference = ChainCalibration.manual().with_reference(phantom.earth_from_imu)
+    at_pose = [trocar_from_camera(reference, phantom.earth_from_imu)]
+    turned = Rotation.from_euler("z", turn_deg, degrees=True) * phantom.earth_from_imu   # the right side's pose
+    at_pose.append(trocar_from_camera(reference, turned))
+    centre = np.mean([apply(at_pose[p], t[None])[0] for p, t in zip(phantom.poses, phantom.tips_camera)], axis=0)
+    trocar_from_patient = invert(setup_patient_from_trocar(NOMINAL_TILT_DEG))
+    trocar = apply(trocar_from_patient, nodes) - apply(trocar_from_patient, nodes.mean(axis=0)[None])[0] + centre
+    tips = np.array([apply(invert(at_pose[p]), t[None])[0] for p, t in zip(poses, trocar)])
+    order = tuple(int(k) for k in np.argsort(poses, kind="stable"))
+    return PhantomGeometry(tips, phantom.axis_camera, poses, order, tuple(str(v) for v in labels), phantom.earth_from_imu)
+
+
+def fused_imu_errors(model: ErrorModel, geometry: PhantomGeometry, seed: int) -> np.ndarray | None:
+    """(N, 3) rotation vectors of the fused orientation's error at each node's store, from one simulated session of
+    the model's sensor through the fusion (:func:`~snreg.demo.error_stages.imu_session_errors`); None when the
+    model's IMU is off or perfect."""
+    imu = model.values["imu"]
+    if not model.on("imu") or not (imu["gyro_bias_dps"] or imu["gyro_noise_dps"] or imu["accel_noise_g"]):
+        return None
+    sensor = SensorModel(accel_noise_density_g=imu["accel_noise_g"], gyro_noise_density_dps=imu["gyro_noise_dps"],
+                         gyro_bias_max_dps=imu["gyro_bias_dps"])
+    order = list(geometry.store_order)
+    errors = imu_session_errors(earth_from_imu_start=geometry.earth_from_imu, turn_deg=model["camera", "turn_deg"],
+                                store_poses=[int(geometry.poses[k]) for k in order], interval_s=imu["node_interval_s"],
+                                sensor=sensor, fusion=str(imu["fusion"]), seed=seed)
+    by_node = np.zeros((geometry.n, 3))
+    by_node[order] = errors
+    return by_node
+
+
 @dataclass(frozen=True, eq=False)
 class ErrorDraw:
     """One draw of every source's error; camera-frame vectors (N, 3) mm unless said.
@@ -71,7 +112,7 @@ class ErrorDraw:
     turn_error_deg: signed error of the measured camera turn; chain: IMU-trocar and trocar-camera distance errors (mm)
     and the IMU-camera misalignment (rotation vector); insertion (2,): unseen change of the camera's distance from
     the pivot per pose, mm; tissue: (N, 3) shift between scan and surgery (trocar frame); spect: (N, 3) segmented
-    centre minus source (patient LPS); spect_labels: the segmentation's labels.
+    centre minus source (patient LPS).
     """
 
     calibration: np.ndarray
@@ -85,11 +126,10 @@ class ErrorDraw:
     insertion: np.ndarray
     tissue: np.ndarray
     spect: np.ndarray
-    spect_labels: tuple[str, ...]
 
 
 def draw_errors(model: ErrorModel, geometry: PhantomGeometry, rng: np.random.Generator, *, calibration=None,
-                tracking=None, imu=None, spect=None, spect_labels=None) -> ErrorDraw:
+                tracking=None, imu=None, spect=None) -> ErrorDraw:
     """The formula-drawn sources from ``rng``; the code-measured ones (calibration, tracking, imu, spect) as given
     (zeros when None: the caller decides which it measured)."""
     n = geometry.n
@@ -115,9 +155,8 @@ def draw_errors(model: ErrorModel, geometry: PhantomGeometry, rng: np.random.Gen
     insertion = rng.normal(0.0, p["camera"]["insertion_sd_mm"], 2)
     tissue = rng.normal(0.0, p["tissue"]["per_node_mm"], (n, 3))
     given = [zeros if v is None else np.asarray(v, float) for v in (calibration, tracking, imu, spect)]
-    labels = tuple(spect_labels) if spect_labels is not None else tuple(label[-1] for label in geometry.labels)
     return ErrorDraw(given[0], given[1], residual, pointing, given[2], float(turn_error), chain_mm, misalignment,
-                     insertion, tissue, given[3], labels)
+                     insertion, tissue, given[3])
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,7 +221,8 @@ def compose(model: ErrorModel, geometry: PhantomGeometry, draw: ErrorDraw) -> Sc
             error = Rotation.from_euler("z", s["imu"] * draw.turn_error_deg, degrees=True) * error
         measured = error * poses[pose] * misaligned
         intraop.append(camera_to_trocar(measured_chain, measured, tips[k]))
-    return Scenario(preop, list(draw.spect_labels), np.array(intraop), list(geometry.labels), sources_lps, nodes_trocar,
+    # preop labels: the side alone, as the segmentation gives it (the station comes from the radiologist, thesis §3.3)
+    return Scenario(preop, [label.strip()[-1:] for label in geometry.labels], np.array(intraop), list(geometry.labels), sources_lps, nodes_trocar,
                     invert(patient_from_trocar), np.array(rotations))
 
 

@@ -15,10 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 from snreg.camera import StereoCalibration
-from snreg.demo.error_draws import camera_displacements, draw_errors, phantom_geometry
-from snreg.demo.error_stages import estimate_calibration, imu_session_errors
+from snreg.demo.error_draws import camera_displacements, draw_errors, fused_imu_errors, phantom_geometry
+from snreg.demo.error_stages import estimate_calibration
 from snreg.demo.errors import ErrorModel
-from snreg.demo.imu_simulator import SensorModel
 from snreg.demo.phantom import NOMINAL_TILT_DEG
 from snreg.probe import ProbeModel
 
@@ -35,18 +34,7 @@ class DemoErrors:
                  seed: int):
         self.model = model
         geometry = phantom_geometry(probe)
-        imu = model.values["imu"]
-        rotations = None
-        if model.on("imu") and (imu["gyro_bias_dps"] or imu["gyro_noise_dps"] or imu["accel_noise_g"]):
-            order = list(geometry.store_order)
-            errors = imu_session_errors(
-                earth_from_imu_start=geometry.earth_from_imu, turn_deg=model["camera", "turn_deg"],
-                store_poses=[int(geometry.poses[k]) for k in order], interval_s=imu["node_interval_s"],
-                sensor=SensorModel(accel_noise_density_g=imu["accel_noise_g"],
-                                   gyro_noise_density_dps=imu["gyro_noise_dps"], gyro_bias_max_dps=imu["gyro_bias_dps"]),
-                fusion=str(imu["fusion"]), seed=seed)
-            rotations = np.zeros((geometry.n, 3))
-            rotations[order] = errors
+        rotations = fused_imu_errors(model, geometry, seed)
         draw = draw_errors(model, geometry, np.random.default_rng([seed, 5]), imu=rotations)
         self.tip_offsets_mm = camera_displacements(model, geometry, draw, INJECTED)
         self.scan_shift_mm = model.on("tissue") * draw.tissue

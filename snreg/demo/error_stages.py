@@ -101,8 +101,8 @@ def _orientations(engine: Fusion, readings, at: list[int]) -> Rotation:
 
 
 def spect_errors(sources_lps: np.ndarray, *, voxel_mm: float, fwhm_mm: float, peak_counts: float,
-                 seed: int) -> tuple[np.ndarray, list[str]]:
-    """(N, 3) segmented centre minus true source (LPS mm) per source, and the segmentation's side labels, for a SPECT
+                 seed: int) -> np.ndarray:
+    """(N, 3) segmented centre minus true source (LPS mm) per source for a SPECT
     of the ``sources`` at this voxel size, resolution and counts (Poisson, seeded), its grid placed at a random
     sub-voxel offset, segmented by :func:`~snreg.preop.segment.segment_nodes` into as many nodes as sources."""
     sources = np.asarray(sources_lps, float)
@@ -113,9 +113,9 @@ def spect_errors(sources_lps: np.ndarray, *, voxel_mm: float, fwhm_mm: float, pe
                                     peak_counts=peak_counts, seed=int(rng.integers(1 << 31)))
     volume = Volume(counts, np.diag([voxel_mm, voxel_mm, voxel_mm, 1.0]) + np.c_[np.zeros((4, 3)), [*origin, 0]],
                     "NM")
-    nodes = segment_nodes(volume, n_nodes=len(sources), midline_x=float(sources[:, 0].mean())).nodes
+    nodes = segment_nodes(volume, n_nodes=len(sources)).nodes
     distance = np.linalg.norm(sources[:, None, :] - nodes.xyz[None, :, :], axis=2)
     match = np.argmin(distance, axis=1)
     if len(set(match.tolist())) < len(sources):          # two sources took one hot spot: pair one-to-one
         match = linear_sum_assignment(distance)[1]
-    return nodes.xyz[match] - sources, [nodes.labels[j] for j in match]
+    return nodes.xyz[match] - sources

@@ -23,10 +23,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from snreg.camera import thesis_calibration
-from snreg.demo.error_draws import PhantomGeometry, compose, draw_errors, phantom_geometry
-from snreg.demo.error_stages import imu_session_errors, spect_errors
+from snreg.demo.error_draws import cohort_geometry, compose, draw_errors, fused_imu_errors, phantom_geometry
+from snreg.demo.error_stages import spect_errors
 from snreg.demo.errors import SOURCES, ErrorModel
-from snreg.demo.imu_simulator import SensorModel
 from snreg.demo.phantom import rough_alignment
 from snreg.errors import NoFitError
 from snreg.geometry import apply
@@ -50,7 +49,9 @@ PATHS = {"calibration": "code: snreg.calibration.stereo on simulated corners, th
 @dataclass(frozen=True)
 class BudgetConfig:
     """Repetitions, registration method, seed; ``draws``/``imu_draws``: the pools of tracked and fused draws the
-    repetitions share; ``workers``: processes (0: one per core)."""
+    repetitions share; ``workers``: processes (0: one per core); ``cohort``: patient-like node sets, repetition r
+    meeting patient r mod P (their tracking and IMU errors are the phantom's draws, node k taking phantom node k mod
+    4's of its side)."""
 
     reps: int = DEFAULT_REPS
     method: str = "chamfer"
@@ -58,6 +59,7 @@ class BudgetConfig:
     draws: int = 6
     imu_draws: int = 12
     workers: int = 0
+    cohort: tuple = ()          # patients as (nodes (N, 3) LPS mm, labels); empty: the phantom
 
 
 @dataclass(frozen=True)
@@ -151,11 +153,12 @@ def run_budget(model: ErrorModel, config: BudgetConfig = BudgetConfig(), progres
 
     seeds = [int(v) for v in np.random.default_rng([config.seed, 1]).integers(1 << 31, size=max(n_draws, 1))]
     pool = _map(_tracking_draw, [(model, s) for s in seeds[:n_draws]], workers, tick)
-    imu_pool = _imu_pool(model, geometry, config)
+    imu_jobs = [(model, geometry, config.seed * 7919 + q) for q in range(config.imu_draws)]
+    imu_pool = [e for e in _map(_imu_draw, imu_jobs, workers, lambda: None) if e is not None]
     jobs = [(model, config, geometry, r, pool, imu_pool) for r in range(config.reps)]
     rows = _map(_repetition, jobs, workers, tick)
     figures = {name: _figure([row[name] for row in rows]) for name in rows[0] if name != "layout"}
-    fle, tre, fre = _prediction(figures["all"], rows[0]["layout"])
+    fle, tre, fre = _prediction(figures["all"], [row["layout"] for row in rows])
     lost = sum(d.lost_frames for d in pool)
     return BudgetResult(model, config, figures, fle, tre, fre, lost)
 
@@ -188,44 +191,45 @@ def _tracking_draw(job) -> TrackingDraw:
     return bench.draw(model, seed)
 
 
-def _imu_pool(model: ErrorModel, geometry: PhantomGeometry, config: BudgetConfig) -> list[np.ndarray]:
-    """Fused-session errors (N, 3) rotation vectors, or none when the model's IMU is perfect or off."""
-    imu = model.values["imu"]
-    if not model.on("imu") or not (imu["gyro_bias_dps"] or imu["gyro_noise_dps"] or imu["accel_noise_g"]):
-        return []
-    sensor = SensorModel(accel_noise_density_g=imu["accel_noise_g"], gyro_noise_density_dps=imu["gyro_noise_dps"],
-                         gyro_bias_max_dps=imu["gyro_bias_dps"])
-    order = list(geometry.store_order)
-    out = []
-    for q in range(config.imu_draws):
-        errors = imu_session_errors(earth_from_imu_start=geometry.earth_from_imu, turn_deg=model["camera", "turn_deg"],
-                                    store_poses=[int(geometry.poses[k]) for k in order],
-                                    interval_s=imu["node_interval_s"], sensor=sensor, fusion=str(imu["fusion"]),
-                                    seed=config.seed * 7919 + q)
-        by_node = np.zeros((geometry.n, 3))
-        by_node[order] = errors
-        out.append(by_node)
-    return out
+def _imu_draw(job) -> np.ndarray | None:
+    """One fused session's errors (None: the model's IMU is off or perfect)."""
+    model, geometry, seed = job
+    return fused_imu_errors(model, geometry, seed)
 
 
 def _repetition(job) -> dict:
     """Every configuration's outcome for repetition ``r``: one draw, composed and registered per configuration."""
-    model, config, geometry, r, pool, imu_pool = job
+    model, config, phantom, r, pool, imu_pool = job
     rng = np.random.default_rng([config.seed, 2, r])
+    geometry, like = phantom, np.arange(phantom.n)
+    if config.cohort:
+        nodes, labels = config.cohort[r % len(config.cohort)]
+        geometry = cohort_geometry(nodes, labels, phantom, model["camera", "turn_deg"])
+        like = _phantom_node_like(geometry, phantom)
     tracked = pool[r % len(pool)] if pool else None
-    draw = draw_errors(model, geometry, rng, calibration=None if tracked is None else tracked.calibration,
-                       tracking=None if tracked is None else tracked.tracking,
-                       imu=imu_pool[r % len(imu_pool)] if imu_pool else None)
+    draw = draw_errors(model, geometry, rng, calibration=None if tracked is None else tracked.calibration[like],
+                       tracking=None if tracked is None else tracked.tracking[like],
+                       imu=imu_pool[r % len(imu_pool)][like] if imu_pool else None)
     full = compose(model, geometry, draw)
     spect = model.values["spect"]
-    spect_error, labels = spect_errors(full.sources_lps, voxel_mm=spect["voxel_mm"], fwhm_mm=spect["fwhm_mm"],
-                                       peak_counts=spect["peak_counts"], seed=int(rng.integers(1 << 31)))
-    draw = replace(draw, spect=spect_error, spect_labels=tuple(labels))
+    spect_error = spect_errors(full.sources_lps, voxel_mm=spect["voxel_mm"], fwhm_mm=spect["fwhm_mm"],
+                               peak_counts=spect["peak_counts"], seed=int(rng.integers(1 << 31)))
+    draw = replace(draw, spect=spect_error)
     out = {}
     for name, variant in configurations(model).items():
         scenario = compose(variant, geometry, draw)
         out[name] = _outcome(scenario, config, r)
     out["layout"] = full.nodes_trocar
+    return out
+
+
+def _phantom_node_like(geometry, phantom) -> np.ndarray:
+    """(N,) per node of ``geometry`` the phantom node whose drawn errors it takes: one of the same side, in turn."""
+    out = np.zeros(geometry.n, dtype=int)
+    for pose in (0, 1):
+        same = np.flatnonzero(phantom.poses == pose)
+        mine = np.flatnonzero(geometry.poses == pose)
+        out[mine] = same[np.arange(len(mine)) % len(same)]
     return out
 
 
@@ -252,10 +256,10 @@ def _figure(outcomes: list) -> Figure:
                   np.array([o[3] for o in outcomes]), np.array([o[4] for o in outcomes]), int(np.isnan(rms).sum()))
 
 
-def _prediction(figure: Figure, layout: np.ndarray) -> tuple[float, float, float]:
-    """FLE (RMS node error), Fitzpatrick and West's RMS TRE at the nodes and the expected RMS FRE, mm."""
+def _prediction(figure: Figure, layouts: list[np.ndarray]) -> tuple[float, float, float]:
+    """FLE (RMS node error), Fitzpatrick and West's RMS TRE at the nodes and the expected RMS FRE (over the
+    repetitions' node layouts), mm."""
     fle = float(np.sqrt(np.mean(figure.node_error_mm**2)))
-    n = len(layout)
-    covariance = rigid_fit_covariance(layout, layout) * fle**2 / 3.0
-    tre = float(np.sqrt(np.mean(np.trace(covariance, axis1=1, axis2=2))))
-    return fle, tre, float(fle * np.sqrt(1.0 - 2.0 / n))
+    traces = np.concatenate([np.trace(rigid_fit_covariance(xyz, xyz), axis1=1, axis2=2) for xyz in layouts])
+    fre2 = np.mean([1.0 - 2.0 / len(xyz) for xyz in layouts])
+    return fle, float(fle * np.sqrt(np.mean(traces) / 3.0)), float(fle * np.sqrt(fre2))

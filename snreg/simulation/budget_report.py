@@ -102,7 +102,10 @@ def markdown_report(result: BudgetResult, command: str = "", seconds: float = fl
               f"Of the node error, a median {np.median(figures['all'].common_mm):.2f} mm is common to all nodes (a "
               "shift: it adds to the TRE but never to the RMS). A gap between the two says the errors are not "
               "independent and isotropic, or the method is not a least-squares fit (chamfer's step sizes).", "",
-              "## Against the phantom", ""] + phantom_gap(result) + ["", "## Magnitudes and where they come from", ""]
+              "## Against the phantom", ""] + (phantom_gap(result) if not result.config.cohort else
+                                                 [f"Run over {len(result.config.cohort)} patient-like node sets "
+                                                  "(--cohort), not the phantom: no comparison."])
+    lines += ["", "## Magnitudes and where they come from", ""]
     for source in result.sources:
         factor = model.on(source)
         lines.append(f"- **{source}** ({result.paths.get(source, '')})" + (f", scaled x{factor:g}" if factor != 1 else ""))
