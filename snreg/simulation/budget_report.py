@@ -23,13 +23,12 @@ PHANTOM_RANGE_MM = (8.9 - 3.3, 11.4 + 1.6)   # both tries' mean -+ sd
 
 
 def _row(name: str, figure) -> str:
-    j = figure.to_json()
+    def q(values, percent):
+        values = values[np.isfinite(values)]
+        return f"{np.percentile(values, percent):5.2f}" if len(values) else "  -  "
 
-    def v(x):
-        return "  -  " if x is None else f"{x:5.2f}"
-
-    return (f"| {name:<22} | {v(j['rms_mm']['median'])} | {v(j['rms_mm']['p90'])} | {v(j['node_error_mm']['median'])} "
-            f"| {v(j['node_error_mm']['p90'])} | {100 * j['pairing_success']:5.1f}% |")
+    return (f"| {name:<22} | {q(figure.rms_mm, 50)} | {q(figure.rms_mm, 90)} | {q(figure.node_error_mm, 50)} "
+            f"| {q(figure.node_error_mm, 90)} | {100 * np.mean(figure.paired):5.1f}% |")
 
 
 def format_table(result: BudgetResult) -> str:
