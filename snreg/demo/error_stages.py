@@ -82,22 +82,11 @@ def imu_session_errors(*, earth_from_imu_start: Rotation, turn_deg: float, store
     settings = _IMUFUSION_DEFAULTS if fusion == "imufusion" else {}
     engine = Fusion(IMU_RATE_HZ, gyroscope_range_dps=float(sensor.gyro_range_dps or 0), **settings)
     at = [int(round(IMU_STILL_START_S * IMU_RATE_HZ)) - 1] + [min(int(s * IMU_RATE_HZ), n - 1) for s in store_times]
-    fused = _orientations(engine, readings, at)
+    euler = engine.update_block(readings.t_device_us, readings.accel_g, readings.gyro_dps)
+    fused = Rotation.from_euler("ZYX", euler[at], degrees=True)
     truth = simulator.profile.orientation(readings.t_s[at])
     error = fused * truth.inv()
     return (error[1:] * error[0].inv()).as_rotvec()
-
-
-def _orientations(engine: Fusion, readings, at: list[int]) -> Rotation:
-    """The fused orientations (earth_from_sensor) after the samples at indices ``at``, fusing sample by sample."""
-    wanted, out = set(at), {}
-    for k, (t_us, accel, gyro) in enumerate(zip(readings.t_device_us, readings.accel_g, readings.gyro_dps)):
-        engine._advance(int(t_us), accel, gyro)
-        if k in wanted:
-            out[k] = engine.rotation
-        if k >= at[-1]:
-            break
-    return Rotation.concatenate([out[k] for k in at])
 
 
 def spect_errors(sources_lps: np.ndarray, *, voxel_mm: float, fwhm_mm: float, peak_counts: float,

@@ -95,7 +95,7 @@ def markdown_report(result: BudgetResult, command: str = "", seconds: float = fl
               "when the camera turned, a camera turn costs nothing by itself.", "",
               "## Prediction beside the simulation", "",
               f"Node error (FLE, RMS over nodes and repetitions, all sources): {result.fle_mm:.2f} mm. Fitzpatrick and "
-              f"West, for a least-squares rigid fit of these {_n(result)} nodes: TRE at the nodes "
+              f"West, for a least-squares rigid fit of {_nodes(result)}: TRE at the nodes "
               f"{result.tre_predicted_mm:.2f} mm RMS, RMS after registration (FRE) {result.fre_predicted_mm:.2f} mm. "
               f"Monte Carlo ({result.config.method}): TRE {result.tre_mc_mm:.2f} mm RMS, RMS median {total:.2f} mm. "
               f"Of the node error, a median {np.median(figures['all'].common_mm):.2f} mm is common to all nodes (a "
@@ -115,14 +115,20 @@ def markdown_report(result: BudgetResult, command: str = "", seconds: float = fl
     off = [s for s in PARAMETERS if not model.on(s)]
     if off:
         lines += ["", f"Switched off: {', '.join(off)}."]
+    refused = {name: f.failed for name, f in figures.items() if f.failed}
+    if refused:
+        lines += ["", "Registrations refused (no pairing within the bounds; counted as wrongly paired, left out of the "
+                  "RMS): " + ", ".join(f"{name} {count}" for name, count in refused.items()) + "."]
     if result.lost_frames:
         lines += ["", f"{result.lost_frames} rendered frames gave no fix (their nodes took the median of the rest)."]
     return "\n".join(lines) + "\n"
 
 
-def _n(result: BudgetResult) -> int:
+def _nodes(result: BudgetResult) -> str:
+    if result.config.cohort:
+        return "each patient's nodes"
     figure = result.figures["all"]
-    return len(figure.node_error_mm) // len(figure.rms_mm)
+    return f"these {len(figure.node_error_mm) // len(figure.rms_mm)} nodes"
 
 
 def plot_tornado(result: BudgetResult, path: str | Path) -> Path:
