@@ -30,7 +30,7 @@ def add_budget_parser(subparsers) -> None:
                    help="error model: ideal, thesis (default) or a YAML file like resources/errors/thesis.yaml")
     p.add_argument("--reps", type=positive_int, default=DEFAULT_REPS, help="repetitions")
     p.add_argument("--method", choices=_METHODS, default="chamfer", help="registration method (thesis: chamfer)")
-    p.add_argument("--set", action="append", default=[], metavar="SOURCE=VALUE", dest="settings",
+    p.add_argument("--set", action="append", default=None, metavar="SOURCE=VALUE", dest="settings",
                    help="what if: SOURCE=FACTOR scales a source's error (0: off), SOURCE.PARAMETER=VALUE sets one "
                         "magnitude, e.g. --set tracking=0.5 --set imu.turn_error_deg=0.2")
     p.add_argument("-o", "--output", default="snreg-budget", help="report folder (budget.md, tornado.png, budget.json)")
@@ -53,7 +53,7 @@ def cmd_budget(args) -> int:
 
     try:
         model = load_error_model(args.errors)
-        for setting in args.settings:
+        for setting in args.settings or ():
             model = model.with_setting(setting)
         cohort = _cohort(args.cohort) if args.cohort else ()
     except ValueError as err:
