@@ -152,3 +152,12 @@ def test_demo_errors_ideal_changes_nothing_and_thesis_moves_the_probe():
     assert 1.0 < np.linalg.norm(thesis.tip_offsets_mm, axis=1).mean() < 20.0
     assert thesis.calibration is not None and thesis.calibration.image_size == (960, 540)
     assert thesis.spect["peak_counts"] == 141.0
+
+
+def test_cli_states_the_library_defaults():
+    """``snreg budget`` states its defaults itself so that building the parser imports no numpy."""
+    from snreg.cli import budget as cli_budget
+    from snreg.registration import METHODS
+    from snreg.simulation import budget
+
+    assert cli_budget.DEFAULT_REPS == budget.DEFAULT_REPS and cli_budget._METHODS == METHODS
