@@ -161,8 +161,9 @@ def draw_errors(model: ErrorModel, geometry: PhantomGeometry, rng: np.random.Gen
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
-    """What a registration sees and the truth to score it: preop (N, 3) LPS, intraop (N, 3) trocar frame (both
-    measured), the true nodes in both frames, the true ``trocar_from_patient`` and the rough initial alignment."""
+    """What a registration sees and the truth to score it: preop (N, 3) LPS and intraop (N, 3) trocar frame (both
+    measured, with their labels), the true nodes in both frames, the true ``trocar_from_patient``, and the rotation
+    each node's store saw the camera at."""
 
     preop: np.ndarray
     preop_labels: list[str]
