@@ -161,3 +161,26 @@ def test_cli_states_the_library_defaults():
     from snreg.simulation import budget
 
     assert cli_budget.DEFAULT_REPS == budget.DEFAULT_REPS and cli_budget._METHODS == METHODS
+
+
+def test_cli_json_is_one_object_of_the_documented_shape(capsys, tmp_path):
+    argv = ["budget", "--reps", "2", "--workers", "1", "--set", "tracking=0", "--set", "calibration=0", "--set", "imu=0",
+            "--json", "--quiet", "-o", str(tmp_path / "out")]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"all", "alone", "all_but", "tre_predicted_mm", "dominant"}
+    assert set(out["alone"]) == {"pointing", "chain", "spect", "tissue", "camera"}
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {"budget.md", "tornado.png", "budget.json"}
+
+
+def test_cohort_runs_the_model_over_patient_like_node_sets():
+    from snreg.simulation import synthetic_cohort
+
+    patients = synthetic_cohort()[:2]
+    cohort = tuple((p.nodes.xyz, tuple(p.nodes.labels)) for p in patients)
+    model = load_error_model("thesis").with_setting("tracking=0").with_setting("calibration=0").with_setting("imu=0")
+    result = run_budget(model, BudgetConfig(reps=2, workers=1, cohort=cohort))
+    sizes = [len(p.nodes.xyz) for p in patients]
+    assert len(result.figures["all"].node_error_mm) == sum(sizes)          # repetition r meets patient r
+    assert result.figures["none"].rms_median < 0.5 and result.figures["all"].rms_median > 1.0
+    assert "patient-like" in markdown_report(result)
