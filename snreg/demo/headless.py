@@ -91,11 +91,12 @@ class _TimedLink:
 
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
-                 link=None, errors=None) -> HeadlessResult:
+                 link=None, errors=None, video: bool = True) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
     ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
-    :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo)."""
+    :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
+    beside the session."""
     session_path = Path(session_path)
     # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs
     rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed, errors=errors)
@@ -104,7 +105,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             started = time.perf_counter()
-            frames = _record(rig, session, fixes_per_node, feed)
+            frames = _record(rig, session, fixes_per_node, feed, video)
             recording_s = time.perf_counter() - started
             tips = phantom_tips(rig.probe)
             sources = rig.phantom_sources_lps()
@@ -125,13 +126,14 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
                           bool(np.array_equal(result.pairing, truth)), frames, recording_s, feed.seconds, feed.calls)
 
 
-def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink) -> int:
+def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True) -> int:
     """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
     skips some)."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
-    acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node)
+    acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
+                              video_fps=rig.fps if video else None)
     limit, read = 2 * rig.schedule.cycle, 0
     with source:
         for frame in source:

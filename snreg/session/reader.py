@@ -54,6 +54,14 @@ def read_events(h5: h5py.File) -> list[dict]:
     return out
 
 
+def read_videos(h5: h5py.File) -> list[dict]:
+    """The recorded video segments (``videos/<n>`` attributes), in order; none in files before format 3."""
+    if "videos" not in h5:
+        return []
+    return [{key: [_plain(v) for v in value.tolist()] if isinstance(value, np.ndarray) else _plain(value)
+             for key, value in h5["videos"][name].attrs.items()} for name in sorted(h5["videos"], key=int)]
+
+
 def read_calibration(h5: h5py.File) -> dict:
     """``{"stereo": dict, "chain": dict}`` for those present, in the journal's JSON form."""
     out = {}

@@ -12,6 +12,7 @@ import numpy as np
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
 from snreg.session import writer
 from snreg.session.schema import STREAM_DTYPES, IntraopNode, SessionError, jpeg_bytes, position_mm, stereo_to_dict
+from snreg.session.video import MIN_FREE_BYTES, RecorderState, StereoRecorder, VideoSegment, free_bytes, segment_files
 
 
 def serialised(method):
@@ -216,6 +217,60 @@ class Recording:
         for key, value in columns.items():
             rows[key] = np.asarray(value).reshape(rows[key].shape)
         self._buffers[name].append(rows)
+
+    # -- video ---------------------------------------------------------------
+    @serialised
+    def start_video(self, fps: float, width: int, height: int, *, min_free_bytes: int = MIN_FREE_BYTES) -> VideoSegment:
+        """Record the pairs given to :meth:`append_frame_pair` into a new segment of two files beside the session
+        (the one being recorded is finished first); OSError when the files cannot be written or the disk is short
+        of ``min_free_bytes``. Its frame 0 is the next ``streams/frames`` row."""
+        self._writable()
+        self.stop_video()
+        free = free_bytes(self.path.parent)
+        if free < min_free_bytes:
+            raise OSError(f"only {free / 1e9:.1f} GB free beside {self.path.name}; the video is not recorded "
+                          f"(it needs {min_free_bytes / 1e9:.0f} GB); free some space")
+        n = max(self._videos, default=-1) + 1
+        segment = VideoSegment(n, segment_files(self.path, n), self._buffers["frames"].rows, float(fps), int(width),
+                               int(height))
+        self._recorder = StereoRecorder(self.path, segment, min_free_bytes=min_free_bytes)
+        self._record_segment(segment)
+        return segment
+
+    @serialised
+    def append_frame_pair(self, t_left_ns, t_right_ns, index, left, right) -> bool:
+        """A frame row, and the pair into the video being recorded if one is (:meth:`start_video`). False when the
+        encoder was behind: the pair was dropped and no row written (rows and video frames stay in step; the drop
+        is counted in :meth:`video_state`)."""
+        self._writable()
+        recorder = self._recorder
+        if recorder is not None and recorder.recording and not recorder.offer(left, right):
+            if recorder.recording:                  # behind, not stopped: the pair is dropped
+                return False
+        self.append_frames(t_left_ns, t_right_ns, index)
+        return True
+
+    @serialised
+    def stop_video(self) -> VideoSegment | None:
+        """Finish the video being recorded: its frames, sizes and SHA-256 go on record; None when none was."""
+        recorder, self._recorder = self._recorder, None
+        if recorder is None:
+            return None
+        segment = recorder.close()
+        self._record_segment(segment)
+        return segment
+
+    def video_state(self) -> RecorderState | None:
+        """What the video encoder has done (written, dropped, why it stopped), None while nothing is recorded."""
+        recorder = self._recorder
+        return None if recorder is None else recorder.state
+
+    def _record_segment(self, segment: VideoSegment) -> None:
+        data = segment.to_json()
+        self._journal.append("video", data)
+        writer.write_video(self._h5, data)
+        self._h5.flush()
+        self._videos[segment.n] = data
 
     def _writable(self) -> None:
         if self._journal is None:

@@ -19,6 +19,7 @@ from snreg.session.journal import Journal, fsync_directory, journal_path, read_j
 from snreg.session.recording import Recording, serialised
 from snreg.session.schema import (FORMAT, FORMAT_VERSION, STREAM_DTYPES, IntraopNode, SessionError, StoredRegistration,
                                   calibration_version, stereo_from_dict, validate_case_id)
+from snreg.session.video import VideoSegment
 
 
 class Session(Recording):
@@ -33,6 +34,8 @@ class Session(Recording):
         self._final: int | None = None              # the registration marked final, if any
         self._events: list[dict] = []
         self._buffers: dict[str, writer.StreamBuffer] = {}
+        self._videos: dict[int, dict] = {}          # recorded video segments by number, in their JSON form
+        self._recorder = None                       # the video segment being recorded, if any
         self._lock = threading.RLock()
 
     # -- opening -------------------------------------------------------------
@@ -103,8 +106,8 @@ class Session(Recording):
                 raise SessionError(f"{path}: the HDF5 file is damaged; run 'snreg session recover' on it, "
                                    "then continue the recovered file")
             state = (merged.header, merged.intraop_records(), dict(merged._calibration), merged._preop,
-                     list(merged._registrations), list(merged._events), merged._final)
-        header, nodes, calibration, preop, registrations, events, final = state
+                     list(merged._registrations), list(merged._events), merged._final, dict(merged._videos))
+        header, nodes, calibration, preop, registrations, events, final, videos = state
         try:
             h5 = h5py.File(path, "r+")
         except OSError as err:
@@ -130,6 +133,9 @@ class Session(Recording):
         session._registrations, session._final = registrations, final
         writer.write_final(h5, final)
         writer.rewrite_nodes(h5, nodes)
+        for data in videos.values():
+            writer.write_video(h5, data)
+        session._videos = videos
         h5.flush()
         session._buffers = {name: writer.StreamBuffer(h5, name, stream_flush_s) for name in STREAM_DTYPES}
         return session
@@ -137,7 +143,7 @@ class Session(Recording):
     def _load_hdf5(self) -> None:
         for part, load in (("nodes", reader.read_nodes), ("calibration", reader.read_calibration),
                            ("preop", reader.read_preop), ("registrations", reader.read_registrations),
-                           ("events", reader.read_events)):
+                           ("events", reader.read_events), ("videos", reader.read_videos)):
             try:
                 value = load(self._h5)
             except (OSError, ValueError, KeyError, RuntimeError):
@@ -151,6 +157,8 @@ class Session(Recording):
                 self._preop = value
             elif part == "events":
                 self._events = value
+            elif part == "videos":
+                self._videos = {int(data["n"]): data for data in value}
             else:
                 self._registrations = value
                 self._final = next((r["n"] for r in value if r.get("final")), None)
@@ -179,6 +187,8 @@ class Session(Recording):
                 known.add(data["n"])
             elif kind == "final":
                 self._final = data["n"]
+            elif kind == "video":
+                self._videos[int(data["n"])] = data
 
     # -- reading -------------------------------------------------------------
     @property
@@ -232,6 +242,10 @@ class Session(Recording):
         """The number of the registration marked final, None if none is."""
         return self._final
 
+    def videos(self) -> list[VideoSegment]:
+        """The recorded video segments, in order (the one being recorded as it was started)."""
+        return [VideoSegment.from_json(self._videos[n]) for n in sorted(self._videos)]
+
     def stream(self, name: str):
         """The ``streams/<name>`` table, lazily (an h5py dataset); empty when the HDF5 file is unreadable."""
         if name not in STREAM_DTYPES:
@@ -256,6 +270,8 @@ class Session(Recording):
             writer.write_final(h5, self._final)
             for event in self._events:
                 writer.append_event(h5, event)
+            for data in self._videos.values():
+                writer.write_video(h5, data)
             for name in STREAM_DTYPES:
                 source = self.stream(name)
                 rows = reader.readable_rows(source) if isinstance(source, h5py.Dataset) else source
@@ -265,7 +281,9 @@ class Session(Recording):
     # -- closing -------------------------------------------------------------
     @serialised
     def close(self) -> None:
-        """Flush buffered streams and close the files (idempotent)."""
+        """Finish the video being recorded, flush buffered streams and close the files (idempotent)."""
+        if self._recorder is not None:
+            self.stop_video()
         if self._h5 is not None and self._h5.id.valid:
             for buffer in self._buffers.values():
                 buffer.flush()
