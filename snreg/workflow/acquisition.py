@@ -152,6 +152,8 @@ class Acquisition:
         self._last_imu: ImuReading | None = None
         self._stored_here: list[str] = []          # ids stored through this object, for undo
         self.video_fps, self.video_problem = video_fps, "" if video_fps else "off"
+        if not video_fps and session.writable and session.video_state() is not None:
+            session.stop_video()                   # recording was turned off: the segment recorded so far is closed
 
     def set_fixes_per_node(self, n: int) -> None:
         """Store the median of the last ``n`` valid fixes (thesis: 60); keeps the fixes already collected."""

@@ -85,7 +85,7 @@ class AcquisitionScreen(QWidget):
         self.spread_value = BigNumber("88.88")
         self.spread_value.setToolTip("how far the fixes of the store window spread about their median: within the "
                                      "spread limit (green) Store SN stores, beyond it (red) it refuses")
-        self.video_health, self.imu_health = StatusLine("camera: waiting", 1, 2), StatusLine("", 1, 3)
+        self.video_health, self.imu_health = StatusLine("camera: waiting", 2, 3), StatusLine("", 1, 3)
         self.link_health = StatusLine("", 1)            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
         self.missing_list = StatusLine("", 1, 3)
@@ -379,10 +379,11 @@ class AcquisitionScreen(QWidget):
             age_s = self._feed_age_s()
             stale = f"  STALE {age_s:.1f} s" if age_s > STALE_AFTER_S else ""
             self.video_health.setText(f"camera: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
-                                      f"tracking {result.outcome.track_ms:.0f} ms{stale}")
+                                      f"tracking {result.outcome.track_ms:.0f} ms{stale}\n{result.outcome.video}")
         imu = self._imu.snapshot()
         stale = "  STALE" if imu.stale else ""
         problem = f" ({imu.problem})" if imu.problem else ""
         self.imu_health.setText(f"IMU: {imu.state}, {imu.rate_hz:.0f} Hz, {imu.corrupt} corrupt{stale}{problem}")
-        set_style(self.video_health, _PAUSED if self._paused else _BAD if "STALE" in self.video_health.text() else "")
+        problem = any(word in self.video_health.text() for word in ("STALE", "DROPPED", "STOPPED", "not recorded"))
+        set_style(self.video_health, _PAUSED if self._paused else _BAD if problem else "")
         set_style(self.imu_health, _BAD if imu.stale else "")
