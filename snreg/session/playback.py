@@ -20,7 +20,7 @@ import numpy as np
 from snreg.errors import SourceError
 from snreg.session.reader import readable_rows
 from snreg.session.session import Session
-from snreg.session.video import VideoReader, VideoSegment
+from snreg.session.video import RecordedPairs, VideoSegment
 from snreg.sources import FrameSource, SourceState, StereoFrame
 
 
@@ -64,7 +64,7 @@ class RecordedFeed(FrameSource):
         self._origin = int(self._times[0]) if origin_ns is None and len(self._times) else int(origin_ns or 0)
         self._start = start_ns
         self._next = 0
-        self._readers: dict[int, tuple[VideoReader, VideoReader]] = {}
+        self._pairs = RecordedPairs(path, self._segments)
 
     @property
     def frame_size(self) -> tuple[int, int]:
@@ -110,21 +110,11 @@ class RecordedFeed(FrameSource):
         return max(due, self._next)
 
     def _pair(self, row: int) -> tuple[np.ndarray, np.ndarray] | None:
-        segment = next((s for s in reversed(self._segments) if row >= s.first_row), None)
-        if segment is None:
+        try:
+            return self._pairs.pair(row)
+        except OSError as err:
+            self._stop(SourceState.LOST, f"{err}; check that the videos are beside the session file.")
             return None
-        if segment.n not in self._readers:
-            try:
-                self._readers[segment.n] = tuple(VideoReader(segment.path(self.path, side), segment.fps)
-                                                 for side in range(2))
-            except OSError as err:
-                self._stop(SourceState.LOST, f"{err}; check that the videos are beside the session file.")
-                return None
-        left, right = (reader.read(row - segment.first_row) for reader in self._readers[segment.n])
-        return None if left is None or right is None else (left, right)
 
     def _release(self) -> None:
-        for readers in self._readers.values():
-            for reader in readers:
-                reader.close()
-        self._readers = {}
+        self._pairs.close()

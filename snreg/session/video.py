@@ -266,3 +266,29 @@ class VideoReader:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class RecordedPairs:
+    """The left/right pairs of a session's video segments by ``streams/frames`` row (BGR), files opened when first
+    needed; OSError when one cannot be opened. One thread at a time."""
+
+    def __init__(self, session_path: str | Path, segments: list[VideoSegment]):
+        self._path, self._segments = Path(session_path), segments
+        self._open: dict[int, tuple[VideoReader, VideoReader]] = {}
+
+    def pair(self, row: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The pair of frame row ``row``; None when no segment holds it."""
+        segment = next((s for s in reversed(self._segments) if row >= s.first_row), None)
+        if segment is None:
+            return None
+        if segment.n not in self._open:
+            self._open[segment.n] = tuple(VideoReader(segment.path(self._path, side), segment.fps)
+                                          for side in range(2))
+        left, right = (reader.read(row - segment.first_row) for reader in self._open[segment.n])
+        return None if left is None or right is None else (left, right)
+
+    def close(self) -> None:
+        for readers in self._open.values():
+            for reader in readers:
+                reader.close()
+        self._open = {}

@@ -25,7 +25,7 @@ from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, SessionError, calibration_version
 from snreg.session.reader import readable_rows
 from snreg.session.schema import stereo_to_dict
-from snreg.session.video import VideoReader, VideoSegment
+from snreg.session.video import RecordedPairs
 from snreg.tracking import StereoTracker, TrackingError, summarise
 
 __all__ = ["RetrackedNode", "RetrackResult", "retrack", "store_retracked", "window_rows"]
@@ -101,7 +101,7 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
         raise SessionError(f"the calibration is for {calibration.image_size[0]}x{calibration.image_size[1]} images "
                            f"but the session's video is {size[0]}x{size[1]}; use a calibration made at that size")
     tracker = StereoTracker(calibration, probe, method=method)
-    readers = _Readers(Path(path), segments)
+    readers = RecordedPairs(path, segments)
     try:
         out = [_retrack_node(node, window_rows(frame_times, probe_times, node), readers, tracker, stored["chain"])
                for node in nodes]
@@ -120,13 +120,16 @@ def store_retracked(path: str | Path, result: RetrackResult, reason: str) -> int
     return len(changed)
 
 
-def _retrack_node(node: IntraopNode, rows: np.ndarray, readers: "_Readers", tracker: StereoTracker,
+def _retrack_node(node: IntraopNode, rows: np.ndarray, readers: RecordedPairs, tracker: StereoTracker,
                   chain) -> RetrackedNode:
     if not np.all(np.isfinite(node.earth_from_imu)):
         return RetrackedNode(node, None, None, 0, 0, "the node has no IMU orientation on record (format 1)")
     tips, read = [], 0
     for row in rows:
-        pair = readers.pair(int(row))
+        try:
+            pair = readers.pair(int(row))
+        except OSError:
+            pair = None
         if pair is None:
             continue
         read += 1
@@ -141,31 +144,3 @@ def _retrack_node(node: IntraopNode, rows: np.ndarray, readers: "_Readers", trac
     camera = summarise(tips).xyz
     trocar = summarise(camera_to_trocar(chain, node.earth_from_imu, tips)).xyz
     return RetrackedNode(node, trocar, camera, read, len(tips))
-
-
-class _Readers:
-    """Both files of every segment, opened when first needed; a frame row to its (left, right) pair."""
-
-    def __init__(self, path: Path, segments: list[VideoSegment]):
-        self._path, self._segments = path, segments
-        self._open: dict[int, tuple[VideoReader, VideoReader]] = {}
-
-    def pair(self, row: int) -> tuple[np.ndarray, np.ndarray] | None:
-        for segment in reversed(self._segments):
-            if row >= segment.first_row:
-                break
-        else:
-            return None
-        if segment.n not in self._open:
-            try:
-                self._open[segment.n] = tuple(VideoReader(segment.path(self._path, side), segment.fps)
-                                              for side in range(2))
-            except OSError:
-                return None
-        left, right = (reader.read(row - segment.first_row) for reader in self._open[segment.n])
-        return None if left is None or right is None else (left, right)
-
-    def close(self) -> None:
-        for readers in self._open.values():
-            for reader in readers:
-                reader.close()
