@@ -92,13 +92,13 @@ def _run(args, app, work: Path) -> int:
             raise SystemExit(f"bench: the demo feed did not start: {stopped[0]}")
         app.processEvents()
         time.sleep(0.01)
+    encoder = window.session.video_state()             # updated in place until the session closes
     heartbeat = Heartbeat()
     QTimer.singleShot(round(args.seconds * 1000), window.quit_without_asking)
     app.exec()                                          # the app's own event loop, as in use
     heartbeat.stop()
     gaps = heartbeat.gaps_ms()
     stored = window.acquisition.nodes.rowCount()
-    encoder = window.session.video_state()
     window.shutdown()
     video = _video_figures(session_path, encoder)
     result = {"seconds": args.seconds, "frames": len(frames), "nodes_stored": stored, "ticks": len(gaps) + 1,
