@@ -85,3 +85,22 @@ def test_a_session_without_video_is_refused_in_one_sentence(tmp_path):
         ReplayRig(path)
     with pytest.raises(SourceError, match="has no recorded video to replay"):
         RecordedFeed(path)
+
+
+def test_the_app_replays_a_session_into_a_new_one(qtbot, recorded, tmp_path):  # noqa: F811
+    from PySide6.QtCore import QSettings
+
+    from snreg_gui.app import MainWindow
+    path, _, _ = recorded
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    window = MainWindow(str(path), replay=True, speed=4.0, settings=settings)
+    qtbot.addWidget(window)
+    try:
+        assert isinstance(window.rig, ReplayRig) and window.session.path != path
+        assert window.session.path.parent == path.parent and "-replay-" in window.session.path.name
+        qtbot.waitUntil(lambda: window.acquisition._last_result is not None, timeout=30_000)
+        assert "replay of s.h5 (4x)" in window.windowTitle()
+        qtbot.waitUntil(lambda: "video: recording" in window.acquisition.video_health.text(), timeout=10_000)
+    finally:
+        window._end_confirmed = True
+        window.shutdown()

@@ -245,3 +245,17 @@ def test_too_little_free_space_records_no_video_and_says_so(tmp_path, monkeypatc
         assert session.events("video_not_recorded")[0]["reason"] == "only 0.1 GB free"
     with Session.open(tmp_path / "f.h5") as session:
         assert session.stream("frames").shape[0] == 1          # the session goes on without video
+
+
+def test_turning_recording_off_closes_the_segment_recorded_so_far(tmp_path):
+    cameras = thesis_calibration().scaled(0.125)
+    frame = next(iter(CallableSource(lambda k: (np.zeros((135, 240, 3), np.uint8),) * 2, 30.0, 1)))
+    with Session.create(tmp_path / "o.h5", case_id="off") as session:
+        Acquisition(cameras, default_probe_model(), ChainCalibration.manual(), session, video_fps=30.0).process(
+            frame, LEVEL)
+        assert session.video_state() is not None
+        off = Acquisition(cameras, default_probe_model(), ChainCalibration.manual(), session)
+        assert session.video_state() is None and session.videos()[0].closed
+        assert off.process(frame, LEVEL).video == "video: off (turned off in the settings)"
+    with Session.open(tmp_path / "o.h5") as session:
+        assert session.stream("frames").shape[0] == 2 and session.videos()[0].frames == (1, 1)
