@@ -11,11 +11,9 @@ pytest.importorskip("pytestqt")
 from snreg.session import Session  # noqa: E402
 from snreg_gui.review.screen import ReviewScreen  # noqa: E402
 
-from test_session_video import recorded  # noqa: E402,F401  (a short session recorded with video)
 
-
-def test_scrubbing_shows_the_recorded_pair_with_its_overlay_and_a_node_jumps_to_its_window(qtbot, recorded):  # noqa: F811
-    path, _, _ = recorded
+def test_scrubbing_shows_the_recorded_pair_with_its_overlay_and_a_node_jumps_to_its_window(qtbot, recorded_video):
+    path, _, _ = recorded_video
     screen = ReviewScreen()
     qtbot.addWidget(screen)
     with qtbot.waitSignal(screen.loaded, timeout=60_000):

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import VIDEO_FIXES
 
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
@@ -16,14 +17,12 @@ from snreg.session import Session, SessionError
 from snreg.session.playback import RecordedFeed
 from snreg.sources import SourceState
 
-from test_session_video import FIXES, recorded  # noqa: F401  (the module's recorded session fixture)
 
-
-def test_auto_store_on_a_replay_stores_the_same_nodes(recorded, tmp_path):  # noqa: F811
-    path, _, _ = recorded
+def test_auto_store_on_a_replay_stores_the_same_nodes(recorded_video, tmp_path):
+    path, _, _ = recorded_video
     with Session.open(path) as session:
         original = session.intraop_records()
-    nodes = replay_headless(path, tmp_path / "again.h5", speed=20.0, fixes_per_node=FIXES)
+    nodes = replay_headless(path, tmp_path / "again.h5", speed=20.0, fixes_per_node=VIDEO_FIXES)
     assert len(nodes) == len(original)
     for node, before in zip(nodes, original):
         assert np.linalg.norm(node.xyz_trocar - before.xyz_trocar) < 0.5
@@ -32,8 +31,8 @@ def test_auto_store_on_a_replay_stores_the_same_nodes(recorded, tmp_path):  # no
         assert segment.frames[0] == session.stream("frames").shape[0] > 0
 
 
-def test_a_live_replay_keeps_the_recorded_pace_and_skips_when_behind(recorded):  # noqa: F811
-    path, _, _ = recorded
+def test_a_live_replay_keeps_the_recorded_pace_and_skips_when_behind(recorded_video):
+    path, _, _ = recorded_video
     clock = [0]
     feed = RecordedFeed(path, speed=2.0, clock=lambda: clock[0])
     with Session.open(path) as session:
@@ -87,11 +86,11 @@ def test_a_session_without_video_is_refused_in_one_sentence(tmp_path):
         RecordedFeed(path)
 
 
-def test_the_app_replays_a_session_into_a_new_one(qtbot, recorded, tmp_path):  # noqa: F811
+def test_the_app_replays_a_session_into_a_new_one(qtbot, recorded_video, tmp_path):
     from PySide6.QtCore import QSettings
 
     from snreg_gui.app import MainWindow
-    path, _, _ = recorded
+    path, _, _ = recorded_video
     settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
     window = MainWindow(str(path), replay=True, speed=4.0, settings=settings)
     qtbot.addWidget(window)

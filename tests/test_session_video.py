@@ -13,11 +13,12 @@ import time
 import h5py
 import numpy as np
 import pytest
+from conftest import VIDEO_FIXES
 
 from snreg.camera import StereoCalibration, load_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.cli import main as cli_main
-from snreg.demo.scene import NODE_CENTRES_MM, PhantomScene, Schedule
+from snreg.demo.scene import NODE_CENTRES_MM
 from snreg.probe import default_probe_model
 from snreg.session import Session, SessionError
 from snreg.session.export import session_info
@@ -27,32 +28,11 @@ from snreg.sources import CallableSource
 from snreg.workflow.acquisition import Acquisition, ImuReading
 from snreg.workflow.retrack import retrack, store_retracked
 
-FIXES = 10
 LEVEL = ImuReading(np.eye(3))
 
 
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
-    """A session with video: the phantom tour at 480x270, every node auto-stored after FIXES still fixes."""
-    folder = tmp_path_factory.mktemp("video")
-    cameras, probe = thesis_calibration().scaled(0.25), default_probe_model()
-    scene = PhantomScene(cameras, probe, Schedule(rest_frames=FIXES + 4, move_frames=3), seed=3)
-    path = folder / "s.h5"
-    with Session.create(path, case_id="video-1") as session:
-        session.set_calibration(stereo=cameras, chain=ChainCalibration.manual())
-        acquisition = Acquisition(cameras, probe, ChainCalibration.manual(), session, fixes_per_node=FIXES,
-                                  video_fps=30.0)
-        for frame in CallableSource(scene.render, 30.0, scene.schedule.cycle, start_ns=10**12):
-            outcome = acquisition.process(frame, LEVEL)
-            if outcome.auto_store_due:
-                label = ("OBT R", "EXT L", "EXT R", "OBT L")[scene.resting_node(frame.index)]
-                acquisition.store(session.next_node_id(), label, left_jpeg=frame.left, right_jpeg=frame.right)
-        assert "video: recording" in outcome.video
-    return path, scene, cameras
-
-
-def test_both_feeds_are_recorded_frame_for_frame_with_the_frame_rows(recorded):
-    path, scene, _ = recorded
+def test_both_feeds_are_recorded_frame_for_frame_with_the_frame_rows(recorded_video):
+    path, scene, _ = recorded_video
     info = session_info(path)
     rows = info["streams"]["frames"]
     assert info["intraop_nodes"] == len(NODE_CENTRES_MM) and not info["damaged"]
@@ -72,10 +52,10 @@ def test_both_feeds_are_recorded_frame_for_frame_with_the_frame_rows(recorded):
             assert reader.read(rows) is None
 
 
-def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_scales_the_range(recorded, tmp_path):
-    path, _, cameras = recorded
+def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_scales_the_range(recorded_video, tmp_path):
+    path, _, cameras = recorded_video
     own = retrack(path)
-    assert [n.fixes for n in own.nodes] == [FIXES] * len(NODE_CENTRES_MM)
+    assert [n.fixes for n in own.nodes] == [VIDEO_FIXES] * len(NODE_CENTRES_MM)
     assert max(n.moved_mm for n in own.nodes) < 0.5
     longer = StereoCalibration.from_pair(cameras.image_size, cameras.K1, cameras.D1, cameras.K2, cameras.D2,
                                          cameras.R, cameras.T * 1.05)
@@ -95,8 +75,8 @@ def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_sca
     assert np.allclose([n.xyz_camera for n in nodes], [n.after_camera for n in scaled.nodes])
 
 
-def test_retrack_refuses_another_image_size_and_a_session_without_video(recorded, tmp_path, capsys):
-    path, _, _ = recorded
+def test_retrack_refuses_another_image_size_and_a_session_without_video(recorded_video, tmp_path, capsys):
+    path, _, _ = recorded_video
     with pytest.raises(SessionError, match="960x540 images but the session's video is 480x270"):
         retrack(path, calibration=thesis_calibration().scaled(0.5))
     bare = tmp_path / "bare.h5"
@@ -106,8 +86,8 @@ def test_retrack_refuses_another_image_size_and_a_session_without_video(recorded
     assert "has no recorded video" in capsys.readouterr().err
 
 
-def test_export_calibration_writes_the_calibration_the_session_used(recorded, tmp_path):
-    path, _, cameras = recorded
+def test_export_calibration_writes_the_calibration_the_session_used(recorded_video, tmp_path):
+    path, _, cameras = recorded_video
     out = tmp_path / "used.yaml"
     assert cli_main(["session", "export", str(path), "--format", "calibration", "-o", str(out)]) == 0
     again = load_calibration(out)
@@ -135,8 +115,8 @@ def _flip(path, offset: int) -> None:
         file.write(bytes([byte[0] ^ 0xFF]))
 
 
-def test_verify_reports_every_flipped_byte_and_names_what_it_damaged(recorded, tmp_path, capsys):
-    path, _, _ = recorded
+def test_verify_reports_every_flipped_byte_and_names_what_it_damaged(recorded_video, tmp_path, capsys):
+    path, _, _ = recorded_video
     assert verify(path).ok
     with h5py.File(path) as h5:
         names = []

@@ -54,7 +54,7 @@ def write(kind: str, path: str, settings, frames: list, kill_after: int | None =
         writer.release()
     else:
         codec, pix_fmt, options = settings
-        container = av.open(path, "w", container_options={"cluster_time_limit": "500", "flush_packets": "1"}
+        container = av.open(path, "w", container_options={"cluster_time_limit": "250", "flush_packets": "1"}
                             if path.endswith(".mkv") else {})
         stream = container.add_stream(codec, rate=Fraction(int(FPS)), options=dict(options, g="30"))
         stream.width, stream.height, stream.pix_fmt = width, height, pix_fmt
