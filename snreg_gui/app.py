@@ -379,6 +379,7 @@ class MainWindow(QMainWindow):
         self.acquisition.max_spread_changed.connect(self.worker.set_max_spread, queued)
         self.acquisition.max_spread_changed.connect(lambda mm: self.settings.setValue(MAX_SPREAD_KEY, mm))
         self.worker.source_stopped.connect(self.statusBar().showMessage, queued)
+        self.worker.source_stopped.connect(self.acquisition.show_source_stopped, queued)
         self.acquisition.store_requested.connect(self.worker.store_node, queued)
         self.acquisition.undo_requested.connect(self.worker.undo, queued)
         self.acquisition.fixes_per_node_changed.connect(self.worker.set_fixes_per_node, queued)

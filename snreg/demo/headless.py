@@ -134,7 +134,7 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
                               video_fps=rig.fps if video else None)
-    limit, read = 2 * rig.schedule.cycle, 0
+    limit, read, tail = 2 * rig.schedule.cycle, 0, 0
     with source:
         for frame in source:
             read += 1
@@ -146,11 +146,18 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
                 feed("add_node", acquisition.store(session.next_node_id(), label, left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
             if len(session.intraop_records()) == N_NODES:
-                return read
+                tail += 1                            # a second more on record: a replay meets the last rest whole
+                if tail > _tail_frames(rig):
+                    return read
             if frame.index >= limit:
                 break
     raise DemoError(f"only {len(session.intraop_records())} of {N_NODES} nodes were stored in {limit} frames "
                     f"({source.problem or 'the probe was never tracked still long enough'})")
+
+
+def _tail_frames(rig: DemoRig) -> int:
+    """Frames recorded after the last node is stored: one second."""
+    return round(rig.fps)
 
 
 def _wait_for_imu(rig: DemoRig) -> bool:

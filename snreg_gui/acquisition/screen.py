@@ -74,6 +74,7 @@ class AcquisitionScreen(QWidget):
         self._last_arrival_ns: int | None = None
         self._store_pending = False
         self._paused = ""
+        self._stopped = ""                   # why the feed stopped, once it has
         self.confirm_box: QMessageBox | None = None
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
@@ -298,6 +299,10 @@ class AcquisitionScreen(QWidget):
         else:
             self._say("Not stored: you chose not to store a node so close to a stored one.", _WARN)
 
+    def show_source_stopped(self, problem: str) -> None:
+        """The feed ended or was lost (a replay played to its end, a camera unplugged): say why instead of "stale"."""
+        self._stopped = problem
+
     def set_paused(self, paused: bool) -> None:
         """Say "paused for calibration" (a wizard holds the cameras) instead of a stale feed; Store SN waits."""
         self._paused = PAUSED_TEXT if paused else ""
@@ -342,7 +347,8 @@ class AcquisitionScreen(QWidget):
         elif outcome is None:
             self._set_store_enabled(False, "waiting for the first frame")
         elif self._feed_age_s() > STALE_AFTER_S:
-            self._set_store_enabled(False, f"no frames for {self._feed_age_s():.0f} s: check the cameras", _BAD)
+            self._set_store_enabled(False, self._stopped or f"no frames for {self._feed_age_s():.0f} s: check the cameras",
+                                    _BAD)
         elif outcome.valid_fixes < needed:
             self._set_store_enabled(True, f"not ready: collecting fixes, {outcome.valid_fixes} of {needed}"
                                           + ("" if outcome.fix is not None else f" (no valid fix: {outcome.reason})"),
