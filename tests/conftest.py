@@ -97,6 +97,16 @@ def igtl_client():
 VIDEO_FIXES = 10          # fixes per node of the recorded_video session
 
 
+def start_video(session, fps, width, height, timeout_s: float = 60.0):
+    """Start recording video and wait for its encoder (a second or two; until then pairs are not in the video)."""
+    import time
+    session.start_video(fps, width, height)
+    deadline = time.monotonic() + timeout_s
+    while not session.video_state().started:
+        assert time.monotonic() < deadline and not session.video_state().problem, session.video_state().problem
+        time.sleep(0.01)
+
+
 @pytest.fixture(scope="session")
 def recorded_video(tmp_path_factory):
     """A session recorded with video: the phantom tour at 480x270 (a quarter of the thesis cameras), level IMU, every
@@ -114,6 +124,7 @@ def recorded_video(tmp_path_factory):
     path = folder / "s.h5"
     with Session.create(path, case_id="video-1") as session:
         session.set_calibration(stereo=cameras, chain=ChainCalibration.manual())
+        start_video(session, 30.0, *cameras.image_size)
         acquisition = Acquisition(cameras, probe, ChainCalibration.manual(), session, fixes_per_node=VIDEO_FIXES,
                                   video_fps=30.0)
         for frame in CallableSource(scene.render, 30.0, scene.schedule.cycle, start_ns=10**12):

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import VIDEO_FIXES
+from conftest import VIDEO_FIXES, start_video
 
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
@@ -27,8 +27,8 @@ def test_auto_store_on_a_replay_stores_the_same_nodes(recorded_video, tmp_path):
     for node, before in zip(nodes, original):
         assert np.linalg.norm(node.xyz_trocar - before.xyz_trocar) < 0.5
     with Session.open(tmp_path / "again.h5") as session:          # the replay is recorded like a live session
-        [segment] = session.videos()
-        assert segment.frames[0] == session.stream("frames").shape[0] > 0
+        [segment] = session.videos()                              # from the row its encoder started at
+        assert segment.frames[0] == session.stream("frames").shape[0] - segment.first_row > 0
 
 
 def test_a_live_replay_keeps_the_recorded_pace_and_skips_when_behind(recorded_video):
@@ -50,7 +50,7 @@ def _session_with_imu(path, n_frames=45):
     """A short session with video and a still IMU at 208 Hz over the same time."""
     with Session.create(path, case_id="imu-replay") as session:
         session.set_calibration(stereo=thesis_calibration().scaled(0.125), chain=ChainCalibration.manual())
-        session.start_video(30.0, 240, 135)
+        start_video(session, 30.0, 240, 135)
         start = time.perf_counter_ns()
         image = np.full((135, 240, 3), 90, np.uint8)
         for k in range(n_frames):
@@ -99,7 +99,10 @@ def test_the_app_replays_a_session_into_a_new_one(qtbot, recorded_video, tmp_pat
         assert window.session.path.parent == path.parent and "-replay-" in window.session.path.name
         qtbot.waitUntil(lambda: window.acquisition._last_result is not None, timeout=30_000)
         assert "replay of s.h5 (4x)" in window.windowTitle()
-        qtbot.waitUntil(lambda: "video: recording" in window.acquisition.video_health.text(), timeout=10_000)
+        qtbot.waitUntil(lambda: "\nvideo: " in window.acquisition.video_health.text(), timeout=10_000)
+        replayed = window.session.path
     finally:
         window._end_confirmed = True
         window.shutdown()
+    with Session.open(replayed) as session:                   # recorded like a live session, video and all
+        assert session.stream("frames").shape[0] > 0 and len(session.videos()) == 1

@@ -13,7 +13,7 @@ import time
 import h5py
 import numpy as np
 import pytest
-from conftest import VIDEO_FIXES
+from conftest import VIDEO_FIXES, start_video
 
 from snreg.camera import StereoCalibration, load_calibration, thesis_calibration
 from snreg.chain import ChainCalibration
@@ -163,6 +163,8 @@ _RECORDER = textwrap.dedent("""
     rng = np.random.default_rng(0)
     with Session.create(sys.argv[1], case_id="kill") as session:
         session.start_video(30.0, 160, 120)
+        while not session.video_state().started:
+            time.sleep(0.01)
         print("recording", flush=True)
         for k in range(100000):
             image = np.full((120, 160, 3), k % 256, np.uint8)
@@ -196,7 +198,7 @@ def test_pairs_the_encoder_cannot_keep_up_with_are_counted_and_leave_no_row(tmp_
     image = np.random.default_rng(1).integers(0, 256, (240, 320, 3), dtype=np.uint8)
     path = tmp_path / "d.h5"
     with Session.create(path, case_id="drop") as session:
-        session.start_video(30.0, 320, 240)
+        start_video(session, 30.0, 320, 240)
         taken = [session.append_frame_pair(k, k, k, image, image) for k in range(40)]
         state = session.video_state()
         assert state.dropped == taken.count(False) > 0
@@ -231,6 +233,7 @@ def test_turning_recording_off_closes_the_segment_recorded_so_far(tmp_path):
     cameras = thesis_calibration().scaled(0.125)
     frame = next(iter(CallableSource(lambda k: (np.zeros((135, 240, 3), np.uint8),) * 2, 30.0, 1)))
     with Session.create(tmp_path / "o.h5", case_id="off") as session:
+        start_video(session, 30.0, 240, 135)
         Acquisition(cameras, default_probe_model(), ChainCalibration.manual(), session, video_fps=30.0).process(
             frame, LEVEL)
         assert session.video_state() is not None

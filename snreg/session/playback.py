@@ -20,7 +20,7 @@ import numpy as np
 from snreg.errors import SourceError
 from snreg.session.reader import readable_rows
 from snreg.session.session import Session
-from snreg.session.video import RecordedPairs, VideoSegment
+from snreg.session.video import RecordedPairs, VideoSegment, rows_with_video
 from snreg.sources import FrameSource, SourceState, StereoFrame
 
 
@@ -59,9 +59,12 @@ class RecordedFeed(FrameSource):
         if not self._segments:
             raise SourceError(f"{path} has no recorded video to replay; choose a session recorded with video.")
         self.path, self.speed, self._live, self._clock = path, float(speed), bool(live), clock
-        self._times = np.asarray(rows["t_host_ns"], dtype=np.int64)
-        self._right_times = np.asarray(rows["t_device_ns"], dtype=np.int64)   # the right eye's grab times
-        self._origin = int(self._times[0]) if origin_ns is None and len(self._times) else int(origin_ns or 0)
+        self._rows = np.flatnonzero(rows_with_video(path, self._segments, len(rows)))   # the rows it can play
+        self._times = np.asarray(rows["t_host_ns"], dtype=np.int64)[self._rows]
+        self._right_times = np.asarray(rows["t_device_ns"], dtype=np.int64)[self._rows]   # the right eye's
+        if not len(self._rows):
+            raise SourceError(f"{path}: its video holds no frame of its frame rows; nothing to replay.")
+        self._origin = int(self._times[0]) if origin_ns is None else int(origin_ns)
         self._start = start_ns
         self._next = 0
         self._pairs = RecordedPairs(path, self._segments)
@@ -72,14 +75,15 @@ class RecordedFeed(FrameSource):
         return self._segments[0].width, self._segments[0].height
 
     def __len__(self) -> int:
+        """The frames it plays (the rows with a pair in the video)."""
         return len(self._times)
 
     def _read(self) -> StereoFrame | None:
-        row = self._due()
-        if row >= len(self._times):
+        k = self._due()
+        if k >= len(self._times):
             self._stop(SourceState.ENDED, f"{self.name} played all {len(self._times)} recorded frames.")
             return None
-        self._next = row + 1
+        self._next, row = k + 1, int(self._rows[k])
         pair = self._pair(row)
         if pair is None and self.state is SourceState.OPEN:
             self._stop(SourceState.ENDED, f"{self.name} ended at frame {row}: the video holds no more frames.")
@@ -88,8 +92,7 @@ class RecordedFeed(FrameSource):
         if self._live:
             t_left = t_right = self._clock()
         else:
-            t_left = self._due_ns(self._times[row])
-            t_right = self._due_ns(self._right_times[row])
+            t_left, t_right = self._due_ns(self._times[k]), self._due_ns(self._right_times[k])
         return self._frame(pair[0], pair[1], t_left, t_right, row)
 
     def _due_ns(self, recorded_ns) -> int:
@@ -97,8 +100,8 @@ class RecordedFeed(FrameSource):
         return int(self._start + (int(recorded_ns) - self._origin) / self.speed)
 
     def _due(self) -> int:
-        """The row to take now: live, the newest due (after waiting for the next if none is); else the next one,
-        once it is due."""
+        """The position (in the rows it plays) to take now: live, the newest due (after waiting for the next if none
+        is); else the next one, once it is due."""
         now = self._clock()
         if self._start is None:
             self._start = now

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from dataclasses import replace
 import time
 
 import numpy as np
@@ -222,8 +223,9 @@ class Recording:
     @serialised
     def start_video(self, fps: float, width: int, height: int, *, min_free_bytes: int = MIN_FREE_BYTES) -> VideoSegment:
         """Record the pairs given to :meth:`append_frame_pair` into a new segment of two files beside the session
-        (the one being recorded is finished first); OSError when the files cannot be written or the disk is short
-        of ``min_free_bytes``. Its frame 0 is the next ``streams/frames`` row."""
+        (the one being recorded is finished first); OSError when the disk is short of ``min_free_bytes`` (files
+        that cannot be written stop the recording: :meth:`video_state` says why). Its frame 0 is the row of the
+        first pair the encoder takes, a second or two after this returns."""
         self._writable()
         self.stop_video()
         free = free_bytes(self.path.parent)
@@ -235,18 +237,23 @@ class Recording:
                                int(height))
         self._recorder = StereoRecorder(self.path, segment, min_free_bytes=min_free_bytes)
         self._record_segment(segment)
+        self._video_waiting = True                  # its first_row is set again when the encoder takes a pair
         return segment
 
     @serialised
     def append_frame_pair(self, t_left_ns, t_right_ns, index, left, right) -> bool:
-        """A frame row, and the pair into the video being recorded if one is (:meth:`start_video`). False when the
-        encoder was behind: the pair was dropped and no row written (rows and video frames stay in step; the drop
-        is counted in :meth:`video_state`)."""
+        """A frame row, and the pair into the video being recorded if one is (:meth:`start_video`) and its encoder
+        has started. False when the encoder was behind: the pair was dropped and no row written (rows and video
+        frames stay in step; the drop is counted in :meth:`video_state`)."""
         self._writable()
         recorder = self._recorder
-        if recorder is not None and recorder.recording and not recorder.offer(left, right):
-            if recorder.recording:                  # behind, not stopped: the pair is dropped
-                return False
+        if recorder is not None and recorder.ready:
+            if self._video_waiting:                 # the encoder's first pair: frame 0 is this row
+                self._video_waiting = False
+                recorder.segment = replace(recorder.segment, first_row=self._buffers["frames"].rows)
+                self._record_segment(recorder.segment)
+            if not recorder.offer(left, right) and recorder.recording:
+                return False                        # behind, not stopped: the pair is dropped
         self.append_frames(t_left_ns, t_right_ns, index)
         return True
 

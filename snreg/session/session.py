@@ -36,6 +36,7 @@ class Session(Recording):
         self._buffers: dict[str, writer.StreamBuffer] = {}
         self._videos: dict[int, dict] = {}          # recorded video segments by number, in their JSON form
         self._recorder = None                       # the video segment being recorded, if any
+        self._video_waiting = False                 # its encoder has not taken a pair yet
         self._lock = threading.RLock()
 
     # -- opening -------------------------------------------------------------

@@ -10,7 +10,8 @@ every second; Matroska clusters of at most a quarter second, flushed as written,
 Frame k of each file is row k - ``first_row`` of ``streams/frames`` (0 for a session's first segment), at pts k at the
 nominal ``fps``: the true grab times are the rows'. :class:`StereoRecorder` takes pairs on the acquisition thread and
 encodes them in its own process; a pair that finds its queue full is counted as ``dropped`` and not written (its
-frame row is not written either, so rows and frames stay in step).
+frame row is not written either, so rows and frames stay in step). The encoder takes a second or two to start: the
+rows before its first pair have no video (the segment's ``first_row`` is the row of that pair).
 """
 
 from __future__ import annotations
@@ -104,6 +105,7 @@ class RecorderState:
     """What the encoder has done, for stream health: pairs written and dropped, pairs waiting, why it stopped, free
     space on the session's disk (bytes, -1 until measured) and the encoder process's CPU time (s)."""
 
+    started: bool = False        # the encoder has opened its files and takes pairs
     written: int = 0
     dropped: int = 0
     queued: int = 0
@@ -129,27 +131,27 @@ class StereoRecorder:
         self._memory = shared_memory.SharedMemory(create=True, size=QUEUE_PAIRS * self._pair_bytes)
         self._free = list(range(QUEUE_PAIRS))
         self._lock = threading.Lock()
-        self._started, self._closed = threading.Event(), threading.Event()
+        self._closed = threading.Event()
         self._process = subprocess.Popen(
             [sys.executable, "-m", "snreg.session.encoder", self._memory.name, json.dumps(segment.to_json()),
              str(session_path), str(int(min_free_bytes))],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, bufsize=0)
         self._open = True
         threading.Thread(target=self._listen, name="snreg-video-reports", daemon=True).start()
-        if not self._started.wait(60.0) or self.state.problem:
-            problem = self.state.problem or "the video encoder did not start"
-            self._open = False
-            self._finish_process()
-            raise OSError(f"the video files {', '.join(segment.files)} cannot be written ({problem})")
 
     @property
     def recording(self) -> bool:
         return self._open and not self.state.problem
 
+    @property
+    def ready(self) -> bool:
+        """The encoder has started (a second or two after the recorder) and takes pairs."""
+        return self.state.started and self.recording
+
     def offer(self, left: np.ndarray, right: np.ndarray) -> bool:
         """Queue a pair (BGR, the segment's size); False when it was not taken: the encoder is behind (counted in
-        ``dropped``), or recording stopped (``problem`` says why)."""
-        if not self.recording:
+        ``dropped``), not started yet, or recording stopped (``problem`` says why)."""
+        if not self.ready:
             return False
         if left.shape != (self.segment.height, self.segment.width, 3) or right.shape != left.shape:
             self.state.problem = (f"the frame size changed to {left.shape[1]}x{left.shape[0]}; recording stopped "
@@ -176,21 +178,21 @@ class StereoRecorder:
         for raw in self._process.stdout:
             kind, _, rest = raw.decode("utf-8", "replace").strip().partition(" ")
             if kind == "started":
-                self._started.set()
+                self.state.started = True
             elif kind == "done":
                 slot, written, free, cpu = rest.split()
                 with self._lock:
                     self._free.append(int(slot))
                     self.state.queued = QUEUE_PAIRS - len(self._free)
                 self.state.written, self.state.free_bytes, self.state.cpu_s = int(written), int(free), float(cpu)
-            elif kind in ("problem", "failed") and not self.state.problem:
+            elif kind == "failed" and not self.state.problem:
+                self.state.problem = f"the video files {', '.join(self.segment.files)} cannot be written ({rest})"
+            elif kind == "problem" and not self.state.problem:
                 self.state.problem = rest
-                self._started.set()
             elif kind == "closed":
                 break
         if self._open and not self.state.problem:
             self.state.problem = "the video encoder stopped; recording stopped, the session goes on"
-        self._started.set()
         self._closed.set()
 
     def close(self) -> VideoSegment:
@@ -266,6 +268,17 @@ class VideoReader:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def rows_with_video(session_path: str | Path, segments: list[VideoSegment], n_rows: int) -> np.ndarray:
+    """(n_rows,) bool: which ``streams/frames`` rows have a pair in the video (none before a segment's encoder
+    started, none after a killed file's last frame)."""
+    mask = np.zeros(n_rows, dtype=bool)
+    for segment in segments:
+        frames = min(segment.frames) if segment.closed else min(count_frames(segment.path(session_path, side))
+                                                                   for side in range(2))
+        mask[segment.first_row:segment.first_row + frames] = True
+    return mask
 
 
 class RecordedPairs:

@@ -317,4 +317,6 @@ def video_text(state, problem: str = "") -> str:
     dropped = f", {state.dropped} DROPPED (encoder behind)" if state.dropped else ""
     if state.problem:
         return f"video: STOPPED after {state.written} frames{dropped}: {state.problem}"
+    if not state.started:
+        return "video: starting the encoder"
     return f"video: recording, {state.written} frames{dropped}{free}"
