@@ -215,12 +215,12 @@ def test_too_little_free_space_records_no_video_and_says_so(tmp_path, monkeypatc
         with pytest.raises(OSError, match="GB free beside f.h5"):
             session.start_video(30.0, 480, 270, min_free_bytes=10**18)
         assert session.videos() == [] and not list(tmp_path.glob("*.mkv"))
-        acquisition = Acquisition(cameras, default_probe_model(), ChainCalibration.manual(), session,
-                                  video_fps=30.0)
 
         def full(*args, **kwargs):
             raise OSError("only 0.1 GB free")
         monkeypatch.setattr(session, "start_video", full)
+        acquisition = Acquisition(cameras, default_probe_model(), ChainCalibration.manual(), session,
+                                  video_fps=30.0)
         frame = next(iter(CallableSource(lambda k: (np.zeros((270, 480, 3), np.uint8),) * 2, 30.0, 1)))
         outcome = acquisition.process(frame, LEVEL)
         assert outcome.video == "video: not recorded (only 0.1 GB free)"

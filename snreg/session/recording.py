@@ -221,11 +221,13 @@ class Recording:
 
     # -- video ---------------------------------------------------------------
     @serialised
-    def start_video(self, fps: float, width: int, height: int, *, min_free_bytes: int = MIN_FREE_BYTES) -> VideoSegment:
+    def start_video(self, fps: float, width: int, height: int, *, min_free_bytes: int = MIN_FREE_BYTES,
+                    wait_s: float = 0.0) -> VideoSegment:
         """Record the pairs given to :meth:`append_frame_pair` into a new segment of two files beside the session
         (the one being recorded is finished first); OSError when the disk is short of ``min_free_bytes`` (files
         that cannot be written stop the recording: :meth:`video_state` says why). Its frame 0 is the row of the
-        first pair the encoder takes, a second or two after this returns."""
+        first pair the encoder takes, a second or two after the start; ``wait_s``: wait that long at most for the
+        encoder to start (from the acquisition's thread, before its first frame)."""
         self._writable()
         self.stop_video()
         free = free_bytes(self.path.parent)
@@ -238,6 +240,9 @@ class Recording:
         self._recorder = StereoRecorder(self.path, segment, min_free_bytes=min_free_bytes)
         self._record_segment(segment)
         self._video_waiting = True                  # its first_row is set again when the encoder takes a pair
+        deadline = time.monotonic() + wait_s
+        while not self._recorder.state.started and not self._recorder.state.problem and time.monotonic() < deadline:
+            time.sleep(0.01)
         return segment
 
     @serialised

@@ -42,6 +42,7 @@ THESIS_FIXES_PER_NODE = 60
 STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below this spread (RMS about the median)
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
 IMU_ABSENT = "absent"            # the IMU state of a rig run without one (chosen in the device dialog)
+VIDEO_START_WAIT_S = 10.0        # for the video encoder to start before the first frame (it runs in its own process)
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,8 @@ class Acquisition:
         self.video_fps, self.video_problem = video_fps, "" if video_fps else "off"
         if not video_fps and session.writable and session.video_state() is not None:
             session.stop_video()                   # recording was turned off: the segment recorded so far is closed
+        elif video_fps and session.writable and session.video_state() is None:
+            self._start_video(*calibration.image_size, wait_s=VIDEO_START_WAIT_S)
 
     def set_fixes_per_node(self, n: int) -> None:
         """Store the median of the last ``n`` valid fixes (thesis: 60); keeps the fixes already collected."""
@@ -193,14 +196,18 @@ class Acquisition:
         return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still, due, track_ms,
                             pose, check, float(imu.gap_s), video_text(self.session.video_state(), self.video_problem))
 
+    def _start_video(self, width: int, height: int, wait_s: float = 0.0) -> None:
+        try:
+            self.session.start_video(self.video_fps, width, height, wait_s=wait_s)
+        except OSError as err:
+            self.video_problem = str(err)
+            self.session.log_event("video_not_recorded", reason=self.video_problem)
+
     def _record_frame(self, frame: StereoFrame) -> None:
-        """The frame row, with the pair into the session's video when it is recorded (started at the first frame)."""
+        """The frame row, with the pair into the session's video when it is recorded (started with this object, at
+        the calibration's image size; a session whose recording was closed meanwhile starts a new one here)."""
         if not self.video_problem and self.session.video_state() is None:
-            try:
-                self.session.start_video(self.video_fps, frame.left.shape[1], frame.left.shape[0])
-            except OSError as err:
-                self.video_problem = str(err)
-                self.session.log_event("video_not_recorded", reason=self.video_problem)
+            self._start_video(frame.left.shape[1], frame.left.shape[0])
         if self.session.video_state() is not None:
             self.session.append_frame_pair(frame.t_left_ns, frame.t_right_ns, frame.index, frame.left, frame.right)
         else:
