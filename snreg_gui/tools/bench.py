@@ -100,6 +100,7 @@ def _run(args, app, work: Path) -> int:
     gaps = heartbeat.gaps_ms()
     stored = window.acquisition.nodes.rowCount()
     window.shutdown()
+    settings.sync()              # written now, so nothing rewrites the folder once it is deleted
     video = _video_figures(session_path, encoder)
     result = {"seconds": args.seconds, "frames": len(frames), "nodes_stored": stored, "ticks": len(gaps) + 1,
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),

@@ -300,6 +300,7 @@ def main(argv=None) -> int:
         window._end_confirmed = True              # no question on close: the run is over
         window.shutdown()
         app.processEvents()
+        settings.sync()          # written now, so nothing rewrites the folder once it is deleted
         shutil.rmtree(work, ignore_errors=True)
     print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank", flush=True)
     for reason in shots.blank:
