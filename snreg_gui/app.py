@@ -26,6 +26,7 @@ from PySide6.QtWidgets import (QApplication, QFileDialog, QLabel, QMainWindow, Q
                                QWidget)
 
 from snreg import __version__
+from snreg.demo.errors import load_error_model
 from snreg.demo.rig import DemoRig
 from snreg.session import Session, SessionError
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
@@ -47,6 +48,7 @@ from snreg_gui.wizards.launcher import WizardLauncher
 GIL_SWITCH_INTERVAL_S = 0.001
 
 MAX_SPREAD_KEY = "acquisition/max_spread_mm"      # the store guard's spread limit, a setting (default 2 mm)
+RECORD_VIDEO_KEY = "acquisition/record_video"     # both feeds recorded beside the session, a setting (default on)
 NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IMU... for the real rig, "
                "or start with --demo for the simulated one.")
 
@@ -59,7 +61,8 @@ class MainWindow(QMainWindow):
     missing_for_worker = Signal(list)      # the missing SPECT nodes, to the acquisition worker's thread
 
     def __init__(self, session_path: str | None = None, demo: bool = False, *, rig=None,
-                 fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None):
+                 fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None,
+                 replay: bool = False, speed: float = 1.0):
         super().__init__()
         wheel_guard.install(QApplication.instance())
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
@@ -93,13 +96,16 @@ class MainWindow(QMainWindow):
         self.review.failed.connect(self.statusBar().showMessage)
         self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
         self.live_link.failed.connect(self.statusBar().showMessage)
-        self.registration.registered.connect(self.live_link.set_registration)
+        self.registration.registered.connect(
+            lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
         self.registration.preop_box.nodes_changed.connect(self.live_link.set_preop_nodes)
         self.resize(1500, 900)
         self._restore_layout()
         QApplication.instance().aboutToQuit.connect(self.shutdown)
         self._show_placeholder(NO_RIG_TEXT)
-        if demo:
+        if replay:
+            self.replay(session_path, speed)
+        elif demo:
             self.rig = rig or DemoRig()
             path = session_path or Path(tempfile.gettempdir()) / f"snreg-demo-{time.strftime('%Y%m%d-%H%M%S')}.h5"
             self.set_session(self._create(path, "phantom-demo"))
@@ -130,6 +136,9 @@ class MainWindow(QMainWindow):
         devices = self.menuBar().addMenu("&Devices")
         self._action(devices, "Select cameras and IMU...", self.wizards.select_devices)
         devices.addAction(self.live_link.action)
+        self.record_video_action = self._action(devices, "Record video with the session", self._record_video_toggled)
+        self.record_video_action.setCheckable(True)
+        self.record_video_action.setChecked(self.settings.value(RECORD_VIDEO_KEY, True, type=bool))
         calibrate = self.menuBar().addMenu("&Calibrate")
         self._action(calibrate, "Stereo cameras (checkerboard)...", self.wizards.stereo)
         self._action(calibrate, "Trocar distance...", self.wizards.trocar)
@@ -173,6 +182,30 @@ class MainWindow(QMainWindow):
             self.statusBar().showMessage(str(err))
             return
         self.set_session(session)
+
+    def replay(self, path, speed: float = 1.0) -> None:
+        """Acquire from the recorded session ``path`` (its video and IMU at ``speed`` times its pace) into a new
+        session beside it, named ``<name>-replay-<time>.h5``."""
+        from snreg.demo.replay import ReplayRig
+        try:
+            rig = ReplayRig(path, speed=speed)
+        except (SessionError, OSError, ValueError) as err:
+            self.statusBar().showMessage(f"Cannot replay {path}: {err}")
+            return
+        with Session.open(path) as source:
+            case_id = f"{source.case_id}-replay"[:64]
+        target = Path(path).with_name(f"{Path(path).stem}-replay-{time.strftime('%Y%m%d-%H%M%S')}.h5")
+        self.set_rig(rig)
+        self.set_session(self._create(target, case_id))
+        self.statusBar().showMessage(f"replaying {Path(path).name} at {speed:g}x into {target.name}")
+
+    def _record_video_toggled(self, on: bool) -> None:
+        """Recording the video on or off from the next frame on (the segment recorded so far is closed)."""
+        self.settings.setValue(RECORD_VIDEO_KEY, bool(on))
+        if self.worker is not None:
+            self.restart_acquisition()
+        self.statusBar().showMessage("both feeds are recorded with the session" if on else
+                                     "video recording is off: the session keeps only two snapshots per node")
 
     def choose_review(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Open session for review", file_places.start_path(self.session),
@@ -331,7 +364,8 @@ class MainWindow(QMainWindow):
         self.acquisition.set_nodes(self.session.intraop_records())
         self._show_in_acquisition_tab(self.acquisition)
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
-                                        self.rig.imu, self.session, self.rig.fps, self.fixes_per_node, limits)
+                                        self.rig.imu, self.session, self.rig.fps, self.fixes_per_node, limits,
+                                        self.record_video_action.isChecked())
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
         self.missing_for_worker.connect(self.worker.set_missing, queued)
         self._missing_changed(self.registration.missing_nodes)
@@ -345,6 +379,7 @@ class MainWindow(QMainWindow):
         self.acquisition.max_spread_changed.connect(self.worker.set_max_spread, queued)
         self.acquisition.max_spread_changed.connect(lambda mm: self.settings.setValue(MAX_SPREAD_KEY, mm))
         self.worker.source_stopped.connect(self.statusBar().showMessage, queued)
+        self.worker.source_stopped.connect(self.acquisition.show_source_stopped, queued)
         self.acquisition.store_requested.connect(self.worker.store_node, queued)
         self.acquisition.undo_requested.connect(self.worker.undo, queued)
         self.acquisition.fixes_per_node_changed.connect(self.worker.set_fixes_per_node, queued)
@@ -381,9 +416,12 @@ class MainWindow(QMainWindow):
             self.registration.refresh_intraop()
 
     def _link_state(self) -> tuple:
-        """What a live-link client sees first: the stored nodes, the preop nodes, the registration shown."""
+        """What a live-link client sees first: the stored nodes, the preop nodes, the registration shown (with its
+        pairs line; None without one)."""
         records = self.session.intraop_records() if self.session is not None else []
-        return records, self.registration.preop_box.nodes, self.registration.last_result
+        result = self.registration.last_result
+        return records, self.registration.preop_box.nodes, None if result is None else (result,
+                                                                                      self.registration.pairs_line())
 
     def _stop_acquisition(self) -> None:
         self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say
@@ -396,7 +434,13 @@ class MainWindow(QMainWindow):
         if not self._waiting_for_frames or self.session is None:     # a frame queued before the session ended
             return
         self._waiting_for_frames = False
-        self.statusBar().showMessage("demo mode: no hardware" if self.demo else f"recording into {self.session.path}")
+        if not self.demo:
+            text = f"recording into {self.session.path}"
+        elif self.rig.description.startswith("demo"):
+            text = "demo mode: no hardware"
+        else:                                        # a replay: say what is replayed and where it goes
+            text = f"{self.rig.description}: recording into {self.session.path.name}"
+        self.statusBar().showMessage(text)
 
     def _show_placeholder(self, text: str) -> None:
         label = QLabel(text)
@@ -416,7 +460,8 @@ class MainWindow(QMainWindow):
     def _update_title(self) -> None:
         """The window says what it records into (demo, a session file) and which file the review tab shows."""
         reviewed = Path(self.review.path).name if self.review.path else ""
-        mode = "demo" if self.demo else (str(self.session.path) if self.session else "" if reviewed else "no session")
+        mode = (self.rig.description.split(":")[0] if self.demo else str(self.session.path) if self.session
+                else "" if reviewed else "no session")
         parts = [f"snreg {__version__}"] + [mode] * bool(mode) + [f"reviewing {reviewed}"] * bool(reviewed)
         self.setWindowTitle(" - ".join(parts))
         self.tabs.setTabText(self.tabs.indexOf(self.review), f"Review: {reviewed}" if reviewed else "Review")
@@ -487,11 +532,22 @@ class MainWindow(QMainWindow):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="snreg-gui", description="snreg acquisition, registration and review app")
     parser.add_argument("--demo", action="store_true", help="simulated devices, no hardware")
+    parser.add_argument("--errors", metavar="ideal|thesis|FILE", help="with --demo: the error model the simulated rig "
+                        "runs with (default ideal: nothing errs but the render's noise; thesis: the thesis' phantom)")
     parser.add_argument("session", nargs="?", help="session file: an existing one opens for review, a new name is "
                         "created for recording (demo default: a new file in the temp folder)")
+    parser.add_argument("--replay", action="store_true", help="acquire from SESSION's recorded video and IMU at their "
+                        "pace into a new session beside it")
+    parser.add_argument("--speed", type=float, default=1.0, help="replay this many times faster (default 1)")
     args = parser.parse_args(argv)
+    if args.replay and (not args.session or args.demo):
+        parser.error("--replay needs the recorded SESSION.h5 to replay (and no --demo)")
+    if not args.speed > 0:
+        parser.error(f"--speed must be a positive number, not {args.speed}")
+    errors = _error_model(parser, args)
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    window = MainWindow(args.session, demo=args.demo)
+    window = MainWindow(args.session, demo=args.demo, rig=DemoRig(errors=errors) if errors is not None else None,
+                        replay=args.replay, speed=args.speed)
     for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
         signal.signal(signum, lambda *_: window.quit_without_asking())
     wake = QTimer(interval=200, timeout=lambda: None)      # lets Python run those handlers while Qt waits
@@ -500,6 +556,18 @@ def main(argv=None) -> int:
     status = app.exec()
     window.shutdown()
     return status
+
+
+def _error_model(parser, args):
+    """The demo's error model (None: ideal, today's demo); a bad name or file ends the start in one line (exit 2)."""
+    if args.errors is None or args.errors == "ideal":
+        return None
+    if not args.demo:
+        parser.error("--errors applies to the demo only; add --demo")
+    try:
+        return load_error_model(args.errors)
+    except ValueError as err:
+        parser.error(str(err))
 
 
 if __name__ == "__main__":

@@ -92,3 +92,45 @@ def igtl_client():
     yield connect
     for client in clients:
         client.stop()
+
+
+VIDEO_FIXES = 10          # fixes per node of the recorded_video session
+
+
+def start_video(session, fps, width, height, timeout_s: float = 60.0):
+    """Start recording video and wait for its encoder (a second or two; until then pairs are not in the video)."""
+    import time
+    session.start_video(fps, width, height)
+    deadline = time.monotonic() + timeout_s
+    while not session.video_state().started:
+        assert time.monotonic() < deadline and not session.video_state().problem, session.video_state().problem
+        time.sleep(0.01)
+
+
+@pytest.fixture(scope="session")
+def recorded_video(tmp_path_factory):
+    """A session recorded with video: the phantom tour at 480x270 (a quarter of the thesis cameras), level IMU, every
+    node auto-stored after VIDEO_FIXES still fixes, labelled. Returns (path, scene, cameras)."""
+    from snreg.camera import thesis_calibration
+    from snreg.chain import ChainCalibration
+    from snreg.demo.scene import PhantomScene, Schedule
+    from snreg.probe import default_probe_model
+    from snreg.session import Session
+    from snreg.sources import CallableSource
+    from snreg.workflow.acquisition import Acquisition, ImuReading
+    folder = tmp_path_factory.mktemp("video")
+    cameras, probe = thesis_calibration().scaled(0.25), default_probe_model()
+    scene = PhantomScene(cameras, probe, Schedule(rest_frames=VIDEO_FIXES + 4, move_frames=3), seed=3)
+    path = folder / "s.h5"
+    with Session.create(path, case_id="video-1") as session:
+        session.set_calibration(stereo=cameras, chain=ChainCalibration.manual())
+        start_video(session, 30.0, *cameras.image_size)
+        acquisition = Acquisition(cameras, probe, ChainCalibration.manual(), session, fixes_per_node=VIDEO_FIXES,
+                                  video_fps=30.0)
+        for frame in CallableSource(scene.render, 30.0, scene.schedule.cycle, start_ns=10**12):
+            outcome = acquisition.process(frame, ImuReading(np.eye(3)))
+            if outcome.auto_store_due:
+                label = ("OBT R", "EXT L", "EXT R", "OBT L")[scene.resting_node(frame.index)]
+                acquisition.store(session.next_node_id(), label, left_jpeg=frame.left, right_jpeg=frame.right)
+        assert "video: recording" in outcome.video
+    return path, scene, cameras

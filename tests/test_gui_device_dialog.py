@@ -156,3 +156,16 @@ def test_browse_buttons_fill_the_fields(qtbot, present, recording, monkeypatch):
     qtbot.mouseClick(dialog.right_images.button, Qt.MouseButton.LeftButton)
     assert dialog.left_images.edit.text() == str(recording / "left_*.png")
     assert dialog.right_images.edit.text() == str(recording / "*.png")
+
+
+def test_replay_a_recorded_session_needs_only_the_session(qtbot, present, tmp_path):
+    dialog = open_dialog(qtbot)
+    dialog.mode.setCurrentIndex(dialog.mode.findData("replay"))
+    assert not dialog.ok_button.isEnabled() and "recorded session" in dialog.reason.text()
+    dialog.replay_session.edit.setText(str(tmp_path / "s.h5"))
+    dialog.replay_speed.setValue(2.0)
+    assert dialog.ok_button.isEnabled() and "replays the session's video and IMU" in dialog.reason.text()
+    assert not dialog.test_button.isEnabled()                      # its video is checked when the replay opens it
+    config = dialog.config()
+    assert (config.mode, config.left, config.speed) == ("replay", str(tmp_path / "s.h5"), 2.0)
+    assert RigConfig.from_dict(config.to_dict()) == config

@@ -14,7 +14,7 @@ from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.spect import spect_of_nodes, write_nm
 from snreg.nodes import NodeSet, read_nodes, write_nodes
-from snreg.registration.report import EXTRA, REPORT_DPI, REPORT_SIZE_IN
+from snreg.registration.report import REPORT_DPI, REPORT_SIZE_IN
 from snreg.registration.report_meta import read_report_metadata
 from snreg.session import Session
 from snreg_gui.common import node_views
@@ -233,7 +233,7 @@ def test_exports_are_written_and_read_back(qtbot, panel, pelvic_nodes, tmp_path,
     lines = targets["pairs"].read_text(encoding="utf-8").splitlines()
     rows = list(csv.DictReader(line for line in lines if not line.startswith("#")))
     assert [r["intraop_id"] for r in rows] == extra.ids
-    assert [r["preop_id"] for r in rows] == [preop.ids[n] for n in truth] + [EXTRA]
+    assert [r["hot_spot"] for r in rows] == [preop.ids[n] for n in truth] + [""]
     markups = read_nodes(targets["slicer"])
     assert markups.ids == preop.ids and markups.labels == preop.labels
     assert np.allclose(markups.xyz, geometry.apply(result.transform, preop.xyz))
@@ -555,7 +555,7 @@ def test_final_mark_is_kept_in_the_session_and_the_exports_use_it(qtbot, panel, 
         text = (tmp_path / "pairs.csv").read_text(encoding="utf-8")
         assert "# registration: registration 0 of the session, marked final" in text and "# method: icp" in text
         rows = list(csv.DictReader(line for line in text.splitlines() if not line.startswith("#")))
-        assert [r["preop_id"] for r in rows] == [preop.ids[n] for n in truth]
+        assert [r["hot_spot"] for r in rows] == [preop.ids[n] for n in truth]
         qtbot.mouseClick(stored.unmark_button, Qt.MouseButton.LeftButton)
         qtbot.waitUntil(lambda: session.final_registration() is None, timeout=TIMEOUT_MS)
         qtbot.waitUntil(lambda: not panel.export_buttons["pairs"].isEnabled(), timeout=TIMEOUT_MS)

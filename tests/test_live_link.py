@@ -80,14 +80,16 @@ def test_a_client_gets_nodes_preop_registration_and_status_at_once(link, igtl_cl
     link.add_node(node("SN1", [1.0, 2.0, 3.0], "OBT R"))
     link.add_node(node("SN2", [4.0, 5.0, 6.0]))
     link.set_preop_nodes(NodeSet(["P1", "P2", "P3"], ["", "", ""], [[1, 2, 3], [4, 5, 6], [7, 8, 9]], frame="LPS"))
-    link.set_registration(SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5))
+    link.set_registration(SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5),
+                          "SN1 -> P1 (with SN2); SN2 -> P1 (with SN1)")
     link.flush()
     client = igtl_client(link.port)                 # joins late: the state is sent on connect, without a new event
     assert client.wait_for(lambda c: {"IntraopNodes", "PreopNodes", "TrocarToRas", "Status"}
                            <= {m.device_name for m in c.log})
     assert shown(client.messages("IntraopNodes")[-1])[0] == ["SN1", "SN2"]
     assert np.allclose(client.messages("PreopNodes")[-1].positions[0], [-1, -2, 3])
-    assert "registered with global" in client.messages("Status")[-1].string
+    assert client.messages("Status")[-1].string.endswith("last: registered with global, RMS 0.50 mm: SN1 -> P1 (with "
+                                                         "SN2); SN2 -> P1 (with SN1)")
     assert client.messages("ProbeTipToTrocar") == []      # no stale pose for a late joiner
 
 

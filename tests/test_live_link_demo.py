@@ -123,7 +123,9 @@ def test_trocar_to_ras_maps_the_paired_intraop_nodes_onto_the_preop_nodes(served
     for intraop_id, preop_id in paired:
         mapped = apply(ras_from_trocar, intraop[intraop_id][None])[0]
         assert np.linalg.norm(mapped - preop_ras[preop_id]) <= rms + 0.5, (intraop_id, preop_id)
-    assert "registered with global" in client.messages("Status")[-1].string
+    status = client.messages("Status")[-1].string
+    assert "registered with global" in status
+    assert all(f"{intraop_id} -> {preop_id}" in status for intraop_id, preop_id in paired)   # which hot spot, in words
 
 
 def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served_demo, tmp_path):

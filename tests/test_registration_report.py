@@ -10,7 +10,7 @@ import pytest
 from snreg import __version__, geometry
 from snreg.nodes import NodeSet, read_nodes, write_nodes
 from snreg.registration import CONFIDENT, RegistrationResult, register
-from snreg.registration.report import (EXTRA, FAR_NODE_MM, REPORT_DPI, REPORT_SIZE_IN, VIEWS, mapped_preop,
+from snreg.registration.report import (FAR_NODE_MM, NO_HOT_SPOT, REPORT_DPI, REPORT_SIZE_IN, VIEWS, mapped_preop,
                                        node_warnings, pair_rows, registration_figure, save_report_png, write_pairs_csv)
 from snreg.registration.report_meta import REPORT_KEY, ReportContext, read_report_metadata, sidecar_path
 
@@ -29,12 +29,13 @@ def case(pelvic_nodes):
     return preop, intraop, result, np.append(order, -1), truth
 
 
-def test_pair_rows_follow_the_pairing_with_extra_for_unpaired(case):
+def test_pair_rows_follow_the_pairing_with_none_for_a_node_from_no_hot_spot(case):
     preop, intraop, result, truth_pairing, _ = case
     assert np.array_equal(result.pairing, truth_pairing)
     rows = pair_rows(preop, intraop, result)
     assert [r.intraop_id for r in rows] == intraop.ids
-    assert [r.preop_id for r in rows] == [preop.ids[n] for n in truth_pairing[:-1]] + [EXTRA]
+    assert [r.preop_id for r in rows] == [preop.ids[n] for n in truth_pairing[:-1]] + [NO_HOT_SPOT]
+    assert all(r.shared_with == () for r in rows)
     assert [r.preop_label for r in rows[:-1]] == [r.intraop_label for r in rows[:-1]]
     assert np.allclose([r.distance_mm for r in rows], result.distances_mm)
     assert [r.confident for r in rows] == list(result.confidence >= CONFIDENT)
@@ -66,7 +67,8 @@ def test_pairs_csv_reads_back_with_comments_skipped(case, tmp_path):
     assert lines[0] == "# method: global" and lines[1].startswith("# rms_mm: ")
     table = list(csv.DictReader(line for line in lines if not line.startswith("#")))
     assert [row["intraop_id"] for row in table] == intraop.ids
-    assert [row["preop_id"] for row in table] == [preop.ids[n] for n in truth_pairing[:-1]] + [EXTRA]
+    assert [row["hot_spot"] for row in table] == [preop.ids[n] for n in truth_pairing[:-1]] + [""]
+    assert [row["shared_with"] for row in table] == [""] * len(intraop.ids)
     assert np.allclose([float(row["distance_mm"]) for row in table], result.distances_mm, atol=1e-3)
     transform = np.array(lines[2].split(":", 1)[1].split(), dtype=float).reshape(4, 4)
     assert np.allclose(transform, result.transform, atol=1e-4)
@@ -88,7 +90,7 @@ def test_figure_draws_both_sets_in_three_views_with_the_pairs(case):
     assert not {"axial", "coronal", "sagittal"} & {w for ax in views for w in ax.get_title().split()}
     assert "global" in table.get_title()
     cell_texts = {cell.get_text().get_text() for cell in table.tables[0].get_celld().values()}
-    assert EXTRA in cell_texts and set(intraop.ids) <= cell_texts
+    assert NO_HOT_SPOT in cell_texts and set(intraop.ids) <= cell_texts
 
 
 def test_figure_shades_rows_below_the_confidence_threshold(case):
@@ -160,10 +162,10 @@ def test_node_warnings_name_far_pairs_and_extra_nodes(case):
     preop, intraop, result, _, _ = case
     rows = pair_rows(preop, intraop, result)
     warnings = node_warnings(rows)
-    assert len(warnings) == 1 and warnings[0].startswith(f"{intraop.ids[-1]} was judged extra")
+    assert len(warnings) == 1 and warnings[0].startswith(f"{intraop.ids[-1]} came from no imaged hot spot")
     far = dataclasses.replace(rows[0], distance_mm=372.0)             # a paired node 372 mm away
     near = dataclasses.replace(rows[1], distance_mm=FAR_NODE_MM)      # at the limit: no warning
     warnings = node_warnings([far, near])
-    assert warnings == [f"{far.intraop_id} is 372 mm from its partner {far.preop_id} (more than 20 mm): check this "
+    assert warnings == [f"{far.intraop_id} is 372 mm from its hot spot {far.preop_id} (more than 20 mm): check this "
                         "pairing and the stored node"]
     assert node_warnings([far], far_mm=400.0) == []

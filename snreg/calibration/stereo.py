@@ -27,7 +27,7 @@ from snreg.calibration.images import expand_globs, read_grey
 from snreg.camera import StereoCalibration
 
 __all__ = ["MIN_VIEWS", "SUSPECT_FACTOR", "MonoCalibration", "StereoResult", "ImagePairs", "calibrate_mono", "calibrate_stereo",
-           "drop_views", "load_image_pairs"]
+           "calibrate_stereo_corners", "drop_views", "load_image_pairs"]
 
 MIN_VIEWS = 3
 SUSPECT_FACTOR = 2.0      # a view whose worse eye's error is above this many times the median error is suspect
@@ -159,6 +159,17 @@ def calibrate_stereo(left_images: Sequence[np.ndarray], right_images: Sequence[n
                 if not ids else "give more pairs showing the whole board in both images")
         raise ValueError(f"{found}, need {MIN_VIEWS}; not found in {_first(skipped)}; {hint}")
     return _solve(np.array(ids), np.array(left), np.array(right), board, _size(left_images[0]), tuple(skipped))
+
+
+def calibrate_stereo_corners(left_corners: np.ndarray, right_corners: np.ndarray, board: Board,
+                             image_size: tuple[int, int]) -> StereoResult:
+    """Calibrate from corners already detected: (n, cols * rows, 2) float32 per eye, in ``board.object_points()``
+    order, in images of ``image_size`` (width, height); what :func:`calibrate_stereo` does after detection (the
+    error budget feeds it simulated detections)."""
+    left, right = (np.asarray(c, dtype=np.float32).reshape(-1, board.n_corners, 2) for c in (left_corners, right_corners))
+    if len(left) != len(right) or len(left) < MIN_VIEWS:
+        raise ValueError(f"need the same number of views per eye, at least {MIN_VIEWS}; got {len(left)} and {len(right)}")
+    return _solve(np.arange(len(left)), left, right, board, tuple(image_size), ())
 
 
 def drop_views(result: StereoResult, view_ids: Sequence[int]) -> StereoResult:

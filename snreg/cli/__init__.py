@@ -15,6 +15,7 @@ import warnings
 
 from snreg import __version__
 from snreg.cli.bench import add_bench_parser
+from snreg.cli.budget import add_budget_parser
 from snreg.cli.calibrate import add_calibrate_parser
 from snreg.cli.common import Parser
 from snreg.cli.demo import add_demo_parser
@@ -49,6 +50,7 @@ def build_parser() -> Parser:
     add_track_parser(sub)
     add_experiment_parser(sub)
     add_bench_parser(sub)
+    add_budget_parser(sub)
     return parser
 
 

@@ -1,4 +1,4 @@
-"""``snreg demo --headless -o SESSION.h5 [--json] [--igtl PORT]``: wired into ``snreg.cli`` by :func:`add_demo_parser`.
+"""``snreg demo --headless -o SESSION.h5 [--json] [--igtl PORT] [--errors ideal|thesis|FILE]``: wired into ``snreg.cli`` by :func:`add_demo_parser`.
 
 With ``--igtl`` the run serves the live link to 3D Slicer (DESIGN.md §4) and waits up to 30 s for the first
 client before it starts. DESIGN says "waiting up to 30 s ... before starting", so the run starts anyway after
@@ -30,6 +30,9 @@ def add_demo_parser(subparsers) -> None:
     p.add_argument("--igtl", type=int_range(0, 65535), metavar="PORT", default=None,
                    help="serve the live link to 3D Slicer (OpenIGTLink) on this port of localhost; waits up to "
                    f"{CLIENT_WAIT_S:.0f} s for the first client before starting")
+    p.add_argument("--errors", default="ideal", metavar="ideal|thesis|FILE",
+                   help="the error model the rig runs with (default ideal: nothing errs but the render's noise; thesis: "
+                        "the thesis' phantom set-up, resources/errors/thesis.yaml; or a YAML file like it)")
     p.set_defaults(func=cmd_demo)
 
 
@@ -39,18 +42,20 @@ def cmd_demo(args) -> int:
 
     if not args.headless:
         raise UserError("the demo with a window is 'snreg-gui --demo'; add --headless to run it here without one")
+    errors = _error_model(args.errors)
     check_output_file(args.output, "session", new=True)
     check_output_file(Path(f"{args.output}.journal"), "session journal", new=True)
     check_output_file(spect_path_for(args.output), "phantom SPECT")
     link = _serve(args.igtl) if args.igtl is not None else None
     try:
-        run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes, link=link)
+        run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes, link=link, errors=errors)
     except (SessionError, DemoError, OSError) as err:
         raise UserError(str(err)) from None
     finally:
         if link is not None:
             link.close(flush_timeout_s=2.0)
     out = run.to_json()
+    out["errors"] = args.errors
     if link is not None:
         out["live_link"] = {"address": link.address, "seconds_in_calls": round(run.link_s, 4), "calls": run.link_calls,
                             **vars(link.stats())}
@@ -59,7 +64,7 @@ def cmd_demo(args) -> int:
         return 0
     print(f"stored {len(out['nodes'])} nodes in {out['frames']} frames into {out['session']}; SPECT {out['spect']}")
     for node in out["nodes"]:
-        print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'extra':<4} "
+        print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'none':<4} "
               f"{node['distance_mm']:6.2f} mm  confidence {node['confidence']:.3f}")
     print(f"{out['method']}: RMS after registration {out['rms_mm']:.2f} mm; "
           f"pairing {'matches' if out['pairing_correct'] else 'DOES NOT match'} the phantom's truth")
@@ -83,3 +88,15 @@ def _serve(port: int):
         print(f"snreg: no OpenIGTLink client connected within {CLIENT_WAIT_S:.0f} s; running the demo anyway, still "
               f"serving on {link.address}", file=sys.stderr, flush=True)
     return link
+
+
+def _error_model(name: str):
+    """None for the ideal model (today's demo, exactly), else the loaded model; UserError in one line when bad."""
+    if name == "ideal":
+        return None
+    from snreg.demo.errors import load_error_model
+
+    try:
+        return load_error_model(name)
+    except ValueError as err:
+        raise UserError(str(err)) from None

@@ -94,12 +94,13 @@ def cmd_register(args) -> int:
     print(f"method {result.method}, RMS {result.rms_mm:.2f} mm, pairing rule {result.pairing_rule}")
     if ids_collide(preop.ids, intraop.ids):
         print(f"the preop ids repeat intraop ids: preop nodes are shown as {PREOP_MARK}<id>")
-    print(f"{'intraop -> preop':<22} {'labels':<21} {'dist mm':>8} {'loo mm':>7} {'conf':>6}")
     shown = marked_rows(rows, preop.ids)
+    width = max([len("intraop -> hot spot")] + [len(pair_text(row)) for row in shown])
+    print(f"{'intraop -> hot spot':<{width}} {'labels':<21} {'dist mm':>8} {'loo mm':>7} {'conf':>6}")
     for row in shown:
         mark = "" if row.confident else "  (check)"
         labels = f"{row.intraop_label or '-'} -> {row.preop_label or '-'}" if row.paired else row.intraop_label
-        print(f"{pair_text(row):<22} {labels:<21} "
+        print(f"{pair_text(row):<{width}} {labels:<21} "
               f"{row.distance_mm:>8.1f} {row.leave_one_out_mm:>7.1f} {row.confidence:>6.2f}{mark}")
     for node in marked_missing(missing, intraop.ids, preop.ids):
         x, y, z = node.mapped_xyz
@@ -107,5 +108,7 @@ def cmd_register(args) -> int:
               f"within {node.bound_mm:.1f} mm (90%)")
     for text in node_warnings(shown):
         print(f"warning: {text}")
-    print("loo: the node's distance when the other pairs alone register (a large value flags a suspect node)")
+    print("hot spot: the SPECT node a removed node came from (several may share one: 'with'; none: from no imaged "
+          "hot spot);\nloo: the node's distance when the other pairs alone register (a large value flags a suspect "
+          "node)")
     return 0

@@ -10,7 +10,8 @@ from snreg.errors import UserError
 
 
 def add_session_parser(subparsers) -> None:
-    """Add ``session`` with its ``info``, ``export`` and ``recover`` subcommands; each sets ``func``."""
+    """Add ``session`` with its ``info``, ``export``, ``recover``, ``verify`` and ``retrack`` subcommands; each sets
+    ``func``."""
     session = subparsers.add_parser("session", help="inspect, export or recover a session file (HDF5)")
     commands = session.add_subparsers(dest="session_command", required=True, metavar="ACTION")
     info = commands.add_parser("info", help="case id, creation time, counts of nodes and stream samples")
@@ -20,10 +21,11 @@ def add_session_parser(subparsers) -> None:
     export = commands.add_parser("export", help="write the intraop nodes (trocar frame, mm) as CSV or Slicer markups, "
                                  "or the probe pose stream as a 3D Slicer sequence")
     export.add_argument("session", help="session file (.h5)")
-    export.add_argument("--format", choices=("csv", "slicer", "slicer-sequence"), default="csv",
+    export.add_argument("--format", choices=("csv", "slicer", "slicer-sequence", "calibration"), default="csv",
                         help="csv or slicer: the intraop nodes into the file OUT (node CSV or 3D Slicer .mrk.json); "
                         "slicer-sequence: the probe poses (trocar frame) as ProbeTipToTrocar.seq.mha, 3D Slicer's "
-                        "linear transform sequence, into the folder OUT")
+                        "linear transform sequence, into the folder OUT; calibration: the stereo calibration the "
+                        "session used, as a calibration file (.yaml)")
     export.add_argument("-o", "--output", required=True, help="node file, or folder for slicer-sequence")
     export.set_defaults(func=cmd_export)
     recover = commands.add_parser("recover", help="rebuild a clean session file from a damaged one and its journal")
@@ -32,6 +34,14 @@ def add_session_parser(subparsers) -> None:
                          help="write the recovered session to this new file (default: replace the session file, "
                               "keeping the damaged one beside it)")
     recover.set_defaults(func=cmd_recover)
+    check = commands.add_parser("verify", help="read every dataset (Fletcher-32, digests) and video (size, SHA-256) "
+                                "and name what is damaged; exit status 1 when anything is")
+    check.add_argument("session", help="session file (.h5)")
+    check.add_argument("--json", action="store_true", help='one JSON object: {"ok", "damaged": [{"what", "where", '
+                       '"why"}], "unproven", "videos"}')
+    check.set_defaults(func=cmd_verify)
+    from snreg.cli.retrack import add_retrack_parser
+    add_retrack_parser(commands)
 
 
 def cmd_info(args) -> int:
@@ -47,16 +57,27 @@ def cmd_info(args) -> int:
           f"format {info['format_version']}, snreg {info['snreg_version'] or '(unknown)'}")
     print(f"nodes: {info['intraop_nodes']} intraop, {info['preop_nodes']} preop; streams: {streams}")
     print(f"calibration: {', '.join(info['calibration']) or 'none'}; registrations: {regs}")
+    for video in info["videos"]:
+        print(f"video {video['side']}: {video['path']} ({video['frames']} frames, {video['codec']})")
     for problem in info["problems"]:
         print(f"damaged: {problem}")
+    for damage in info["damage"]:
+        print(f"DAMAGED {damage['what']} {damage['where']}: {damage['why']}")
     if info["damaged"]:
         source = ("the journal holds what it recorded (nodes, registrations, calibration), shown above"
                   if info["journal"] else "there is no journal beside it: only what the file still holds is shown")
-        print(f"the session file is damaged; {source}; run 'snreg session recover' to write a clean copy")
+        print(f"the session file is damaged; {source}; run 'snreg session verify' for details and "
+              "'snreg session recover' to write a clean copy")
     return 0
 
 
 def cmd_export(args) -> int:
+    if args.format == "calibration":
+        from snreg.session.export import export_calibration
+        check_output_file(args.output, "calibration file")
+        _guard(export_calibration, args.session, args.output)
+        print(f"wrote the session's stereo calibration to {args.output}")
+        return 0
     if args.format == "slicer-sequence":
         from snreg.session.slicer_sequence import write_slicer_sequence
         path = _guard(write_slicer_sequence, args.session, args.output)
@@ -67,6 +88,24 @@ def cmd_export(args) -> int:
     n = _guard(export_nodes, args.session, args.format, args.output)
     print(f"wrote {n} nodes to {args.output}")
     return 0
+
+
+def cmd_verify(args) -> int:
+    from snreg.files import require_regular_file
+    from snreg.session.integrity import verify
+    require_regular_file(args.session, "session", UserError)
+    report = verify(args.session)
+    if args.json:
+        print(json.dumps(report.to_json()))
+    else:
+        for damage in report.damaged:
+            print(f"DAMAGED {damage.what} {damage.where}: {damage.why}")
+        for note in report.unproven:
+            print(f"not proven: {note}")
+        print(f"{args.session}: " + ("every dataset and video passed its check" if report.ok else
+                                     f"{len(report.damaged)} damaged; recover what is left with 'snreg session "
+                                     "recover' or keep the file for inspection"))
+    return 0 if report.ok else 1
 
 
 def cmd_recover(args) -> int:

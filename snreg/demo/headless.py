@@ -20,12 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment, true_sources_lps, write_phantom_spect
+from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
+from snreg.registration.naming import pairs_line
 from snreg.registration.report import pair_table
 from snreg.session import Session
 from snreg.workflow.acquisition import Acquisition, ImuReading
@@ -90,23 +91,25 @@ class _TimedLink:
 
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
-                 link=None) -> HeadlessResult:
+                 link=None, errors=None, video: bool = True) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
-    ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None."""
+    ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
+    :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
+    beside the session."""
     session_path = Path(session_path)
     # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs
-    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed)
+    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed, errors=errors)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             started = time.perf_counter()
-            frames = _record(rig, session, fixes_per_node, feed)
+            frames = _record(rig, session, fixes_per_node, feed, video)
             recording_s = time.perf_counter() - started
             tips = phantom_tips(rig.probe)
-            sources = true_sources_lps(tips, rig.chain)
-            spect = write_phantom_spect(sources, spect_path_for(session_path), seed=seed)
+            sources = rig.phantom_sources_lps()
+            spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
             session.set_preop_nodes(preop)
@@ -115,7 +118,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
                               intraop_labels=intraop.labels, initial=rough_alignment(preop.xyz, intraop.xyz), seed=seed)
             session.add_registration(result, preop.ids, intraop.ids)
-            feed("set_registration", result)
+            feed("set_registration", result, pairs_line(preop, intraop, result))
     finally:
         rig.close()
     truth = _true_pairing(preop.xyz, sources, tips, session.intraop_records())
@@ -123,14 +126,15 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
                           bool(np.array_equal(result.pairing, truth)), frames, recording_s, feed.seconds, feed.calls)
 
 
-def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink) -> int:
+def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True) -> int:
     """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
     skips some)."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
-    acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node)
-    limit, read = 2 * rig.schedule.cycle, 0
+    acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
+                              video_fps=rig.fps if video else None)
+    limit, read, tail = 2 * rig.schedule.cycle, 0, 0
     with source:
         for frame in source:
             read += 1
@@ -142,11 +146,18 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
                 feed("add_node", acquisition.store(session.next_node_id(), label, left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
             if len(session.intraop_records()) == N_NODES:
-                return read
+                tail += 1                            # a second more on record: a replay meets the last rest whole
+                if tail > _tail_frames(rig):
+                    return read
             if frame.index >= limit:
                 break
     raise DemoError(f"only {len(session.intraop_records())} of {N_NODES} nodes were stored in {limit} frames "
                     f"({source.problem or 'the probe was never tracked still long enough'})")
+
+
+def _tail_frames(rig: DemoRig) -> int:
+    """Frames recorded after the last node is stored: one second."""
+    return round(rig.fps)
 
 
 def _wait_for_imu(rig: DemoRig) -> bool:

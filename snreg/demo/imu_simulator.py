@@ -262,6 +262,7 @@ class SimulatedPort:
 
         self.source, self.speed, self.link = source, float(speed), port_link
         self.finished, self._stop = threading.Event(), threading.Event()
+        self.started_ns: int | None = None          # set when the stream starts (a replay aligns its frames to it)
         self._thread: threading.Thread | None = None
         self._master, slave = os.openpty()
         tty.setraw(slave)
@@ -331,6 +332,7 @@ class SimulatedPort:
             return
         lines = self.source.lines()
         item, pending, t0 = next(lines, None), b"", time.perf_counter()
+        self.started_ns = round(t0 * 1e9)           # the host time (perf_counter_ns) of the source's time 0
         while not self._stop.is_set():
             now = time.perf_counter() - t0
             if item is not None and not pending:

@@ -40,17 +40,21 @@ def setup_patient_from_trocar(tilt_deg: float, turn_deg: float = 0.0, trocar_lps
     return make_transform(turn @ axes, trocar_lps)
 
 
-def true_sources_lps(truth_tips_camera: np.ndarray, chain: ChainCalibration) -> np.ndarray:
-    """(4, 3) source positions (LPS mm): the rendered tips carried through the chain (IMU level) and the true set-up."""
-    trocar = camera_to_trocar(chain, np.eye(3), truth_tips_camera)
-    return apply(setup_patient_from_trocar(TRUE_TILT_DEG, TRUE_TURN_DEG), trocar)
+def true_sources_lps(truth_tips_camera: np.ndarray, chain: ChainCalibration, *,
+                     setup_deg: tuple[float, float] = (TRUE_TILT_DEG, TRUE_TURN_DEG), scan_shift_mm=0.0) -> np.ndarray:
+    """(4, 3) source positions (LPS mm): the rendered tips carried through the chain (IMU level) and the true set-up
+    (tilt, turn); ``scan_shift_mm`` (4, 3, trocar frame): how far each node moved between the scan and the surgery."""
+    trocar = camera_to_trocar(chain, np.eye(3), truth_tips_camera) - scan_shift_mm
+    return apply(setup_patient_from_trocar(*setup_deg), trocar)
 
 
-def write_phantom_spect(sources_lps: np.ndarray, path: str | Path, seed: int = 0) -> Path:
-    """The phantom's SPECT (thesis geometry: 128x128x76, 4.795 mm, Poisson counts) as one NM DICOM file."""
+def write_phantom_spect(sources_lps: np.ndarray, path: str | Path, seed: int = 0, *, voxel_mm: float = 4.795,
+                        **spect) -> Path:
+    """The phantom's SPECT (thesis geometry: 128x128x76, 4.795 mm, Poisson counts) as one NM DICOM file; ``spect``:
+    :func:`~snreg.demo.spect.spect_of_nodes`' ``fwhm_mm`` and ``peak_counts`` (an error model's)."""
     centre = np.asarray(sources_lps, float).mean(axis=0)
-    counts, origin = spect_of_nodes(sources_lps, centre=centre, seed=seed)
-    return write_nm(counts, origin, 4.795, Path(path), patient_id="PHANTOM-DEMO", patient_name="PHANTOM^DEMO")[0]
+    counts, origin = spect_of_nodes(sources_lps, centre=centre, seed=seed, voxel_mm=voxel_mm, **spect)
+    return write_nm(counts, origin, voxel_mm, Path(path), patient_id="PHANTOM-DEMO", patient_name="PHANTOM^DEMO")[0]
 
 
 def rough_alignment(preop_lps: np.ndarray, intraop_trocar: np.ndarray) -> np.ndarray:

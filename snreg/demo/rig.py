@@ -20,12 +20,17 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.board_tour import board_feed
 from snreg.demo.pivot_scene import PivotScene, SceneImu
-from snreg.demo.scene import PhantomScene, Schedule
+from snreg.demo.error_rig import DemoErrors
+from snreg.demo.errors import ErrorModel
+from snreg.demo.phantom import true_sources_lps, write_phantom_spect
+from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
@@ -45,10 +50,16 @@ class DemoRig:
     simulated = True
     description = "demo: rendered phantom, simulated IMU"
 
-    def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0):
-        self.cameras = thesis_calibration().scaled(scale)     # the simulated cameras as they truly are
-        self.calibration = self.cameras                        # what tracking uses; a calibration wizard replaces it
+    def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0,
+                 errors: ErrorModel | None = None):
+        """``errors``: an error model (:mod:`snreg.demo.errors`) the rig runs with, drawn under ``seed``
+        (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model)."""
+        full = thesis_calibration()
+        self.cameras = full.scaled(scale)                      # the simulated cameras as they truly are
         self.probe = default_probe_model()
+        self.errors = DemoErrors(errors, self.probe, full, scale=scale, seed=seed) if errors is not None else None
+        # what tracking uses (a calibration wizard replaces it): under an error model, one solved from noisy corners
+        self.calibration = self.cameras if self.errors is None or self.errors.calibration is None else self.errors.calibration
         self.chain = ChainCalibration.manual()
         self.schedule, self.fps, self.seed = schedule, fps, seed
         self.scene: PhantomScene | None = None
@@ -65,12 +76,27 @@ class DemoRig:
         pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
         self._start_imu()
         if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
-            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed)
+            options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
+                                                       "blur_sigma_px": self.errors.blur_px,
+                                                       "tip_offsets_mm": self.errors.tip_offsets_mm}
+            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
             scene.prerender()
             self.scene = scene
         # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
         # skipped when tracking falls behind, while the scene goes on at its own pace
         return CallableSource(self.scene.render, self.fps, live=True, name="Demo phantom")
+
+    def phantom_sources_lps(self) -> np.ndarray:
+        """(4, 3) LPS mm: where the phantom's sources were when the SPECT was made (the truth the demo's SPECT images)."""
+        tips = phantom_tips(self.probe)
+        if self.errors is None:
+            return true_sources_lps(tips, self.chain)
+        return true_sources_lps(tips, self.chain, setup_deg=self.errors.setup_deg, scan_shift_mm=self.errors.scan_shift_mm)
+
+    def write_phantom_spect(self, path) -> Path:
+        """Write the phantom's SPECT (NM DICOM) at ``path`` with the error model's voxels, resolution and counts."""
+        return write_phantom_spect(self.phantom_sources_lps(), path, self.seed,
+                                   **({} if self.errors is None else self.errors.spect))
 
     def board_source(self) -> FrameSource:
         """A rendered checkerboard tour seen by the simulated cameras as they truly are (the calibration to find)."""

@@ -19,6 +19,7 @@ from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
 from snreg.probe import ProbeModel
 
 _AXIS = np.array([1.0, -0.35, 0.4])        # probe pointing right, up and away: a side view the tracker reads
+PROBE_AXIS = _AXIS / np.linalg.norm(_AXIS)  # unit axis, tip to body, camera frame
 # stripe-band centres of the four phantom nodes, left camera frame (mm)
 NODE_CENTRES_MM = np.array([[-18.0, -6.0, 85.0], [16.0, -4.0, 92.0], [14.0, 8.0, 118.0], [-16.0, 6.0, 110.0]])
 
@@ -46,11 +47,13 @@ class PhantomScene:
     """Rendered stereo frames of the probe along the node tour; ``truth_tip`` and ``resting_node`` give ground truth."""
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, schedule: Schedule = Schedule(),
-                 noise_sigma: float = 2.0, seed: int = 0):
-        self.schedule, self.noise_sigma, self.seed = schedule, noise_sigma, seed
+                 noise_sigma: float = 2.0, seed: int = 0, blur_sigma_px: float = 0.0, tip_offsets_mm=None):
+        """``tip_offsets_mm`` (4, 3): where the probe rests on each node relative to the node (camera frame, mm;
+        the error model's pointing and what the demo cannot run through code), none by default."""
+        self.schedule, self.noise_sigma, self.blur_sigma_px, self.seed = schedule, noise_sigma, blur_sigma_px, seed
         self.renderer = StereoRenderer(calibration, probe)
-        axis = _AXIS / np.linalg.norm(_AXIS)
-        self.node_poses = [ProbePose.make(tip, axis) for tip in phantom_tips(probe)]
+        tips = phantom_tips(probe) + (0.0 if tip_offsets_mm is None else np.asarray(tip_offsets_mm, float))
+        self.node_poses = [ProbePose.make(tip, PROBE_AXIS) for tip in tips]
         self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def resting_node(self, index: int) -> int | None:
@@ -83,6 +86,7 @@ class PhantomScene:
         resting = self.resting_node(index)
         key = (resting, index % self.schedule.noise_variants) if resting is not None else (-1, cycle_index)
         if key not in self._cache:
-            options = RenderOptions(noise_sigma=self.noise_sigma, seed=self.seed + len(self._cache))
+            options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
+                                    seed=self.seed + len(self._cache))
             self._cache[key] = self.renderer.expose(self.renderer.radiance(self.pose(index), options), options)
         return self._cache[key]

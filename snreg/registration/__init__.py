@@ -1,16 +1,18 @@
-"""Register the preop node set to the intraop node set and pair the nodes (DESIGN.md §4).
+"""Register the preop node set to the intraop node set and say which hot spot each intraop node came from (DESIGN §4).
 
 >>> result = register(preop_xyz, intraop_xyz, method="global")
 >>> result.transform      # (4, 4) intraop_from_preop
->>> result.pairing        # preop index per intraop node, -1 for a node judged extra
+>>> result.pairing        # per intraop node: the SPECT hot spot (preop index) it came from, -1 for none
+>>> result.shares         # per intraop node: another node came from the same hot spot
 
 Methods: ``icp``, ``cpd``, ``chamfer`` (the thesis' three) and ``global`` (ours, default).
 Each names the pairing rule that fills ``pairing`` (:mod:`snreg.registration.pairing`);
 all three rules are in ``pairings``. ``confidence`` is the posterior probability that a
-node's pairing is right, whichever method produced it (weighed against the hypotheses of
-the global search); ``CONFIDENT`` is the threshold above which claims were right 99.7% of
-the time in ``snreg simulate`` with every SPECT node present, 97.6% with one and 92% with two
-missing (``--missing 0,1,2``): an extra standing where a node not found would be can look found.
+node's claim is right, whichever method produced it (weighed against the candidates of
+the global search); ``CONFIDENT`` is the threshold above which claims were right 99.8% of the
+time in ``snreg simulate``-style studies at sigma 2-15 mm with every SPECT node present, 99.8% with
+one and 99.4% with two missing (four cohorts, issue 20's note); at sigma 20 mm (35 mm per node)
+a wrong transform can make confident claims (94% right), so check a noisy registration's RMS.
 """
 
 from __future__ import annotations
@@ -26,10 +28,10 @@ from snreg.registration._chamfer import solve_chamfer
 from snreg.registration._cpd import solve_cpd
 from snreg.registration._global import local_moves, solve_global
 from snreg.registration._icp import solve_icp
-from snreg.registration._model import MIN_PAIRS, Candidate, assign, evaluate, squared_distances
+from snreg.registration._model import MIN_PAIRS, Candidate, assign, evaluate, source_posterior, squared_distances
 from snreg.registration._problem import make_problem
-from snreg.registration.confidence import posterior_confidence, posterior_weights
-from snreg.registration.pairing import RULES, pair
+from snreg.registration.confidence import claim_confidence, posterior_weights, source_probabilities
+from snreg.registration.pairing import RULES, pair, shared
 from snreg.registration.target import target_error_bound
 
 __all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "METHODS", "METHOD_HELP", "PAIRING_RULE", "CONFIDENT"]
@@ -46,13 +48,18 @@ METHOD_HELP = {
     "global": "Global search (default): tries every way of laying three preop nodes on three intraop nodes within "
               "the bounds, allowing missing and extra nodes, and keeps the best; the most reliable, and slower.",
 }
-PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "assignment"}
+PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "hot_spot"}
 CONFIDENT = 0.95
 
 
 @dataclass
 class RegistrationResult:
-    """The outcome of :func:`register`; distances and RMS in mm, transform ``intraop_from_preop``."""
+    """The outcome of :func:`register`; transform ``intraop_from_preop``, distances and RMS in mm.
+
+    ``pairing[m]``: the hot spot (preop index) intraop node m came from, -1 for none (DESIGN §4); ``distances_mm[m]``:
+    its distance from that hot spot mapped (from the nearest for -1); ``rms_mm``: over the hot spots found, each by
+    its nearest node (a shared hot spot's other nodes lie beside it by anatomy, not by error); ``confidence[m]``: the
+    probability that m's claim is right."""
 
     method: str
     transform: np.ndarray
@@ -65,24 +72,30 @@ class RegistrationResult:
     score: float = float("nan")
     initial: np.ndarray | None = None      # (4, 4) the rough intraop_from_preop the search started from
     target_error_mm: np.ndarray | None = None   # (N,) per preop node: 90% bound on |mapped - where it really is|
-    missing: np.ndarray | None = None           # (N,) bool: preop nodes with no intraop partner
-    leave_one_out_mm: np.ndarray | None = None  # (M,) per paired node: its distance when the others alone register
+    missing: np.ndarray | None = None           # (N,) bool: hot spots no intraop node came from
+    leave_one_out_mm: np.ndarray | None = None  # (M,) per node from a hot spot: its distance when the others register
+
+    @property
+    def shares(self) -> np.ndarray:
+        """(M,) bool: another intraop node came from the same hot spot ("SN5 -> P3 (with SN4)")."""
+        return shared(self.pairing)
 
     @property
     def confident(self) -> np.ndarray:
-        """Per intraop node: is its pairing confident enough to act on (>= ``CONFIDENT``)?"""
+        """Per intraop node: is its claim confident enough to act on (>= ``CONFIDENT``)?"""
         return self.confidence >= CONFIDENT
 
 
 def register(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None, initial=None,
              max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
              pairing_rule: str | None = None, **options) -> RegistrationResult:
-    """Register preop (N, 3) to intraop (M, 3) nodes in mm and pair every intraop node.
+    """Register preop (N, 3) to intraop (M, 3) nodes in mm and say which hot spot every intraop node came from.
 
     ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
     within ``max_rotation_deg`` and ``max_translation_mm`` (displacement of the preop
-    centroid) of it, and a result outside them is never returned: :class:`NoFitError` says
-    that no pairing fits. Labels such as ``"OBT R"`` forbid left/right crossings and favour
+    centroid) of it: a pairing whose best fit leans past them is fitted within them, and
+    :class:`NoFitError` says that no pairing fits only when the nodes fit far better beyond
+    them (a million to one). Labels such as ``"OBT R"`` forbid left/right crossings and favour
     matching stations. ``pairing_rule`` overrides the method's rule; ``options`` go to
     the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer). Everything after ``method`` is
     keyword-only. Raises ValueError with a message a user understands on bad input, an unknown
@@ -110,21 +123,25 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
         # pairing the bounds allow, this method's fit inside them is forced as well, and is refused the same way.
         candidates = [base] + solve_global(problem) + local_moves(problem, base)
 
-    pairings = {r: pair(r, problem, correction, base.assignment) for r in RULES}
-    pairing = pairings[rule]
     ranked, weights = posterior_weights(candidates)
-    confidence = posterior_confidence(pairing, ranked)
+    sources, extra = source_probabilities(problem, ranked)
+    # global names the most probable source over its candidates; the others label at their own transform
+    own_sources = sources if method == "global" else source_posterior(problem, base)
+    pairings = {r: pair(r, problem, correction, own_sources) for r in RULES}
+    pairing = pairings[rule]
+    confidence = claim_confidence(pairing, sources, extra)
     moved = geometry.apply(correction, problem.preop)
     d2 = squared_distances(moved, problem.intraop)
-    # an extra node's distance is to its nearest mapped preop node: a remark for screens, not a pairing
+    # a node from no hot spot: its distance to the nearest mapped hot spot, a remark for screens, not a pairing
     distances = np.sqrt(np.where(pairing >= 0, d2[np.maximum(pairing, 0), np.arange(len(pairing))], d2.min(axis=0)))
-    rms = float(np.sqrt(np.mean(distances[pairing >= 0] ** 2))) if np.any(pairing >= 0) else float("nan")
+    nearest = _nearest_claimants(pairing, distances)
+    rms = float(np.sqrt(np.mean(distances[nearest] ** 2))) if nearest.any() else float("nan")
     return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
                               distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
                               pairings=pairings, score=base.score, initial=problem.initial,
                               target_error_mm=target_error_bound(problem, correction, ranked, weights),
                               missing=~np.isin(np.arange(len(problem.preop)), pairing),
-                              leave_one_out_mm=_leave_one_out(problem, pairing))
+                              leave_one_out_mm=_leave_one_out(problem, pairing, nearest))
 
 
 def _candidate_at(problem, correction: np.ndarray) -> Candidate:
@@ -134,19 +151,29 @@ def _candidate_at(problem, correction: np.ndarray) -> Candidate:
     sigma = float(np.sqrt(max(np.sort(d2.min(axis=0))[:k].sum() / max(3 * k - 6, 1), 1.0)))
     assignment = assign(problem, correction, sigma)
     if np.sum(assignment >= 0) < MIN_PAIRS:           # the nearest pairs then, one-to-one
-        assignment = pair("one_to_one", problem, correction, assignment)
+        assignment = pair("one_to_one", problem, correction, None)
     return evaluate(problem, assignment)
 
 
-def _leave_one_out(problem, pairing: np.ndarray) -> np.ndarray:
-    """(M,) per paired intraop node: its distance from its preop node when the other pairs alone fit the correction
-    (NaN for a node judged extra, and when fewer than 3 other pairs remain)."""
+def _nearest_claimants(pairing: np.ndarray, distances: np.ndarray) -> np.ndarray:
+    """(M,) bool: the node nearest its hot spot among those that claim it; one per hot spot found. The RMS and the
+    leave-one-out fits count these: a shared hot spot's other nodes lie beside it by anatomy, not by error."""
+    order = np.lexsort((distances, pairing))
+    first = np.ones(len(order), bool)
+    first[1:] = pairing[order][1:] != pairing[order][:-1]
+    chosen = np.zeros(len(pairing), bool)
+    chosen[order[first]] = True
+    return chosen & (pairing >= 0)
+
+
+def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+    """(M,) per intraop node from a hot spot: its distance from it when the other hot spots' nearest nodes alone fit
+    the correction (NaN for a node from none, and when fewer than 3 other hot spots remain)."""
     out = np.full(len(pairing), np.nan)
-    cols = np.flatnonzero(pairing >= 0)
-    if len(cols) - 1 < MIN_PAIRS:
-        return out
-    for j in cols:
-        rest = cols[cols != j]
+    for j in np.flatnonzero(pairing >= 0):
+        rest = np.flatnonzero(nearest & (pairing != pairing[j]))
+        if len(rest) < MIN_PAIRS:
+            continue
         correction = geometry.kabsch(problem.preop[pairing[rest]], problem.intraop[rest])
         out[j] = float(np.linalg.norm(geometry.apply(correction, problem.preop[pairing[j]][None])[0]
                                       - problem.intraop[j]))

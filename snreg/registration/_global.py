@@ -19,23 +19,26 @@ from __future__ import annotations
 from itertools import combinations, permutations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from snreg import geometry
 from snreg.errors import NoFitError
 from snreg.labels import SIDE_CROSSING_NATS
-from snreg.registration._model import (ASSIGN_SIGMAS_MM, C_MISSING, Candidate, extra_nats, pair_nats, refine_many,
-                                       squared_distances)
+from snreg.registration._extras import extra_nats
+from snreg.registration._model import ASSIGN_SIGMAS_MM, C_MISSING, Candidate, pair_nats, refine_many, squared_distances
 from snreg.registration._problem import Problem, option_count
 
 __all__ = ["solve_global", "local_moves", "no_fit_message"]
 
 _FORBIDDEN = 1e9
 _LOCAL_ROUNDS = 2
+_LOOSE_SIGMA_MM = 30.0        # assignment sigma when none of ASSIGN_SIGMAS_MM keeps 3 pairs
+_LEANING = 1.5                # triplet fits this far past a bound are pulled onto it as starting points; farther, dropped
 _SCREENED = 400               # hypotheses kept by the robust residual for the quick score
 _SCREEN_MM = 20.0             # its cap: a node farther than this from every mapped preop node counts as this far
 _SCREENED_OUTSIDE = 100       # hypotheses beyond the bounds given a quick score
 _REFINED_OUTSIDE = 3          # and refined
-_OUTSIDE_MARGIN_NATS = 10.0   # a fit beyond the bounds this much better refuses the best one inside them
+_OUTSIDE_MARGIN_NATS = 15.0   # a fit beyond the bounds this much better (a million to one) refuses the best inside
 
 
 def _triangle_area(points: np.ndarray) -> np.ndarray:
@@ -94,6 +97,22 @@ def _screened(problem: Problem, corrections: np.ndarray, triplet_labels: np.ndar
     return corrections[chosen], triplet_labels[chosen]
 
 
+def _pulled_within(problem: Problem, corrections: np.ndarray) -> np.ndarray:
+    """Corrections (H, 4, 4) moved onto the bounds: the rotation vector shortened to the angle bound, the centroid's
+    displacement to the translation bound. Starting points for a refinement that keeps its fits within them."""
+    if len(corrections) == 0:
+        return corrections
+    rotvec = Rotation.from_matrix(corrections[:, :3, :3]).as_rotvec()
+    angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
+    limit = np.radians(problem.max_rotation_deg)
+    rotation = Rotation.from_rotvec(rotvec * np.minimum(1.0, limit / np.maximum(angle, 1e-12))).as_matrix()
+    centre = problem.centre
+    shift = np.einsum("hij,j->hi", corrections[:, :3, :3], centre) + corrections[:, :3, 3] - centre
+    length = np.linalg.norm(shift, axis=1, keepdims=True)
+    shift *= np.minimum(1.0, problem.max_translation_mm / np.maximum(length, 1e-12))
+    return geometry.make_transform(rotation, centre + shift - np.einsum("hij,j->hi", rotation, centre))
+
+
 def _best_outside(problem: Problem, corrections: np.ndarray, triplet_labels: np.ndarray) -> float:
     """The best score (without the bounds' prior) of a refined pairing whose correction leaves the bounds, or inf:
     a result inside the bounds that fits far worse than this one is not a fit but the bounds forcing one."""
@@ -103,7 +122,8 @@ def _best_outside(problem: Problem, corrections: np.ndarray, triplet_labels: np.
     quick, _ = _quick_scores(problem, corrections, triplet_labels)
     quick -= problem.prior_nats(corrections)
     starts = corrections[np.argsort(quick, kind="stable")[:_REFINED_OUTSIDE]]
-    refined = [c for c in refine_many(problem, starts, ASSIGN_SIGMAS_MM[1]) if not problem.within_bounds(c.correction)]
+    refined = [c for c in refine_many(problem, starts, ASSIGN_SIGMAS_MM[1], bounded=False)
+               if not problem.within_bounds(c.correction)]
     return min((c.score - float(problem.prior_nats(c.correction)) for c in refined), default=np.inf)
 
 
@@ -142,10 +162,14 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
     corrections = _triangle_transforms(problem.preop[pre_idx[keep]], problem.intraop[intra_idx[keep]])
     triplet_labels = problem.label_nats[pre_idx[keep], intra_idx[keep]].sum(axis=1)
     inside = problem.within_bounds(corrections)
-    if not inside.any():
-        raise NoFitError(no_fit_message(problem))
     outside_best = _best_outside(problem, corrections[~inside], triplet_labels[~inside])
-    corrections, triplet_labels = _screened(problem, corrections[inside], triplet_labels[inside], _SCREENED)
+    angle, shift = problem.correction_size(corrections)
+    leaning = ~inside & (angle <= _LEANING * problem.max_rotation_deg) & (shift <= _LEANING * problem.max_translation_mm)
+    if not (inside | leaning).any():              # a few very noisy nodes: every triplet fit leans far
+        leaning = ~inside
+    corrections[leaning] = _pulled_within(problem, corrections[leaning])   # a noisy triplet may lean past a bound
+    corrections, triplet_labels = _screened(problem, corrections[inside | leaning], triplet_labels[inside | leaning],
+                                            _SCREENED)
 
     quick, patterns = _quick_scores(problem, corrections, triplet_labels)
     order = np.argsort(quick, kind="stable")
@@ -155,9 +179,11 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
     sigmas = np.tile(ASSIGN_SIGMAS_MM, len(chosen))
     starts = np.repeat(corrections[chosen], len(ASSIGN_SIGMAS_MM), axis=0)
     candidates: dict[bytes, Candidate] = {}
-    for cand in refine_many(problem, starts, sigmas):
-        if problem.within_bounds(cand.correction) and (cand.key not in candidates
-                                                        or cand.score < candidates[cand.key].score):
+    refined = refine_many(problem, starts, sigmas)
+    if not refined:               # so noisy that no assignment keeps 3 pairs at these sigmas: assign more loosely
+        refined = refine_many(problem, corrections[chosen], _LOOSE_SIGMA_MM)
+    for cand in refined:
+        if cand.key not in candidates or cand.score < candidates[cand.key].score:
             candidates[cand.key] = cand
     if not candidates:
         raise NoFitError(no_fit_message(problem))
@@ -192,5 +218,4 @@ def local_moves(problem: Problem, best: Candidate, per_node: int = 2) -> list[Ca
             adjusts[-1][best.assignment[j], :] = _FORBIDDEN   # its preop node missing
     sigma = float(np.sqrt(max(best.sse / max(3 * best.n_pairs - 6, 1), 1.0)))
     starts = np.repeat(best.correction[None], len(adjusts), axis=0)
-    return [c for c in refine_many(problem, starts, sigma, np.array(adjusts), iterations=4)
-            if problem.within_bounds(c.correction)]
+    return refine_many(problem, starts, sigma, np.array(adjusts), iterations=4)

@@ -1,23 +1,23 @@
 """The probabilistic model every candidate pairing is judged by: pairs, extra intraop nodes and missing preop nodes.
 
-Generative model (mm): a rigid correction D maps each preop node p_n near where its node lies in the intraop frame.
-Each preop node is found during surgery with probability ``PI_FOUND``; a found node is stored at D p_n plus
-isotropic Gaussian error of unknown size sigma (per axis). Extra intraop nodes (removed nodes that are not on the
-SPECT), ``EXTRAS_EXPECTED`` of them on average, lie either anywhere in a pelvic volume ``EXTRA_VOLUME_MM3`` or,
-with probability ``EXTRA_NEAR_FRACTION``, near one of the nodes: a lymph node of the same station, offset
-``EXTRA_SPREAD_MM`` per axis from where that node truly is, so about its mapped position with spread
-sqrt(EXTRA_SPREAD_MM^2 + sigma^2). A candidate pairing ``a`` (intraop m -> preop index or -1) with K >= 3 pairs is
-scored by its negative log posterior in nats, the correction fitted (Kabsch) and its uncertainty integrated by
-Laplace's method, sigma integrated numerically under a log-uniform prior:
+Generative model (mm): a rigid correction D maps each preop node (SPECT hot spot) p_n near where its node lies in the
+intraop frame. Each hot spot's own node is found during surgery with probability ``PI_FOUND`` (thesis Table 1: 57 of
+65 imaged nodes were removed); a found node is stored at D p_n plus isotropic Gaussian error of unknown size sigma
+(per axis). Every other removed node is an extra, which lies beside a hot spot's node or anywhere
+(:mod:`snreg.registration._extras`: the density rho_sigma, which depends on the pairing through the own nodes the
+extras lie beside). A candidate pairing ``a`` (intraop m -> its hot spot's own node, or -1 for an extra) with
+K >= 3 own nodes is scored by its negative log posterior in nats, the correction fitted (Kabsch, within the bounds)
+and its uncertainty integrated by Laplace's method, sigma integrated numerically under a log-uniform prior:
 
-    score(a) = -log E_sigma[(2 pi sigma^2)^(-(3K - 6)/2) exp(-SSE_a / (2 sigma^2)) prod_extras rho_sigma(x_m)]
+    score(a) = -log E_sigma[(2 pi sigma^2)^(-(3K - 6)/2) exp(-SSE_a / (2 sigma^2)) prod_extras rho_sigma(x_m | a)]
                + 1.5 log K + 0.5 log det J_a                                  (Occam factor of the correction)
                + K C_FOUND + (N - K) C_MISSING - E log EXTRAS_EXPECTED        (found, missing, E extras)
                + prior(D_a) + label nats of the pairs
 
-with J_a the inertia tensor of the paired preop nodes. The number of pairs is decided by this evidence, not by
-min(N, M). Under a fixed sigma the best pairing for a correction is a linear assignment in which every preop
-node may go unpaired (cost C_MISSING) and every intraop node may be extra (cost C_EXTRA(m)).
+with J_a the inertia tensor of the paired preop nodes. The number of own nodes is decided by this evidence, not by
+min(N, M). Under a fixed sigma the best pairing for a correction is nearly a linear assignment in which every preop
+node may go unpaired (cost C_MISSING) and every intraop node may be extra (its cost beside the mapped hot spots, the
+own nodes not known yet); the score then judges it with the extras beside the own nodes.
 """
 
 from __future__ import annotations
@@ -28,17 +28,16 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from snreg import geometry
+from snreg.registration._bounded import fit_within_bounds
+from snreg.registration._extras import (ANYWHERE_LOG, EXTRA_NEAR_FRACTION, anchored, anchored_extra_nats,
+                                        anchored_near_log, extra_nats, logsumexp)
 from snreg.registration._problem import Problem
 
-__all__ = ["Candidate", "squared_distances", "pair_nats", "extra_nats", "assign", "evaluate", "score_many",
-           "refine_many", "sigma_weights", "SIGMA_GRID_MM", "MIN_PAIRS"]
+__all__ = ["Candidate", "squared_distances", "pair_nats", "assign", "evaluate", "score_many", "refine_many",
+           "sigma_weights", "source_posterior", "SIGMA_GRID_MM", "MIN_PAIRS"]
 
 MIN_PAIRS = 3
 PI_FOUND = 0.9                    # a SPECT node is found (and stored) during surgery
-EXTRAS_EXPECTED = 1.5             # removed nodes that are not on the SPECT, per case
-EXTRA_VOLUME_MM3 = 150.0 * 100.0 * 150.0   # the pelvic lymph-node region (width x depth x height)
-EXTRA_NEAR_FRACTION = 0.9         # extras in the same station as a SPECT node, rather than anywhere
-EXTRA_SPREAD_MM = 10.0            # their offset from that node, per axis
 SIGMA_GRID_MM = np.geomspace(2.0, 40.0, 32)   # support of the log-uniform prior on the intraop error sigma
 ASSIGN_SIGMAS_MM = (3.0, 6.0, 12.0)          # sigmas at which candidate pairings are assigned
 C_FOUND = -np.log(PI_FOUND)
@@ -50,8 +49,8 @@ _J_FLOOR_MM2 = 25.0               # inertia eigenvalues below this (nearly colli
 
 @dataclass(frozen=True)
 class Candidate:
-    """A partial one-to-one pairing: ``assignment[m]`` is intraop m's preop index or -1 (extra); the correction fitted
-    to its pairs, their sum of squared residuals (mm^2) and the score (nats, lower is better)."""
+    """A partial one-to-one pairing: ``assignment[m]`` is the hot spot whose own node intraop m is, or -1 (an extra);
+    the correction fitted to its pairs, their sum of squared residuals (mm^2) and the score (nats, lower is better)."""
 
     assignment: np.ndarray
     correction: np.ndarray
@@ -67,12 +66,6 @@ class Candidate:
         return int(np.sum(self.assignment >= 0))
 
 
-def _logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
-    """log(sum(exp(x))) along ``axis``, stable; scipy's costs 50 times more per call on these small arrays."""
-    top = np.max(x, axis=axis, keepdims=True)
-    return np.squeeze(top, axis=axis) + np.log(np.sum(np.exp(x - top), axis=axis))
-
-
 def squared_distances(moved_preop: np.ndarray, intraop: np.ndarray) -> np.ndarray:
     """(..., N, M) squared distances between (moved) preop nodes (..., N, 3) and intraop nodes (M, 3)."""
     diff = moved_preop[..., :, None, :] - intraop
@@ -84,18 +77,26 @@ def pair_nats(d2: np.ndarray, sigma: float, label_nats: np.ndarray) -> np.ndarra
     return d2 / (2.0 * sigma**2) + 1.5 * (_LOG_2PI + 2.0 * np.log(sigma)) + C_FOUND + label_nats
 
 
-def extra_nats(d2: np.ndarray, sigma) -> np.ndarray:
-    """(..., M) cost of each intraop node being extra, given its squared distances (..., N, M) to the mapped preop
-    nodes and the error sigma (scalar, or broadcasting against the leading axes): minus the log of the expected
-    extra density at its place (module docstring)."""
-    n = d2.shape[-2]
-    spread2 = EXTRA_SPREAD_MM**2 + np.asarray(sigma, dtype=float) ** 2
-    spread2_n = spread2[..., None, None] if np.ndim(spread2) else spread2
-    near = (_logsumexp(-d2 / (2.0 * spread2_n), axis=-2) - np.log(n)
-            - 1.5 * (_LOG_2PI + np.log(spread2_n[..., 0, :] if np.ndim(spread2) else spread2))
-            + np.log(EXTRA_NEAR_FRACTION))
-    anywhere = np.log((1.0 - EXTRA_NEAR_FRACTION) / EXTRA_VOLUME_MM3)
-    return -(np.logaddexp(near, anywhere) + np.log(EXTRAS_EXPECTED))
+def source_posterior(problem: Problem, cand: "Candidate", sigma: float | None = None) -> np.ndarray:
+    """(M, N + 1) probability that intraop node m came from hot spot n under the candidate; column N: from no hot spot.
+
+    An own node comes from its preop node. An extra came from hot spot n in proportion to the density of an extra
+    beside n's node (labels included; :mod:`~snreg.registration._extras`), or from none in proportion to the density
+    anywhere; sigma is integrated over its posterior given the candidate's fit, unless given."""
+    n, m = len(problem.preop), len(problem.intraop)
+    d2 = squared_distances(geometry.apply(cand.correction, problem.preop), problem.intraop)        # (N, M)
+    sigmas = SIGMA_GRID_MM if sigma is None else np.array([float(sigma)])
+    near = (anchored_near_log(*anchored(problem.intraop, cand.assignment[None], d2[None]), sigmas)[0]
+            + np.log(EXTRA_NEAR_FRACTION / n) - problem.label_nats[None])                          # (G, N, M)
+    anywhere = np.full((len(sigmas), 1, m), ANYWHERE_LOG)
+    logs = np.concatenate([near, anywhere], axis=1)                                                  # (G, N+1, M)
+    resp = np.exp(logs - logsumexp(logs, axis=1)[:, None, :])
+    weights = sigma_weights(cand.sse, cand.n_pairs) if sigma is None else np.ones(1)
+    extra = np.einsum("g,gnm->mn", weights, resp)                                                     # (M, N+1)
+    own = np.zeros((m, n + 1))
+    paired = cand.assignment >= 0
+    own[np.flatnonzero(paired), cand.assignment[paired]] = 1.0
+    return np.where(paired[:, None], own, extra)
 
 
 def _partial_lsa(pair: np.ndarray, extra: np.ndarray) -> np.ndarray:
@@ -128,25 +129,30 @@ def assign(problem: Problem, correction: np.ndarray, sigma: float, adjust: np.nd
     return _partial_lsa(pair, extra_nats(d2, sigma))
 
 
-def _fit(problem: Problem, assignments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Kabsch corrections (A, 4, 4) of pairings (A, M) (each with >= 3 pairs) and their residuals (A,) mm^2."""
+def _fit(problem: Problem, assignments: np.ndarray, bounded: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Kabsch corrections (A, 4, 4) of pairings (A, M) (each with >= 3 pairs) and their residuals (A,) mm^2; when
+    ``bounded``, a correction that leaves the bounds is replaced by the pairing's best fit within them."""
     paired = assignments >= 0
     src = problem.preop[np.maximum(assignments, 0)]                     # (A, M, 3)
     corrections = geometry.kabsch(src, np.broadcast_to(problem.intraop, src.shape), paired.astype(float))
+    if bounded:
+        for a in np.flatnonzero(~problem.within_bounds(corrections)):
+            corrections[a] = fit_within_bounds(problem, src[a][paired[a]], problem.intraop[paired[a]])
     residual = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3] - problem.intraop
     return corrections, np.einsum("amk,amk,am->a", residual, residual, paired)
 
 
-def score_many(problem: Problem, assignments: np.ndarray) -> list[Candidate]:
-    """Fit and score pairings (A, M), each with at least :data:`MIN_PAIRS` pairs (module docstring)."""
+def score_many(problem: Problem, assignments: np.ndarray, bounded: bool = True) -> list[Candidate]:
+    """Fit and score pairings (A, M), each with at least :data:`MIN_PAIRS` pairs (module docstring); ``bounded``: fits
+    kept within the bounds."""
     assignments = np.asarray(assignments, dtype=int).reshape(-1, len(problem.intraop))
-    corrections, sse = _fit(problem, assignments)
+    corrections, sse = _fit(problem, assignments, bounded)
     paired = assignments >= 0
     k = paired.sum(axis=1)
     d2 = squared_distances(_moved(problem, corrections), problem.intraop)          # (A, N, M)
-    extra = extra_nats(d2[:, None], SIGMA_GRID_MM[None, :])                         # (A, G, M)
+    extra = anchored_extra_nats(*anchored(problem.intraop, assignments, d2), SIGMA_GRID_MM)  # (A, G, M)
     per_sigma = _fit_terms(sse, k) + np.where(paired[:, None, :], 0.0, extra).sum(axis=2)
-    fit = -(_logsumexp(-per_sigma, axis=1) - np.log(len(SIGMA_GRID_MM)))
+    fit = -(logsumexp(-per_sigma, axis=1) - np.log(len(SIGMA_GRID_MM)))
     outliers = found_nats(k, len(problem.preop))
     rows, cols = np.nonzero(paired)
     labels = np.zeros(len(assignments))
@@ -168,7 +174,7 @@ def evaluate(problem: Problem, assignment: np.ndarray) -> Candidate | None:
 
 
 def refine_many(problem: Problem, corrections: np.ndarray, sigmas, adjusts: np.ndarray | None = None,
-                iterations: int = 8) -> list[Candidate]:
+                iterations: int = 8, bounded: bool = True) -> list[Candidate]:
     """Alternate :func:`assign` and Kabsch from each start correction (A, 4, 4) at its sigma (A,) until its pairing
     repeats; ``adjusts`` (A, N, M) are added to the pair costs (pins, bans). The scored pairings (those that keep at
     least :data:`MIN_PAIRS` pairs), in no particular order."""
@@ -192,14 +198,14 @@ def refine_many(problem: Problem, corrections: np.ndarray, sigmas, adjusts: np.n
         assignments[index[~too_few]] = updated[~too_few]
         active[index[settled]] = False
         moving = index[~settled]
-        corrections[moving], _ = _fit(problem, assignments[moving])
-    return score_many(problem, assignments[valid]) if valid.any() else []
+        corrections[moving], _ = _fit(problem, assignments[moving], bounded)
+    return score_many(problem, assignments[valid], bounded) if valid.any() else []
 
 
 def sigma_weights(sse: float, n_pairs: int) -> np.ndarray:
     """Posterior weights of :data:`SIGMA_GRID_MM` (log-uniform prior) given a fit's residual and its pair count."""
     log_like = -_fit_terms(np.asarray([sse], float), np.asarray([n_pairs]))[0]
-    return np.exp(log_like - _logsumexp(log_like, axis=0))
+    return np.exp(log_like - logsumexp(log_like, axis=0))
 
 
 def _fit_terms(sse: np.ndarray, n_pairs: np.ndarray) -> np.ndarray:

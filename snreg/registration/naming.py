@@ -7,16 +7,16 @@ shown changes: files and JSON keep the real ids.
 
 >>> shown_preop_ids(["SN1", "SN2"], ["SN1"])
 ['P:SN1', 'P:SN2']
->>> pair_text(row)                 # "SN1 -> P3", "SN5 -> extra"
+>>> pair_text(row)                 # "SN1 -> P3", "SN5 -> P3 (with SN4)", "SN6 -> none"
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-from snreg.registration.report import MissingNode, PairRow
+from snreg.registration.report import MissingNode, PairRow, pair_rows
 
-__all__ = ["PREOP_MARK", "ids_collide", "shown_preop_ids", "marked_rows", "marked_missing", "pair_text"]
+__all__ = ["PREOP_MARK", "ids_collide", "shown_preop_ids", "marked_rows", "marked_missing", "pair_text", "pairs_line"]
 
 PREOP_MARK = "P:"
 
@@ -34,7 +34,7 @@ def shown_preop_ids(preop_ids, intraop_ids) -> list[str]:
 
 def marked_rows(rows: list[PairRow], preop_ids) -> list[PairRow]:
     """``rows`` with their preop ids as :func:`shown_preop_ids` shows them (``preop_ids``: the whole preop set, as
-    a preop node left unpaired can collide too); an extra node keeps "extra"."""
+    a preop node left unpaired can collide too); a node from no hot spot keeps "none"."""
     if not ids_collide(preop_ids, [row.intraop_id for row in rows]):
         return list(rows)
     return [replace(row, preop_id=PREOP_MARK + row.preop_id) if row.paired else row for row in rows]
@@ -48,5 +48,13 @@ def marked_missing(missing: list[MissingNode], intraop_ids, preop_ids) -> list[M
 
 
 def pair_text(row: PairRow) -> str:
-    """``"SN1 -> P3"``: the intraop node, then its preop partner ("extra" for a node judged extra)."""
-    return f"{row.intraop_id} -> {row.preop_id}"
+    """``"SN5 -> P3 (with SN4)"``: the intraop node, the hot spot it came from ("none" for no imaged hot spot), and
+    the other nodes that came from it."""
+    shared = f" (with {', '.join(row.shared_with)})" if row.shared_with else ""
+    return f"{row.intraop_id} -> {row.preop_id}{shared}"
+
+
+def pairs_line(preop, intraop, result) -> str:
+    """Every intraop node's claim on one line, as screens show them: ``"SN1 -> P1; SN2 -> P3 (with SN5); ..."`` (for
+    the live link's status and other one-line places); ``preop``/``intraop``: the node sets registered."""
+    return "; ".join(pair_text(row) for row in marked_rows(pair_rows(preop, intraop, result), preop.ids))

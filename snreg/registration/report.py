@@ -5,7 +5,7 @@ the preop nodes in the intraop frame, a one-page figure), and offline review mus
 files without a window. Everything here is Qt-free; the figure is drawn with matplotlib's Agg canvas on a
 ``Figure`` object (no pyplot, so no global backend state and safe in a worker thread).
 
->>> rows = pair_rows(preop, intraop, result)          # one PairRow per intraop node
+>>> rows = pair_rows(preop, intraop, result)          # one PairRow per intraop node: its hot spot, who shares it
 >>> write_pairs_csv("pairs.csv", preop, intraop, result)
 >>> write_nodes(mapped_preop(preop, result), "preop_in_trocar.mrk.json")
 >>> save_report_png("report.png", preop, intraop, result, context=ReportContext(case_id="phantom-01"))
@@ -27,10 +27,10 @@ from snreg.registration import CONFIDENT, RegistrationResult
 from snreg.registration.report_meta import ReportContext, header_lines, png_text_chunks, report_metadata, sidecar_path
 
 __all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line",
-           "node_warnings", "write_pairs_csv", "registration_figure", "save_report_png", "EXTRA", "FAR_NODE_MM", "VIEWS",
-           "REPORT_SIZE_IN", "REPORT_DPI"]
+           "node_warnings", "write_pairs_csv", "registration_figure", "save_report_png", "NO_HOT_SPOT", "FAR_NODE_MM",
+           "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
 
-EXTRA = "extra"                 # shown instead of a preop id for an intraop node judged extra (pairing -1)
+NO_HOT_SPOT = "none"            # shown instead of a preop id for a node from no imaged hot spot (pairing -1)
 FAR_NODE_MM = 20.0              # a paired node farther than this from its mapped partner is warned about
 # The three orthogonal projections of the trocar frame (name, horizontal axis, vertical axis): looking along its
 # z axis (the endoscope's axis in the reference pose) shows x-y, along y shows x-z, along x shows y-z. Not
@@ -40,13 +40,15 @@ REPORT_SIZE_IN = (12.0, 8.0)    # width; the height follows the content (about 8
 _HEADER_LINE_IN, _VIEWS_IN, _ROW_IN = 0.24, 3.4, 0.24
 REPORT_DPI = 100
 PREOP_COLOUR, INTRAOP_COLOUR, PAIR_COLOUR, DOUBT_COLOUR = "#1f77b4", "#d62728", "#7f7f7f", "#fdd0a2"
-_CSV_COLUMNS = ("intraop_id", "intraop_label", "preop_id", "preop_label", "distance_mm", "confidence", "confident")
+_CSV_COLUMNS = ("intraop_id", "intraop_label", "hot_spot", "hot_spot_label", "shared_with", "distance_mm", "confidence",
+                "confident")
 
 
 @dataclass(frozen=True)
 class PairRow:
-    """One intraop node and what it was paired with: ``preop_index`` into the preop set, -1 for a node judged extra,
-    whose ``preop_id`` is then :data:`EXTRA` and ``preop_label`` empty (screens, CSV) and null in JSON."""
+    """One intraop node and the hot spot it came from: ``preop_index`` into the preop set, -1 for a node from no
+    imaged hot spot, whose ``preop_id`` is then :data:`NO_HOT_SPOT` and ``preop_label`` empty (screens, CSV) and null
+    in JSON; ``shared_with``: the other intraop nodes that came from the same hot spot."""
 
     intraop_id: str
     intraop_label: str
@@ -56,6 +58,7 @@ class PairRow:
     distance_mm: float
     confidence: float
     leave_one_out_mm: float = float("nan")   # its distance when the other pairs alone register; NaN if not paired
+    shared_with: tuple[str, ...] = ()
 
     @property
     def paired(self) -> bool:
@@ -66,9 +69,11 @@ class PairRow:
         return self.confidence >= CONFIDENT
 
     def as_json(self) -> dict:
-        """The row for JSON output (``snreg register --json``): an extra node has ``preop_id`` and ``preop_label`` null."""
+        """The row for JSON output (``snreg register --json``): a node from no hot spot has ``preop_id`` and
+        ``preop_label`` null."""
         return {"id": self.intraop_id, "label": self.intraop_label,
                 "preop_id": self.preop_id if self.paired else None, "preop_label": self.preop_label if self.paired else None,
+                "shared_with": list(self.shared_with),
                 "distance_mm": round(self.distance_mm, 3), "confidence": round(self.confidence, 4),
                 "confident": self.confident,
                 "leave_one_out_mm": None if np.isnan(self.leave_one_out_mm) else round(self.leave_one_out_mm, 3)}
@@ -93,9 +98,10 @@ def pair_table(result: RegistrationResult, preop_ids, intraop_ids, preop_labels=
     loo = result.leave_one_out_mm if result.leave_one_out_mm is not None else np.full(len(pairing), np.nan)
     rows = []
     for m, n in enumerate(pairing):
-        preop_id, preop_label = (EXTRA, "") if n < 0 else (preop_ids[n], preop_labels[n])
+        preop_id, preop_label = (NO_HOT_SPOT, "") if n < 0 else (preop_ids[n], preop_labels[n])
+        others = () if n < 0 else tuple(intraop_ids[k] for k in np.flatnonzero(pairing == n) if k != m)
         rows.append(PairRow(intraop_ids[m], intraop_labels[m], int(n), preop_id, preop_label,
-                            float(result.distances_mm[m]), float(result.confidence[m]), float(loo[m])))
+                            float(result.distances_mm[m]), float(result.confidence[m]), float(loo[m]), others))
     return rows
 
 
@@ -138,7 +144,8 @@ def mapped_preop(preop: NodeSet, result: RegistrationResult) -> NodeSet:
 
 
 def write_pairs_csv(path, preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> Path:
-    """The pairing table as CSV (``#`` comment lines: method, RMS, transform), one row per intraop node."""
+    """The pairing table as CSV (``#`` comment lines: method, RMS, transform), one row per intraop node: its hot spot
+    (empty for none), the other nodes from the same hot spot (space-separated), distance and confidence."""
     rows = pair_rows(preop, intraop, result)
     path = Path(path)
     transform = " ".join(f"{v:.6g}" for v in np.asarray(result.transform).ravel())
@@ -148,22 +155,26 @@ def write_pairs_csv(path, preop: NodeSet, intraop: NodeSet, result: Registration
         writer = csv.writer(handle, lineterminator="\n")
         writer.writerow(_CSV_COLUMNS)
         for row in rows:
-            writer.writerow([row.intraop_id, row.intraop_label, row.preop_id, row.preop_label,
-                             f"{row.distance_mm:.3f}", f"{row.confidence:.4f}", int(row.confident)])
+            writer.writerow([row.intraop_id, row.intraop_label, row.preop_id if row.paired else "", row.preop_label,
+                             " ".join(row.shared_with), f"{row.distance_mm:.3f}", f"{row.confidence:.4f}",
+                             int(row.confident)])
     return path
 
 
 def summary_line(result: RegistrationResult, rows: list[PairRow]) -> str:
-    """One line: method, RMS, how many intraop nodes are paired and how many confidently."""
+    """One line: method, RMS, how many intraop nodes came from a hot spot, how many hot spots yielded several, and
+    how many claims are confident."""
     paired = sum(row.paired for row in rows)
     confident = sum(row.confident for row in rows)
-    return (f"{result.method}: RMS {result.rms_mm:.2f} mm, {paired} of {len(rows)} intraop nodes paired, "
-            f"{confident} confident (>= {CONFIDENT:g})")
+    shared = len({row.preop_index for row in rows if row.shared_with})
+    several = f", {shared} hot spot{'s' if shared > 1 else ''} with several" if shared else ""
+    return (f"{result.method}: RMS {result.rms_mm:.2f} mm, {paired} of {len(rows)} intraop nodes from a hot spot"
+            f"{several}, {confident} confident (>= {CONFIDENT:g})")
 
 
 def node_warnings(rows: list[PairRow], far_mm: float = FAR_NODE_MM) -> list[str]:
-    """One plain sentence per intraop node to check: paired but farther than ``far_mm`` from its mapped partner, or
-    judged extra, in intraop order.
+    """One plain sentence per intraop node to check: from a hot spot but farther than ``far_mm`` from its mapped
+    position, or from no imaged hot spot, in intraop order.
 
     Why: a node 372 mm from every preop node was reported as "5 of 5 paired" by chamfer, with only a shaded row;
     a distance far beyond the tracking and SPECT errors means the pairing (or the stored node) is wrong, whatever
@@ -172,11 +183,11 @@ def node_warnings(rows: list[PairRow], far_mm: float = FAR_NODE_MM) -> list[str]
     warnings = []
     for row in rows:
         if row.paired and row.distance_mm > far_mm:
-            warnings.append(f"{row.intraop_id} is {row.distance_mm:.0f} mm from its partner {row.preop_id} "
+            warnings.append(f"{row.intraop_id} is {row.distance_mm:.0f} mm from its hot spot {row.preop_id} "
                             f"(more than {far_mm:g} mm): check this pairing and the stored node")
         elif not row.paired:
-            warnings.append(f"{row.intraop_id} was judged extra, paired with no preop node (nearest "
-                            f"{row.distance_mm:.0f} mm): a node not on the SPECT, or a mis-stored one; check it")
+            warnings.append(f"{row.intraop_id} came from no imaged hot spot (the nearest is {row.distance_mm:.0f} mm "
+                            "away): a node not on the SPECT, or a mis-stored one; check it")
     return warnings
 
 
@@ -231,13 +242,13 @@ def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationRe
             ax.legend(fontsize=7, loc="best")
     table_ax = figure.add_axes((0.07, (notes_in + 0.02) / height, 0.91, table_in / height))
     table_ax.axis("off")
-    cells = [[r.intraop_id, r.intraop_label, r.preop_id, r.preop_label, f"{r.distance_mm:.1f}", f"{r.confidence:.2f}"]
-             for r in rows]
-    colours = [["white" if r.confident else DOUBT_COLOUR] * 6 for r in rows]
+    cells = [[r.intraop_id, r.intraop_label, r.preop_id, r.preop_label, " ".join(r.shared_with) or "-",
+              f"{r.distance_mm:.1f}", f"{r.confidence:.2f}"] for r in rows]
+    colours = [["white" if r.confident else DOUBT_COLOUR] * 7 for r in rows]
     if cells:
         table = table_ax.table(cellText=cells, cellColours=colours, cellLoc="center", bbox=(0.0, 0.0, 1.0, 1.0),
-                               colLabels=["intraop id", "intraop label", "preop id", "preop label", "distance mm",
-                                          "confidence"])
+                               colLabels=["intraop id", "intraop label", "hot spot", "hot spot label", "with",
+                                          "distance mm", "confidence"])
         table.auto_set_font_size(False)
         table.set_fontsize(9)
     table_ax.set_title(f"method {result.method}, pairing rule {result.pairing_rule}, RMS {result.rms_mm:.2f} mm; "

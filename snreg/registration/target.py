@@ -22,7 +22,7 @@ from snreg import geometry
 from snreg.registration._model import SIGMA_GRID_MM, Candidate, sigma_weights
 from snreg.registration._problem import Problem
 
-__all__ = ["target_error_bound", "COVERAGE", "SAMPLES"]
+__all__ = ["target_error_bound", "rigid_fit_covariance", "COVERAGE", "SAMPLES"]
 
 COVERAGE = 0.90
 SAMPLES = 2000
@@ -42,13 +42,20 @@ def _shape_factors(problem: Problem, cand: Candidate) -> tuple[np.ndarray, np.nd
     of where each node really is about its mapped position."""
     mapped = geometry.apply(cand.correction, problem.preop)
     paired = mapped[cand.assignment[cand.assignment >= 0]]
-    centroid = paired.mean(axis=0)
-    centred = paired - centroid
+    cov = np.eye(3) + rigid_fit_covariance(paired, mapped)
+    return mapped, np.linalg.cholesky(cov)
+
+
+def rigid_fit_covariance(fiducials: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) covariance, per unit error variance per axis of the K fiducials (K, 3), of where a least-squares rigid
+    fit to them puts the targets (M, 3): ``I / K + [r]x J^-1 [r]x^T`` with r from the fiducials' centroid and J their
+    inertia tensor (Fitzpatrick and West's target registration error; its trace is their TRE^2 / FLE_axis^2)."""
+    centroid = fiducials.mean(axis=0)
+    centred = fiducials - centroid
     inertia = np.sum(centred**2) * np.eye(3) - centred.T @ centred
     inertia_inv = np.linalg.pinv(inertia + 1e-6 * np.trace(inertia) * np.eye(3))
-    skew = _skew(mapped - centroid)
-    cov = (1.0 + 1.0 / len(paired)) * np.eye(3) + skew @ inertia_inv @ np.swapaxes(skew, -1, -2)
-    return mapped, np.linalg.cholesky(cov)
+    skew = _skew(np.asarray(targets, dtype=float) - centroid)
+    return np.eye(3) / len(fiducials) + skew @ inertia_inv @ np.swapaxes(skew, -1, -2)
 
 
 def target_error_bound(problem: Problem, correction: np.ndarray, candidates: list[Candidate],

@@ -2,7 +2,8 @@
 
 Camera modes: ``pair`` (two devices, ``left``/``right``: an index such as ``"0"``, a device path or a URL),
 ``stacked`` (one ``device`` carrying both eyes, ``layout`` side_by_side or top_bottom), ``video`` (``left``/``right``
-video files) and ``folder`` (``left``/``right`` glob patterns of images). ``frame_size`` (width, height) is asked
+video files), ``folder`` (``left``/``right`` glob patterns of images) and ``replay`` (``left``: a session recorded with
+video, played back ``speed`` times faster with its own IMU stream and calibration; :class:`snreg.demo.replay.ReplayRig`). ``frame_size`` (width, height) is asked
 of each capture device (for ``stacked`` the whole frame holding both eyes); None keeps the device's default.
 A device dialog fills a :class:`RigConfig` in and the app keeps it (``to_dict``/``from_dict``);
 :class:`~snreg.rig.hardware.HardwareRig` opens it.
@@ -18,7 +19,7 @@ from snreg.sources.capture import LAYOUTS
 
 __all__ = ["RigConfig", "CAMERA_MODES"]
 
-CAMERA_MODES = ("pair", "stacked", "video", "folder")
+CAMERA_MODES = ("pair", "stacked", "video", "folder", "replay")
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,7 @@ class RigConfig:
     baudrate: int = DEFAULT_BAUD
     calibration_path: str = ""
     probe_path: str | None = None
+    speed: float = 1.0
 
     def __post_init__(self):
         if self.mode not in CAMERA_MODES:
@@ -51,6 +53,7 @@ class RigConfig:
                 raise ValueError(f"The rig's {name} must be text or None, not {value!r}.")
             object.__setattr__(self, name, value or None)
         object.__setattr__(self, "fps", _positive(self.fps, "frame rate (fps)", float))
+        object.__setattr__(self, "speed", _positive(self.speed, "replay speed", float))
         object.__setattr__(self, "baudrate", _positive(self.baudrate, "baud rate", int))
         if self.frame_size is not None:
             if not isinstance(self.frame_size, (tuple, list)) or len(self.frame_size) != 2:
@@ -63,6 +66,8 @@ class RigConfig:
         """What the camera choice still lacks, in one sentence; empty when the frame source can be opened."""
         if self.mode == "stacked":
             return "" if self.device.strip() else "Choose the camera that delivers both eyes."
+        if self.mode == "replay":
+            return "" if self.left.strip() else "Choose the recorded session (.h5) to replay."
         named = {"pair": ("left camera", "right camera"), "video": ("left video file", "right video file"),
                  "folder": ("left image pattern", "right image pattern")}[self.mode]
         lacking = [what for what, value in zip(named, (self.left, self.right)) if not value.strip()]
@@ -77,7 +82,7 @@ class RigConfig:
         """What the whole choice still lacks (cameras, then calibration), in one sentence; empty when complete."""
         if self.source_missing:
             return self.source_missing
-        if not self.calibration_path.strip():
+        if not self.calibration_path.strip() and self.mode != "replay":     # a replay tracks with its session's
             return "Choose the stereo calibration file (from the calibration wizard or 'snreg calibrate stereo')."
         return ""
 

@@ -187,6 +187,30 @@ def _preop(data) -> dict:
     return data
 
 
+def _file_names(value) -> list:
+    names = _texts(value)
+    if len(names) != 2 or any(not name or "/" in name or "\\" in name or name in (".", "..") for name in names):
+        raise EntryError("is not two file names beside the session")
+    return names
+
+
+_VIDEO = {"n": _integer, "files": _file_names, "first_row": _integer, "fps": lambda v: _number(v, finite=True),
+          "width": _integer, "height": _integer, "closed": _optional(lambda v: bool(v)),
+          "frames": _optional(_array((2,), finite=True)), "size": _optional(_array((2,), finite=True)),
+          "sha256": _optional(_texts), "dropped": _optional(_integer), "codec": _optional(_text),
+          "container": _optional(_text), "stopped": _optional(_text)}
+
+
+def _video(data) -> dict:
+    data = _fields(data, _VIDEO)
+    if data["n"] < 0 or data["first_row"] < 0:
+        raise EntryError("'n' or 'first_row' is negative")
+    for key in ("frames", "size"):
+        if key in data:
+            data[key] = [int(v) for v in data[key]]
+    return data
+
+
 def _header(data) -> dict:
     data = _fields(data, {"format": _text})
     if data["format"] != FORMAT:
@@ -202,7 +226,7 @@ def _header(data) -> dict:
 KINDS: dict[str, Callable[[object], dict]] = {
     "session": _header, "node": check_node, "node_removed": lambda d: _fields(d, {"id": _text}),
     "event": _event, "nodes_reexpressed": _reexpression, "calibration": _calibration, "preop": _preop,
-    "registration": _registration, "final": _final,
+    "registration": _registration, "final": _final, "video": _video,
 }
 
 

@@ -6,16 +6,20 @@ import json
 from collections import Counter
 from pathlib import Path
 
+from snreg.camera import save_calibration
 from snreg.files import atomic_write
 from snreg.session import Session
+from snreg.session.integrity import verify
 from snreg.session.journal import journal_path, read_journal
-from snreg.session.schema import STREAM_DTYPES
+from snreg.session.schema import STREAM_DTYPES, SessionError
 
 
 def session_info(path: str | Path) -> dict:
     """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, calibration, registrations,
-    events by kind (e.g. ``store_refused``)."""
-    with Session.open(path) as session:
+    events by kind (e.g. ``store_refused``), the recorded videos; ``damaged`` also when a dataset fails its checksum or
+    digest (``damage`` names them; the videos' SHA-256 is left to ``snreg session verify``)."""
+    with Session.open(path) as session:                 # refuses what is not a session, in one sentence
+        checked = verify(path, videos=False)
         preop = session.preop_nodes()
         return {"case_id": session.case_id, "created_utc": session.header.get("created_utc", ""),
                 "format_version": session.header.get("format_version"),
@@ -27,8 +31,19 @@ def session_info(path: str | Path) -> dict:
                                   for r in session.registrations()],
                 "final_registration": session.final_registration(),
                 "events": dict(Counter(event["kind"] for event in session.events())),
-                "damaged": session.damaged, "journal_damaged_lines": read_journal(journal_path(path)).damaged,
+                "videos": [{key: video[key] for key in ("side", "path", "frames", "codec")} for video in checked.videos],
+                "damaged": session.damaged or not checked.ok, "damage": [d.to_json() for d in checked.damaged],
+                "journal_damaged_lines": read_journal(journal_path(path)).damaged,
                 "journal": session.has_journal, "problems": list(session.problems)}
+
+
+def export_calibration(path: str | Path, out: str | Path) -> None:
+    """Write the stereo calibration a session used as a calibration file (DESIGN.md §4 "Calibration file")."""
+    with Session.open(path) as session:
+        stereo = session.calibration().get("stereo")
+    if stereo is None:
+        raise SessionError(f"{path}: the session holds no stereo calibration to export")
+    save_calibration(stereo, out)
 
 
 def export_nodes(path: str | Path, fmt: str, out: str | Path) -> int:

@@ -61,6 +61,19 @@ def read_calibration(group: h5py.Group) -> dict:
     return data
 
 
+def read_video(group: h5py.Group) -> dict:
+    """One ``videos/<n>`` group's attributes in the journal's JSON form (none in files before format 3)."""
+    return {key: [_plain(v) for v in value.tolist()] if isinstance(value, np.ndarray) else _plain(value)
+            for key, value in group.attrs.items()}
+
+
+def read_videos(h5: h5py.File) -> list[dict]:
+    """The recorded video segments (``videos/<n>`` attributes), in order; none in files before format 3."""
+    if "videos" not in h5:
+        return []
+    return [read_video(h5["videos"][name]) for name in sorted(h5["videos"], key=int)]
+
+
 def read_preop(h5: h5py.File) -> dict | None:
     group = h5["nodes/preop"]
     if "id" not in group:

@@ -48,6 +48,7 @@ class Recovery:
     preop: int
     events: int
     streams: dict[str, int]
+    videos: int = 0
     problems: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -65,6 +66,8 @@ class Recovery:
                      + " rows")
         calibration = ", ".join(f"{kind} (from the {source})" for kind, source in self.calibration)
         lines.append(f"calibration: {calibration or 'none readable'}")
+        if self.videos:
+            lines.append(f"videos: {self.videos} segment(s) on record, their files left beside the session as they are")
         if not self.journal:
             lines.append("there was no journal beside the file: only what the HDF5 file still held could be saved")
         lines += [f"could not be read: {problem}" for problem in self.problems]
@@ -181,7 +184,8 @@ def _write(session: Session, path: Path, target: Path, in_place: bool) -> Recove
     rows = [problem for name in STREAM_DTYPES                  # what reading the rows found (after the open)
             if (problem := salvage.stream_problem(session._h5, name, session._check)) not in (None, *session.problems)]
     return Recovery(target, backup, session.has_journal, report["nodes"], report["registrations"],
-                    report["calibration"], report["preop"], report["events"], written, list(session.problems) + rows)
+                    report["calibration"], report["preop"], report["events"], written, len(session.videos()),
+                    list(session.problems) + rows)
 
 
 def _report(session: Session, entries: list) -> dict:

@@ -1,7 +1,7 @@
 """Reading what is still readable of a session's HDF5 file, part by part, after :mod:`.filecheck` has read it safely.
 
 Why: a damaged file should cost what is damaged and no more. A part (nodes, calibration, preop, registrations,
-events, each stream) that a checking child read whole is read with the ordinary readers of :mod:`.reader`; a part
+events, videos, each stream) that a checking child read whole is read with the ordinary readers of :mod:`.reader`; a part
 with damage in it is read around the damage (other registrations, other calibrations, the node rows whose id, label
 and position survive, the stream rows outside the unreadable chunks); whatever is read is checked as a journal entry
 would be (:mod:`.entries`), so a wrong type in the file is reported rather than raised. Every part left out or cut
@@ -40,6 +40,7 @@ class FileParts:
     preop: dict | None = None
     registrations: list = field(default_factory=list)
     events: list = field(default_factory=list)
+    videos: list = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
 
 
@@ -47,7 +48,8 @@ def read_parts(h5: h5py.File, check: FileCheck | None) -> FileParts:
     """Every part of the session in ``h5`` that can be read (``check`` None: the file is trusted whole)."""
     parts = FileParts()
     for name, read in (("nodes", _nodes), ("calibration", _calibration), ("preop", _preop),
-                       ("registrations", _registrations), ("events", _events)):
+                       ("registrations", _registrations), ("events", _events),
+                       ("videos", _videos)):
         try:
             setattr(parts, name, read(h5, check, parts.problems))
         except Exception as err:                        # noqa: BLE001 - any other surprise in a part costs that part
@@ -257,6 +259,24 @@ def _events(h5, check, problems) -> list[dict]:
     if left_out or bad:
         problems.append(f"events: {left_out} unreadable row(s) left out"
                         + (f", and damaged chunks ({check.cause('/events')})" if bad else ""))
+    return out
+
+
+def _videos(h5, check, problems) -> list[dict]:
+    if "videos" not in h5:
+        return []
+    if check is not None and not check.clean_path("/videos") or (check is not None and "/videos/*" in check.problems):
+        problems.append(f"videos: none read from the file ({check.cause('/videos')})")
+        return []
+    out = []
+    for name in sorted(h5["videos"], key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n)):
+        path = f"/videos/{name}"
+        if not name.isdigit() or (check is not None and not check.clean(path)):
+            problems.append(f"video {name}: left out ({check.cause(path) if check else 'not a number'})")
+            continue
+        data = _read(problems, f"video {name}", lambda n=name: check_entry("video", reader.read_video(h5["videos"][n])))
+        if data is not None:
+            out.append(data)
     return out
 
 

@@ -19,7 +19,8 @@ from snreg.errors import SessionError
 from snreg.registration import RegistrationResult
 
 FORMAT = "snreg-session"
-FORMAT_VERSION = 2      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (version 1 reads)
+FORMAT_VERSION = 3      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (version 1 reads)
+                        # 3: Fletcher-32 on every fixed-size dataset, digests of the variable-length data, ``videos``
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")

@@ -104,7 +104,7 @@ class ReviewRegistration:
 
     @property
     def preop_ids(self) -> list[str]:
-        """The partner of each row (:data:`~snreg.registration.report.EXTRA` for a node judged extra)."""
+        """The hot spot of each row (:data:`~snreg.registration.report.NO_HOT_SPOT` for a node from none)."""
         return [row.preop_id for row in self.rows]
 
     @property

@@ -32,15 +32,16 @@ from snreg.labels import STATIONS, parse_label
 from snreg.registration import NoFitError, register
 from snreg.registration.pairing import RULES, pairing_at
 
-__all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "STATION_ERROR"]
+__all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "claims_right", "STATION_ERROR"]
 
 STATION_ERROR = 0.3
 
 
 @dataclass(frozen=True)
 class Trial:
-    """One simulated case. ``truth[m]`` is intraop m's preop index, -1 for an extra node; ``left_out`` the preop
-    indices without an intraop node and ``left_out_xyz`` (L, 3) where their intraop nodes would have been."""
+    """One simulated case. ``truth[m]`` is intraop m's preop index, -1 for an extra node; ``source[m]`` the hot spot
+    intraop m came from (its own preop node, or for an extra the node it lies beside); ``left_out`` the preop indices
+    without an intraop node and ``left_out_xyz`` (L, 3) where their intraop nodes would have been."""
 
     patient: str
     sigma: float
@@ -56,6 +57,11 @@ class Trial:
     n_missing: int = 0
     left_out: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     left_out_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    source: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.source is None:                     # without hosts known, an extra's only right claim is -1
+            object.__setattr__(self, "source", np.where(self.truth >= 0, self.truth, -1))
 
 
 def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float, n_extra: int, rep: int,
@@ -73,9 +79,10 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     offsets = rng.uniform(5.0, 15.0, (n_extra, 3)) * rng.choice([-1.0, 1.0], (n_extra, 3))
     intraop = np.vstack([noisy, noisy[hosts] + offsets])
     truth = np.concatenate([np.arange(n), np.full(n_extra, -1)])
+    source = np.concatenate([np.arange(n), hosts])
     intra_labels = [_relabel(label, label_rng) for label in list(labels) + [labels[h] for h in hosts]]
     order = rng.permutation(len(intraop))
-    intraop, truth = intraop[order], truth[order]
+    intraop, truth, source = intraop[order], truth[order], source[order]
     intra_labels = [intra_labels[k] for k in order]
 
     yaw, pitch, roll = rng.uniform(0.0, 30.0, 3)
@@ -88,7 +95,7 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     keep = ~np.isin(truth, left_out)
     return Trial(patient, float(sigma), int(n_extra), int(rep), preop, geometry.apply(moved_from_original, preop),
                  intraop[keep], truth[keep], list(labels), [lab for lab, k in zip(intra_labels, keep) if k],
-                 geometry.invert(moved_from_original), int(n_missing), left_out, noisy[left_out])
+                 geometry.invert(moved_from_original), int(n_missing), left_out, noisy[left_out], source[keep])
 
 
 def _relabel(label: str, rng: np.random.Generator) -> str:
@@ -103,7 +110,7 @@ class TrialOutcome:
     """What one method did on one trial (a row of the trial CSV) plus per-node confidences.
 
     ``confidence``/``correct``: per true intraop node; ``claim_confidence``/``claim_correct``: per intraop node, extras
-    included (a claim is the reported preop index or -1); ``bound_mm``/``left_out_error_mm``: per left-out preop node,
+    included (a claim is the reported hot spot or -1, scored by :func:`claims_right`); ``bound_mm``/``left_out_error_mm``: per left-out preop node,
     the reported 90% target-error bound and the actual distance of its mapped position from where it really is.
     """
 
@@ -116,10 +123,17 @@ class TrialOutcome:
     left_out_error_mm: np.ndarray
 
 
+def claims_right(trial: Trial, pairing: np.ndarray) -> np.ndarray:
+    """(M,) bool per intraop node: is its claim right (DESIGN §4)? A true node is right with its own hot spot; an extra
+    beside hot spot j is right with j or -1."""
+    pairing = np.asarray(pairing, dtype=int)
+    return np.where(trial.truth >= 0, pairing == trial.truth, (pairing == trial.source) | (pairing == -1))
+
+
 def oracle_success(trial: Trial) -> dict[str, bool]:
-    """Pairing success with the true transform: nearest-neighbour, one-to-one assignment, and the model's partial
-    pairing at the true sigma (what global's own pairing rule reaches once the transform is known;
-    :func:`pairing_at`)."""
+    """Pairing success of the true nodes with the true transform: nearest-neighbour (the thesis rule), one-to-one
+    assignment, and the hot-spot labelling at the true sigma (what global's own pairing rule reaches once the
+    transform is known; :func:`pairing_at`)."""
     true = trial.truth >= 0
     d2 = cdist(trial.preop, trial.intraop, "sqeuclidean")
     nearest = np.argmin(d2, axis=0)
@@ -129,7 +143,8 @@ def oracle_success(trial: Trial) -> dict[str, bool]:
     model = pairing_at(trial.preop, trial.intraop, np.eye(4), max(trial.sigma, 1.0))
     return {"oracle_nearest": bool(np.all(nearest[true] == trial.truth[true])),
             "oracle_one_to_one": bool(np.all(one_to_one[true] == trial.truth[true])),
-            "oracle_model": bool(np.all(model[true] == trial.truth[true]))}
+            "oracle_model": bool(np.all(model[true] == trial.truth[true])),
+            "oracle_nearest_all_claims": bool(np.all(claims_right(trial, nearest)))}
 
 
 def error_stats(trial: Trial) -> dict[str, float]:
@@ -156,24 +171,30 @@ def run_trial(trial: Trial, method: str, use_labels: bool = False, **options) ->
     elapsed_ms = (time.perf_counter() - start) * 1e3
     if result is None:
         nan = float("nan")
-        row = {"success": False, "refused": True, **{f"success_{rule}": False for rule in RULES}, "extras_flagged": 0,
-               "rms_mm": nan, "tre_mm": nan, "min_confidence": 0.0, "time_ms": elapsed_ms}
+        row = {"success": False, "all_claims": False, "refused": True,
+               **{f"success_{rule}": False for rule in RULES}, **{f"all_claims_{rule}": False for rule in RULES},
+               "extras_none": 0, "shared": 0, "rms_mm": nan, "tre_mm": nan, "min_confidence": 0.0,
+               "time_ms": elapsed_ms}
         m = len(trial.intraop)
         return TrialOutcome(row, np.zeros(int(true.sum())), np.zeros(int(true.sum()), bool), np.zeros(m),
                             np.zeros(m, bool), np.full(len(trial.left_out), np.inf), np.full(len(trial.left_out), nan))
     correct = result.pairing[true] == trial.truth[true]
+    claims = claims_right(trial, result.pairing)
     mapped = geometry.apply(result.transform, trial.moved_preop)
     tre = np.sqrt(np.mean(np.sum((mapped - trial.preop) ** 2, axis=1)))
     row = {
         "success": bool(np.all(correct)),
+        "all_claims": bool(np.all(claims)),
         "refused": False,
         **{f"success_{rule}": bool(np.all(p[true] == trial.truth[true])) for rule, p in result.pairings.items()},
-        "extras_flagged": int(np.sum(result.pairing[~true] == -1)),
+        **{f"all_claims_{rule}": bool(np.all(claims_right(trial, p))) for rule, p in result.pairings.items()},
+        "extras_none": int(np.sum(result.pairing[~true] == -1)),
+        "shared": int(np.sum(result.shares)),
         "rms_mm": result.rms_mm,
         "tre_mm": float(tre),
         "min_confidence": float(result.confidence[true].min()),
         "time_ms": elapsed_ms,
     }
     left_out_error = np.linalg.norm(mapped[trial.left_out] - trial.left_out_xyz, axis=1)
-    return TrialOutcome(row, result.confidence[true], correct, result.confidence, result.pairing == trial.truth,
+    return TrialOutcome(row, result.confidence[true], correct, result.confidence, claims,
                         result.target_error_mm[trial.left_out], left_out_error)

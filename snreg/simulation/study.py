@@ -149,7 +149,7 @@ def _incremental(patient: Patient, patient_index: int, sigma_index: int, config:
         for stored in range(3, len(trial.intraop) + 1):
             part = Trial(trial.patient, trial.sigma, trial.n_extra, trial.rep, trial.preop, trial.moved_preop,
                          trial.intraop[:stored], trial.truth[:stored], trial.preop_labels,
-                         trial.intraop_labels[:stored], trial.intraop_from_moved)
+                         trial.intraop_labels[:stored], trial.intraop_from_moved, source=trial.source[:stored])
             true_stored = int(np.sum(part.truth >= 0))
             for method in config.methods:
                 base, use_labels, options = parse_method(method)

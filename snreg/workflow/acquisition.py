@@ -36,12 +36,13 @@ from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
-           "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT"]
+           "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT", "video_text"]
 
 THESIS_FIXES_PER_NODE = 60
 STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below this spread (RMS about the median)
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
 IMU_ABSENT = "absent"            # the IMU state of a rig run without one (chosen in the device dialog)
+VIDEO_START_WAIT_S = 10.0        # for the video encoder to start before the first frame (it runs in its own process)
 
 
 @dataclass(frozen=True)
@@ -83,7 +84,7 @@ class FrameOutcome:
     ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
     a fix; the live link to 3D Slicer streams it. ``store_check``: what Store SN would meet now (the guard's
     refusal in words, or the near node to confirm); ``imu_gap_s``: from the frame's grab time to the nearest IMU
-    sample."""
+    sample; ``video``: the recording's state in words (:func:`video_text`)."""
 
     index: int
     fix: ProbeFix | None
@@ -97,6 +98,7 @@ class FrameOutcome:
     trocar_from_probe: np.ndarray | None = None
     store_check: StoreCheck = StoreCheck("waiting for the first frame")
     imu_gap_s: float = 0.0
+    video: str = ""
 
 
 @dataclass(frozen=True)
@@ -132,12 +134,14 @@ class Acquisition:
     """Tracks pairs, keeps the last ``fixes_per_node`` valid fixes, records streams and stores nodes in ``session``.
 
     ``imu_required``: False only when the acquisition runs without an IMU by choice (stores are then not refused
-    for it); ``clock``: host time in ns (tests pass their own).
+    for it); ``clock``: host time in ns (tests pass their own). ``video_fps``: record both feeds into the session's
+    video at this nominal rate (None: no video); a segment the session is recording already goes on.
     """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
                  *, fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
-                 imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns):
+                 imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns,
+                 video_fps: float | None = None):
         self.tracker = StereoTracker(calibration, probe)
         self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
         self.stereo_version = calibration_version(stereo_to_dict(calibration))
@@ -148,6 +152,11 @@ class Acquisition:
         self._last_reason = ""
         self._last_imu: ImuReading | None = None
         self._stored_here: list[str] = []          # ids stored through this object, for undo
+        self.video_fps, self.video_problem = video_fps, "" if video_fps else "off"
+        if not video_fps and session.writable and session.video_state() is not None:
+            session.stop_video()                   # recording was turned off: the segment recorded so far is closed
+        elif video_fps and session.writable and session.video_state() is None:
+            self._start_video(*calibration.image_size, wait_s=VIDEO_START_WAIT_S)
 
     def set_fixes_per_node(self, n: int) -> None:
         """Store the median of the last ``n`` valid fixes (thesis: 60); keeps the fixes already collected."""
@@ -163,7 +172,7 @@ class Acquisition:
         row at the frame's own time), update the window."""
         self._record_imu(imu.samples)
         self._last_imu = imu
-        self.session.append_frames(frame.t_left_ns, frame.t_right_ns, frame.index)
+        self._record_frame(frame)
         started = time.perf_counter()
         fix, reason, tip_trocar, pose = None, "", None, None
         try:
@@ -185,7 +194,24 @@ class Acquisition:
         check = self.check_store(window)
         due = still and not check.refusal and self._away_from_stored(window.xyz)
         return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still, due, track_ms,
-                            pose, check, float(imu.gap_s))
+                            pose, check, float(imu.gap_s), video_text(self.session.video_state(), self.video_problem))
+
+    def _start_video(self, width: int, height: int, wait_s: float = 0.0) -> None:
+        try:
+            self.session.start_video(self.video_fps, width, height, wait_s=wait_s)
+        except OSError as err:
+            self.video_problem = str(err)
+            self.session.log_event("video_not_recorded", reason=self.video_problem)
+
+    def _record_frame(self, frame: StereoFrame) -> None:
+        """The frame row, with the pair into the session's video when it is recorded (started with this object, at
+        the calibration's image size; a session whose recording was closed meanwhile starts a new one here)."""
+        if not self.video_problem and self.session.video_state() is None:
+            self._start_video(frame.left.shape[1], frame.left.shape[0])
+        if self.session.video_state() is not None:
+            self.session.append_frame_pair(frame.t_left_ns, frame.t_right_ns, frame.index, frame.left, frame.right)
+        else:
+            self.session.append_frames(frame.t_left_ns, frame.t_right_ns, frame.index)
 
     def check_store(self, window=None) -> StoreCheck:
         """Whether Store SN would store now, and if not why (in words); the near node when one is. ``window``: the
@@ -287,3 +313,17 @@ class Acquisition:
         self.session.append_imu(np.array([s.t_host_ns for s in samples], dtype=np.int64),
                                 np.array([s.t_device_us for s in samples], dtype=np.int64) * 1000,
                                 np.array([s.accel_g for s in samples]), np.array([s.gyro_dps for s in samples]))
+
+
+def video_text(state, problem: str = "") -> str:
+    """The video recording in words, for stream health: frames written, pairs dropped (the encoder was behind), free
+    space, or why it is not recorded."""
+    if state is None:
+        return "video: off (turned off in the settings)" if problem == "off" else f"video: not recorded ({problem})"
+    free = f", {state.free_bytes / 1e9:.0f} GB free" if state.free_bytes >= 0 else ""
+    dropped = f", {state.dropped} DROPPED (encoder behind)" if state.dropped else ""
+    if state.problem:
+        return f"video: STOPPED after {state.written} frames{dropped}: {state.problem}"
+    if not state.started:
+        return "video: starting the encoder"
+    return f"video: recording, {state.written} frames{dropped}{free}"

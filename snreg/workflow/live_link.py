@@ -203,10 +203,12 @@ class LiveLink:
         xyz = np.zeros((0, 3)) if nodes is None else np.array(nodes.xyz, dtype=float).reshape(-1, 3)
         self._offer(msg.PREOP_NODES, (ids, xyz), f"preop nodes: {len(ids)}")
 
-    def set_registration(self, result) -> None:
-        """A registration done (a :class:`~snreg.registration.RegistrationResult`): ``TrocarToRas`` from its transform."""
-        self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float),
-                    f"registered with {result.method}, RMS {float(result.rms_mm):.2f} mm")
+    def set_registration(self, result, pairs: str = "") -> None:
+        """A registration done (a :class:`~snreg.registration.RegistrationResult`): ``TrocarToRas`` from its transform,
+        and the status says which hot spot each node came from (``pairs``:
+        :func:`~snreg.registration.naming.pairs_line`)."""
+        said = f"registered with {result.method}, RMS {float(result.rms_mm):.2f} mm"
+        self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float), f"{said}: {pairs}" if pairs else said)
 
     # -- waiting and closing ------------------------------------------------------------
     def wait_for_client(self, timeout_s: float | None = None) -> bool:

@@ -74,6 +74,7 @@ class AcquisitionScreen(QWidget):
         self._last_arrival_ns: int | None = None
         self._store_pending = False
         self._paused = ""
+        self._stopped = ""                   # why the feed stopped, once it has
         self.confirm_box: QMessageBox | None = None
         self.left_feed, self.right_feed = FeedView("left"), FeedView("right")
         self.orientation = OrientationPlot()
@@ -85,7 +86,7 @@ class AcquisitionScreen(QWidget):
         self.spread_value = BigNumber("88.88")
         self.spread_value.setToolTip("how far the fixes of the store window spread about their median: within the "
                                      "spread limit (green) Store SN stores, beyond it (red) it refuses")
-        self.video_health, self.imu_health = StatusLine("camera: waiting", 1, 2), StatusLine("", 1, 3)
+        self.video_health, self.imu_health = StatusLine("camera: waiting", 2, 3), StatusLine("", 1, 3)
         self.link_health = StatusLine("", 1)            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
         self.missing_list = StatusLine("", 1, 3)
@@ -298,6 +299,10 @@ class AcquisitionScreen(QWidget):
         else:
             self._say("Not stored: you chose not to store a node so close to a stored one.", _WARN)
 
+    def show_source_stopped(self, problem: str) -> None:
+        """The feed ended or was lost (a replay played to its end, a camera unplugged): say why instead of "stale"."""
+        self._stopped = problem
+
     def set_paused(self, paused: bool) -> None:
         """Say "paused for calibration" (a wizard holds the cameras) instead of a stale feed; Store SN waits."""
         self._paused = PAUSED_TEXT if paused else ""
@@ -342,7 +347,8 @@ class AcquisitionScreen(QWidget):
         elif outcome is None:
             self._set_store_enabled(False, "waiting for the first frame")
         elif self._feed_age_s() > STALE_AFTER_S:
-            self._set_store_enabled(False, f"no frames for {self._feed_age_s():.0f} s: check the cameras", _BAD)
+            self._set_store_enabled(False, self._stopped or f"no frames for {self._feed_age_s():.0f} s: check the cameras",
+                                    _BAD)
         elif outcome.valid_fixes < needed:
             self._set_store_enabled(True, f"not ready: collecting fixes, {outcome.valid_fixes} of {needed}"
                                           + ("" if outcome.fix is not None else f" (no valid fix: {outcome.reason})"),
@@ -379,10 +385,11 @@ class AcquisitionScreen(QWidget):
             age_s = self._feed_age_s()
             stale = f"  STALE {age_s:.1f} s" if age_s > STALE_AFTER_S else ""
             self.video_health.setText(f"camera: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
-                                      f"tracking {result.outcome.track_ms:.0f} ms{stale}")
+                                      f"tracking {result.outcome.track_ms:.0f} ms{stale}\n{result.outcome.video}")
         imu = self._imu.snapshot()
         stale = "  STALE" if imu.stale else ""
         problem = f" ({imu.problem})" if imu.problem else ""
         self.imu_health.setText(f"IMU: {imu.state}, {imu.rate_hz:.0f} Hz, {imu.corrupt} corrupt{stale}{problem}")
-        set_style(self.video_health, _PAUSED if self._paused else _BAD if "STALE" in self.video_health.text() else "")
+        problem = any(word in self.video_health.text() for word in ("STALE", "DROPPED", "STOPPED", "not recorded"))
+        set_style(self.video_health, _PAUSED if self._paused else _BAD if problem else "")
         set_style(self.imu_health, _BAD if imu.stale else "")

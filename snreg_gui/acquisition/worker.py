@@ -69,7 +69,8 @@ class StoreRequest:
 
 
 class AcquisitionWorker(QObject):
-    """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build)."""
+    """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build);
+    ``record_video``: both feeds go into the session's video (its encoder works in a process of its own)."""
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
@@ -80,9 +81,10 @@ class AcquisitionWorker(QObject):
 
     def __init__(self, make_source: Callable[[], FrameSource], calibration: StereoCalibration, probe,
                  chain: ChainCalibration, imu: ImuMonitor, session: Session, fps: float,
-                 fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits()):
+                 fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
+                 record_video: bool = True):
         super().__init__()
-        self._make_source, self._imu, self._fps = make_source, imu, fps
+        self._make_source, self._imu, self._fps, self._record_video = make_source, imu, fps, record_video
         self._setup = (calibration, probe, chain, session, fixes_per_node, limits)
         self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
@@ -97,7 +99,8 @@ class AcquisitionWorker(QObject):
         calibration, probe, chain, session, fixes, limits = self._setup
         without_imu = self._imu.snapshot().state == IMU_ABSENT      # no IMU port chosen in the device dialog
         self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes, limits=limits,
-                                       imu_required=not without_imu)
+                                       imu_required=not without_imu,
+                                       video_fps=self._fps if self._record_video else None)
         try:
             session.log_event("acquisition_started", imu="none (chosen)" if without_imu else "required",
                               stereo_version=self.acquisition.stereo_version,

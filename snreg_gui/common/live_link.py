@@ -23,8 +23,8 @@ ENABLED_KEY, PORT_KEY = "live_link/enabled", "live_link/port"
 
 class LiveLinkControl(QObject):
     """Owns the link while it is on. ``state_changed(str)``: one line for the stream-health area ("" when off);
-    ``failed(str)``: why it could not start. ``current_state()`` gives (stored nodes, preop NodeSet, registration
-    result) for a client's first look, whenever the link starts or the session changes."""
+    ``failed(str)``: why it could not start. ``current_state()`` gives (stored nodes, preop NodeSet, (registration
+    result, its pairs line) or None) for a client's first look, whenever the link starts or the session changes."""
 
     state_changed = Signal(str)
     failed = Signal(str)
@@ -90,7 +90,7 @@ class LiveLinkControl(QObject):
         self.link.set_intraop_nodes(records)
         self.link.set_preop_nodes(preop)
         if registration is not None:
-            self.link.set_registration(registration)
+            self.link.set_registration(*registration)
 
     # -- feeding, in the GUI thread (each call returns at once) ---------------------------
     def show_result(self, result) -> None:
@@ -110,9 +110,9 @@ class LiveLinkControl(QObject):
         if self.link is not None:
             self.link.set_preop_nodes(nodes)
 
-    def set_registration(self, result) -> None:
+    def set_registration(self, result, pairs: str = "") -> None:
         if self.link is not None:
-            self.link.set_registration(result)
+            self.link.set_registration(result, pairs)
 
     # -- internals ----------------------------------------------------------------------------
     def _toggled(self, checked: bool) -> None:

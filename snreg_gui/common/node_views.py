@@ -40,7 +40,8 @@ MISSING_COLOUR = "#ff7f0e"          # a preop node with no intraop partner yet (
 class NodeScene:
     """What a view shows: preop nodes already in the intraop frame, intraop nodes, and the pairing.
 
-    ``pairing`` is one preop index per intraop node (-1: extra), as in ``RegistrationResult``; None: no pairs yet.
+    ``pairing`` is one hot spot (preop index) per intraop node (-1: none), as in ``RegistrationResult``; None: no
+    pairs yet.
     ``missing`` is one flag per preop node: left unpaired by the registration (drawn apart); None: not known.
     """
 

@@ -11,8 +11,7 @@ import numpy as np
 
 from snreg import geometry
 from snreg.demo.headless import spect_path_for
-from snreg.demo.phantom import NOMINAL_TILT_DEG, setup_patient_from_trocar, true_sources_lps, write_phantom_spect
-from snreg.demo.scene import phantom_tips
+from snreg.demo.phantom import NOMINAL_TILT_DEG, setup_patient_from_trocar
 from snreg_gui.common.workers import Worker
 
 
@@ -22,9 +21,8 @@ class DemoSpect:
     def __init__(self, window):
         self._window = window
         rig = window.rig
-        sources = true_sources_lps(phantom_tips(rig.probe), rig.chain)
         self.path = spect_path_for(window.session.path)
-        self.worker = Worker(write_phantom_spect, sources, self.path, rig.seed)
+        self.worker = Worker(rig.write_phantom_spect, self.path)
         self.worker.returned.connect(self._written)
         self.worker.errored.connect(lambda message: window.statusBar().showMessage(f"demo SPECT not written: {message}"))
         self.worker.start()

@@ -30,7 +30,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHOD_HELP, METHODS
-from snreg.registration.naming import marked_missing, marked_rows
+from snreg.registration.naming import marked_missing, marked_rows, pairs_line
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
@@ -453,6 +453,11 @@ class RegistrationPanel(QWidget):
         self._excluded.clear()
         self.include_button.setEnabled(False)
         self.run()
+
+    def pairs_line(self) -> str:
+        """The result shown, one line: which hot spot each intraop node came from ("" without a result)."""
+        record = self._record
+        return "" if record is None else pairs_line(record.preop, record.intraop, record.result)
 
     def _show_record(self, record: RunRecord | None) -> None:
         self._record, self._record_current = record, record is not None

@@ -1,6 +1,6 @@
 """The tables of the registration panel: a node table and the pairing table.
 
-Why: both node sets and the pairing must be readable at a glance; a pairing whose confidence is below
+Why: both node sets and the pairing must be readable at a glance; a claim whose confidence is below
 ``CONFIDENT`` is shaded so the technician does not act on it. Rows come from the Qt-free
 :func:`snreg.registration.report.pair_rows`, the same rows the CSV and PNG exports use.
 """
@@ -16,7 +16,7 @@ from snreg.registration import CONFIDENT
 from snreg.registration.report import DOUBT_COLOUR, PairRow
 
 NODE_COLUMNS = ("id", "label", "x mm", "y mm", "z mm")
-PAIR_COLUMNS = ("intraop id", "intraop label", "preop id", "preop label", "distance mm", "leave-one-out mm",
+PAIR_COLUMNS = ("intraop id", "intraop label", "hot spot", "hot spot label", "with", "distance mm", "leave-one-out mm",
                 "confidence")
 
 
@@ -39,15 +39,19 @@ class NodeTable(QTableWidget):
 
 
 class PairingTable(QTableWidget):
-    """One row per intraop node: its preop partner ("extra" if none), distance, leave-one-out distance (the node's
-    distance when the other pairs alone register: large for a node the others disagree with) and confidence, shaded
-    when doubtful."""
+    """One row per intraop node: the hot spot (preop node) it came from ("none" for no imaged hot spot), the other
+    nodes from the same hot spot, distance, leave-one-out distance (the node's distance when the other pairs alone
+    register: large for a node the others disagree with) and confidence, shaded when doubtful."""
 
     def __init__(self, parent=None):
         super().__init__(0, len(PAIR_COLUMNS), parent)
         _configure(self, PAIR_COLUMNS)
         self.horizontalHeaderItem(PAIR_COLUMNS.index("leave-one-out mm")).setToolTip(
-            "the node's distance from its partner when the other pairs alone register")
+            "the node's distance from its hot spot when the other pairs alone register")
+        self.horizontalHeaderItem(PAIR_COLUMNS.index("hot spot")).setToolTip(
+            "the SPECT hot spot (preop node) this node came from; none: from no imaged hot spot")
+        self.horizontalHeaderItem(PAIR_COLUMNS.index("with")).setToolTip(
+            "the other stored nodes that came from the same hot spot (SPECT shows nodes closer than 10-15 mm as one)")
 
     def selected_intraop_ids(self) -> list[str]:
         """The intraop ids of the selected rows."""
@@ -58,14 +62,14 @@ class PairingTable(QTableWidget):
         self.setRowCount(len(rows))
         doubt = QBrush(QColor(DOUBT_COLOUR))
         for row, pair in enumerate(rows):
-            cells = [pair.intraop_id, pair.intraop_label, pair.preop_id, pair.preop_label,
-                     f"{pair.distance_mm:.1f}", "" if np.isnan(pair.leave_one_out_mm) else f"{pair.leave_one_out_mm:.1f}",
-                     f"{pair.confidence:.2f}"]
+            loo = "" if np.isnan(pair.leave_one_out_mm) else f"{pair.leave_one_out_mm:.1f}"
+            cells = [pair.intraop_id, pair.intraop_label, pair.preop_id, pair.preop_label, " ".join(pair.shared_with),
+                     f"{pair.distance_mm:.1f}", loo, f"{pair.confidence:.2f}"]
             for column, text in enumerate(cells):
                 item = QTableWidgetItem(text)
                 if not pair.confident:
                     item.setBackground(doubt)
-                    item.setToolTip(f"confidence {pair.confidence:.2f} is below {CONFIDENT:g}: check this pairing")
+                    item.setToolTip(f"confidence {pair.confidence:.2f} is below {CONFIDENT:g}: check this claim")
                 self.setItem(row, column, item)
 
 

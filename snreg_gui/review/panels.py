@@ -26,7 +26,7 @@ from snreg_gui.common.feed_view import FeedView
 NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "spread (mm)", "frames",
                 "counts")
 REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
-PAIRING_COLUMNS = ("intraop -> preop", "distance (mm)", "confidence")
+PAIRING_COLUMNS = ("intraop -> hot spot", "distance (mm)", "confidence")
 
 
 def header_text(review: SessionReview) -> str:
@@ -99,6 +99,14 @@ class SnapshotPair(QWidget):
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.left_view)
         layout.addWidget(self.right_view)
+
+    def show_video_frame(self, frame) -> None:
+        """A recorded pair (:class:`~snreg.session.review_video.ReviewFrame`) with its probe overlay."""
+        for side, view, rgb, overlay in (("left", self.left_view, frame.left_rgb, frame.overlay_left),
+                                         ("right", self.right_view, frame.right_rgb, frame.overlay_right)):
+            view.title = f"{side}: frame {frame.row} at {frame.t_s:.2f} s" + ("" if overlay is not None else
+                                                                             ", no fix")
+            view.show_frame(rgb, overlay)
 
     def show_pair(self, left_rgb: np.ndarray | None, right_rgb: np.ndarray | None) -> None:
         for side, view, rgb in (("left", self.left_view, left_rgb), ("right", self.right_view, right_rgb)):

@@ -28,6 +28,7 @@ from snreg_gui.common.workers import Worker
 from snreg_gui.review.panels import (NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table, header_text,
                                      node_rows, read_only_table)
 from snreg_gui.review.timelines import TimelinePlots
+from snreg_gui.review.video_view import VideoScrubber
 
 
 class ReviewScreen(QWidget):
@@ -35,7 +36,9 @@ class ReviewScreen(QWidget):
 
     Signals: ``loaded(path)`` once everything is shown, ``failed(sentence)`` when the file cannot be read
     (the sentence is also shown in the screen). A :meth:`load` while another is running supersedes it.
-    ``node_table`` lists the stored nodes; selecting one shows its snapshots and puts the cursor at its time.
+    ``node_table`` lists the stored nodes; selecting one puts the cursor at its time, shades its store window and shows
+    the recorded pair there (its snapshots when the session has no video); dragging the cursor or clicking a plot
+    shows the pair of that moment with the probe overlay as tracked then.
     """
 
     loaded = Signal(str)
@@ -57,8 +60,11 @@ class ReviewScreen(QWidget):
         self.snapshots = SnapshotPair()
         self.registrations = StoredRegistrations()
         self.timelines = TimelinePlots()
+        self.scrubber = VideoScrubber()
         self._layout()
         self.node_table.itemSelectionChanged.connect(self._show_selected_node)
+        self.timelines.cursor_moved.connect(self.scrubber.show_at)
+        self.scrubber.frame_ready.connect(self.snapshots.show_video_frame)
         self._review: SessionReview | None = None
         self._worker: Worker | None = None          # the one loader or fuser running
         self._pending: str | None = None            # a path asked for while a worker was running
@@ -136,6 +142,7 @@ class ReviewScreen(QWidget):
         fill_table(self.node_table, node_rows(review.nodes))
         self.registrations.show_registrations(review.registrations)
         self.timelines.show_review(review)
+        self.scrubber.load(review.path, review.t0_ns)
         self._fuse_next = len(review.imu.t_s) > 0
         if self._fuse_next:
             self.status.setText(f"fusing {len(review.imu.t_s)} IMU samples ...")
@@ -175,6 +182,7 @@ class ReviewScreen(QWidget):
         self.header.setText("")
         fill_table(self.node_table, [])
         self.snapshots.show_pair(None, None)
+        self.scrubber.close()
         self.registrations.show_registrations([])
         self.timelines.clear_review()
 
@@ -204,8 +212,21 @@ class ReviewScreen(QWidget):
         if not rows or self._review is None:
             return
         node = self._review.nodes[rows[0].row()]
-        self.snapshots.show_pair(node.left_rgb, node.right_rgb)
         self.timelines.set_cursor(node.t_s)
+        window = self._store_window(node)
+        self.timelines.show_window(*window)
+        if self.scrubber.video is not None:           # the recorded pair at its store, with the overlay of then
+            self.scrubber.show_at(node.t_s)
+        else:
+            self.snapshots.show_pair(node.left_rgb, node.right_rgb)
+
+    def _store_window(self, node) -> tuple[float | None, float | None]:
+        """From the first to the last fix the node was the median of (its probe rows up to its time)."""
+        fixes = self._review.probe.t_s
+        before = fixes[fixes <= node.t_s + 1e-9]
+        if not len(before) or node.n_frames < 1:
+            return None, None
+        return float(before[-min(node.n_frames, len(before))]), float(node.t_s)
 
     # -- shutdown --------------------------------------------------------------
     def shutdown(self) -> None:
@@ -216,6 +237,7 @@ class ReviewScreen(QWidget):
         if self._worker is not None:
             self._worker.quit()
             self._worker.wait()
+        self.scrubber.close()
 
     def closeEvent(self, event) -> None:
         self.shutdown()

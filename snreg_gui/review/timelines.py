@@ -53,8 +53,12 @@ def _colour_key() -> str:
 class TimelinePlots(pg.GraphicsLayoutWidget):
     """Four stacked plots with linked x (seconds from the first sample); node markers and a cursor on each.
 
-    ``node_markers`` maps a node id to its vertical lines (one per plot, labelled on the top plot).
+    ``node_markers`` maps a node id to its vertical lines (one per plot, labelled on the top plot). The cursor is
+    dragged, or put where a plot is clicked: ``cursor_moved(t_s)`` says where (the review shows the video there);
+    :meth:`show_window` shades a node's store window.
     """
+
+    cursor_moved = pg.QtCore.Signal(float)
 
     def __init__(self):
         super().__init__()
@@ -73,10 +77,17 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self.quality_curve = self._curve(self.quality, "#dddddd", None)
         self.rate_curve = self.frame_rate.plot(pen=pg.mkPen("#dddddd", width=1), stepMode="center", name="frames per s")
         self.gap_curve = self.frame_rate.plot(pen=_GAP_PEN, connect="pairs", name="gaps")
-        self.cursors = [pg.InfiniteLine(angle=90, pen=_CURSOR_PEN) for _ in self.plots]
+        self.cursors = [pg.InfiniteLine(angle=90, pen=_CURSOR_PEN, movable=True) for _ in self.plots]
         for plot, cursor in zip(self.plots, self.cursors):
             plot.addItem(cursor, ignoreBounds=True)
             cursor.hide()
+            cursor.sigDragged.connect(lambda line: self._dragged(line.value()))
+        self.windows = [pg.LinearRegionItem(movable=False, brush=(255, 215, 0, 40), pen=pg.mkPen(None))
+                        for _ in self.plots]
+        for plot, window in zip(self.plots, self.windows):
+            plot.addItem(window, ignoreBounds=True)
+            window.hide()
+        self.scene().sigMouseClicked.connect(self._clicked)
         self.node_markers: dict[str, list[pg.InfiniteLine]] = {}
         self._imu_t = np.zeros(0)
         self._imu_rows = np.zeros(0, dtype=int)
@@ -105,6 +116,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self._remove_markers()
         for cursor in self.cursors:
             cursor.hide()
+        self.show_window(None)
         self._imu_t, self._euler, self._imu_filled = np.zeros(0), np.zeros((0, 3)), 0
         self._imu_rows = np.zeros(0, dtype=int)
 
@@ -159,6 +171,24 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         for cursor in self.cursors:
             cursor.setValue(t_s)
             cursor.show()
+
+    def show_window(self, start_s: float | None, end_s: float | None = None) -> None:
+        """Shade ``start_s``..``end_s`` (a node's store window) on every plot; None hides it."""
+        for window in self.windows:
+            window.setVisible(start_s is not None)
+            if start_s is not None:
+                window.setRegion((start_s, end_s))
+
+    def _dragged(self, t_s: float) -> None:
+        self.set_cursor(t_s)
+        self.cursor_moved.emit(float(t_s))
+
+    def _clicked(self, event) -> None:
+        """A click on a plot puts the cursor there."""
+        for plot in self.plots:
+            if plot.vb.sceneBoundingRect().contains(event.scenePos()):
+                self._dragged(plot.vb.mapSceneToView(event.scenePos()).x())
+                return
 
     def _add_marker(self, node_id: str, t_s: float, label_position: float = LABEL_TOP) -> None:
         """A dashed line at ``t_s`` on every plot, labelled on the top plot at ``label_position`` (fraction of its

@@ -5,9 +5,11 @@ Why: the technician's screen must never freeze while frames are tracked and node
 over 50 ms). A 10 ms heartbeat timer on the GUI thread ticks while the demo acquires (rendered feeds tracked
 in the worker, the IMU on its pty, auto-store writing nodes); the gaps between ticks are the stalls. The
 recorded session is then read back (:func:`~snreg.session.timeline.clock_figures`, issue 12): where the frame,
-probe and IMU streams end, the longest frame gap, how far each stored node is from a probe fix. ``--keep`` records
-into SESSION.h5 and leaves it there. Runs offscreen unless a display is set; the numbers belong here, not in timed
-tests.
+probe and IMU streams end, the longest frame gap, how far each stored node is from a probe fix. Both feeds are
+recorded as the app records them (``--no-video``: not), and the video's cost is reported: frames written and dropped,
+the encoder's CPU seconds per second of video. ``--keep`` records into SESSION.h5 and leaves it there; without it
+everything the run wrote (session, journal, videos, SPECT, settings) is deleted at the end. Runs offscreen unless a
+display is set; the numbers belong here, not in timed tests.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -50,24 +53,33 @@ def main(argv=None) -> int:
     parser.add_argument("--seconds", type=float, default=20.0, help="acquisition time measured (default 20)")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     parser.add_argument("--keep", metavar="SESSION.h5", help="record into this new session file and keep it")
+    parser.add_argument("--no-video", action="store_true", help="do not record the feeds (to measure what it costs)")
     args = parser.parse_args(argv)
     if args.keep and Path(args.keep).exists():
         parser.error(f"{args.keep} exists already; choose a new file name for the kept session")
     if "DISPLAY" not in os.environ:
         os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     from PySide6.QtWidgets import QApplication
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    work = Path(tempfile.mkdtemp(prefix="snreg-bench-"))
+    try:
+        return _run(args, app, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)             # nothing left behind but a kept session
 
+
+def _run(args, app, work: Path) -> int:
     from snreg.demo.rig import DemoRig
     from snreg.demo.scene import Schedule
     from snreg.session.timeline import clock_figures
     from snreg_gui.app import MainWindow
 
-    app = QApplication.instance() or QApplication(sys.argv[:1])
-    work = Path(tempfile.mkdtemp(prefix="snreg-bench-"))
     session_path = Path(args.keep) if args.keep else work / "bench.h5"
+    settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
+    settings.setValue("acquisition/record_video", not args.no_video)
     # 8 s rests: the live feed skips frames when the worker lags, so a loaded machine still gathers 60 fixes per node
     window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240)),
-                        settings=QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat))
+                        settings=settings)
     window.show()
     frames: list[int] = []
     window.worker.frame_processed.connect(lambda result: frames.append(result.outcome.index))
@@ -80,6 +92,7 @@ def main(argv=None) -> int:
             raise SystemExit(f"bench: the demo feed did not start: {stopped[0]}")
         app.processEvents()
         time.sleep(0.01)
+    encoder = window.session.video_state()             # updated in place until the session closes
     heartbeat = Heartbeat()
     QTimer.singleShot(round(args.seconds * 1000), window.quit_without_asking)
     app.exec()                                          # the app's own event loop, as in use
@@ -87,10 +100,13 @@ def main(argv=None) -> int:
     gaps = heartbeat.gaps_ms()
     stored = window.acquisition.nodes.rowCount()
     window.shutdown()
+    settings.sync()              # written now, so nothing rewrites the folder once it is deleted
+    video = _video_figures(session_path, encoder)
     result = {"seconds": args.seconds, "frames": len(frames), "nodes_stored": stored, "ticks": len(gaps) + 1,
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
               "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),
-              "clock": clock_figures(session_path), "session": str(session_path) if args.keep else None}
+              "clock": clock_figures(session_path), "video": video,
+              "session": str(session_path) if args.keep else None}
     if args.json:
         print(json.dumps(result))
     else:
@@ -98,8 +114,27 @@ def main(argv=None) -> int:
               f"{stored} nodes auto-stored, {result['platform']}): longest stall {result['max_gap_ms']} ms, "
               f"p99 {result['p99_gap_ms']} ms, median tick gap {result['median_gap_ms']} ms (timer {TICK_MS} ms)")
         clock = result["clock"]
+        if video:
+            print(f"video: {video['frames']} frames recorded, {video['dropped']} dropped; encoder "
+                  f"{video['encoder_cpu_s_per_video_s']} CPU s per s of video, {video['mb_per_min']} MB per minute")
         print(f"one clock: streams end at {clock['ends_s']} s (spread {clock['end_spread_s']} s), longest frame gap "
               f"{clock['max_frame_gap_s']} s, stored nodes at most {clock['max_node_to_fix_s']} s from a probe fix"
               + (f"; session kept in {session_path}" if args.keep else ""))
     return 0
 
+
+
+def _video_figures(session_path: Path, encoder) -> dict | None:
+    """What recording the feeds did and cost: frames, drops, encoder CPU s per s of video, size; None when off."""
+    from snreg.session import Session
+    with Session.open(session_path) as session:
+        segments = session.videos()
+    if not segments or encoder is None:
+        return None
+    frames, dropped = sum(s.frames[0] for s in segments), sum(s.dropped for s in segments)
+    seconds = frames / segments[0].fps
+    size = sum(sum(s.size) for s in segments)
+    return {"frames": frames, "dropped": dropped, "size_mb": round(size / 1e6, 1),
+            "mb_per_min": round(size / 1e6 / max(seconds, 1e-9) * 60, 1),
+            "encoder_cpu_s_per_video_s": round(encoder.cpu_s / max(seconds, 1e-9), 3),
+            "frame_size": [segments[0].width, segments[0].height]}

@@ -15,6 +15,7 @@ colour (:func:`blank_reason`), as the trocar wizard's shot once was, taken befor
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import tempfile
 import time
@@ -35,7 +36,8 @@ PHASES = {"tabs": ("tab-1-acquisition", "tab-2-registration", "tab-3-review"),
                      "stereo-4-save", "stereo-5-applied"),
           "trocar": ("trocar-1-method", "trocar-2-pivot", "trocar-3-arc", "trocar-4-manual", "trocar-5-summary",
                      "trocar-6-applied"),
-          "refusal": ("refused-store", "close-question")}
+          "refusal": ("refused-store", "close-question"),
+          "replay": ("replay-acquisition",)}
 
 
 def blank_reason(grey: np.ndarray, uniform: float = UNIFORM_IMAGE, tolerance: int = 6) -> str | None:
@@ -243,8 +245,17 @@ def _review(shots: Shooter, window) -> None:
     review = window.review
     wait_until(lambda: review.node_table.rowCount() > 0 and not review.status.text().startswith(("loading", "fusing")),
                120, "the review")
-    review.node_table.selectRow(0)                   # its snapshots fill the two feeds
+    wait_until(lambda: review.scrubber.video is not None, 60, "the review's video")
+    review.node_table.selectRow(1)                   # its recorded pair at the store fills the two feeds
+    wait_until(lambda: review.snapshots.left_view.title.startswith("left: frame"), 60, "the node's recorded pair")
     shots.shoot("tab-3-review", window)
+    if shots.wanted(*PHASES["replay"]):
+        window.replay(path, 1.0)                     # the session just recorded, played back into a new one
+        window.tabs.setCurrentWidget(window._acquisition_tab)
+        wait_until(lambda: window.acquisition.nodes.rowCount() == 0 and window.acquisition._last_result is not None,
+                   120, "the replay's first frame")
+        _spin(3.0)
+        shots.shoot("replay-acquisition", window)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -267,7 +278,7 @@ def main(argv=None) -> int:
     from snreg.demo.scene import Schedule
     from snreg_gui.app import MainWindow
 
-    work = Path(tempfile.mkdtemp(prefix="snreg-screens-"))
+    work = Path(tempfile.mkdtemp(prefix="snreg-screens-"))     # the demo session, its video and SPECT: removed
     settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
     window = MainWindow(str(work / "phantom.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=60)),
                         settings=settings)
@@ -283,12 +294,14 @@ def main(argv=None) -> int:
             _trocar_wizard(shots, window)
         if shots.wanted(*PHASES["refusal"]):
             _refusal_and_close(shots, window)
-        if stored and shots.wanted("tab-3-review"):
+        if stored and shots.wanted("tab-3-review", *PHASES["replay"]):
             _review(shots, window)
     finally:
         window._end_confirmed = True              # no question on close: the run is over
         window.shutdown()
         app.processEvents()
+        settings.sync()          # written now, so nothing rewrites the folder once it is deleted
+        shutil.rmtree(work, ignore_errors=True)
     print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank", flush=True)
     for reason in shots.blank:
         print(f"blank: {reason}", file=sys.stderr)

@@ -29,7 +29,8 @@ from snreg_gui.common import file_places
 from snreg_gui.common.workers import Worker, WorkerSet
 
 MODE_TEXTS = {"pair": "Two cameras, one per eye", "stacked": "One camera delivering both eyes",
-              "video": "Two video files (replay)", "folder": "Two image folders (replay)"}
+              "video": "Two video files (replay)", "folder": "Two image folders (replay)",
+              "replay": "Replay a recorded session (its video and IMU)"}
 LAYOUT_TEXTS = {"side_by_side": "side by side (left eye left)", "top_bottom": "top and bottom (left eye on top)"}
 BAUD_RATES = (115200, DEFAULT_BAUD, 460800, 921600)
 NO_IMU_TEXT = "none (no IMU)"
@@ -123,11 +124,18 @@ class DeviceDialog(QDialog):
         self.left_images = _PathField(lambda t: self._image_pattern("Folder of the left images", t), "folder/left_*.png")
         self.right_images = _PathField(lambda t: self._image_pattern("Folder of the right images", t),
                                        "folder/right_*.png")
+        self.replay_session = _PathField(lambda t: self._open_file("Recorded session", t, "snreg sessions (*.h5)"),
+                                         "session recorded with video (.h5)")
+        self.replay_speed = QDoubleSpinBox()
+        self.replay_speed.setRange(0.1, 10.0)
+        self.replay_speed.setDecimals(1)
+        self.replay_speed.setSuffix(" x recorded pace")
         self.pages = QStackedWidget()
         for rows in ((("left camera", self.left_camera), ("right camera", self.right_camera)),
                      (("camera", self.stacked_camera), ("layout", self.layout_choice)),
                      (("left video", self.left_video), ("right video", self.right_video)),
-                     (("left images", self.left_images), ("right images", self.right_images))):
+                     (("left images", self.left_images), ("right images", self.right_images)),
+                     (("recorded session", self.replay_session), ("speed", self.replay_speed))):
             page = QWidget()
             form = QFormLayout(page)
             form.setContentsMargins(0, 0, 0, 0)
@@ -200,6 +208,8 @@ class DeviceDialog(QDialog):
             _select(self.right_camera, config.right)
         elif config.mode == "stacked":
             _select(self.stacked_camera, config.device)
+        elif config.mode == "replay":
+            self.replay_session.edit.setText(config.left)
         else:
             for field, text in zip(self._file_fields(config.mode), (config.left, config.right)):
                 field.edit.setText(text)
@@ -207,6 +217,7 @@ class DeviceDialog(QDialog):
         self.frame_width.setValue(width)
         self.frame_height.setValue(height)
         self.fps.setValue(config.fps)
+        self.replay_speed.setValue(config.speed)
         self._set_port_items([], config.serial_port)
         self.baud.setEditText(str(config.baudrate))
         self.calibration.edit.setText(config.calibration_path)
@@ -221,9 +232,10 @@ class DeviceDialog(QDialog):
             combo.currentIndexChanged.connect(self._update)
         for combo in (self.left_camera, self.right_camera, self.stacked_camera, self.port, self.baud):
             combo.currentTextChanged.connect(self._update)
-        for field in (*self._file_fields("video"), *self._file_fields("folder"), self.calibration, self.probe):
+        for field in (*self._file_fields("video"), *self._file_fields("folder"), self.calibration, self.probe,
+                      self.replay_session):
             field.edit.textChanged.connect(self._update)
-        for spin in (self.frame_width, self.frame_height, self.fps):
+        for spin in (self.frame_width, self.frame_height, self.fps, self.replay_speed):
             spin.valueChanged.connect(self._update)
         self.refresh_button.clicked.connect(self.refresh)
         self.test_button.clicked.connect(self.test)
@@ -239,6 +251,8 @@ class DeviceDialog(QDialog):
             left, right = _chosen(self.left_camera), _chosen(self.right_camera)
         elif mode == "stacked":
             device = _chosen(self.stacked_camera)
+        elif mode == "replay":
+            left = self.replay_session.edit.text().strip()
         else:
             left, right = (field.edit.text().strip() for field in self._file_fields(mode))
         width, height = self.frame_width.value(), self.frame_height.value()
@@ -251,7 +265,7 @@ class DeviceDialog(QDialog):
         return RigConfig(mode=mode, left=left, right=right, device=device, layout=self.layout_choice.currentData(),
                          frame_size=frame_size, fps=self.fps.value(), serial_port=_chosen(self.port) or None,
                          baudrate=int(baud), calibration_path=self.calibration.edit.text().strip(),
-                         probe_path=self.probe.edit.text().strip() or None)
+                         probe_path=self.probe.edit.text().strip() or None, speed=self.replay_speed.value())
 
     def _current(self) -> tuple[RigConfig | None, str]:
         """The choice and what it still lacks ("" when complete); None and the reason when it is impossible."""
@@ -264,14 +278,17 @@ class DeviceDialog(QDialog):
     def _update(self) -> None:
         config, reason = self._current()
         self.ok_button.setEnabled(config is not None and not reason)
+        replaying = self.mode.currentData() == "replay"
         if not reason:
-            reason = ("Complete: OK opens these devices." if config.serial_port else
+            reason = ("Complete: OK replays the session's video and IMU, with its calibration, into a new session."
+                      if replaying else "Complete: OK opens these devices." if config.serial_port else
                       "Complete, without an IMU: the endoscope will be taken as held still; OK opens the cameras.")
         self.reason.setText(reason)
         is_camera = self.mode.currentData() in ("pair", "stacked")
         self.frame_width.setEnabled(is_camera)
         self.frame_height.setEnabled(is_camera)
-        self.test_button.setEnabled(config is not None and not config.source_missing and self._test_worker is None)
+        self.test_button.setEnabled(config is not None and not config.source_missing and self._test_worker is None
+                                    and not replaying)
         if config != self._tested:
             self._show_test_status("")
 

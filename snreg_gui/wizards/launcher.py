@@ -61,6 +61,10 @@ class WizardLauncher:
         if not dialog.exec():
             return
         config = dialog.config()
+        if config.mode == "replay":
+            window.settings.setValue(_DEVICES_KEY, json.dumps(config.to_dict()))
+            window.replay(config.left, config.speed)
+            return
         try:
             chain = window.session.calibration().get("chain") if window.session is not None else None
             rig = HardwareRig(config, chain=chain)
