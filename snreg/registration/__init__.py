@@ -24,6 +24,7 @@ import numpy as np
 
 from snreg import geometry
 from snreg.errors import NoFitError
+from snreg.registration._bounded import fit_within_bounds
 from snreg.registration._chamfer import solve_chamfer
 from snreg.registration._cpd import solve_cpd
 from snreg.registration._global import local_moves, solve_global
@@ -113,14 +114,10 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
         base = candidates[0]
     else:
         if not problem.within_bounds(correction):
-            angle, shift = problem.correction_size(correction)
-            raise NoFitError(f"{method} moved {float(angle):.0f} degrees and {float(shift):.0f} mm from the initial "
-                             f"alignment, beyond the bounds ({problem.max_rotation_deg:g} degrees, "
-                             f"{problem.max_translation_mm:g} mm): give an initial alignment closer to the truth, "
-                             "use the anatomical labels, or use the global method")
+            correction = _fitted_within_bounds(problem, method, correction)
         base = _candidate_at(problem, correction)
-        # The confidence weighs this pairing against the global search's hypotheses; when that search finds no
-        # pairing the bounds allow, this method's fit inside them is forced as well, and is refused the same way.
+        # The confidence weighs this pairing against the global search's hypotheses; when the nodes fit far better
+        # beyond the bounds, that search refuses, and this method's fit inside them is refused the same way.
         candidates = [base] + solve_global(problem) + local_moves(problem, base)
 
     ranked, weights = posterior_weights(candidates)
@@ -153,6 +150,21 @@ def _candidate_at(problem, correction: np.ndarray) -> Candidate:
     if np.sum(assignment >= 0) < MIN_PAIRS:           # the nearest pairs then, one-to-one
         assignment = pair("one_to_one", problem, correction, None)
     return evaluate(problem, assignment)
+
+
+def _fitted_within_bounds(problem, method: str, correction: np.ndarray) -> np.ndarray:
+    """The fit within the bounds of the pairing ``method``'s correction makes by the nearest rule (each hot spot by
+    its nearest node), for a method whose own fit leans past them; NoFitError when that pairing has fewer than 3."""
+    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
+    partner = np.argmin(d2, axis=0)
+    fit = _nearest_claimants(partner, d2[partner, np.arange(len(partner))])
+    if fit.sum() < MIN_PAIRS:
+        angle, shift = problem.correction_size(correction)
+        raise NoFitError(f"{method} moved {float(angle):.0f} degrees and {float(shift):.0f} mm from the initial "
+                         f"alignment, beyond the bounds ({problem.max_rotation_deg:g} degrees, "
+                         f"{problem.max_translation_mm:g} mm): give an initial alignment closer to the truth, "
+                         "use the anatomical labels, or use the global method")
+    return fit_within_bounds(problem, problem.preop[partner[fit]], problem.intraop[fit])
 
 
 def _nearest_claimants(pairing: np.ndarray, distances: np.ndarray) -> np.ndarray:
