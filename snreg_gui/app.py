@@ -99,7 +99,8 @@ class MainWindow(QMainWindow):
         self.registration.registered.connect(
             lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
         self.registration.preop_box.nodes_changed.connect(self.live_link.set_preop_nodes)
-        self.resize(1500, 900)
+        room = self.screen().availableGeometry()                  # never larger than the screen (1024 x 700)
+        self.resize(min(1500, room.width()), min(900, room.height()))
         self._restore_layout()
         QApplication.instance().aboutToQuit.connect(self.shutdown)
         self._show_placeholder(NO_RIG_TEXT)
