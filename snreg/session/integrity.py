@@ -29,6 +29,7 @@ from snreg.session.video import VideoSegment, count_frames, file_sha256
 from snreg.session.writer import DIGESTED, row_digest
 
 BLOCK_ROWS = 65536            # rows read at a time from a long stream table
+_MAX_DEPTH = 16               # groups deeper than any session's (a damaged link could make a loop)
 _FIELD_NAMES = {"left_jpeg": "left snapshot JPEG", "right_jpeg": "right snapshot JPEG"}
 
 
@@ -76,8 +77,11 @@ def verify(path: str | Path, *, videos: bool = True) -> VerifyReport:
         return report
     check, found = read_checked(path, _file_findings, defer=())
     if found is None and check.opens and not check.problems:     # a file this process records: read it here
-        with h5py.File(path, "r") as h5:
-            found = _file_findings(h5)
+        try:
+            with h5py.File(path, "r") as h5:
+                found = _file_findings(h5)
+        except Exception as err:                                 # noqa: BLE001 - whatever the damage, a report
+            found = [Damage("file", str(path), f"the HDF5 file cannot be read ({_short(err)})")], [], []
     if found is None:
         found = _walk_findings(path, check)
     damaged, unproven, segments = found
@@ -136,32 +140,78 @@ def _walk_findings(path: Path, check) -> tuple[list[Damage], list[str], list[dic
     return damaged, [], segments
 
 
-def _check_datasets(h5: h5py.File, report: VerifyReport) -> None:
-    datasets: list[h5py.Dataset] = []
-    h5.visititems(lambda name, item: datasets.append(item) if isinstance(item, h5py.Dataset) else None)
-    unchecked, file_size = [], Path(h5.filename).stat().st_size
-    for dataset in datasets:
-        variable = h5py.check_dtype(vlen=dataset.dtype) is not None
-        if variable and not _references_in_file(dataset, file_size):
-            report.damaged.append(Damage("dataset", dataset.name, "a reference to its values points outside the file"))
-            continue
+def _attributes(obj, report: VerifyReport) -> None:
+    """Read every attribute of ``obj`` (a damaged one can crash libhdf5: :func:`verify` reads in a child)."""
+    where = obj.name or "/"
+    try:
+        names = list(obj.attrs)
+    except Exception as err:                        # noqa: BLE001
+        report.damaged.append(Damage("attribute", f"{where}@*", f"its attributes cannot be listed ({_short(err)})"))
+        return
+    for name in names:
         try:
-            for start in range(0, max(dataset.shape[0], 1) if dataset.shape else 1, BLOCK_ROWS):
-                dataset[start:start + BLOCK_ROWS] if dataset.shape else dataset[()]
-        except (OSError, ValueError, RuntimeError) as err:
-            why = "its Fletcher-32 checksum failed" if "checksum" in str(err).lower() or "filter" in str(err).lower() \
-                else f"it cannot be read ({err})"
-            report.damaged.append(Damage("dataset", dataset.name, why))
+            obj.attrs[name]
+        except Exception as err:                    # noqa: BLE001
+            report.damaged.append(Damage("attribute", f"{where}@{name}", f"it cannot be read ({_short(err)})"))
+
+
+def _datasets(group: h5py.Group, report: VerifyReport, depth: int = 0) -> list[h5py.Dataset]:
+    """Every dataset under ``group`` (attributes read on the way); a member list or member that cannot be read is
+    reported, the rest walked."""
+    _attributes(group, report)
+    try:
+        names = list(group.keys())
+    except Exception as err:                        # noqa: BLE001 - damage in a group costs that group
+        report.damaged.append(Damage("group", group.name or "/", f"its members cannot be listed ({_short(err)})"))
+        return []
+    found = []
+    for name in names:
+        try:
+            item = group[name]
+        except Exception as err:                    # noqa: BLE001
+            report.damaged.append(Damage("object", f"{group.name.rstrip('/')}/{name}", f"it cannot be opened "
+                                                                                       f"({_short(err)})"))
             continue
-        if variable and "sha256" in dataset.attrs:
-            values = [_text(v) for v in dataset[()]]
-            if row_digest(values).decode("ascii") != _text(dataset.attrs["sha256"]):
-                report.damaged.append(Damage("dataset", dataset.name, "its values differ from their SHA-256"))
-        elif not variable and not dataset.fletcher32 and dataset.size:
-            unchecked.append(dataset.name)
+        if isinstance(item, h5py.Dataset):
+            _attributes(item, report)
+            found.append(item)
+        elif isinstance(item, h5py.Group) and depth < _MAX_DEPTH:
+            found += _datasets(item, report, depth + 1)
+    return found
+
+
+def _check_datasets(h5: h5py.File, report: VerifyReport) -> None:
+    unchecked, file_size = [], Path(h5.filename).stat().st_size
+    for dataset in _datasets(h5, report):
+        try:
+            _check_dataset(dataset, file_size, report, unchecked)
+        except Exception as err:                    # noqa: BLE001 - a damaged header: its dtype or shape fails
+            report.damaged.append(Damage("dataset", dataset.name, f"it cannot be read ({_short(err)})"))
     if unchecked:
         report.unproven.append(f"{len(unchecked)} datasets were written without a Fletcher-32 checksum (e.g. "
                                f"{unchecked[0]})")
+
+
+def _check_dataset(dataset: h5py.Dataset, file_size: int, report: VerifyReport, unchecked: list[str]) -> None:
+    """Read one dataset whole (by blocks), its digest checked when it has one; damage goes into ``report``."""
+    variable = h5py.check_dtype(vlen=dataset.dtype) is not None
+    if variable and not _references_in_file(dataset, file_size):
+        report.damaged.append(Damage("dataset", dataset.name, "a reference to its values points outside the file"))
+        return
+    try:
+        for start in range(0, max(dataset.shape[0], 1) if dataset.shape else 1, BLOCK_ROWS):
+            dataset[start:start + BLOCK_ROWS] if dataset.shape else dataset[()]
+    except (OSError, ValueError, RuntimeError) as err:
+        why = "its Fletcher-32 checksum failed" if "checksum" in str(err).lower() or "filter" in str(err).lower() \
+            else f"it cannot be read ({_short(err)})"
+        report.damaged.append(Damage("dataset", dataset.name, why))
+        return
+    if variable and "sha256" in dataset.attrs:
+        values = [_text(v) for v in dataset[()]]
+        if row_digest(values).decode("ascii") != _text(dataset.attrs["sha256"]):
+            report.damaged.append(Damage("dataset", dataset.name, "its values differ from their SHA-256"))
+    elif not variable and not dataset.fletcher32 and dataset.size:
+        unchecked.append(dataset.name)
 
 
 _REFERENCE = np.dtype([("length", "<u4"), ("address", "<u8"), ("index", "<u4")])   # HDF5's variable-length element
@@ -242,6 +292,11 @@ def _check_video(path: Path, segment: VideoSegment, side: int, report: VerifyRep
     elif hash_files and file_sha256(video) != segment.sha256[side]:
         report.damaged.append(Damage("video", where, "its SHA-256 differs from the one recorded when it was closed"))
     return summary
+
+
+def _short(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def _text(value) -> str:
