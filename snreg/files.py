@@ -161,22 +161,60 @@ def read_storage(path: str | Path, what: str, error: type[Exception]) -> Storage
     import cv2  # only the FileStorage readers need OpenCV; atomic_write must stay light
 
     path = Path(path)
-    if path.suffix.lower() == ".gz":                       # compressed: OpenCV reads it from the path itself
-        source, flags = str(require_regular_file(path, what, error)), cv2.FILE_STORAGE_READ
-    else:
-        text = read_text_file(path, what, error, max_bytes=MAX_STORAGE_BYTES)
-        depth = _nesting(text)
-        if depth > MAX_NESTING:
-            raise error(f"{path}: nested {depth} levels deep; not an OpenCV {what} file")
-        if not text.strip():
-            raise error(f"{path}: empty; not an OpenCV {what} file (YAML/XML FileStorage)")
-        source, flags = text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY
+    source, flags = _storage_source(path, what, error)
     outcome = _isolated(lambda: _parse(source, flags, what))
     if outcome is None:
         raise error(f"{path}: OpenCV's parser failed on it (it crashed or never ended); not an OpenCV {what} file")
     if isinstance(outcome, str):
         raise error(f"{path}: {outcome}")
     return outcome
+
+
+def read_storage_with(path: str | Path, what: str, error: type[Exception], read):
+    """``read(fs)`` on the FileStorage file ``path`` (checked as :func:`read_storage` checks it), run in a forked
+    child, for files whose values nest deeper than a root map; a ValueError ``read`` raises becomes ``error`` with its
+    message, and so does a parse that fails or crashes."""
+    import cv2
+
+    path = Path(path)
+    source, flags = _storage_source(path, what, error)
+    not_one = f"{path}: not an OpenCV {what} file (YAML/XML FileStorage)"
+
+    def work():
+        try:
+            fs = cv2.FileStorage(source, flags)
+        except (cv2.error, SystemError):
+            return "error", not_one
+        try:
+            return ("ok", read(fs)) if fs.isOpened() else ("error", not_one)
+        except ValueError as err:
+            return "error", str(err)
+        except (cv2.error, SystemError):
+            return "error", not_one
+        finally:
+            fs.release()
+
+    outcome = _isolated(work)
+    if outcome is None:
+        raise error(f"{path}: OpenCV's parser failed on it (it crashed or never ended); not an OpenCV {what} file")
+    if outcome[0] == "error":
+        raise error(outcome[1])
+    return outcome[1]
+
+
+def _storage_source(path: Path, what: str, error: type[Exception]) -> tuple[str, int]:
+    """(text or path, flags) for ``cv2.FileStorage``: a regular file of sane size and nesting, or ``error``."""
+    import cv2
+
+    if path.suffix.lower() == ".gz":                       # compressed: OpenCV reads it from the path itself
+        return str(require_regular_file(path, what, error)), cv2.FILE_STORAGE_READ
+    text = read_text_file(path, what, error, max_bytes=MAX_STORAGE_BYTES)
+    depth = _nesting(text)
+    if depth > MAX_NESTING:
+        raise error(f"{path}: nested {depth} levels deep; not an OpenCV {what} file")
+    if not text.strip():
+        raise error(f"{path}: empty; not an OpenCV {what} file (YAML/XML FileStorage)")
+    return text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY
 
 
 def _parse(source: str, flags: int, what: str) -> StorageValues | str:

@@ -13,12 +13,14 @@ import shlex
 import sys
 import time
 
-from snreg.cli.common import check_output_folder, non_negative_int, positive_int, progress, seed
+from snreg.cli.common import check_output_folder, int_range, progress, seed, workers
 from snreg.errors import UserError
 
 __all__ = ["add_budget_parser", "cmd_budget", "DEFAULT_REPS"]
 
 DEFAULT_REPS = 100         # snreg.simulation.budget.DEFAULT_REPS, stated here so the parser imports no numpy
+MAX_REPS = 10_000          # about two hours on 2 cores; beyond is a typing slip
+MAX_DRAWS = 1000
 _METHODS = ("icp", "cpd", "chamfer", "global")
 
 
@@ -28,7 +30,7 @@ def add_budget_parser(subparsers) -> None:
                                           "source alone, all together and all but one; about a minute on 2 cores.")
     p.add_argument("--errors", default="thesis", metavar="FILE",
                    help="error model: ideal, thesis (default) or a YAML file like resources/errors/thesis.yaml")
-    p.add_argument("--reps", type=positive_int, default=DEFAULT_REPS, help="repetitions")
+    p.add_argument("--reps", type=int_range(1, MAX_REPS), default=DEFAULT_REPS, help=f"repetitions (at most {MAX_REPS})")
     p.add_argument("--method", choices=_METHODS, default="chamfer", help="registration method (thesis: chamfer)")
     p.add_argument("--set", action="append", default=None, metavar="SOURCE=VALUE", dest="settings",
                    help="what if: SOURCE=FACTOR scales a source's error (0: off), SOURCE.PARAMETER=VALUE sets one "
@@ -40,8 +42,9 @@ def add_budget_parser(subparsers) -> None:
                    help="over patient-like node sets instead of the phantom: the synthetic 13-patient cohort of snreg "
                         "simulate, or a directory of preop node CSVs, one per patient")
     p.add_argument("--seed", type=seed, default=0, help="random seed")
-    p.add_argument("--draws", type=positive_int, default=6, help="rendered-tracking draws the repetitions share")
-    p.add_argument("--workers", type=non_negative_int, default=0, help="processes (0: one per core)")
+    p.add_argument("--draws", type=int_range(1, MAX_DRAWS), default=6,
+                   help=f"rendered-tracking draws the repetitions share (at most {MAX_DRAWS})")
+    p.add_argument("--workers", type=workers, default=0, help="processes, at most one per core (0: one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.set_defaults(func=cmd_budget)
 

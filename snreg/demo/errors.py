@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import cv2
+from snreg.files import read_storage_with
 
 __all__ = ["SOURCES", "PARAMETERS", "Parameter", "ErrorModel", "load_error_model", "ERRORS_DIR", "NAMED_MODELS"]
 
@@ -169,20 +169,10 @@ def load_error_model(name_or_path: str | Path) -> ErrorModel:
     wrong (an unknown source or parameter, a value out of bounds, an unreadable file) in one sentence."""
     text = str(name_or_path)
     path = ERRORS_DIR / f"{text}.yaml" if text in NAMED_MODELS else Path(text)
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise ValueError(f"{path}: no such error model file; use ideal, thesis or a YAML file like "
                          f"{ERRORS_DIR / 'thesis.yaml'}")
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        opened = fs.isOpened()
-    except cv2.error:
-        opened = False
-    if not opened:
-        raise ValueError(f"{path}: not a readable YAML error model")
-    try:
-        return _read(fs, path)
-    finally:
-        fs.release()
+    return read_storage_with(path, "error model", ValueError, lambda fs: _read(fs, path))
 
 
 def _read(fs, path: Path) -> ErrorModel:

@@ -33,6 +33,7 @@ from snreg.probe import default_probe_model
 from snreg.registration import register
 from snreg.registration.target import rigid_fit_covariance
 from snreg.simulation.budget_tracking import TrackingBench, TrackingDraw
+from snreg.simulation.workers import end_with_parent, worker_count
 
 __all__ = ["BudgetConfig", "BudgetResult", "Figure", "run_budget", "configurations", "DEFAULT_REPS"]
 
@@ -140,7 +141,7 @@ def configurations(model: ErrorModel) -> dict[str, ErrorModel]:
 def run_budget(model: ErrorModel, config: BudgetConfig = BudgetConfig(), progress=None) -> BudgetResult:
     """The Monte Carlo; ``progress(done, total)`` is called as draws and repetitions finish."""
     geometry = phantom_geometry(default_probe_model())
-    workers = max(1, min(config.workers or os.cpu_count() or 1, config.reps))
+    workers = min(worker_count(config.workers), config.reps)
     needs_tracking = bool(model.on("tracking") or model.on("calibration"))
     n_draws = min(config.draws, config.reps) if needs_tracking else 0
     total = n_draws + config.reps
@@ -171,7 +172,7 @@ def _map(function, jobs, workers: int, tick):
             out.append(function(job))
             tick()
         return out
-    with ProcessPoolExecutor(max_workers=workers) as executor:
+    with ProcessPoolExecutor(max_workers=workers, initializer=end_with_parent, initargs=(os.getpid(),)) as executor:
         out = []
         for result in executor.map(function, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
             out.append(result)
