@@ -222,20 +222,29 @@ def _preop(h5, check, problems) -> dict | None:
 
 
 def _registrations(h5, check, problems) -> list[dict]:
-    if "registration" not in h5:
+    return _numbered(h5, check, problems, "registration", lambda group, n: reader.read_registration(group, int(n)))
+
+
+def _videos(h5, check, problems) -> list[dict]:
+    return _numbered(h5, check, problems, "video", lambda group, n: reader.read_video(group))
+
+
+def _numbered(h5, check, problems, kind: str, read) -> list[dict]:
+    """The ``<kind>s/<n>`` (``registration/<n>``) groups in order, each read by ``read(group, n)`` and checked as a
+    journal entry of ``kind``; one that is damaged or not numbered is left out and named."""
+    folder = "registration" if kind == "registration" else f"{kind}s"
+    if folder not in h5:
         return []
-    if check is not None and not check.clean_path("/registration") or \
-            (check is not None and "/registration/*" in check.problems):
-        problems.append(f"registrations: none read from the file ({check.cause('/registration')})")
+    if check is not None and (not check.clean_path(f"/{folder}") or f"/{folder}/*" in check.problems):
+        problems.append(f"{kind}s: none read from the file ({check.cause(f'/{folder}')})")
         return []
     out = []
-    for name in sorted(h5["registration"], key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n)):
-        path = f"/registration/{name}"
+    for name in sorted(h5[folder], key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n)):
+        path = f"/{folder}/{name}"
         if not name.isdigit() or (check is not None and not check.clean(path)):
-            problems.append(f"registration {name}: left out ({check.cause(path) if check else 'not a number'})")
+            problems.append(f"{kind} {name}: left out ({check.cause(path) if check else 'not a number'})")
             continue
-        data = _read(problems, f"registration {name}", lambda n=name: check_entry(
-            "registration", reader.read_registration(h5["registration"][n], int(n))))
+        data = _read(problems, f"{kind} {name}", lambda n=name: check_entry(kind, read(h5[folder][n], n)))
         if data is not None:
             out.append(data)
     return out
@@ -259,24 +268,6 @@ def _events(h5, check, problems) -> list[dict]:
     if left_out or bad:
         problems.append(f"events: {left_out} unreadable row(s) left out"
                         + (f", and damaged chunks ({check.cause('/events')})" if bad else ""))
-    return out
-
-
-def _videos(h5, check, problems) -> list[dict]:
-    if "videos" not in h5:
-        return []
-    if check is not None and not check.clean_path("/videos") or (check is not None and "/videos/*" in check.problems):
-        problems.append(f"videos: none read from the file ({check.cause('/videos')})")
-        return []
-    out = []
-    for name in sorted(h5["videos"], key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n)):
-        path = f"/videos/{name}"
-        if not name.isdigit() or (check is not None and not check.clean(path)):
-            problems.append(f"video {name}: left out ({check.cause(path) if check else 'not a number'})")
-            continue
-        data = _read(problems, f"video {name}", lambda n=name: check_entry("video", reader.read_video(h5["videos"][n])))
-        if data is not None:
-            out.append(data)
     return out
 
 
