@@ -122,6 +122,7 @@ def test_a_damaged_file_says_so_and_shows_its_journal(qtbot, screen, recorded, t
     assert "DAMAGED" in screen.header.text() and "streams: IMU 0 samples" in screen.header.text()
     assert "the HDF5 file cannot be read" in screen.header.text()      # what is damaged, in words
     assert screen.node_table.rowCount() == len(truth.node_ids) and screen.timelines.imu_shown == 0
+    assert screen.minimumSizeHint().width() <= 900                     # the long damage line wraps (1024 x 700)
 
 
 @pytest.mark.parametrize("kind", ["text renamed .h5", "foreign HDF5", "missing"])

@@ -72,7 +72,7 @@ def test_a_byte_that_crashes_libhdf5_makes_the_file_damaged_not_the_reader_dead(
     assert main(["session", "info", str(session)]) == 0       # in this process: it would die with a crash here
     assert "damaged: the root attribute format is damaged" in capsys.readouterr().out
     assert main(["session", "verify", str(session)]) == 1     # verify reads it in a child as well
-    assert "DAMAGED object /: reading it crashes libhdf5 (signal" in capsys.readouterr().out
+    assert "DAMAGED attribute /@format: reading it crashes libhdf5 (signal" in capsys.readouterr().out
     assert main(["register", str(session), "--method", "icp", "--json"]) == 0
     assert len(json.loads(capsys.readouterr().out)["nodes"]) == 4
 

@@ -128,11 +128,12 @@ def _walk_findings(path: Path, check) -> tuple[list[Damage], list[str], list[dic
     if not check.opens:
         return [Damage("file", str(path), f"the HDF5 file cannot be read ({check.why})")], [], []
     damaged, seen = [], set()
-    for key, why in check.problems.items():
-        where = key.split("#")[0].split("@")[0] or "/"
+    for key, why in check.problems.items():              # keys: filecheck's module docstring
+        what = "attribute" if "@" in key else "dataset" if "#" in key else "object"
+        where = key if what == "attribute" else key.split("#")[0] or "/"
         if where not in seen:
             seen.add(where)
-            damaged.append(Damage("dataset" if "#" in key else "object", where, why))
+            damaged.append(Damage(what, where, why))
     segments = []
     if check.clean("/videos"):
         with h5py.File(path, "r") as h5:

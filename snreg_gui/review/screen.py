@@ -56,6 +56,7 @@ class ReviewScreen(QWidget):
         self.refresh_button.clicked.connect(self.refresh)
         self.header = QLabel("")
         self.header.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.header.setWordWrap(True)                 # a damage line is long: it must not widen the window
         self.node_table = read_only_table(NODE_COLUMNS)
         self.snapshots = SnapshotPair()
         self.registrations = StoredRegistrations()
