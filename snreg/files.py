@@ -158,8 +158,6 @@ class StorageValues:
 def read_storage(path: str | Path, what: str, error: type[Exception]) -> StorageValues:
     """Every root value of the FileStorage file ``path``; ``error`` in one sentence naming ``what`` when the file is
     not one (missing, not a regular file, too large, too deeply nested, unparsable, without a root map)."""
-    import cv2  # only the FileStorage readers need OpenCV; atomic_write must stay light
-
     path = Path(path)
     source, flags = _storage_source(path, what, error)
     outcome = _isolated(lambda: _parse(source, flags, what))
@@ -204,7 +202,7 @@ def read_storage_with(path: str | Path, what: str, error: type[Exception], read)
 
 def _storage_source(path: Path, what: str, error: type[Exception]) -> tuple[str, int]:
     """(text or path, flags) for ``cv2.FileStorage``: a regular file of sane size and nesting, or ``error``."""
-    import cv2
+    import cv2  # only the FileStorage readers need OpenCV; atomic_write must stay light
 
     if path.suffix.lower() == ".gz":                       # compressed: OpenCV reads it from the path itself
         return str(require_regular_file(path, what, error)), cv2.FILE_STORAGE_READ

@@ -114,7 +114,7 @@ def _file_findings(h5: h5py.File) -> tuple[list[Damage], list[str], list[dict]]:
 
 def _segments(h5: h5py.File, report: VerifyReport) -> list[dict]:
     segments = []
-    for name in (sorted(h5["videos"]) if "videos" in h5 else []):
+    for name in sorted(h5["videos"] if "videos" in h5 else [], key=lambda n: (not n.isdigit(), n.zfill(20))):
         try:
             segments.append(check_entry("video", read_video(h5["videos"][name])))
         except (EntryError, OSError, ValueError, KeyError, TypeError, RuntimeError) as err:
@@ -136,8 +136,11 @@ def _walk_findings(path: Path, check) -> tuple[list[Damage], list[str], list[dic
             damaged.append(Damage(what, where, why))
     segments = []
     if check.clean("/videos"):
-        with h5py.File(path, "r") as h5:
-            segments = _segments(h5, VerifyReport(str(path)))
+        try:
+            with h5py.File(path, "r") as h5:
+                segments = _segments(h5, VerifyReport(str(path)))
+        except OSError as err:
+            damaged.append(Damage("file", str(path), f"the HDF5 file cannot be opened ({_short(err)})"))
     return damaged, [], segments
 
 
