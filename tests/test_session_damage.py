@@ -139,6 +139,17 @@ def test_a_journal_line_with_a_good_checksum_and_a_bad_field_is_reported_and_lef
                                   f"journal line {lines + 3} (registration) 'n' is text, not a whole number; left out"]
 
 
+def test_a_video_record_naming_a_file_elsewhere_is_left_out(session):
+    segment = {"n": 0, "files": ["../../etc/passwd", "s.right.mkv"], "first_row": 0, "fps": 30.0, "width": 1920,
+               "height": 1080}
+    with open(journal_path(session), "ab") as journal:
+        journal.write(_line("video", segment))
+        journal.write(_line("video", {**segment, "n": 1, "files": ["s.1.left.mkv", "s.1.right.mkv"]}))
+    with Session.open(session) as s:
+        assert [video.n for video in s.videos()] == [1]
+        assert any("(video) 'files' is not two file names beside the session" in p for p in s.problems)
+
+
 def test_without_a_journal_the_damage_is_said_plainly(session, capsys):
     journal_path(session).unlink()
     _crash_root_format(session)
