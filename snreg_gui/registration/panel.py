@@ -21,11 +21,10 @@ result exists, then under the result's ``intraop_from_preop``.
 
 from __future__ import annotations
 
-import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
-                               QHeaderView, QLabel, QMessageBox, QProgressBar, QProgressDialog, QPushButton,
-                               QScrollArea, QSplitter, QVBoxLayout, QWidget)
+                               QLabel, QMessageBox, QProgressBar, QProgressDialog, QPushButton, QScrollArea, QSplitter,
+                               QVBoxLayout, QWidget)
 
 from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
@@ -34,62 +33,21 @@ from snreg.registration.naming import marked_missing, marked_rows, pairs_line
 from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import (EXPORTS, RunRecord, RunRequest, export_file, final_record, report_context,
-                                             run_registration)
+from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, run_registration
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
+from snreg_gui.registration.exports import PanelExports
+from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, same_nodes, without
 from snreg_gui.registration.preop import PreopSourceBox
 from snreg_gui.registration.stored import StoredList
-from snreg_gui.registration.tables import NodeTable, PairingTable
+from snreg_gui.registration.tables import NodeTable, PairingTable, two_line_headers
 
 DEFAULT_METHOD = "global"
 VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
 LEFT_MIN_WIDTH = 280        # px: the settings column can be narrowed this far by its splitter
-# what each export's suggested file name ends in, after <case>_<method>_ (snreg_gui.common.file_places.export_name)
-EXPORT_NAMES = {"pairs": "pairs.csv", "slicer": "preop_in_trocar.mrk.json", "report": "report.png"}
-
-
-def _same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
-    return a is not None and b is not None and a.ids == b.ids and np.allclose(a.xyz, b.xyz)
-
-
-def _made_from(stored, preop: NodeSet, intraop: NodeSet | None) -> bool:
-    """Whether a stored registration paired these very node sets (by their ids; by their counts in files written
-    before ids were stored)."""
-    if intraop is None:
-        return False
-    if stored.intraop_ids is not None:
-        return stored.preop_ids == preop.ids and stored.intraop_ids == intraop.ids
-    pairing = stored.result.pairing
-    return len(pairing) == len(intraop) and int(np.max(pairing, initial=-1)) < len(preop)
-
-
-def _without(nodes: NodeSet, ids: set[str]) -> NodeSet:
-    """The node set without the nodes of these ids."""
-    keep = [k for k, i in enumerate(nodes.ids) if i not in ids]
-    if len(keep) == len(nodes):
-        return nodes
-    return NodeSet([nodes.ids[k] for k in keep], [nodes.labels[k] for k in keep], nodes.xyz[keep],
-                   None if nodes.counts is None else nodes.counts[keep], frame=nodes.frame)
-
-
-def _two_line_headers(table) -> None:
-    """Header captions over two lines ("leave-one-out mm" as "leave-one-out" over "mm"), each column as wide as its
-    contents, so no caption is cut in a narrow window; label columns take the room left."""
-    header = table.horizontalHeader()
-    for column in range(table.columnCount()):
-        item = table.horizontalHeaderItem(column)
-        words = item.text().rsplit(" ", 1)
-        item.setText("\n".join(words))
-        mode = QHeaderView.ResizeMode.Stretch if words[-1] == "label" else QHeaderView.ResizeMode.ResizeToContents
-        header.setSectionResizeMode(column, mode)
-
-
-def _has_nodes(nodes: NodeSet | None) -> bool:
-    return nodes is not None and len(nodes) > 0
 
 
 def _shown_rows(record: RunRecord) -> list:
@@ -97,11 +55,7 @@ def _shown_rows(record: RunRecord) -> list:
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
-def _count(nodes: NodeSet) -> str:
-    return f"{len(nodes)} node{'s' * (len(nodes) != 1)}"
-
-
-class RegistrationPanel(QWidget):
+class RegistrationPanel(PanelExports, QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
@@ -220,7 +174,7 @@ class RegistrationPanel(QWidget):
         results = QWidget()
         results_layout = QVBoxLayout(results)
         results_layout.addWidget(self.summary)
-        _two_line_headers(self.pairing_table)
+        two_line_headers(self.pairing_table)
         results_layout.addWidget(self.pairing_table)
         exclusion = QHBoxLayout()
         exclusion.addWidget(self.exclude_button)
@@ -280,29 +234,22 @@ class RegistrationPanel(QWidget):
         self.refresh_intraop()
         stored = session.registrations()
         latest = stored[-1] if stored else None
-        if latest is not None and preop is not None and _made_from(latest, preop, self._intraop):
+        if latest is not None and preop is not None and made_from(latest, preop, self._intraop):
             self._show_record(RunRecord(preop, self._intraop, latest.result, f"Registration {latest.n} from the session."))
         self.refresh_stored()
-
-    def refresh_stored(self) -> None:
-        """Re-read the session's stored registrations and final mark into the list; the exports follow the mark."""
-        session = self._session
-        self.stored.show_stored([] if session is None else session.registrations(),
-                                writable=session is not None and session.writable)
-        self._update_exports()
 
     def refresh_intraop(self, *_) -> None:
         """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""
         if self._session is not None:
             nodes = self._session.intraop_nodes()
             mixed = mixed_calibration_note(self._session.intraop_records())
-            self._set_intraop(nodes, f"{_count(nodes)} from session {self._session.case_id}"
+            self._set_intraop(nodes, f"{count_text(nodes)} from session {self._session.case_id}"
                                      + (" - MAPPED WITH MIXED CALIBRATIONS" if mixed else ""))
             self.intraop_source.setToolTip(mixed)
 
     def set_intraop_nodes(self, nodes: NodeSet) -> None:
         """Use these intraop nodes (trocar frame, mm)."""
-        self._set_intraop(nodes, _count(nodes) + (f" ({nodes.frame} frame)" if nodes.frame else ""))
+        self._set_intraop(nodes, count_text(nodes) + (f" ({nodes.frame} frame)" if nodes.frame else ""))
 
     def load_preop(self, path) -> None:
         """Read preop nodes from a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker."""
@@ -319,15 +266,15 @@ class RegistrationPanel(QWidget):
         if self._registering:                       # the latest inputs run as soon as the current run ends
             self._rerun_pending = self._rerun_pending or not automatic
             return self._say("A registration is running; it will run again with these settings when it ends.")
-        if not _has_nodes(preop):
+        if not has_nodes(preop):
             return self._say("Load the preop nodes first: a node file or a SPECT.")
-        if not _has_nodes(intraop):
+        if not has_nodes(intraop):
             return self._say("There are no intraop nodes yet: store nodes or open an intraop node file.")
-        intraop = _without(intraop, self._excluded)
+        intraop = without(intraop, self._excluded)
         if len(intraop) < 3:
             return self._say("Fewer than 3 intraop nodes are left once the excluded ones are taken out; include some.")
-        store = not automatic and self._session is not None and _same_nodes(
-            intraop, _without(self._session.intraop_nodes(), self._excluded))
+        store = not automatic and self._session is not None and same_nodes(
+            intraop, without(self._session.intraop_nodes(), self._excluded))
         request = RunRequest(preop, intraop, self.method_combo.currentText(), self.labels_check.isChecked(),
                              self.alignment.transform(preop.xyz), self.rotation_bound.value(),
                              self.translation_bound.value(), self._session if store else None,
@@ -345,7 +292,7 @@ class RegistrationPanel(QWidget):
         are there and no run is under way, register again (not stored in the session: Run stores the one that
         counts)."""
         self.refresh_intraop()
-        if not (self.auto_rerun.isChecked() and _has_nodes(self.preop_box.nodes) and self._intraop is not None
+        if not (self.auto_rerun.isChecked() and has_nodes(self.preop_box.nodes) and self._intraop is not None
                 and len(self._intraop) >= 3):
             return
         if self._registering:
@@ -383,7 +330,7 @@ class RegistrationPanel(QWidget):
             self._tasks.start(read_nodes, path, returned=self.set_intraop_nodes, errored=self._say_problem)
 
     def _centre_preop(self) -> None:
-        if not (_has_nodes(self.preop_box.nodes) and _has_nodes(self._intraop)):
+        if not (has_nodes(self.preop_box.nodes) and has_nodes(self._intraop)):
             return self._say("Centring needs both preop and intraop nodes.")
         self.alignment.centre_on(self.preop_box.nodes.xyz, self._intraop.xyz)
 
@@ -412,7 +359,7 @@ class RegistrationPanel(QWidget):
         else:
             preop = self.preop_box.nodes
             moved = NodeSet(preop.ids, preop.labels, geometry.apply(self.alignment.transform(preop.xyz), preop.xyz)) \
-                if _has_nodes(preop) else None
+                if has_nodes(preop) else None
             scene = NodeScene(moved, self._intraop)
         self.view.show_scene(scene)
 
@@ -476,105 +423,3 @@ class RegistrationPanel(QWidget):
         self._say("" if record is None else record.note)
         self._update_exports()
         self._refresh_view()
-
-    # -- exports -------------------------------------------------------------------
-    def _set_exports_enabled(self, enabled: bool) -> None:
-        for button in self.export_buttons.values():
-            button.setEnabled(enabled)
-
-    def _export_record(self) -> tuple[RunRecord | None, str]:
-        """What the exports write, and why: the registration marked final in the session when there is one, else
-        the result shown while it answers the current inputs; (None, the reason) when neither can be exported."""
-        if self._session is not None and self._session.final_registration() is not None:
-            try:
-                record = final_record(self._session)
-            except ValueError as err:
-                return None, sentence(str(err))
-            return record, f"Exports write registration {record.final_n}, marked final."
-        if self._record is None or not self._record_current:
-            return None, "Run a registration with the current inputs before exporting."
-        return self._record, "No registration is marked final: exports write the result shown."
-
-    def _update_exports(self) -> None:
-        record, why = self._export_record()
-        self._set_exports_enabled(record is not None and self._exporting == 0)
-        self.final_label.setText(why if self._session is not None and (record is not None or
-                                                                       self._session.final_registration() is not None)
-                                 else "")
-
-    def _mark_final(self, n) -> None:
-        """Mark registration ``n`` final in the session (None: unmark), in a worker (journal fsync)."""
-        if self._session is None or not self._session.writable:
-            return self._say("Only a session being recorded can be marked here; use the Review tab for a saved one.")
-        self._tasks.start(self._session.set_final_registration, n,
-                          returned=lambda _: self._final_marked(n), errored=self._say_problem)
-
-    def _final_marked(self, n) -> None:
-        self.refresh_stored()
-        self._say("No registration is marked final now." if n is None else
-                  f"Registration {n} is marked final in the session; the exports use it.")
-
-    def export_start(self, kind: str) -> str:
-        """Where the export dialog of ``kind`` starts: the session's folder (or the last one used) and a suggested
-        name ``<case>_<method>_<what>`` for what the exports write."""
-        case = self._session.case_id if self._session is not None else ""
-        record, _ = self._export_record()
-        method = record.result.method if record is not None else self.method_combo.currentText()
-        return file_places.start_path(self._session, file_places.export_name(case, method, EXPORT_NAMES[kind]))
-
-    def _choose_export(self, kind: str) -> None:
-        record, why = self._export_record()
-        if record is None:
-            return self._say(why)
-        name, file_filter, _ = EXPORTS[kind]
-        path, _ = QFileDialog.getSaveFileName(self, f"Export {name}", self.export_start(kind), file_filter)
-        if path:
-            file_places.remember(path)
-            self.export(kind, path)
-
-    def export(self, kind: str, path: str) -> None:
-        """Write what the exports write (:meth:`_export_record`) as ``kind`` (a key of ``EXPORTS``) to ``path`` in a
-        worker, with a busy dialog; the report carries the session's case, file and calibration
-        (:func:`report_context`)."""
-        record, why = self._export_record()
-        if record is None:
-            return self._say(why)
-        self._exporting += 1
-        self._set_exports_enabled(False)
-        context = report_context(self._session) if kind == "report" else None
-        self._show_export_progress(f"Writing the {EXPORTS[kind][0]} to {path} ...")
-        self._tasks.start(export_file, kind, path, record, context,
-                          returned=lambda written: self._exported(written, record), errored=self._export_failed)
-
-    def _show_export_progress(self, text: str) -> None:
-        if self.export_progress is None:
-            dialog = QProgressDialog(self)
-            dialog.setWindowTitle("Exporting")
-            dialog.setRange(0, 0)                     # busy: a figure's rendering reports no steps
-            dialog.setCancelButton(None)             # a file half-written is never left, but it cannot be stopped
-            dialog.setWindowModality(Qt.WindowModality.NonModal)
-            dialog.setAutoClose(False)
-            dialog.setAutoReset(False)
-            self.export_progress = dialog
-        self.export_progress.setLabelText(text)
-        self.export_progress.show()
-
-    def _export_ended(self) -> None:
-        self._exporting -= 1
-        if self._exporting == 0:
-            if self.export_progress is not None:
-                self.export_progress.hide()
-            self._update_exports()
-
-    def _exported(self, path, record: RunRecord) -> None:
-        self._export_ended()
-        which = "" if record.final_n is None else f" (registration {record.final_n}, marked final)"
-        extra = "; its facts also in the .json beside it" if str(path).lower().endswith(".png") else ""
-        self._say(f"Written {path}{which}{extra}.")
-
-    def _export_failed(self, message: str) -> None:
-        self._export_ended()
-        self._say_problem(message)
-        box = QMessageBox(QMessageBox.Icon.Warning, "Export failed", sentence(message), parent=self)
-        self.export_problem = box
-        box.open()

@@ -80,3 +80,15 @@ def _configure(table: QTableWidget, columns) -> None:
     table.verticalHeader().setVisible(False)
     table.verticalHeader().setDefaultSectionSize(table.fontMetrics().height() + 6)
     table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+
+
+def two_line_headers(table) -> None:
+    """Header captions over two lines ("leave-one-out mm" as "leave-one-out" over "mm"), each column as wide as its
+    contents, so no caption is cut in a narrow window; label columns take the room left."""
+    header = table.horizontalHeader()
+    for column in range(table.columnCount()):
+        item = table.horizontalHeaderItem(column)
+        words = item.text().rsplit(" ", 1)
+        item.setText("\n".join(words))
+        mode = QHeaderView.ResizeMode.Stretch if words[-1] == "label" else QHeaderView.ResizeMode.ResizeToContents
+        header.setSectionResizeMode(column, mode)
