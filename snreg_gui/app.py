@@ -1,4 +1,4 @@
-"""``snreg-gui``: the desktop app. Tabs for acquisition, registration and offline review; menus for sessions,
+"""The desktop app's main window (``snreg-gui``, started by :mod:`snreg_gui.__main__`). Tabs for acquisition, registration and offline review; menus for sessions,
 devices and the calibration wizards.
 
 Why one window: in the operating room the technician records nodes, then registers them against the SPECT
@@ -12,34 +12,30 @@ session?"), as an accidental close would end a surgical session.
 
 from __future__ import annotations
 
-import argparse
 import gc
-import signal
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from PySide6.QtCore import QSettings, Qt, QTimer, Signal
+from PySide6.QtCore import QSettings, Qt, Signal
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import (QApplication, QFileDialog, QLabel, QMainWindow, QMessageBox, QTabWidget, QVBoxLayout,
-                               QWidget)
+from PySide6.QtWidgets import QApplication, QLabel, QMainWindow, QMessageBox, QTabWidget, QVBoxLayout, QWidget
 
 from snreg import __version__
-from snreg.demo.errors import load_error_model
 from snreg.demo.rig import DemoRig
-from snreg.session import Session, SessionError
+from snreg.session import Session
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
-from snreg.workflow.chain_change import calibration_change, id_list, reexpress
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
-from snreg_gui.common import file_places, wheel_guard
-from snreg_gui.common.case_id_dialog import CaseIdDialog
+from snreg_gui.common import wheel_guard
 from snreg_gui.common.live_link import LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
 from snreg_gui.registration.demo_spect import DemoSpect
 from snreg_gui.registration.panel import RegistrationPanel
 from snreg_gui.review.screen import ReviewScreen
+from snreg_gui.window_calibration import CalibrationApplying
+from snreg_gui.window_sessions import SessionActions
 from snreg_gui.wizards.launcher import WizardLauncher
 
 # The GUI thread shares the GIL with the tracking worker and the IMU reader. At Python's default 5 ms switch
@@ -53,7 +49,7 @@ NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IM
                "or start with --demo for the simulated one.")
 
 
-class MainWindow(QMainWindow):
+class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
     """The app. ``demo``: the simulated rig and a new session (``session_path`` or a file in the temp folder).
     Without ``demo``, an existing ``session_path`` opens for review and a new one is created for recording.
     ``rig`` lets tests pass a rig with a shorter schedule; ``settings`` an isolated QSettings."""
@@ -151,55 +147,6 @@ class MainWindow(QMainWindow):
             action.setShortcut(shortcut)
         return action
 
-    def _fill_recent(self) -> None:
-        self.recent_menu.clear()
-        for path in self.recent.paths():
-            self.recent_menu.addAction(path).triggered.connect(lambda _=False, p=path: self.open_for_review(p))
-        if self.recent_menu.isEmpty():
-            self.recent_menu.addAction("(none)").setEnabled(False)
-
-    # -- sessions ------------------------------------------------------------
-    def new_session(self) -> None:
-        dialog = CaseIdDialog(self)
-        if not dialog.exec():
-            return
-        case_id = dialog.case_id()
-        path, _ = QFileDialog.getSaveFileName(self, "New session file", file_places.start_path(self.session,
-                                              f"{case_id}.h5"), "snreg sessions (*.h5)")
-        if path:
-            file_places.remember(path)
-            self.set_session(self._create(path, case_id))
-
-    def continue_session(self, path: str | None = None) -> None:
-        """Reopen a session to record more nodes into it (after a restart or a crash)."""
-        path = path or QFileDialog.getOpenFileName(self, "Continue session", file_places.start_path(self.session),
-                                                   "snreg sessions (*.h5)")[0]
-        if not path:
-            return
-        file_places.remember(path)
-        try:
-            session = Session.resume(path)
-        except SessionError as err:
-            self.statusBar().showMessage(str(err))
-            return
-        self.set_session(session)
-
-    def replay(self, path, speed: float = 1.0) -> None:
-        """Acquire from the recorded session ``path`` (its video and IMU at ``speed`` times its pace) into a new
-        session beside it, named ``<name>-replay-<time>.h5``."""
-        from snreg.demo.replay import ReplayRig
-        try:
-            rig = ReplayRig(path, speed=speed)
-        except (SessionError, OSError, ValueError) as err:
-            self.statusBar().showMessage(f"Cannot replay {path}: {err}")
-            return
-        with Session.open(path) as source:
-            case_id = f"{source.case_id}-replay"[:64]
-        target = Path(path).with_name(f"{Path(path).stem}-replay-{time.strftime('%Y%m%d-%H%M%S')}.h5")
-        self.set_rig(rig)
-        self.set_session(self._create(target, case_id))
-        self.statusBar().showMessage(f"replaying {Path(path).name} at {speed:g}x into {target.name}")
-
     def _record_video_toggled(self, on: bool) -> None:
         """Recording the video on or off from the next frame on (the segment recorded so far is closed)."""
         self.settings.setValue(RECORD_VIDEO_KEY, bool(on))
@@ -207,29 +154,6 @@ class MainWindow(QMainWindow):
             self.restart_acquisition()
         self.statusBar().showMessage("both feeds are recorded with the session" if on else
                                      "video recording is off: the session keeps only two snapshots per node")
-
-    def choose_review(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open session for review", file_places.start_path(self.session),
-                                              "snreg sessions (*.h5)")
-        if path:
-            file_places.remember(path)
-            self.open_for_review(path)
-
-    def open_for_review(self, path: str | Path) -> None:
-        self.recent.add(path)
-        self.review.load(str(path))
-        self.tabs.setCurrentWidget(self.review)
-        self._update_title()
-
-    def _create(self, path, case_id: str) -> Session | None:
-        try:
-            session = Session.create(path, case_id=case_id)
-        except (SessionError, OSError) as err:
-            self.statusBar().showMessage(str(err))
-            return None
-        if self.rig is not None:
-            session.set_calibration(stereo=self.rig.calibration, chain=self.rig.chain)
-        return session
 
     def set_session(self, session: Session | None) -> None:
         """Record into ``session`` from now on (the previous one is closed)."""
@@ -277,84 +201,6 @@ class MainWindow(QMainWindow):
         """After a calibration changed the rig: the worker starts again with it."""
         self._stop_acquisition()
         self._start_acquisition()
-
-    def apply_stereo_calibration(self, calibration, saved_to=None) -> None:
-        """Track with ``calibration`` from now on and store it in the session; say in words where it was saved
-        (``saved_to``, the wizard's file) and that it is applied; stored nodes: say so, offer to re-express them."""
-        previous, self.rig.calibration = self.rig.calibration, calibration
-        stored = self.session is not None and self.session.writable
-        if stored:
-            self.session.set_calibration(stereo=calibration)
-        places = [f"saved to {saved_to}"] if saved_to else []
-        places += [f"stored in the session {self.session.path.name}"] if stored else []
-        applied = (f"The stereo calibration (RMS {calibration.rms_reprojection_px:.3f} px, baseline "
-                   f"{calibration.baseline_mm:.2f} mm) is {' and '.join(places + ['applied'])}: tracking uses it "
-                   "from now on.")
-        self._calibration_applied(applied, previous)
-
-    def apply_chain(self, chain) -> None:
-        """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session); say so in
-        words; stored nodes: say so, offer to re-express them."""
-        self.rig.chain = chain
-        stored = self.session is not None and self.session.writable
-        where = (f"saved in the session {self.session.path} and applied" if stored else
-                 "applied (not saved: no session is open)")
-        applied = (f"The trocar calibration (trocar-camera {chain.trocar_camera_mm:.1f} mm) is {where}: stored "
-                   "positions use it from now on.")
-        self._calibration_applied(applied, self.rig.calibration)
-
-    def _calibration_applied(self, applied: str, previous_stereo) -> None:
-        """Say ``applied`` in the status bar and in a box (:attr:`calibration_notice`), or, when stored nodes were
-        mapped with another calibration, in the box that offers to re-express them (:attr:`calibration_prompt`)."""
-        self.statusBar().showMessage(applied)
-        if self._offer_reexpression(previous_stereo, applied):
-            return
-        box = QMessageBox(QMessageBox.Icon.Information, "Calibration applied", applied, parent=self)
-        box.finished.connect(lambda _: setattr(self, "calibration_notice", None))
-        self.calibration_notice = box
-        box.open()
-
-    def _offer_reexpression(self, previous_stereo, applied: str = "") -> bool:
-        """When stored nodes were mapped with another calibration than the rig's now: say so plainly and offer to
-        re-express them (the session keeps their old values on record); True when the box is shown."""
-        session = self.session
-        if session is None or not session.writable:
-            return False
-        change = calibration_change(session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
-        if change is None:
-            return False
-        box = QMessageBox(QMessageBox.Icon.Warning, "Calibration changed: stored nodes", change.message, parent=self)
-        informative = [applied] if applied else []
-        if change.question:
-            box.setInformativeText("\n\n".join(informative + [change.question]))
-            box.addButton(f"Re-express {id_list(change.movable)}", QMessageBox.ButtonRole.AcceptRole)
-            box.addButton("Keep them as stored", QMessageBox.ButtonRole.RejectRole)
-        else:
-            box.setInformativeText(applied)
-            box.addButton(QMessageBox.StandardButton.Ok)
-        offered = bool(change.question)
-        box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo, offered))
-        self.calibration_prompt = box
-        box.open()
-        return True
-
-    def _reexpression_answered(self, box: QMessageBox, previous_stereo, offered: bool) -> None:
-        """``offered``: the box asked (Re-express / Keep); an OK on a box that only told re-expresses nothing."""
-        self.calibration_prompt = None
-        role = box.buttonRole(box.clickedButton()) if box.clickedButton() is not None else None
-        if not offered or role != QMessageBox.ButtonRole.AcceptRole or self.session is None:
-            self.statusBar().showMessage("stored nodes kept as measured: a registration will say it mixes calibrations")
-            return
-        try:
-            moved = reexpress(self.session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
-        except (SessionError, OSError) as err:
-            self.statusBar().showMessage(f"The nodes could not be re-expressed: {err}")
-            return
-        if self.acquisition is not None:
-            self.acquisition.set_nodes(self.session.intraop_records())
-        self._nodes_changed()
-        self.statusBar().showMessage(f"re-expressed {id_list(moved)} under the new calibration; their old positions "
-                                     "stay on record in the session")
 
     def _start_acquisition(self) -> None:
         if self.rig is None or self.session is None:
@@ -528,48 +374,3 @@ class MainWindow(QMainWindow):
         if self.session is not None:
             self.session.close()
             self.session = None
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="snreg-gui", description="snreg acquisition, registration and review app")
-    parser.add_argument("--demo", action="store_true", help="simulated devices, no hardware")
-    parser.add_argument("--errors", metavar="ideal|thesis|FILE", help="with --demo: the error model the simulated rig "
-                        "runs with (default ideal: nothing errs but the render's noise; thesis: the thesis' phantom)")
-    parser.add_argument("session", nargs="?", help="session file: an existing one opens for review, a new name is "
-                        "created for recording (demo default: a new file in the temp folder)")
-    parser.add_argument("--replay", action="store_true", help="acquire from SESSION's recorded video and IMU at their "
-                        "pace into a new session beside it")
-    parser.add_argument("--speed", type=float, default=1.0, help="replay this many times faster (default 1)")
-    args = parser.parse_args(argv)
-    if args.replay and (not args.session or args.demo):
-        parser.error("--replay needs the recorded SESSION.h5 to replay (and no --demo)")
-    if not args.speed > 0:
-        parser.error(f"--speed must be a positive number, not {args.speed}")
-    errors = _error_model(parser, args)
-    app = QApplication.instance() or QApplication(sys.argv[:1])
-    window = MainWindow(args.session, demo=args.demo, rig=DemoRig(errors=errors) if errors is not None else None,
-                        replay=args.replay, speed=args.speed)
-    for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
-        signal.signal(signum, lambda *_: window.quit_without_asking())
-    wake = QTimer(interval=200, timeout=lambda: None)      # lets Python run those handlers while Qt waits
-    wake.start()
-    window.show()
-    status = app.exec()
-    window.shutdown()
-    return status
-
-
-def _error_model(parser, args):
-    """The demo's error model (None: ideal, today's demo); a bad name or file ends the start in one line (exit 2)."""
-    if args.errors is None or args.errors == "ideal":
-        return None
-    if not args.demo:
-        parser.error("--errors applies to the demo only; add --demo")
-    try:
-        return load_error_model(args.errors)
-    except ValueError as err:
-        parser.error(str(err))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

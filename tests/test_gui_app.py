@@ -201,3 +201,14 @@ def test_foot_pedal_and_undo_keys(qtbot):
     screen.show_store_problem("Not stored: only 3 of 5 valid fixes so far.")
     screen.request_store()
     assert "must be a number" in screen.store_status.text()
+
+
+@pytest.mark.parametrize("argv, fragment", [(["--errors", "thesis"], "add --demo"), (["--replay"], "--replay needs"),
+                                            (["s.h5", "--replay", "--speed", "0"], "--speed"),
+                                            (["--demo", "--errors", "/dev/zero"], "not a regular file")])
+def test_the_command_line_refuses_a_bad_start_before_any_window(argv, fragment, capsys):
+    from snreg_gui.__main__ import main
+
+    with pytest.raises(SystemExit) as ended:
+        main(argv)
+    assert ended.value.code == 2 and fragment in capsys.readouterr().err

@@ -1,0 +1,92 @@
+"""The main window's session actions (File menu): a new session, continuing one after a restart, replaying a
+recorded one, opening one for review and the recent-files list.
+
+A mixin of :class:`snreg_gui.app.MainWindow`: it uses the window's ``session``, ``rig``, ``recent``, ``review``,
+``tabs`` and status bar, and its ``set_session``/``set_rig``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from PySide6.QtWidgets import QFileDialog
+
+from snreg.session import Session, SessionError
+from snreg_gui.common import file_places
+from snreg_gui.common.case_id_dialog import CaseIdDialog
+
+
+class SessionActions:
+    """New, continue, replay, review and recent sessions (module docstring)."""
+
+    def _fill_recent(self) -> None:
+        self.recent_menu.clear()
+        for path in self.recent.paths():
+            self.recent_menu.addAction(path).triggered.connect(lambda _=False, p=path: self.open_for_review(p))
+        if self.recent_menu.isEmpty():
+            self.recent_menu.addAction("(none)").setEnabled(False)
+
+    def new_session(self) -> None:
+        dialog = CaseIdDialog(self)
+        if not dialog.exec():
+            return
+        case_id = dialog.case_id()
+        path, _ = QFileDialog.getSaveFileName(self, "New session file", file_places.start_path(self.session,
+                                              f"{case_id}.h5"), "snreg sessions (*.h5)")
+        if path:
+            file_places.remember(path)
+            self.set_session(self._create(path, case_id))
+
+    def continue_session(self, path: str | None = None) -> None:
+        """Reopen a session to record more nodes into it (after a restart or a crash)."""
+        path = path or QFileDialog.getOpenFileName(self, "Continue session", file_places.start_path(self.session),
+                                                   "snreg sessions (*.h5)")[0]
+        if not path:
+            return
+        file_places.remember(path)
+        try:
+            session = Session.resume(path)
+        except SessionError as err:
+            self.statusBar().showMessage(str(err))
+            return
+        self.set_session(session)
+
+    def replay(self, path, speed: float = 1.0) -> None:
+        """Acquire from the recorded session ``path`` (its video and IMU at ``speed`` times its pace) into a new
+        session beside it, named ``<name>-replay-<time>.h5``."""
+        from snreg.demo.replay import ReplayRig
+        try:
+            rig = ReplayRig(path, speed=speed)
+        except (SessionError, OSError, ValueError) as err:
+            self.statusBar().showMessage(f"Cannot replay {path}: {err}")
+            return
+        with Session.open(path) as source:
+            case_id = f"{source.case_id}-replay"[:64]
+        target = Path(path).with_name(f"{Path(path).stem}-replay-{time.strftime('%Y%m%d-%H%M%S')}.h5")
+        self.set_rig(rig)
+        self.set_session(self._create(target, case_id))
+        self.statusBar().showMessage(f"replaying {Path(path).name} at {speed:g}x into {target.name}")
+
+    def choose_review(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open session for review", file_places.start_path(self.session),
+                                              "snreg sessions (*.h5)")
+        if path:
+            file_places.remember(path)
+            self.open_for_review(path)
+
+    def open_for_review(self, path: str | Path) -> None:
+        self.recent.add(path)
+        self.review.load(str(path))
+        self.tabs.setCurrentWidget(self.review)
+        self._update_title()
+
+    def _create(self, path, case_id: str) -> Session | None:
+        try:
+            session = Session.create(path, case_id=case_id)
+        except (SessionError, OSError) as err:
+            self.statusBar().showMessage(str(err))
+            return None
+        if self.rig is not None:
+            session.set_calibration(stereo=self.rig.calibration, chain=self.rig.chain)
+        return session
