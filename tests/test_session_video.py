@@ -242,3 +242,24 @@ def test_turning_recording_off_closes_the_segment_recorded_so_far(tmp_path):
         assert off.process(frame, LEVEL).video == "video: off (turned off in the settings)"
     with Session.open(tmp_path / "o.h5") as session:
         assert session.stream("frames").shape[0] == 2 and session.videos()[0].frames == (1, 1)
+
+
+def test_recover_into_another_folder_takes_the_video_along(recorded_video, tmp_path):
+    from snreg.session.recovery import recover
+
+    path, _, _ = recorded_video
+    out = tmp_path / "elsewhere" / "clean.h5"
+    out.parent.mkdir()
+    report = recover(path, out)
+    assert sorted(report.carried) == ["clean.left.mkv", "clean.right.mkv"]
+    assert "beside the recovered file: clean.left.mkv, clean.right.mkv" in "\n".join(report.lines())
+    checked = verify(out)                                              # sizes and SHA-256 as recorded
+    assert checked.ok and [video["path"] for video in checked.videos] == [str(out.with_name("clean.left.mkv")),
+                                                                           str(out.with_name("clean.right.mkv"))]
+    with Session.open(out) as session:
+        assert session.videos()[0].files == ("clean.left.mkv", "clean.right.mkv")
+    assert path.with_name("s.left.mkv").exists()                       # the original stays where it was
+    again = tmp_path / "elsewhere" / "clean2.h5"
+    (tmp_path / "elsewhere" / "clean2.left.mkv").write_bytes(b"someone else's")
+    with pytest.raises(SessionError, match="already exists"):
+        recover(path, again)

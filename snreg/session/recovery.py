@@ -28,6 +28,7 @@ from snreg.session import Session, salvage
 from snreg.session.entries import checked_entries
 from snreg.session.journal import journal_path, read_journal
 from snreg.session.schema import STREAM_DTYPES, SessionError
+from snreg.session.video import segment_files
 
 __all__ = ["Recovery", "recover", "RecoverLock"]
 
@@ -50,6 +51,7 @@ class Recovery:
     streams: dict[str, int]
     videos: int = 0
     problems: list[str] = field(default_factory=list)
+    carried: list[str] = field(default_factory=list)      # video files linked (or copied) beside a copy elsewhere
 
     def lines(self) -> list[str]:
         """The report in words, one line each."""
@@ -66,8 +68,11 @@ class Recovery:
                      + " rows")
         calibration = ", ".join(f"{kind} (from the {source})" for kind, source in self.calibration)
         lines.append(f"calibration: {calibration or 'none readable'}")
-        if self.videos:
-            lines.append(f"videos: {self.videos} segment(s) on record, their files left beside the session as they are")
+        if self.carried:
+            lines.append(f"videos: {self.videos} segment(s) on record; beside the recovered file: "
+                         + ", ".join(self.carried))
+        elif self.videos:
+            lines.append(f"videos: {self.videos} segment(s) on record, their files beside the session as they are")
         if not self.journal:
             lines.append("there was no journal beside the file: only what the HDF5 file still held could be saved")
         lines += [f"could not be read: {problem}" for problem in self.problems]
@@ -173,6 +178,7 @@ def _write(session: Session, path: Path, target: Path, in_place: bool) -> Recove
     entries, _ = checked_entries(journal.entries, journal.lines)
     expected = {name: int(len(session.stream(name))) for name in STREAM_DTYPES}
     report = _report(session, entries)
+    carried = [] if in_place else _carry_videos(session, path, target)
     with atomic_write(target) as temporary:
         session.save_as(temporary)
         written = _stream_rows(temporary)
@@ -185,7 +191,30 @@ def _write(session: Session, path: Path, target: Path, in_place: bool) -> Recove
             if (problem := salvage.stream_problem(session._h5, name, session._check)) not in (None, *session.problems)]
     return Recovery(target, backup, session.has_journal, report["nodes"], report["registrations"],
                     report["calibration"], report["preop"], report["events"], written, len(session.videos()),
-                    list(session.problems) + rows)
+                    list(session.problems) + rows, carried)
+
+
+def _carry_videos(session: Session, path: Path, target: Path) -> list[str]:
+    """A recovered copy written elsewhere names its video files after itself (:func:`.video.segment_files`) and
+    finds them beside it: each file there is a hard link to the original (a copy across file systems). The
+    segments' records are renamed; the names carried, in words. A file of that name already there is refused."""
+    plans = []
+    for n, data in sorted(session._videos.items()):
+        names = segment_files(target, n)
+        for old, new in zip(data["files"], names):
+            source, destination = path.with_name(old), target.with_name(new)
+            if source.exists() and source.resolve() != destination.resolve():
+                if destination.exists():
+                    raise SessionError(f"{destination}: already exists; the recovered session's video would go there "
+                                       "(move it away, or recover into another folder)")
+                plans.append((source, destination))
+        session._videos[n] = {**data, "files": list(names)}
+    for source, destination in plans:
+        try:
+            os.link(source, destination)
+        except OSError:
+            shutil.copyfile(source, destination)
+    return [destination.name for _, destination in plans]
 
 
 def _report(session: Session, entries: list) -> dict:
