@@ -165,11 +165,16 @@ _RECORDER = textwrap.dedent("""
         session.start_video(30.0, 160, 120)
         while not session.video_state().started:
             time.sleep(0.01)
-        print("recording", flush=True)
+        logged = 0
         for k in range(100000):
             image = np.full((120, 160, 3), k % 256, np.uint8)
             image[:, :8] = rng.integers(0, 256, (120, 8, 3))
-            session.append_frame_pair(time.perf_counter_ns(), time.perf_counter_ns(), k, image, image)
+            logged += session.append_frame_pair(time.perf_counter_ns(), time.perf_counter_ns(), k, image, image)
+            if logged == 30:                 # a second of pairs taken by the encoder, each with its frame row
+                print("recording", flush=True)
+            elif k == 600 and logged < 30:   # 20 s: the encoder is not taking pairs; say so instead of hanging
+                print(f"the encoder took {logged} of 600 pairs", flush=True)
+                break
             time.sleep(1 / 30)
 """)
 
@@ -178,7 +183,7 @@ def test_a_killed_recording_keeps_the_frames_it_logged_readable(tmp_path):
     path = tmp_path / "k.h5"
     process = subprocess.Popen([sys.executable, "-c", _RECORDER, str(path)], stdout=subprocess.PIPE)
     assert process.stdout.readline().strip() == b"recording"
-    time.sleep(3.5)
+    time.sleep(2.5)
     process.kill()
     process.wait()
     time.sleep(0.5)                                  # the encoder finishes its files once its input closes
