@@ -40,8 +40,7 @@ class SessionActions:
 
     def continue_session(self, path: str | None = None) -> None:
         """Reopen a session to record more nodes into it (after a restart or a crash)."""
-        path = path or QFileDialog.getOpenFileName(self, "Continue session", file_places.start_path(self.session),
-                                                   "snreg sessions (*.h5)")[0]
+        path = path or file_places.choose_file(self, "Continue session", self.session, "snreg sessions (*.h5)")
         if not path:
             return
         file_places.remember(path)
@@ -69,10 +68,8 @@ class SessionActions:
         self.statusBar().showMessage(f"replaying {Path(path).name} at {speed:g}x into {target.name}")
 
     def choose_review(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open session for review", file_places.start_path(self.session),
-                                              "snreg sessions (*.h5)")
+        path = file_places.choose_file(self, "Open session for review", self.session, "snreg sessions (*.h5)")
         if path:
-            file_places.remember(path)
             self.open_for_review(path)
 
     def open_for_review(self, path: str | Path) -> None:

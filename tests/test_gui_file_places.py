@@ -43,3 +43,25 @@ def test_the_folder_chosen_last_is_remembered(tmp_path):
     file_places.remember(chosen / "a.csv")
     assert file_places.start_path(None) == str(chosen)
     assert file_places.start_path(None, "b.csv") == str(chosen / "b.csv")
+
+
+def test_an_open_dialog_starts_at_the_start_path_and_remembers_what_was_chosen(tmp_path, monkeypatch):
+    from PySide6.QtWidgets import QFileDialog
+
+    first, chosen = tmp_path / "first", tmp_path / "nodes"
+    first.mkdir()
+    chosen.mkdir()
+    file_places.remember(first / "x.csv")
+    asked = []
+
+    def dialog(parent, title, start, file_filter, answer):
+        asked.append((title, start, file_filter))
+        return answer, ""
+
+    monkeypatch.setattr(QFileDialog, "getOpenFileName", lambda *a: dialog(*a, answer=""))
+    assert file_places.choose_file(None, "Node file", None, "Node files (*.csv)") == ""      # cancelled
+    assert file_places.start_path(None) == str(first)                                      # nothing remembered
+    monkeypatch.setattr(QFileDialog, "getOpenFileName", lambda *a: dialog(*a, answer=str(chosen / "n.csv")))
+    assert file_places.choose_file(None, "Node file", None, "Node files (*.csv)") == str(chosen / "n.csv")
+    assert asked == [("Node file", str(first), "Node files (*.csv)")] * 2
+    assert file_places.start_path(None) == str(chosen)

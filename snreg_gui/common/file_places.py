@@ -5,7 +5,7 @@ recorded, not in whatever folder the app was started from, and a suggested name 
 (``phantom-01_global_pairs.csv``). Dialogs start in the session's folder; with no session, in the folder last
 chosen in any dialog (remembered in the app's settings); failing that, in the home folder. The pure functions
 (:func:`start_folder`, :func:`dialog_start`, :func:`export_name`, :func:`calibration_name`) decide; the two
-Qt-facing ones (:func:`start_path`, :func:`remember`) read and write the remembered folder.
+Qt-facing ones (:func:`start_path`, :func:`remember`, :func:`choose_file`) read and write the remembered folder.
 
 >>> QFileDialog.getSaveFileName(self, "Export", start_path(session, export_name(case, "global", "pairs.csv")))
 >>> remember(chosen_path)
@@ -18,6 +18,7 @@ import re
 from pathlib import Path
 
 from PySide6.QtCore import QSettings
+from PySide6.QtWidgets import QFileDialog
 
 LAST_FOLDER_KEY = "files/last_folder"
 DEFAULT_FOLDER_NAME = "snreg"          # under the home folder: where wizards save when there is no session
@@ -80,6 +81,14 @@ def last_folder() -> str | None:
 def start_path(session, name: str = "") -> str:
     """:func:`dialog_start` for ``session`` (a :class:`~snreg.session.Session` or None) and the remembered folder."""
     return dialog_start(_session_path(session), last_folder(), name)
+
+
+def choose_file(parent, title: str, session, file_filter: str) -> str:
+    """An existing file chosen in an open dialog starting at :func:`start_path` (its folder remembered); "" when the
+    user cancels."""
+    path, _ = QFileDialog.getOpenFileName(parent, title, start_path(session), file_filter)
+    remember(path)
+    return path
 
 
 def remember(path) -> None:

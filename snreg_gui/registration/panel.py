@@ -22,7 +22,7 @@ result exists, then under the result's ``intraop_from_preop``.
 from __future__ import annotations
 
 from PySide6.QtCore import Qt, Signal
-from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QMessageBox, QProgressBar, QProgressDialog, QPushButton, QScrollArea, QSplitter,
                                QVBoxLayout, QWidget)
 
@@ -323,10 +323,8 @@ class RegistrationPanel(PanelExports, QWidget):
         self._inputs_changed()
 
     def _choose_intraop_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Intraop node file", file_places.start_path(self._session),
-                                              "Node files (*.csv *.mrk.json *.json)")
+        path = file_places.choose_file(self, "Intraop node file", self._session, "Node files (*.csv *.mrk.json *.json)")
         if path:
-            file_places.remember(path)
             self._tasks.start(read_nodes, path, returned=self.set_intraop_nodes, errored=self._say_problem)
 
     def _centre_preop(self) -> None:

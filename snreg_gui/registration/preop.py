@@ -149,17 +149,13 @@ class PreopSourceBox(QGroupBox):
 
     # -- internals -----------------------------------------------------------
     def _choose_node_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Preop node file", file_places.start_path(self.session),
-                                              "Node files (*.csv *.mrk.json *.json)")
+        path = file_places.choose_file(self, "Preop node file", self.session, "Node files (*.csv *.mrk.json *.json)")
         if path:
-            file_places.remember(path)
             self.load(path)
 
     def _choose_spect_file(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "SPECT DICOM file", file_places.start_path(self.session),
-                                              "DICOM (*.dcm *.DCM *.ima);;All files (*)")
+        path = file_places.choose_file(self, "SPECT DICOM file", self.session, "DICOM (*.dcm *.DCM *.ima);;All files (*)")
         if path:
-            file_places.remember(path)
             self.load(path)
 
     def _choose_spect_folder(self) -> None:
