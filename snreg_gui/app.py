@@ -13,6 +13,7 @@ session?"), as an accidental close would end a surgical session.
 from __future__ import annotations
 
 import gc
+import os
 import sys
 import tempfile
 import time
@@ -104,7 +105,8 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
             self.replay(session_path, speed)
         elif demo:
             self.rig = rig or DemoRig()
-            path = session_path or Path(tempfile.gettempdir()) / f"snreg-demo-{time.strftime('%Y%m%d-%H%M%S')}.h5"
+            stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"      # two demos started in one second
+            path = session_path or Path(tempfile.gettempdir()) / f"snreg-demo-{stamp}.h5"
             self.set_session(self._create(path, "phantom-demo"))
             if self.session is not None:               # else the status bar says why the file was refused
                 self.demo_spect = DemoSpect(self)

@@ -180,3 +180,14 @@ def test_a_session_holds_no_personal_strings(tmp_path, rng, pelvic_nodes):
     for name in {getpass.getuser(), socket.gethostname(), str(tmp_path)} - {""}:
         for file in (path, journal_path(path)):
             assert name.encode() not in file.read_bytes()
+
+
+def test_a_journal_is_never_started_over_another_so_two_creators_of_one_name_cannot_both_record(tmp_path):
+    from snreg.session.journal import Journal, read_journal
+
+    path = tmp_path / "s.h5.journal"
+    Journal.start(path, "session", {"case_id": "first"}).close()
+    with pytest.raises(SessionError, match="a journal already exists there"):
+        Journal.start(path, "session", {"case_id": "second"})     # the other process lost the race for the name
+    assert [data["case_id"] for _, data in read_journal(path).entries] == ["first"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5.journal"]     # no temporary file left behind

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,15 +58,28 @@ class Journal:
 
     @classmethod
     def start(cls, path: str | Path, kind: str, data: dict) -> "Journal":
-        """A new journal whose first line is already on disk: written under a temporary name, then renamed, so a
-        kill at any moment leaves either no journal or one that begins with this entry."""
+        """A new journal whose first line is already on disk: written under a temporary name of its own, then linked
+        to ``path``, so a kill at any moment leaves either no journal or one that begins with this entry, and of two
+        processes starting the same journal one gets :class:`SessionError` (the link never replaces a journal)."""
         path = Path(path)
-        partial = path.with_name(f".{path.name}.creating")
-        with open(partial, "wb") as file:
-            file.write(_line(kind, data))
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(partial, path)
+        handle, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".creating", dir=path.parent)
+        partial = Path(name)
+        try:
+            with open(handle, "wb") as file:
+                file.write(_line(kind, data))
+                file.flush()
+                os.fsync(file.fileno())
+            try:
+                os.link(partial, path)
+            except FileExistsError:
+                raise SessionError(f"{path}: a journal already exists there (another session by that name is "
+                                   "being recorded?); choose a new file name") from None
+            except OSError:                             # no hard links on this file system: claim the name first
+                if path.exists():
+                    raise SessionError(f"{path}: a journal already exists there; choose a new file name") from None
+                os.replace(partial, path)
+        finally:
+            partial.unlink(missing_ok=True)
         return cls(path)
 
     def append(self, kind: str, data: dict) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime
 import os
+import tempfile
 import threading
 from pathlib import Path
 
@@ -55,8 +56,9 @@ class Session(Recording):
             raise SessionError(f"{path}: a session (or its journal) already exists there; choose a new file name")
         # A kill at any moment leaves nothing, a journal holding the header (opens, empty; 'recover' writes the
         # file), or both files whole: each is built under a temporary name and renamed into place.
-        journal = Journal.start(journal_path(path), "session", header)
-        building = path.with_name(f".{path.name}.creating")
+        journal = Journal.start(journal_path(path), "session", header)    # claims the name: refused when taken
+        handle, building = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".creating", dir=path.parent)
+        os.close(handle)
         with h5py.File(building, "w") as h5:
             writer.init_file(h5, header)
         with open(building, "rb+") as file:
