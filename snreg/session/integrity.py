@@ -23,7 +23,7 @@ from snreg.files import require_regular_file
 from snreg.session.entries import EntryError, check_entry
 from snreg.session.filecheck import read_checked
 from snreg.session.journal import journal_path, read_journal
-from snreg.session.reader import read_video
+from snreg.session.reader import numbered_names, read_video
 from snreg.session.schema import SessionError
 from snreg.session.video import VideoSegment, count_frames, file_sha256
 from snreg.session.writer import DIGESTED, row_digest
@@ -114,7 +114,7 @@ def _file_findings(h5: h5py.File) -> tuple[list[Damage], list[str], list[dict]]:
 
 def _segments(h5: h5py.File, report: VerifyReport) -> list[dict]:
     segments = []
-    for name in sorted(h5["videos"] if "videos" in h5 else [], key=lambda n: (not n.isdigit(), n.zfill(20))):
+    for name in numbered_names(h5["videos"]) if "videos" in h5 else []:
         try:
             segments.append(check_entry("video", read_video(h5["videos"][name])))
         except (EntryError, OSError, ValueError, KeyError, TypeError, RuntimeError) as err:

@@ -1,28 +1,16 @@
-"""Reading the HDF5 side of a session: header checks and the tables as written by :mod:`.writer`."""
+"""Reading the HDF5 side of a session: the tables as written by :mod:`.writer` (the header and damage are
+:mod:`.opening`'s and :mod:`.salvage`'s)."""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import h5py
 import numpy as np
 
-from snreg.session.schema import FORMAT, FORMAT_VERSION, IntraopNode, SessionError
+from snreg.session.schema import IntraopNode
 
 HEADER_KEYS = ("format", "format_version", "created_utc", "snreg_version", "case_id")
-
-
-def read_header(h5: h5py.File, path: Path) -> dict:
-    """The root attributes; :class:`SessionError` for a foreign or newer file."""
-    header = {key: _plain(h5.attrs[key]) for key in HEADER_KEYS if key in h5.attrs}
-    if header.get("format") != FORMAT:
-        raise SessionError(f"{path}: not a snreg session (the HDF5 file lacks format={FORMAT!r})")
-    version = int(header.get("format_version", 0))
-    if version > FORMAT_VERSION:
-        raise SessionError(f"{path}: session format version {version} is newer than this snreg reads "
-                           f"({FORMAT_VERSION}); update snreg")
-    return header
 
 
 def read_nodes(h5: h5py.File) -> list[IntraopNode]:
@@ -67,11 +55,10 @@ def read_video(group: h5py.Group) -> dict:
             for key, value in group.attrs.items()}
 
 
-def read_videos(h5: h5py.File) -> list[dict]:
-    """The recorded video segments (``videos/<n>`` attributes), in order; none in files before format 3."""
-    if "videos" not in h5:
-        return []
-    return [read_video(h5["videos"][name]) for name in sorted(h5["videos"], key=int)]
+def numbered_names(group: h5py.Group) -> list[str]:
+    """The members of a group of numbered parts (``registration``, ``videos``) in number order; any member whose name
+    is not a number after them, so a damaged name is seen and left out by the caller rather than sorted wrongly."""
+    return sorted(group, key=lambda name: (not name.isdigit(), int(name) if name.isdigit() else 0, name))
 
 
 def read_preop(h5: h5py.File) -> dict | None:

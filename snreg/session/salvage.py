@@ -239,7 +239,7 @@ def _numbered(h5, check, problems, kind: str, read) -> list[dict]:
         problems.append(f"{kind}s: none read from the file ({check.cause(f'/{folder}')})")
         return []
     out = []
-    for name in sorted(h5[folder], key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n)):
+    for name in reader.numbered_names(h5[folder]):
         path = f"/{folder}/{name}"
         if not name.isdigit() or (check is not None and not check.clean(path)):
             problems.append(f"{kind} {name}: left out ({check.cause(path) if check else 'not a number'})")
