@@ -25,15 +25,17 @@ enters both transforms, as here.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from snreg.files import read_text_file
 from snreg.geometry import apply, make_transform
 
 __all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "ChainCalibration", "reference_rotation", "trocar_from_imu",
-           "trocar_from_camera", "camera_from_probe", "trocar_from_probe", "camera_to_trocar"]
+           "trocar_from_camera", "camera_from_probe", "trocar_from_probe", "camera_to_trocar", "read_chain_file"]
 
 # thesis §4.1: the IMU-trocar distance measured by hand, and the trocar-camera distance it measured (mm)
 THESIS_IMU_TROCAR_MM = 460.0
@@ -98,6 +100,17 @@ class ChainCalibration:
         shaft = self.imu_from_camera[:3, 3]
         return self.imu_from_camera[:3, :3].T @ shaft / np.linalg.norm(shaft)
 
+    def with_insertion(self, trocar_camera_mm: float) -> "ChainCalibration":
+        """The same chain with the camera ``trocar_camera_mm`` from the pivot along its shaft (the camera slid
+        through the trocar: what :mod:`snreg.odometry` measures); ValueError for a distance that is not positive."""
+        distance = float(trocar_camera_mm)
+        if not (np.isfinite(distance) and distance > 0):
+            raise ValueError(f"the trocar-camera distance must be a positive number of mm, got {trocar_camera_mm}")
+        transform = self.imu_from_camera.copy()
+        shaft = transform[:3, 3] / np.linalg.norm(transform[:3, 3])
+        transform[:3, 3] = (self.imu_trocar_mm + distance) * shaft
+        return replace(self, imu_from_camera=transform)
+
     def with_reference(self, earth_from_imu) -> "ChainCalibration":
         """The same chain with the trocar axes fixed by the reference pose at this IMU orientation (3, 3) or Rotation."""
         camera_from_earth = (_orientation(earth_from_imu) @ self.imu_from_camera[:3, :3]).T
@@ -124,6 +137,22 @@ class ChainCalibration:
             raise ValueError(f"chain calibration: trocar_camera_mm {data['trocar_camera_mm']} disagrees with "
                              f"imu_from_camera and imu_trocar_mm ({chain.trocar_camera_mm:.6f} mm)")
         return chain
+
+
+def read_chain_file(path) -> ChainCalibration:
+    """The chain in a file as ``snreg calibrate trocar`` writes it (JSON of :meth:`ChainCalibration.to_dict`);
+    ValueError in one sentence naming the file when it is not one."""
+    text = read_text_file(path, "chain", ValueError, max_bytes=1 << 20)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not a chain file (JSON: {err.msg} at line {err.lineno})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a chain file (expected a JSON object as 'snreg calibrate trocar' writes)")
+    try:
+        return ChainCalibration.from_dict(data)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: {err}") from None
 
 
 def reference_rotation(shaft_camera: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from snreg.camera import THESIS_CALIBRATION_PATH, StereoCalibration, save_calibration, thesis_calibration
+from snreg.chain import ChainCalibration
 from snreg.cli import main
 from snreg.demo.spect import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, write_nm
 from snreg.nodes import NodeSet, write_nodes
@@ -58,6 +59,12 @@ def files(tmp_path_factory):
     with Session.create(d / "session.h5", case_id="bad-input") as session:
         session.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0])
     (d / "imu_bad.csv").write_text("no,header\n1,2\n")
+    (d / "imu1.csv").write_text("yaw,pitch,roll\n0,0,0\n")
+    (d / "imu2.csv").write_text("yaw,pitch,roll\n0,0,0\n1,0,0\n")
+    (d / "chain.json").write_text(json.dumps(ChainCalibration.manual().to_dict()))
+    (d / "bad_chain.json").write_text("{")
+    (d / "list_chain.json").write_text("[1, 2]")
+    save_calibration(truth.scaled(0.5), d / "half.yaml")
     _hostile(d, text, truth)
     return d
 
@@ -136,6 +143,25 @@ CASES = [
     (["register", "{preop.csv}", "{intraop.csv}", "--method", "best"], "--method"),
     (["register", "{preop.csv}", "{intraop.csv}", "--seed", "-1"], "--seed"),
     (["register", "{preop.csv}", "{intraop.csv}", "--max-rotation", "nan"], "--max-rotation"),
+    # track-camera
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB,
+      "--chain", "{missing.json}"], "missing.json"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB,
+      "--chain", "{bad_chain.json}"], "not a chain file"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB,
+      "--chain", "{list_chain.json}"], "expected a JSON object"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB,
+      "--chain", "{preop.csv}"], "not a chain file"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu2.csv}", "--calib", CALIB,
+      "--chain", "{chain.json}"], "2 IMU rows for 1 pairs"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu_bad.csv}", "--calib", CALIB,
+      "--chain", "{chain.json}"], "yaw,pitch,roll"),
+    (["track-camera", "--left", "{l.png}", "--right", "{missing.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB,
+      "--chain", "{chain.json}"], "No right images"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", "{half.yaml}",
+      "--chain", "{chain.json}"], "the calibration is for 960x540"),
+    (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB],
+     "--chain"),
     # simulate
     (["simulate", "--sigmas", "-5"], "--sigmas"),
     (["simulate", "--sigmas", "nan"], "--sigmas"),

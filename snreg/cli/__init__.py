@@ -26,6 +26,7 @@ from snreg.cli.register import add_register_parser
 from snreg.cli.session import add_session_parser
 from snreg.cli.simulate import add_simulate_parser
 from snreg.cli.track import add_track_parser
+from snreg.cli.track_camera import add_track_camera_parser
 from snreg.cli.trocar import add_trocar_parser
 from snreg.errors import UserError
 
@@ -48,6 +49,7 @@ def build_parser() -> Parser:
     add_session_parser(sub)
     add_demo_parser(sub)
     add_track_parser(sub)
+    add_track_camera_parser(sub)
     add_experiment_parser(sub)
     add_bench_parser(sub)
     add_budget_parser(sub)

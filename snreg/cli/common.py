@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
 import math
 import os
 import re
@@ -285,3 +286,30 @@ def progress(label: str, always: bool = False) -> Callable[[int, int], None]:
             print(f"\r{label}: {done}/{total}", end="" if done < total else "\n", file=sys.stderr, flush=True)
 
     return report
+
+
+def read_orientations(path: str, count: int, per: str):
+    """``earth_from_imu`` per ``per`` (image, pair: ``count`` of them) as a scipy ``Rotation`` from a CSV with
+    ``yaw``, ``pitch``, ``roll`` columns (degrees, DESIGN.md §3's ZYX; ``#`` lines skipped); ValueError in one
+    sentence otherwise."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from snreg.files import read_text_file
+
+    text = read_text_file(path, "IMU orientation", ValueError, max_bytes=16 << 20)
+    try:
+        rows = list(csv.DictReader(line for line in text.splitlines() if not line.lstrip().startswith("#")))
+    except csv.Error as err:
+        raise ValueError(f"{path}: not a readable CSV ({err})") from None
+    if not rows or not {"yaw", "pitch", "roll"} <= set(rows[0]):
+        raise ValueError(f"{path}: the IMU file needs a header with the columns yaw,pitch,roll (degrees)")
+    try:
+        angles = np.array([[float(row["yaw"]), float(row["pitch"]), float(row["roll"])] for row in rows])
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: yaw, pitch and roll must be numbers (degrees) in every row") from None
+    if not np.all(np.isfinite(angles)):
+        raise ValueError(f"{path}: yaw, pitch and roll must be finite numbers (degrees) in every row")
+    if len(angles) != count:
+        raise ValueError(f"{path} has {len(angles)} IMU rows for {count} {per}s; give one row per {per}")
+    return Rotation.from_euler("ZYX", angles, degrees=True)

@@ -13,11 +13,10 @@ hand-measured chain (§4.1: 460 and 158 mm, axes aligned by eye), printed as JSO
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 
-from snreg.cli.common import check_output_file, finite_float, positive_float, progress, write_text
+from snreg.cli.common import check_output_file, finite_float, positive_float, progress, read_orientations, write_text
 from snreg.errors import UserError
 
 __all__ = ["add_trocar_parser"]
@@ -99,7 +98,7 @@ def cmd_trocar_pivot(args) -> int:
         board = Board.parse(args.board, args.square)
         calib = load_calibration(args.calib)
         paths = expand_globs(args.images, "image")
-        imu = _read_orientations(args.imu_csv, len(paths)) if args.imu_csv else None
+        imu = read_orientations(args.imu_csv, len(paths), 'image') if args.imu_csv else None
         found, poses = [], []
         report = progress("pivot: images searched")
         for k, path in enumerate(paths):
@@ -159,32 +158,6 @@ def _report(pivot, board, paths: list[str], found: list[int]) -> list[str]:
               f"RMS residual: {pivot.rms_mm:.2f} mm over {pivot.n_used} poses; tilt range {pivot.tilt_range_deg:.1f} degrees",
               f"verdict: {pivot.verdict}: {pivot.advice}"]
     return lines
-
-
-def _read_orientations(path: str, n_images: int):
-    """``earth_from_imu`` per image (a scipy ``Rotation``) from a CSV with ``yaw``, ``pitch``, ``roll`` columns
-    (degrees; ``#`` lines skipped)."""
-    import numpy as np
-    from scipy.spatial.transform import Rotation
-
-    from snreg.files import read_text_file
-
-    text = read_text_file(path, "IMU orientation", ValueError, max_bytes=16 << 20)
-    try:
-        rows = list(csv.DictReader(line for line in text.splitlines() if not line.lstrip().startswith("#")))
-    except csv.Error as err:
-        raise ValueError(f"{path}: not a readable CSV ({err})") from None
-    if not rows or not {"yaw", "pitch", "roll"} <= set(rows[0]):
-        raise ValueError(f"{path}: the IMU file needs a header with the columns yaw,pitch,roll (degrees)")
-    try:
-        angles = np.array([[float(row["yaw"]), float(row["pitch"]), float(row["roll"])] for row in rows])
-    except (TypeError, ValueError):
-        raise ValueError(f"{path}: yaw, pitch and roll must be numbers (degrees) in every row") from None
-    if not np.all(np.isfinite(angles)):
-        raise ValueError(f"{path}: yaw, pitch and roll must be finite numbers (degrees) in every row")
-    if len(angles) != n_images:
-        raise ValueError(f"{path} has {len(angles)} IMU rows for {n_images} images; give one row per image")
-    return Rotation.from_euler("ZYX", angles, degrees=True)
 
 
 def _chain_json(chain, method: str) -> str:

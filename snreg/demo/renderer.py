@@ -26,8 +26,8 @@ from snreg.probe import ProbeModel
 
 __all__ = ["ProbePose", "RenderOptions", "StereoRenderer"]
 
-_TEXTURE_MM = 600.0       # side of the tissue texture patch
-_TEXTURE_PX = 2048
+TEXTURE_MM = 600.0        # side of the tissue texture patch
+TEXTURE_PX = 2048
 _FIDUCIAL_BGR = np.array([70.0, 185.0, 75.0], np.float32)     # green: inside the probe model's stripe colour range
 _FRINGE_BGR = np.array([90.0, 200.0, 110.0], np.float32)
 _BORDER_BLOB_BGR = np.array([80.0, 170.0, 95.0], np.float32)
@@ -68,10 +68,10 @@ class RenderOptions:
     probe: bool = True                # False: the scene without the probe (distractors alone)
 
 
-def _tissue_texture(seed: int) -> np.ndarray:
+def tissue_texture(seed: int) -> np.ndarray:
     """A BGR float32 texture: pink-red tissue with blotches, fine grain and darker vessels."""
     rng = np.random.default_rng(seed)
-    size = _TEXTURE_PX
+    size = TEXTURE_PX
     grain = np.zeros((size, size), np.float32)
     for octave, weight in ((4, 0.35), (16, 0.3), (64, 0.2), (256, 0.15)):
         small = rng.normal(0, 1, (octave, octave)).astype(np.float32)
@@ -93,7 +93,7 @@ class StereoRenderer:
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, texture_seed: int = 7):
         self.calibration, self.probe = calibration, probe
-        self.texture = _tissue_texture(texture_seed)
+        self.texture = tissue_texture(texture_seed)
         width, height = calibration.image_size
         u, v = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
         pixels = np.stack([u, v, np.ones_like(u)], axis=-1)
@@ -107,6 +107,10 @@ class StereoRenderer:
         radius = np.hypot((u - width / 2) / (width / 2), (v - height / 2) / (height / 2))
         self._vignette = (1.0 - 0.35 * radius**2).astype(np.float32)
 
+    def eye_rays(self, eye: int) -> tuple[np.ndarray, np.ndarray]:
+        """Unit rays (H, W, 3) of eye 0 (left) or 1 (right) through each pixel and their origin (3,), left camera frame."""
+        return self._eyes[eye]
+
     def render(self, pose: ProbePose, options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
         """Left and right BGR uint8 images of the probe at ``pose``."""
         return self.expose(self.radiance(pose, options), options)
@@ -117,6 +121,23 @@ class StereoRenderer:
         if options.border_blobs:
             self._border_blobs(images, options)
         return images
+
+    def radiance_over(self, background, pose: ProbePose | None, options: RenderOptions,
+                      exposure_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free images of the probe at ``pose`` (None: no probe) in front of another scene.
+
+        ``background(eye, rays, origin)`` gives, for eye 0 (left) or 1 (right), the distance along each ray (H, W)
+        and the unlit colour (H, W, 3) of that scene, rays (H, W, 3) and origin (3,) in the left camera frame; the
+        endoscope light is set for a scene ``exposure_mm`` ahead.
+        """
+        images = []
+        for eye, (rays, origin) in enumerate(self._eyes):
+            depth, colour = background(eye, rays, origin)
+            depth, colour = depth.astype(np.float32), colour.astype(np.float32)
+            if pose is not None:
+                self._probe(rays, origin, pose, options, depth, colour)
+            images.append(colour * self._lighting(rays, depth, exposure_mm)[..., None])
+        return images[0], images[1]
 
     def expose(self, radiance: tuple[np.ndarray, np.ndarray], options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
         """Blur, sensor noise (seeded by ``options.seed``) and 8-bit quantisation of both eyes."""
@@ -139,10 +160,14 @@ class StereoRenderer:
             self._probe(rays, origin, pose, options, depth, colour)
         if options.hide_stripe is not None:
             self._blob(rays, origin, pose, options, depth, colour)
-        # endoscope light at the camera, inverse-square fall-off; exposure set for the probe tip
-        falloff = np.clip((1.15 * pose.tip[2] / np.where(np.isfinite(depth), depth, 1e4)) ** 2, 0.15, 1.6)
+        return colour * self._lighting(rays, depth, pose.tip[2])[..., None]
+
+    def _lighting(self, rays, depth, exposure_mm: float) -> np.ndarray:
+        """(H, W) light at each pixel: the endoscope light at the camera (inverse-square fall-off, exposure set for
+        ``exposure_mm``), vignetting and a slow gradient."""
+        falloff = np.clip((1.15 * exposure_mm / np.where(np.isfinite(depth), depth, 1e4)) ** 2, 0.15, 1.6)
         gradient = 0.85 + 0.15 * np.linspace(-1, 1, rays.shape[1], dtype=np.float32)[None, :]
-        return colour * (falloff * self._vignette * gradient)[..., None]
+        return (falloff * self._vignette * gradient).astype(np.float32)
 
     def _tissue_plane(self, rays, origin, pose, options, depth, colour):
         z = pose.tip[2] + options.background_gap_mm
@@ -151,9 +176,9 @@ class StereoRenderer:
         anchor = np.array([0.0, 0.0, z], np.float32)
         t = ((anchor - origin) @ normal) / (rays @ normal)
         hit = origin + t[..., None] * rays
-        scale = _TEXTURE_PX / _TEXTURE_MM
-        map_x = (hit[..., 0] * scale + _TEXTURE_PX / 2).astype(np.float32)
-        map_y = (hit[..., 1] * scale + _TEXTURE_PX / 2).astype(np.float32)
+        scale = TEXTURE_PX / TEXTURE_MM
+        map_x = (hit[..., 0] * scale + TEXTURE_PX / 2).astype(np.float32)
+        map_y = (hit[..., 1] * scale + TEXTURE_PX / 2).astype(np.float32)
         tex = cv2.remap(self.texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
         lambert = np.abs(rays @ normal)
         np.copyto(depth, t.astype(np.float32))

@@ -1,0 +1,121 @@
+"""Tissue fixed in the trocar frame, seen by a camera that slides and turns about the pivot, with the probe in view.
+
+Why: the camera's insertion is tracked from how the tissue moves in the stereo video (:mod:`snreg.odometry`); its
+tests, its accuracy experiment and the surgery demo need rendered pairs of the thesis' rig whose truth is known.
+The tissue is a height field ahead of the pivot (DESIGN.md §3's trocar frame: z along the shaft into the patient in
+the reference pose): a shallow bowl whose rim rises towards the camera, tilted, with smooth bumps of a few mm, the
+tissue texture of :mod:`snreg.demo.renderer` on it, lit by the endoscope's light. Each ray of each eye is cast
+onto it by Newton steps on the height; the probe (a :class:`~snreg.demo.renderer.ProbePose` in the camera frame)
+is drawn in front by :class:`~snreg.demo.renderer.StereoRenderer`, which also adds the sensor noise and blur.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from snreg.camera import StereoCalibration
+from snreg.demo.renderer import TEXTURE_MM, TEXTURE_PX, ProbePose, RenderOptions, StereoRenderer, tissue_texture
+from snreg.probe import ProbeModel
+
+__all__ = ["TissueSurface", "TissueScene"]
+
+_GRID_MM = 0.5            # height field spacing
+_GRID_HALF_MM = 220.0     # the height field covers +-this about the trocar axis
+_NEWTON_STEPS = 6
+
+
+@dataclass(frozen=True)
+class TissueSurface:
+    """The tissue in the trocar frame, mm and degrees: ``depth_mm`` from the pivot along z where the axis meets it,
+    a bowl of ``bowl_radius_mm`` (its rim nearer the camera), tilted ``tilt_deg`` (about y, about x), with bumps of
+    sd ``relief_mm`` and size ``relief_scale_mm``; ``seed`` places the bumps, ``texture_seed`` draws the texture."""
+
+    depth_mm: float = 240.0
+    bowl_radius_mm: float = 260.0
+    tilt_deg: tuple[float, float] = (8.0, -5.0)
+    relief_mm: float = 3.0
+    relief_scale_mm: float = 8.0
+    seed: int = 0
+    texture_seed: int = 7
+
+    def heights(self) -> np.ndarray:
+        """(n, n, 3) float32 grid over +-``_GRID_HALF_MM`` in x and y: the surface's z and its slopes dz/dx, dz/dy."""
+        n = int(round(2 * _GRID_HALF_MM / _GRID_MM)) + 1
+        axis = np.linspace(-_GRID_HALF_MM, _GRID_HALF_MM, n)
+        x, y = np.meshgrid(axis, axis)
+        rng = np.random.default_rng([self.seed, 31])
+        relief = np.zeros((n, n))
+        for scale, weight in ((self.relief_scale_mm, 1.0), (3.0 * self.relief_scale_mm, 1.5)):
+            field = cv2.GaussianBlur(rng.standard_normal((n, n)), (0, 0), scale / _GRID_MM)
+            relief += weight * field / field.std()
+        relief *= self.relief_mm / relief.std()
+        slope_x, slope_y = np.tan(np.radians(self.tilt_deg))
+        z = self.depth_mm + slope_x * x + slope_y * y - (x**2 + y**2) / (2.0 * self.bowl_radius_mm) + relief
+        dz_dy, dz_dx = np.gradient(z, _GRID_MM)
+        return np.dstack([z, dz_dx, dz_dy]).astype(np.float32)
+
+
+class TissueScene:
+    """Render left/right BGR frames of the tissue from a camera pose in the trocar frame, with the probe in view.
+
+    ``calibration``: the stereo cameras (the resolution to render); ``probe``: the probe model drawn.
+    """
+
+    def __init__(self, calibration: StereoCalibration, probe: ProbeModel, surface: TissueSurface = TissueSurface()):
+        self.surface = surface
+        self.renderer = StereoRenderer(calibration, probe, texture_seed=surface.texture_seed)
+        self._grid = surface.heights()
+        self._texture = tissue_texture(surface.texture_seed) if surface.texture_seed != 7 else self.renderer.texture
+
+    def render(self, trocar_from_camera: np.ndarray, probe: ProbePose | None = None,
+               options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right BGR uint8 frames from the camera at ``trocar_from_camera`` (4, 4); ``probe`` in the left
+        camera frame (None: tissue alone); ``options``: noise, blur and seed as for the probe renderer."""
+        return self.renderer.expose(self.radiance(trocar_from_camera, probe, options), options)
+
+    def radiance(self, trocar_from_camera: np.ndarray, probe: ProbePose | None = None,
+                 options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
+        """The noise-free float images (:meth:`StereoRenderer.expose` makes frames of them)."""
+        pose = np.asarray(trocar_from_camera, dtype=float)
+        rotation, centre = pose[:3, :3].astype(np.float32), pose[:3, 3]
+        ahead = self.surface.depth_mm - float(centre @ rotation[:, 2])
+
+        def background(eye, rays, origin):
+            return self._cast(rays @ rotation.T, (rotation @ origin + centre).astype(np.float32))
+
+        return self.renderer.radiance_over(background, probe, options, exposure_mm=max(ahead, 20.0))
+
+    def distance_ahead(self, trocar_from_camera: np.ndarray) -> np.ndarray:
+        """(H, W) distance (mm) along each left-eye ray from the camera to the tissue: the depth truth."""
+        pose = np.asarray(trocar_from_camera, dtype=float)
+        rays, _ = self.renderer.eye_rays(0)
+        depth, _ = self._cast(rays @ pose[:3, :3].T.astype(np.float32), pose[:3, 3].astype(np.float32))
+        return depth
+
+    def _cast(self, rays: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance along each ray (trocar frame) to the surface, and the lit texture colour there."""
+        r_z = np.where(np.abs(rays[..., 2]) < 1e-3, 1e-3, rays[..., 2])
+        t = (self.surface.depth_mm - origin[2]) / r_z
+        for _ in range(_NEWTON_STEPS):
+            h = self._heights_at(origin[0] + t * rays[..., 0], origin[1] + t * rays[..., 1])
+            along = r_z - h[..., 1] * rays[..., 0] - h[..., 2] * rays[..., 1]
+            t = t - (origin[2] + t * r_z - h[..., 0]) / np.where(np.abs(along) < 0.05, 0.05, along)
+        x, y = origin[0] + t * rays[..., 0], origin[1] + t * rays[..., 1]
+        h = self._heights_at(x, y)
+        t = np.where(t > 1.0, t, np.inf).astype(np.float32)
+        normal = np.dstack([-h[..., 1], -h[..., 2], np.ones_like(t)])
+        lambert = np.abs((normal * rays).sum(-1)) / np.linalg.norm(normal, axis=-1)
+        texels = TEXTURE_PX / TEXTURE_MM
+        colour = cv2.remap(self._texture, (x * texels + TEXTURE_PX / 2).astype(np.float32),
+                           (y * texels + TEXTURE_PX / 2).astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REFLECT)
+        return t, colour * lambert[..., None].astype(np.float32)
+
+    def _heights_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(H, W, 3) the surface's z and slopes under trocar-frame points (x, y), mm."""
+        return cv2.remap(self._grid, ((x + _GRID_HALF_MM) / _GRID_MM).astype(np.float32),
+                         ((y + _GRID_HALF_MM) / _GRID_MM).astype(np.float32), cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)

@@ -1,0 +1,190 @@
+"""The camera's motion from a keyframe to the current pair, from tissue points seen in both: under the pivot model
+or free.
+
+Why: the camera turns about the trocar's pivot and slides along its own shaft, so once its rotation is known its
+position has one unknown, the insertion ``d`` (DESIGN.md §3). With the shaft's direction ``s`` in the camera frame
+(:attr:`snreg.chain.ChainCalibration.shaft_camera`) the camera centre lies at ``d R s`` in the trocar frame, so a
+point ``P`` of the keyframe's left camera frame (insertion ``d_k``) lies in the current one at::
+
+    Q = A (P + d_k s) - d s          A = current_from_keyframe rotation
+
+(the pivot is at ``-d_k s`` in the keyframe's frame and at ``-d s`` in the current one). :func:`fit_pivot` finds
+``A`` and ``d`` from the keyframe's triangulated points and where they are seen now in both eyes, the IMU's ``A``
+as a prior (its noise is what the video corrects); :func:`fit_free` finds ``A`` and any translation, so how far the
+camera is from where the pivot and the IMU put it (:func:`pivot_departure_mm`) shows a pivot that moved or an IMU
+that is off. Both minimise the reprojection error in both eyes (normalised image coordinates, scaled to pixels),
+robustly (Huber, then a cut), by Gauss-Newton; the free fit uses the left eye alone (``cv2.solvePnP``): it only
+measures the departure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["Observations", "MotionFit", "fit_pivot", "fit_free", "pivot_departure_mm"]
+
+_ITERATIONS = 8
+_WIDE_HUBER_PX = 4.0          # the first iterations tolerate a poor start
+_HUBER_PX = 1.0
+_INLIER_PX = 2.0              # a point whose worse eye is farther than this (at the working scale) is an outlier
+_CONVERGED = 1e-7
+
+
+@dataclass(frozen=True, eq=False)
+class Observations:
+    """Keyframe points (N, 3) mm in its left camera frame and where they are seen now: normalised coordinates
+    (x/z, y/z) in the current left (N, 2) and right (N, 2) camera frames. ``right_from_left`` (4, 4): the stereo
+    rig (calibration R, T); ``focal_px``: pixels per normalised unit at the working scale (for robust thresholds)."""
+
+    points: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    right_from_left: np.ndarray
+    focal_px: float
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+@dataclass(frozen=True, eq=False)
+class MotionFit:
+    """``rotation`` (3, 3) current_from_keyframe; ``translation`` (3,) mm of the same; ``insertion_mm``: the pivot
+    model's ``d`` (NaN for a free fit); ``inliers`` (N,) bool; ``sd_mm`` the insertion's standard error (NaN for a
+    free fit); ``rms_px`` of the inliers at the working scale."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    insertion_mm: float
+    inliers: np.ndarray
+    sd_mm: float
+    rms_px: float
+
+    @property
+    def n_inliers(self) -> int:
+        return int(self.inliers.sum())
+
+
+def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, keyframe_mm: float, guess_mm: float,
+              *, rotation_sd_deg: float = 0.5, noise_px: float = 0.3) -> MotionFit:
+    """The pivot model's rotation and insertion: ``rotation_imu`` (3, 3) the IMU's current_from_keyframe rotation
+    (the prior, sd ``rotation_sd_deg`` per axis against ``noise_px`` per image coordinate), ``shaft`` (3,) unit
+    shaft direction in the camera frame, ``keyframe_mm`` the keyframe's insertion, ``guess_mm`` where to start."""
+    shaft = np.asarray(shaft, dtype=float)
+    rotation_imu = np.asarray(rotation_imu, dtype=float)
+    lever = obs.points + keyframe_mm * shaft
+    prior_weight = noise_px / np.radians(rotation_sd_deg)     # a rotation of one sd costs as much as noise_px
+    rotation, insertion = rotation_imu.copy(), float(guess_mm)
+    right_rotation, right_translation = obs.right_from_left[:3, :3], obs.right_from_left[:3, 3]
+    keep = np.ones(len(obs), bool)
+    for iteration in range(_ITERATIONS + 3):
+        turned = lever @ rotation.T
+        q = turned - insertion * shaft
+        d_q = np.empty((len(q), 3, 4))
+        d_q[:, :, :3] = _minus_cross(turned)
+        d_q[:, :, 3] = -shaft
+        rows, values, error = _both_eyes(q, d_q, obs, right_rotation, right_translation)
+        weights, keep, final = _robust_weights(error, iteration)
+        tilt = _rotvec(rotation @ rotation_imu.T)
+        normal = rows.T @ (rows * weights[:, None])
+        gradient = rows.T @ (values * weights)
+        normal[:3, :3] += prior_weight**2 * np.eye(3)
+        gradient[:3] += prior_weight**2 * tilt
+        try:
+            step = -np.linalg.solve(normal, gradient)
+        except np.linalg.LinAlgError:
+            break
+        rotation = _rotation(step[:3]) @ rotation
+        insertion += step[3]
+        if final and np.abs(step).max() < _CONVERGED:
+            break
+    n = int(keep.sum())
+    sigma2 = float((values**2 * (weights > 0)).sum()) / max(4 * n - 4, 1)
+    try:
+        sd = float(np.sqrt(np.linalg.inv(normal)[3, 3] * sigma2)) if n else float("inf")
+    except np.linalg.LinAlgError:
+        sd = float("inf")
+    translation = keyframe_mm * (rotation @ shaft) - insertion * shaft
+    return MotionFit(rotation, translation, insertion, keep, sd, _rms(error, keep))
+
+
+def fit_free(obs: Observations, rotation: np.ndarray, translation: np.ndarray,
+             inliers: np.ndarray | None = None) -> MotionFit:
+    """Rotation (3, 3) and translation (3,) mm current_from_keyframe with no model of the motion, from a start: the
+    left eye's view of the keyframe's points (``cv2.solvePnP``), the ``inliers`` (N,) alone when given."""
+    use = np.ones(len(obs), bool) if inliers is None else np.asarray(inliers, bool)
+    rvec, tvec = _rotvec(np.asarray(rotation, float)).reshape(3, 1), np.asarray(translation, float).reshape(3, 1)
+    ok, rvec, tvec = cv2.solvePnP(obs.points[use].reshape(-1, 1, 3), obs.left[use].reshape(-1, 1, 2), np.eye(3), None,
+                                  rvec, tvec, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+    rotation, translation = _rotation(rvec.ravel()), tvec.ravel()
+    q = obs.points @ rotation.T + translation
+    error = obs.focal_px * np.hypot(q[:, 0] / q[:, 2] - obs.left[:, 0], q[:, 1] / q[:, 2] - obs.left[:, 1])
+    return MotionFit(rotation, translation, float("nan"), use & (error < _INLIER_PX), float("nan"), _rms(error, use))
+
+
+def pivot_departure_mm(free: MotionFit, rotation_imu: np.ndarray, shaft: np.ndarray, keyframe_mm: float) -> float:
+    """How far (mm) the freely fitted camera centre lies from the shaft line where the pivot and the IMU's rotation
+    (3, 3, current_from_keyframe) put it, whatever the insertion: 0 for a camera that turned about the pivot as the
+    IMU says and slid along its shaft."""
+    shaft = np.asarray(shaft, dtype=float)
+    # a pivot-model translation is keyframe_mm * A s - d s for some d; the part of the free one off that line
+    offset = keyframe_mm * (np.asarray(rotation_imu, float) @ shaft) - free.translation
+    return float(np.linalg.norm(offset - (offset @ shaft) * shaft))
+
+
+def _both_eyes(q: np.ndarray, d_q: np.ndarray, obs: Observations, right_rotation: np.ndarray,
+               right_translation: np.ndarray):
+    """Stacked reprojection rows of both eyes: jacobian (4N, n), residuals (4N,) px, and each point's worse eye (N,)."""
+    left, d_left = _projection_rows(q, d_q, obs.left, obs.focal_px)
+    right, d_right = _projection_rows(q @ right_rotation.T + right_translation, np.matmul(right_rotation, d_q),
+                                      obs.right, obs.focal_px)
+    error = np.sqrt(np.maximum((left**2).sum(1), (right**2).sum(1)))
+    rows = np.concatenate([d_left, d_right], axis=1).reshape(-1, d_q.shape[2])
+    return rows, np.concatenate([left, right], axis=1).reshape(-1), error
+
+
+def _robust_weights(error: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Per-row weights for this iteration (Huber, wide then narrow; then the inliers alone), the inliers, and
+    whether this is a final (inliers-only) iteration."""
+    final = iteration >= _ITERATIONS
+    keep = error < _INLIER_PX
+    if final:
+        point = keep.astype(float)
+    else:
+        limit = _WIDE_HUBER_PX if iteration < _ITERATIONS // 2 else _HUBER_PX
+        point = np.minimum(1.0, limit / np.maximum(error, 1e-9))
+    return np.repeat(point, 4), keep, final
+
+
+def _projection_rows(q: np.ndarray, d_q: np.ndarray, seen: np.ndarray, focal: float):
+    """Reprojection residuals (N, 2) px of points (N, 3) seen at normalised ``seen`` (N, 2), and their derivatives
+    (N, 2, n) from the points' (N, 3, n)."""
+    inverse_z = 1.0 / q[:, 2]
+    x, y = q[:, 0] * inverse_z, q[:, 1] * inverse_z
+    residual = focal * np.column_stack([x - seen[:, 0], y - seen[:, 1]])
+    scale = (focal * inverse_z)[:, None]
+    rows = np.stack([scale * (d_q[:, 0] - x[:, None] * d_q[:, 2]), scale * (d_q[:, 1] - y[:, None] * d_q[:, 2])], axis=1)
+    return residual, rows
+
+
+def _rms(error: np.ndarray, keep: np.ndarray) -> float:
+    return float(np.sqrt((error[keep] ** 2).mean() / 2.0)) if keep.any() else float("inf")
+
+
+def _rotation(rotvec: np.ndarray) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(rotvec, np.float64).reshape(3, 1))[0]
+
+
+def _rotvec(rotation: np.ndarray) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(rotation, np.float64))[0].ravel()
+
+
+def _minus_cross(v: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) matrices M with M @ w = w x v: the derivative of rotating v by a small rotation vector w."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = v[:, 2], -v[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = -v[:, 2], v[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = v[:, 1], -v[:, 0]
+    return out

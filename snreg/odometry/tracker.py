@@ -1,0 +1,285 @@
+"""The camera's insertion through the trocar, pair by pair, from the stereo video, the IMU and the pivot.
+
+Why: the chain maps a stored node through the pivot-to-camera distance (``trocar_camera_mm``), which the thesis
+measured once; in surgery the camera slides (issue 27). :class:`InsertionTracker` follows it: each pair's tissue
+points are compared with a keyframe's (:mod:`snreg.odometry.views`) and the motion between them is fitted with the
+IMU's rotation and the pivot, one unknown beside a small rotation correction (:func:`~snreg.odometry.motion.fit_pivot`);
+a free fit beside it measures how far the camera is from the pivot model (``residual_mm``).
+
+Keyframes: the one followed is the usable keyframe (scale and turn close to the view) whose insertion is known
+best, so returning to an earlier view returns to that view's insertion instead of one carried through many steps;
+a new keyframe is made when none is fresh. The comparison starts from the insertion predicted from the last two
+pairs; when it fails, the insertion is searched for (:mod:`snreg.odometry.search`) near the prediction, then, as after
+a lost view, along every keyframe of a similar turn. Each pair is ``tracked`` with a
+quality (the share of followed tissue points that agree with the motion) and a standard error, or ``lost`` with
+the reason in words: never a guess. The first pair with tissue in view becomes the first keyframe at the start
+insertion (the trocar calibration's distance, or the caller's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from snreg.camera import StereoCalibration
+from snreg.chain import ChainCalibration
+from snreg.geometry import rotation_angle_deg
+from snreg.odometry.motion import Observations, fit_free, fit_pivot, pivot_departure_mm
+from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography, search_insertion
+from snreg.odometry.views import EyePair, Keyframe, OdometryParams, View, follow, inside, make_keyframe
+from snreg.probe import ProbeModel
+
+__all__ = ["TRACKED", "LOST", "InsertionEstimate", "InsertionTracker"]
+
+TRACKED, LOST = "tracked", "lost"
+_MAX_PREDICTED_MM = 10.0     # the prediction never runs further from the last insertion
+_SEARCH_STEP = 0.015         # candidate insertions this share of the tissue's depth apart
+_NEAR_STEPS = 8              # candidates on each side of the prediction
+_MAX_SEARCHED = 4            # keyframes searched whole when the view is lost
+
+
+@dataclass(frozen=True)
+class InsertionEstimate:
+    """The camera's distance from the pivot at one pair (``trocar_camera_mm``, NaN when lost), its ``state``
+    ("tracked" | "lost"), ``quality`` (share of the followed tissue points that agree, 0 when lost), ``sd_mm`` (its
+    standard error), ``residual_mm`` (the free fit's distance from the pivot model: a moved pivot or an IMU that
+    is off), ``reason`` (why lost, in words), the points that agreed and the keyframe followed (-1: none)."""
+
+    index: int
+    state: str
+    trocar_camera_mm: float
+    quality: float
+    sd_mm: float
+    residual_mm: float
+    reason: str = ""
+    points: int = 0
+    keyframe: int = -1
+
+    @property
+    def tracked(self) -> bool:
+        return self.state == TRACKED
+
+    def as_dict(self) -> dict:
+        """JSON-ready, as ``snreg track-camera --json`` prints each frame (null for NaN)."""
+        def number(value, digits):
+            return round(float(value), digits) if np.isfinite(value) else None
+        return {"index": self.index, "trocar_camera_mm": number(self.trocar_camera_mm, 3), "state": self.state,
+                "quality": round(float(self.quality), 3), "residual_mm": number(self.residual_mm, 3),
+                "sd_mm": number(self.sd_mm, 3), "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class _Step:
+    """A pair measured against one keyframe."""
+
+    insertion_mm: float
+    sd_mm: float
+    residual_mm: float
+    quality: float
+    points: int
+    depth_mm: float          # median depth of the agreeing points now
+    keyframe: Keyframe
+    rotation_deg: float      # keyframe to now
+
+
+class InsertionTracker:
+    """Follow the insertion of the camera of ``calibration`` on the trocar chain ``chain`` over consecutive pairs.
+
+    ``start_mm``: the insertion at the first pair with tissue in view (default: the chain's ``trocar_camera_mm``);
+    ``probe``: the probe model, to leave the probe out of the tissue when :meth:`update` is given its fix.
+    """
+
+    def __init__(self, calibration: StereoCalibration, chain: ChainCalibration, *, start_mm: float | None = None,
+                 probe: ProbeModel | None = None, params: OdometryParams = OdometryParams()):
+        self.params, self.probe = params, probe
+        self.pair = EyePair(calibration, params.work_width)
+        self.shaft = chain.shaft_camera
+        self._camera_from_imu = chain.imu_from_camera[:3, :3]
+        self._trocar_from_earth = chain.trocar_from_earth[:3, :3]
+        self.start_mm = float(chain.trocar_camera_mm if start_mm is None else start_mm)
+        if not np.isfinite(self.start_mm) or self.start_mm <= 0:
+            raise ValueError(f"the start insertion must be a positive distance in mm, got {start_mm}")
+        self.keyframes: list[Keyframe] = []
+        self._index = -1
+        self._last: _Step | None = None          # the last tracked pair's step
+        self._last_index = -1
+        self._velocity = 0.0                      # mm per pair between the last two tracked pairs
+
+    def update(self, left: np.ndarray, right: np.ndarray, earth_from_imu: np.ndarray, *,
+               probe_fix=None) -> InsertionEstimate:
+        """The insertion at this pair: BGR frames of the calibration's size, the IMU's ``earth_from_imu`` (3, 3) at
+        their grab time; ``probe_fix``: the probe's tracked fix in this pair (anything with ``tip`` and ``axis`` in
+        the left camera frame, mm), whose image is left out. ValueError for frames of another size."""
+        self._index += 1
+        rotation = self._trocar_from_earth @ np.asarray(earth_from_imu, float)[:3, :3] @ self._camera_from_imu
+        tip, axis = (None, None) if probe_fix is None else (probe_fix.tip, probe_fix.axis)
+        view = View.of(self.pair, left, right, self.params, tip, axis, self.probe)
+        if view.texture < self.params.min_texture:
+            return self._lost("no tissue texture in view (covered, dark, smoke or inside the trocar)")
+        if not self.keyframes:
+            return self._first(view, rotation)
+        step, reason = self._follow(view, rotation)
+        if step is None:
+            return self._lost(reason)
+        if self._last_index == self._index - 1:
+            self._velocity = step.insertion_mm - self._last.insertion_mm
+        else:
+            self._velocity = 0.0
+        self._last, self._last_index = step, self._index
+        self._renew(view, rotation, step)
+        return InsertionEstimate(self._index, TRACKED, step.insertion_mm, step.quality, step.sd_mm, step.residual_mm,
+                                 "", step.points, step.keyframe.number)
+
+    # -- steps ---------------------------------------------------------------
+    def _first(self, view: View, rotation: np.ndarray) -> InsertionEstimate:
+        keyframe = self._add_keyframe(view, rotation, self.start_mm, 0.0)
+        if keyframe is None:
+            return self._lost("too few tissue features to start from")
+        self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe, 0.0)
+        self._last_index = self._index
+        return InsertionEstimate(self._index, TRACKED, self.start_mm, 1.0, 0.0, 0.0, "", len(keyframe.points),
+                                 keyframe.number)
+
+    def _follow(self, view: View, rotation: np.ndarray) -> tuple[_Step | None, str]:
+        """This pair against the best usable keyframes from the predicted insertion; else the insertion searched for
+        near the prediction, then along each keyframe of a similar turn (relocalisation)."""
+        guess = self._predicted()
+        usable = self._usable(view, rotation, guess)
+        reasons = []
+        for keyframe in usable[:2]:
+            step, reason = self._measure(view, rotation, keyframe, guess)
+            if step is not None:
+                return step, ""
+            reasons.append(reason)
+        for keyframe, candidates in self._search_plan(rotation, guess, usable):
+            for found in search_insertion(self.pair, view, keyframe, rotation.T @ keyframe.rotation, self.shaft,
+                                          candidates):
+                step, reason = self._measure(view, rotation, keyframe, found)
+                if step is not None:
+                    return step, ""
+                reasons.append(reason)
+        return None, reasons[0] if reasons else "the view matches no tissue seen before at this turn"
+
+    def _predicted(self) -> float:
+        """The insertion expected now: the last one, moving on as it moved between the last two tracked pairs."""
+        last = self._last
+        pairs = self._index - self._last_index
+        return last.insertion_mm + float(np.clip(self._velocity * pairs, -_MAX_PREDICTED_MM, _MAX_PREDICTED_MM))
+
+    def _search_plan(self, rotation: np.ndarray, guess: float, usable: list[Keyframe]):
+        """(keyframe, candidate insertions) to search: near the guess on the best usable keyframe, then over the
+        whole range each keyframe of a similar turn can be followed in."""
+        p = self.params
+        if usable:
+            keyframe = usable[0]
+            step = _SEARCH_STEP * keyframe.median_depth_mm
+            yield keyframe, guess + step * np.arange(-_NEAR_STEPS, _NEAR_STEPS + 1)
+        turned = [k for k in self.keyframes if rotation_angle_deg(rotation.T @ k.rotation) <= p.usable_angle_deg]
+        for keyframe in sorted(turned, key=lambda k: k.variance_mm2)[:_MAX_SEARCHED]:
+            reach = p.search_scale * keyframe.median_depth_mm
+            step = _SEARCH_STEP * keyframe.median_depth_mm
+            yield keyframe, keyframe.insertion_mm + step * np.arange(-np.ceil(reach / step), np.ceil(reach / step) + 1)
+
+    def _measure(self, view: View, rotation: np.ndarray, keyframe: Keyframe,
+                 guess_mm: float) -> tuple[_Step | None, str]:
+        """Follow the keyframe's points into this pair from the motion predicted at ``guess_mm`` and fit it; when
+        that fails, once more from the prediction moved by the shift the coarse images show (the IMU's error)."""
+        p = self.params
+        if view.contrast * p.max_blur_ratio < keyframe.contrast:
+            return None, (f"the view is blurred ({keyframe.contrast / view.contrast:.1f} times less sharp than the "
+                          "tissue seen there before)")
+        rotation_imu = rotation.T @ keyframe.rotation              # current_from_keyframe, as the IMU says
+        predicted = (keyframe.points + keyframe.insertion_mm * self.shaft) @ rotation_imu.T - guess_mm * self.shaft
+        guess_left, guess_right = self.pair.project(predicted, 0), self.pair.project(predicted, 1)
+        usable = (predicted[:, 2] > 1.0) & inside(view.mask, guess_left) & inside(view.right_mask, guess_right)
+        if usable.sum() < p.min_points:
+            return None, f"only {int(usable.sum())} tissue points of the keyframe are in view"
+        step, reason = self._fit(view, keyframe, usable, guess_left[usable], guess_right[usable], rotation_imu,
+                                 guess_mm)
+        if step is not None:
+            return step, ""
+        homography = predicted_homography(keyframe.left_px[usable], guess_left[usable])
+        if homography is not None:
+            shift, response = coarse_shift(view, keyframe, homography)
+            if response >= MIN_RESPONSE and np.hypot(*shift) > 1.0:
+                step, _ = self._fit(view, keyframe, usable, guess_left[usable] + shift, guess_right[usable] + shift,
+                                    rotation_imu, guess_mm)
+        return step, "" if step is not None else reason
+
+    def _fit(self, view: View, keyframe: Keyframe, usable: np.ndarray, guess_left: np.ndarray,
+             guess_right: np.ndarray, rotation_imu: np.ndarray, guess_mm: float) -> tuple[_Step | None, str]:
+        """The keyframe's ``usable`` points followed from where they are expected in each eye, and the motion fitted."""
+        p = self.params
+        left_px, found_left = follow(keyframe.left, view.left, keyframe.left_px[usable], guess_left, p)
+        right_px, found_right = follow(keyframe.right, view.right, keyframe.right_px[usable], guess_right, p)
+        found = found_left & found_right
+        if found.sum() < p.min_points:
+            return None, f"only {int(found.sum())} tissue points could be followed"
+        obs = Observations(keyframe.points[usable][found], self.pair.normalise(left_px[found], 0),
+                           self.pair.normalise(right_px[found], 1), self.pair.right_from_left, self.pair.focal_px)
+        fit = fit_pivot(obs, rotation_imu, self.shaft, keyframe.insertion_mm, guess_mm,
+                        rotation_sd_deg=p.rotation_sd_deg, noise_px=p.noise_px)
+        share = fit.n_inliers / len(obs)
+        if fit.n_inliers < p.min_points or share < p.min_agreeing_share:
+            return None, (f"only {fit.n_inliers} of {len(obs)} tissue points agree with the camera's motion "
+                          "(moving tissue, smoke or instruments)")
+        sd = float(np.sqrt(fit.sd_mm**2 + keyframe.variance_mm2))
+        if not sd <= p.max_sd_mm:
+            return None, f"the insertion is uncertain (standard error {sd:.1f} mm)"
+        free = fit_free(obs, fit.rotation, fit.translation, fit.inliers)
+        residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
+        now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
+        return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe,
+                     float(rotation_angle_deg(fit.rotation))), ""
+
+    def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float) -> list[Keyframe]:
+        """Keyframes close enough in scale and turn to follow into this view at this rotation and insertion, with
+        enough of their points in view, the one whose insertion is known best first (ties: the closest)."""
+        p, scored = self.params, []
+        for keyframe in self.keyframes:
+            angle = float(rotation_angle_deg(rotation.T @ keyframe.rotation))
+            scale = abs(np.log(self._depth_ratio(keyframe, rotation, insertion_mm)))
+            if angle > p.usable_angle_deg or scale > p.usable_scale:
+                continue
+            rotation_imu = rotation.T @ keyframe.rotation
+            predicted = (keyframe.points + keyframe.insertion_mm * self.shaft) @ rotation_imu.T - insertion_mm * self.shaft
+            seen = int(np.sum((predicted[:, 2] > 1.0) & inside(view.mask, self.pair.project(predicted, 0))))
+            if seen >= p.min_points:
+                closeness = scale / p.usable_scale + angle / p.usable_angle_deg + 1.0 - seen / len(keyframe.points)
+                scored.append((keyframe.variance_mm2 + (0.1 * closeness) ** 2, keyframe.number, keyframe))
+        return [keyframe for *_, keyframe in sorted(scored, key=lambda item: item[:2])]
+
+    def _depth_ratio(self, keyframe: Keyframe, rotation: np.ndarray, insertion_mm: float) -> float:
+        """How much farther the keyframe's tissue is from the camera now than from the keyframe (median depth)."""
+        rotation_imu = rotation.T @ keyframe.rotation
+        now = rotation_imu @ (keyframe.centre + keyframe.insertion_mm * self.shaft) - insertion_mm * self.shaft
+        return max(float(now[2]), 1.0) / max(keyframe.median_depth_mm, 1.0)
+
+    def _renew(self, view: View, rotation: np.ndarray, step: _Step) -> None:
+        """A new keyframe from this pair when no keyframe is fresh for it."""
+        p = self.params
+        for keyframe in self.keyframes:
+            angle = float(rotation_angle_deg(rotation.T @ keyframe.rotation))
+            scale = abs(np.log(self._depth_ratio(keyframe, rotation, step.insertion_mm)))
+            if angle <= p.fresh_angle_deg and scale <= p.fresh_scale and (
+                    keyframe is not step.keyframe or step.points >= 0.6 * len(keyframe.points)):
+                return
+        self._add_keyframe(view, rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm)
+
+    def _add_keyframe(self, view: View, rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
+                      depth_mm: float = 80.0) -> Keyframe | None:
+        number = self.keyframes[-1].number + 1 if self.keyframes else 0
+        keyframe = make_keyframe(self.pair, view, self.params, number=number, frame=self._index, rotation=rotation,
+                                 insertion_mm=insertion_mm, variance_mm2=variance_mm2, depth_guess_mm=depth_mm)
+        if keyframe is None:
+            return None
+        if len(self.keyframes) >= self.params.max_keyframes:      # forget the least certain, never the first
+            worst = max(self.keyframes[1:], key=lambda k: (k.variance_mm2, -k.number))
+            self.keyframes.remove(worst)
+        self.keyframes.append(keyframe)
+        return keyframe
+
+    def _lost(self, reason: str) -> InsertionEstimate:
+        nan = float("nan")
+        return InsertionEstimate(self._index, LOST, nan, 0.0, nan, nan, reason)

@@ -1,0 +1,297 @@
+"""Stereo pairs at the working scale, and keyframes: tissue points triangulated from one pair, to follow in later ones.
+
+Why: tracking the insertion must cost a few milliseconds per full-HD pair (issue 27: at most 10 ms), so it works
+on grey images reduced to about 960 pixels wide, while every coordinate it hands to the motion fit is exact:
+working pixels map back to the full image's, then through the calibration's own distortion to normalised
+coordinates (:class:`EyePair`). A :class:`Keyframe` is a pair whose tissue features (corners away from the probe and
+the border) were matched left to right (pyramidal Lucas-Kanade, checked backwards and against the epipolar line)
+and triangulated; later pairs are compared with it, not with their predecessor, so noise does not accumulate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from snreg.camera import StereoCalibration
+from snreg.geometry import make_transform
+from snreg.probe import ProbeModel
+
+__all__ = ["OdometryParams", "EyePair", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade", "inside"]
+
+
+@dataclass(frozen=True)
+class OdometryParams:
+    """Tuning of the insertion tracker; pixels at the working scale, mm, degrees."""
+
+    work_width: int = 960                 # the pair is reduced by a whole factor to about this width
+    max_features: int = 220               # tissue corners per keyframe
+    min_distance_px: int = 16             # between them
+    border_px: int = 14                   # none this close to the image border
+    lk_window_px: int = 17
+    lk_levels: int = 2
+    min_points: int = 30                  # fewer agreeing points: lost
+    min_agreeing_share: float = 0.5       # of the points followed
+    max_sd_mm: float = 1.5                # the insertion's standard error above this: lost
+    rotation_sd_deg: float = 0.5          # the IMU's relative rotation, per axis
+    noise_px: float = 0.3                 # the features' position noise
+    fresh_scale: float = 0.06             # a keyframe is fresh within this log-scale change of the view ...
+    fresh_angle_deg: float = 4.0          # ... and this turn; a new one is made when none is
+    usable_scale: float = 0.2             # a keyframe is followed up to this log-scale change ...
+    usable_angle_deg: float = 9.0         # ... and this turn
+    min_texture: float = 1.0              # band-pass deviation (grey levels) of a view with tissue in it (noise: 0.3-0.6)
+    max_blur_ratio: float = 1.6           # a view of this many times less contrast than its keyframe is blurred
+    max_keyframes: int = 48
+    search_scale: float = 0.3             # a lost view is searched for this far in log-scale from each keyframe
+
+
+_FINE_PX, _COARSE_PX, _GAIN = 0.8, 8.0, 3.0      # band-pass of the working images (px at the working scale)
+_MID = 128
+_NEAR_MM, _PROBE_SAMPLES = 5.0, 16                  # the probe's outline in the masks
+_EDGE_CAP = 24                                       # band-pass deviations counted towards the texture, at most
+COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
+_LK_STEPS, _LK_EPS_PX = 20, 0.01
+
+
+class EyePair:
+    """A stereo calibration at the working scale: grey images, pixels <-> normalised coordinates, projection and
+    triangulation, all in the left camera frame (mm)."""
+
+    def __init__(self, calibration: StereoCalibration, work_width: int):
+        self.calibration = calibration
+        width, height = calibration.image_size
+        self.factor = max(1, int(round(width / work_width)))
+        self.size = (width // self.factor, height // self.factor)
+        self.focal_px = float(calibration.K1[0, 0]) / self.factor
+        self.right_from_left = make_transform(calibration.R, calibration.T.ravel())
+        self._eyes = ((calibration.K1, calibration.D1, np.zeros(3), np.zeros(3)),
+                      (calibration.K2, calibration.D2, cv2.Rodrigues(calibration.R)[0].ravel(), calibration.T.ravel()))
+        self._rectify = ((calibration.R1, calibration.P1), (calibration.R2, calibration.P2))
+
+    def grey(self, image: np.ndarray, eye: str) -> np.ndarray:
+        """The BGR frame as a grey uint8 image at the working scale; ValueError for a frame of another size."""
+        width, height = self.calibration.image_size
+        if image is None or image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"the {eye} image must be a colour (BGR) image")
+        if image.shape[1] != width or image.shape[0] != height:
+            raise ValueError(f"the {eye} image is {image.shape[1]}x{image.shape[0]} but the calibration is for "
+                             f"{width}x{height}; use the matching calibration file")
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if self.factor == 1:
+            return grey
+        return cv2.resize(grey[:self.size[1] * self.factor, :self.size[0] * self.factor], self.size,
+                          interpolation=cv2.INTER_AREA)
+
+    def normalise(self, px: np.ndarray, eye: int) -> np.ndarray:
+        """(N, 2) working pixels of eye 0 (left) or 1 (right) -> normalised coordinates in that camera's frame."""
+        K, D = self._eyes[eye][:2]
+        full = np.asarray(px, dtype=np.float64) * self.factor + (self.factor - 1) / 2.0
+        return cv2.undistortPoints(full.reshape(-1, 1, 2), K, D).reshape(-1, 2)
+
+    def project(self, points: np.ndarray, eye: int) -> np.ndarray:
+        """(N, 2) working pixels in eye 0 or 1 of left-camera points (N, 3) mm."""
+        K, D, rvec, tvec = self._eyes[eye]
+        full = cv2.projectPoints(np.asarray(points, np.float64).reshape(-1, 1, 3), rvec, tvec, K, D)[0].reshape(-1, 2)
+        return (full - (self.factor - 1) / 2.0) / self.factor
+
+    def epipolar_gap_px(self, left_px: np.ndarray, right_px: np.ndarray) -> np.ndarray:
+        """(N,) vertical offset between matched points after rectification, working pixels (0 for a true match)."""
+        gaps = []
+        for eye, px in enumerate((left_px, right_px)):
+            K, D = self._eyes[eye][:2]
+            R, P = self._rectify[eye]
+            full = np.asarray(px, dtype=np.float64) * self.factor + (self.factor - 1) / 2.0
+            gaps.append(cv2.undistortPoints(full.reshape(-1, 1, 2), K, D, R=R, P=P).reshape(-1, 2)[:, 1])
+        return np.abs(gaps[0] - gaps[1]) / self.factor
+
+    def triangulate(self, left_norm: np.ndarray, right_norm: np.ndarray) -> np.ndarray:
+        """(N, 3) mm left-camera points from normalised coordinates in both eyes."""
+        homog = cv2.triangulatePoints(np.eye(3, 4), self.right_from_left[:3], left_norm.T.astype(np.float64),
+                                      right_norm.T.astype(np.float64))
+        return (homog[:3] / homog[3]).T
+
+
+@dataclass(eq=False)
+class View:
+    """One pair at the working scale: band-passed grey images (:func:`band_pass`), where features may be taken or
+    followed (``mask`` left, ``right_mask``; 255: tissue, 0: the probe or the border), how textured it is (the left
+    band-pass's mean deviation, grey levels) and how sharp (that per grey level of brightness, so a brighter or
+    darker light does not count as sharper or blurred); ``coarse``: the left image band-passed
+    ``coarse_factor`` times smaller (at most ``COARSE_MAX_WIDTH`` wide), with its mask, for
+    :mod:`snreg.odometry.search`."""
+
+    left: np.ndarray
+    right: np.ndarray
+    mask: np.ndarray
+    right_mask: np.ndarray
+    texture: float
+    contrast: float
+    coarse: np.ndarray
+    coarse_mask: np.ndarray
+    coarse_factor: int
+
+    @classmethod
+    def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray, params: OdometryParams,
+           probe_tip: np.ndarray | None = None, probe_axis: np.ndarray | None = None,
+           probe: ProbeModel | None = None) -> "View":
+        """The view of a BGR pair; with the probe's tip and axis (left camera frame, mm) and model, the probe and a
+        margin about it are left out of the mask."""
+        plain_left = pair.grey(left, "left")
+        grey_left, grey_right = band_pass(plain_left), band_pass(pair.grey(right, "right"))
+        masks = [np.zeros(grey_left.shape, np.uint8) for _ in range(2)]
+        b = params.border_px
+        for eye, mask in enumerate(masks):
+            mask[b:-b, b:-b] = 255
+            if probe_tip is not None and probe_axis is not None and probe is not None:
+                _cut_probe(mask, pair, eye, np.asarray(probe_tip, float), np.asarray(probe_axis, float), probe,
+                           params.lk_window_px // 2 + 3)
+        deviation = np.minimum(cv2.absdiff(grey_left, _MID), _EDGE_CAP)        # the probe's edges do not count double
+        texture = float(deviation[masks[0] > 0].mean()) / _GAIN if masks[0].any() else 0.0
+        contrast = texture / max(float(plain_left.mean()), 1.0)
+        coarse, factor = plain_left, 1
+        while coarse.shape[1] > COARSE_MAX_WIDTH:
+            coarse, factor = cv2.pyrDown(coarse), 2 * factor
+        coarse = band_pass(coarse)
+        coarse_mask = cv2.resize(masks[0], (coarse.shape[1], coarse.shape[0]), interpolation=cv2.INTER_NEAREST)
+        # the probe's strong edges would outweigh the tissue: left out where known, limited everywhere
+        limit = 3.0 * max(float(cv2.absdiff(coarse, _MID)[coarse_mask > 0].mean()), 1.0) if coarse_mask.any() else 1.0
+        coarse = np.clip(coarse, _MID - limit, _MID + limit).astype(np.uint8)
+        coarse[coarse_mask == 0] = _MID
+        return cls(grey_left, grey_right, masks[0], masks[1], texture, contrast, coarse, coarse_mask, factor)
+
+
+@dataclass(eq=False)
+class Keyframe:
+    """Tissue points (N, 3, left camera frame, mm) of one pair with where they are in it (working pixels, both
+    eyes), the pair's band-passed images (and the coarse left one with its mask), its camera rotation (``trocar_from_camera``, 3 x 3, from the IMU), insertion
+    (mm) and that insertion's variance (mm², from the keyframes it was measured from), and its contrast."""
+
+    number: int
+    frame: int
+    points: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    rotation: np.ndarray
+    insertion_mm: float
+    variance_mm2: float
+    contrast: float
+    coarse: np.ndarray
+    coarse_mask: np.ndarray
+    centre: np.ndarray = field(init=False)       # the points' median (3,), mm
+
+    def __post_init__(self):
+        self.centre = np.median(self.points, axis=0)
+
+    @property
+    def median_depth_mm(self) -> float:
+        return float(self.centre[2])
+
+
+def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: int, frame: int,
+                  rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
+                  depth_guess_mm: float = 80.0) -> Keyframe | None:
+    """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated)."""
+    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
+                                      blockSize=7)
+    if corners is None or len(corners) < params.min_points:
+        return None
+    left_px = corners.reshape(-1, 2).astype(np.float32)
+    guess = pair.project(np.column_stack([pair.normalise(left_px, 0), np.ones(len(left_px))]) * depth_guess_mm, 1)
+    right_px, found = lucas_kanade(view.left, view.right, left_px, guess.astype(np.float32), params, levels=4)
+    back, found_back = lucas_kanade(view.right, view.left, right_px, left_px.copy(), params, levels=1)
+    good = found & found_back & (np.linalg.norm(back - left_px, axis=1) < 0.5)
+    good &= (pair.epipolar_gap_px(left_px, right_px) < 0.75) & inside(view.right_mask, right_px)
+    if good.sum() < params.min_points:
+        return None
+    left_px, right_px = left_px[good], right_px[good]
+    points = pair.triangulate(pair.normalise(left_px, 0), pair.normalise(right_px, 1))
+    ahead = (points[:, 2] > 5.0) & (points[:, 2] < 1000.0)
+    if ahead.sum() < params.min_points:
+        return None
+    return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
+                    np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view.coarse,
+                    view.coarse_mask)
+
+
+def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """(N,) whether each working pixel (N, 2) falls on a 255 of ``mask``."""
+    height, width = mask.shape
+    col, row = np.round(px[:, 0]), np.round(px[:, 1])
+    ok = np.isfinite(px).all(axis=1) & (col >= 0) & (col < width) & (row >= 0) & (row < height)
+    out = np.zeros(len(px), bool)
+    out[ok] = mask[row[ok].astype(int), col[ok].astype(int)] > 0
+    return out
+
+
+def band_pass(grey: np.ndarray) -> np.ndarray:
+    """The tissue's texture without the light: the grey image smoothed a little, less its slow variations, scaled
+    about mid-grey (uint8). The endoscope's light moves with the camera, so a view's brightness changes under the
+    tissue; Lucas-Kanade on the raw image follows the light by pixels, on this by a tenth of one."""
+    fine = cv2.GaussianBlur(grey, (0, 0), _FINE_PX)
+    small = cv2.GaussianBlur(cv2.pyrDown(cv2.pyrDown(grey)), (0, 0), _COARSE_PX / 4.0)     # a wide blur, cheaply
+    coarse = cv2.resize(small, (grey.shape[1], grey.shape[0]), interpolation=cv2.INTER_LINEAR)
+    return cv2.addWeighted(fine, _GAIN, coarse, -_GAIN, 128.0)
+
+
+def follow(before: np.ndarray, after: np.ndarray, points: np.ndarray, predicted: np.ndarray,
+           params: OdometryParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where ``points`` (N, 2) of a keyframe image ``before`` are in ``after``, predicted at ``predicted`` (N, 2).
+
+    The keyframe image is first warped by the homography that carries the points to their predicted places, so the
+    comparison meets the tissue at the current scale, shear and turn, and Lucas-Kanade only finds what the
+    prediction missed: the tissue's fine texture decorrelates over a few percent of scale change."""
+    if len(points) < 8:
+        return lucas_kanade(before, after, points, predicted, params)
+    homography, _ = cv2.findHomography(points.astype(np.float32), predicted.astype(np.float32), 0)
+    if homography is None or not np.isfinite(homography).all():
+        return lucas_kanade(before, after, points, predicted, params)
+    warped = cv2.warpPerspective(before, homography, (after.shape[1], after.shape[0]), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=_MID)
+    moved = cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
+    return lucas_kanade(warped, after, moved.astype(np.float32), predicted, params)
+
+
+def lucas_kanade(before: np.ndarray, after: np.ndarray, points: np.ndarray, guess: np.ndarray,
+                 params: OdometryParams, levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where ``points`` (N, 2) of ``before`` are in ``after``, starting from ``guess`` (N, 2): positions and found."""
+    if len(points) == 0:
+        return np.empty((0, 2), np.float32), np.zeros(0, bool)
+    size = params.lk_window_px
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(
+        before, after, points.reshape(-1, 1, 2).astype(np.float32), guess.reshape(-1, 1, 2).astype(np.float32).copy(),
+        winSize=(size, size), maxLevel=params.lk_levels if levels is None else levels,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, _LK_STEPS, _LK_EPS_PX), flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    moved = moved.reshape(-1, 2)
+    height, width = after.shape
+    inside = (moved[:, 0] >= 0) & (moved[:, 0] <= width - 1) & (moved[:, 1] >= 0) & (moved[:, 1] <= height - 1)
+    return moved, status.ravel().astype(bool) & inside & np.isfinite(moved).all(axis=1)
+
+
+def _cut_probe(mask: np.ndarray, pair: EyePair, eye: int, tip: np.ndarray, axis: np.ndarray, probe: ProbeModel,
+               margin_px: float) -> None:
+    """Zero the probe's image in eye 0's or 1's mask: its axis from the tip to its far end (or to where it passes
+    the camera), as wide as the probe at each depth plus ``margin_px`` (a feature's window must not reach it)."""
+    start, length = tip - 3.0 * axis, probe.length_mm + 3.0
+    if axis[2] < 0 and start[2] + length * axis[2] < _NEAR_MM:          # the body passes by the camera: cut it there
+        length = max((_NEAR_MM - start[2]) / axis[2], 0.0)
+    samples = start + np.linspace(0.0, length, _PROBE_SAMPLES)[:, None] * axis
+    samples = samples[samples[:, 2] >= _NEAR_MM]
+    if len(samples) == 0:
+        return
+    centres = pair.project(samples, eye)
+    radii = pair.focal_px * probe.radius_mm / samples[:, 2] + margin_px
+    limit = 20.0 * max(mask.shape)                   # beyond this the probe is far outside the image
+    drawable = np.isfinite(centres).all(axis=1) & (np.abs(centres).max(axis=1) < limit)
+    centres, radii = centres[drawable], radii[drawable]
+    for k in range(len(centres)):
+        cv2.circle(mask, tuple(int(round(v)) for v in centres[k]), int(np.ceil(min(radii[k], limit))), 0, -1)
+        if k:
+            along = centres[k] - centres[k - 1]
+            normal = np.array([-along[1], along[0]]) / max(float(np.hypot(*along)), 1e-9)
+            quad = [centres[k - 1] + radii[k - 1] * normal, centres[k] + radii[k] * normal,
+                    centres[k] - radii[k] * normal, centres[k - 1] - radii[k - 1] * normal]
+            cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 0)
