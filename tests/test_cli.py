@@ -90,10 +90,11 @@ def test_simulate_rejects_bad_arguments(capsys):
 
 
 def test_bench_prints_every_method(capsys):
-    assert main(["bench", "--reps", "1"]) == 0
+    assert main(["bench", "--reps", "1", "--pairs", "3"]) == 0
     out = capsys.readouterr().out
     for method in ("icp", "cpd", "chamfer", "global"):
         assert f"| {method} | 52 |" in out
+    assert "| triangulation | 3 |" in out and "| insertion (one core) | 3 |" in out
 
 
 def test_experiment_imu_prints_the_protractor_table_and_drift(capsys):

@@ -1,4 +1,5 @@
-"""``snreg bench``: median time per case of every registration method, and per stereo pair of the tracker."""
+"""``snreg bench``: median time per case of every registration method, and per stereo pair of the probe tracker and
+of the insertion tracker."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ def add_bench_parser(subparsers) -> None:
 
 
 def cmd_bench(args) -> int:
-    from snreg.simulation.bench import bench_registration, bench_tracking, format_rows, format_tracking
+    from snreg.simulation.bench import (bench_insertion, bench_registration, bench_tracking, format_insertion,
+                                        format_rows, format_tracking)
 
     print("bench: timing the registration methods ...", file=sys.stderr, flush=True)
     rows = bench_registration(reps=args.reps, compare=args.compare)
@@ -29,4 +31,8 @@ def cmd_bench(args) -> int:
     print(f"bench: rendering and tracking {args.pairs} stereo pairs ...", file=sys.stderr, flush=True)
     print("\ntracking (rendered 1920x1080 pairs, one process):")
     print(format_tracking(bench_tracking(pairs=args.pairs)))
+    print(f"bench: rendering a surgery video of {args.pairs} pairs and tracking the camera's insertion ...",
+          file=sys.stderr, flush=True)
+    print("\ncamera insertion (rendered 1920x1080 surgery video, one core):")
+    print(format_insertion(bench_insertion(pairs=args.pairs)))
     return 0
