@@ -214,8 +214,8 @@ class InsertionTracker:
              guess_right: np.ndarray, rotation_imu: np.ndarray, guess_mm: float) -> tuple[_Step | None, str]:
         """The keyframe's ``usable`` points followed from where they are expected in each eye, and the motion fitted."""
         p = self.params
-        left_px, found_left = follow(keyframe.left, view.left, keyframe.left_px[usable], guess_left, p)
-        right_px, found_right = follow(keyframe.right, view.right, keyframe.right_px[usable], guess_right, p)
+        left_px, found_left = follow(keyframe, 0, view.left, keyframe.left_px[usable], guess_left, p)
+        right_px, found_right = follow(keyframe, 1, view.right, keyframe.right_px[usable], guess_right, p)
         found = found_left & found_right
         if found.sum() < p.min_points:
             return None, f"only {int(found.sum())} tissue points could be followed"
