@@ -26,7 +26,7 @@ import numpy as np
 from snreg import geometry
 
 __all__ = ["S_GRID_MM", "covariances", "given_covariance", "fit_corrections", "fit_nats", "pair_nats_given",
-           "blur_sigmas", "correction_covariance"]
+           "blur_sigmas", "correction_covariances"]
 
 S_GRID_MM = np.geomspace(0.25, 40.0, 40)    # support of the log-uniform prior on the unmodelled isotropic error
 MAX_SD_MM = 1e3                             # a node's sd beyond a metre is a unit error
@@ -100,16 +100,28 @@ def _jacobians(moved: np.ndarray, centre: np.ndarray) -> np.ndarray:
     return jac
 
 
+def _eigen(problem, rotations: np.ndarray, assignments: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues and eigenvectors of :func:`given_covariance`: the intraop nodes' own, decomposed once, when the hot
+    spots carry no covariance (the pairs' then do not depend on the correction)."""
+    if problem.preop_cov is None:
+        eigen, vectors = problem.intraop_eigen
+        shape = (len(rotations),) + ((len(problem.preop),) if assignments is None else ())
+        return (np.broadcast_to(eigen, shape + (len(problem.intraop), 3)),
+                np.broadcast_to(vectors, shape + (len(problem.intraop), 3, 3)))
+    eigen, vectors = np.linalg.eigh(given_covariance(problem, rotations, assignments))
+    return np.maximum(eigen, 0.0), vectors
+
+
 def _paired_terms(problem, assignments: np.ndarray, corrections: np.ndarray):
     """Residuals (A, M, 3), Jacobians (A, M, 3, 6), the given covariances' eigenvalues (A, M, 3) and eigenvectors
-    (A, M, 3, 3) of the pairs, and the pair mask (A, M)."""
+    (A, M, 3, 3) of the pairs, the pair mask (A, M) and the pairs' centroid (A, 3)."""
     paired = assignments >= 0
     src = problem.preop[np.maximum(assignments, 0)]
     moved = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3]
     weights = paired.astype(float)
     centre = np.einsum("am,amk->ak", weights, moved) / np.maximum(weights.sum(axis=1), 1.0)[:, None]
-    eigen, vectors = np.linalg.eigh(given_covariance(problem, corrections[:, :3, :3], assignments))
-    return moved - problem.intraop, _jacobians(moved, centre), np.maximum(eigen, 0.0), vectors, paired, centre
+    eigen, vectors = _eigen(problem, corrections[:, :3, :3], assignments)
+    return moved - problem.intraop, _jacobians(moved, centre), eigen, vectors, paired, centre
 
 
 def fit_corrections(problem, assignments: np.ndarray, corrections: np.ndarray, s_mm) -> np.ndarray:
@@ -152,8 +164,8 @@ def pair_nats_given(problem, corrections: np.ndarray, sigmas: np.ndarray) -> np.
     unmodelled error at ``sigmas`` (A,): the Mahalanobis distance and the covariance's normalisation."""
     moved = problem.preop @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3]
     residual = moved[:, :, None, :] - problem.intraop[None, None]                          # (A, N, M, 3)
-    eigen, vectors = np.linalg.eigh(given_covariance(problem, corrections[:, :3, :3]))
-    variance = np.maximum(eigen, 0.0) + (np.asarray(sigmas, float) ** 2)[:, None, None, None]
+    eigen, vectors = _eigen(problem, corrections[:, :3, :3])
+    variance = eigen + (np.asarray(sigmas, float) ** 2)[:, None, None, None]
     rotated = np.einsum("anmki,anmk->anmi", vectors, residual)
     return 0.5 * np.sum(rotated**2 / variance + _LOG_2PI + np.log(variance), axis=-1)
 
@@ -168,17 +180,18 @@ def blur_sigmas(problem, sigmas) -> np.ndarray:
     return np.sqrt(np.asarray(sigmas, dtype=float) ** 2 + mean)
 
 
-def correction_covariance(problem, assignment: np.ndarray, correction: np.ndarray, s_mm: float,
-                          targets: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) covariance of where the correction puts ``targets`` (T, 3, problem frame, already moved), from the
-    inverse of the fit's H at ``s_mm``: the anisotropic counterpart of Fitzpatrick and West's target error."""
-    residual, jac, eigen, vectors, paired, centre = _paired_terms(problem, assignment[None], correction[None])
-    inverse = paired[0][..., None] / (eigen[0] + s_mm**2)
+def correction_covariances(problem, assignment: np.ndarray, correction: np.ndarray, s_mm: np.ndarray,
+                           targets: np.ndarray) -> np.ndarray:
+    """(S, T, 3, 3) covariance of where the correction puts ``targets`` (T, 3, problem frame, already moved) at each
+    unmodelled error of ``s_mm`` (S,): the weighted fit's inverse H carried to each target (the anisotropic
+    counterpart of Fitzpatrick and West's target error)."""
+    _, jac, eigen, vectors, paired, centre = _paired_terms(problem, assignment[None], correction[None])
+    inverse = paired[0][None, :, None] / (eigen[0][None] + (np.asarray(s_mm, float) ** 2)[:, None, None])
     rotated_j = np.einsum("mki,mkp->mip", vectors[0], jac[0])
-    hessian = np.einsum("mip,mi,miq->pq", rotated_j, inverse, rotated_j)
+    hessian = np.einsum("mip,smi,miq->spq", rotated_j, inverse, rotated_j)
     covariance = np.linalg.pinv(hessian)
     target_jac = _jacobians(np.asarray(targets, float)[None], centre)[0]                    # (T, 3, 6)
-    return target_jac @ covariance @ np.swapaxes(target_jac, 1, 2)
+    return np.einsum("tip,spq,tjq->stij", target_jac, covariance, target_jac)
 
 
 def _rotations(rotvecs: np.ndarray) -> np.ndarray:

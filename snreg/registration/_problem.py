@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -38,6 +39,15 @@ class Problem:
     def anisotropic(self) -> bool:
         """Whether nodes carry their own covariances (:mod:`snreg.registration._covariance`)."""
         return self.intraop_cov is not None or self.preop_cov is not None
+
+    @cached_property
+    def intraop_eigen(self) -> tuple[np.ndarray, np.ndarray]:
+        """The intraop covariances' eigenvalues (M, 3) (zeros without them) and eigenvectors (M, 3, 3): a pair's
+        covariance when the hot spots carry none, whatever the correction."""
+        if self.intraop_cov is None:
+            return np.zeros((len(self.intraop), 3)), np.broadcast_to(np.eye(3), (len(self.intraop), 3, 3))
+        eigen, vectors = np.linalg.eigh(self.intraop_cov)
+        return np.maximum(eigen, 0.0), vectors
 
     @property
     def centre(self) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from snreg import geometry
-from snreg.registration._covariance import S_GRID_MM, correction_covariance
+from snreg.registration._covariance import S_GRID_MM, correction_covariances
 from snreg.registration._model import Candidate, candidate_sigmas
 from snreg.registration._problem import Problem
 
@@ -93,11 +93,14 @@ def _anisotropic_draws(problem: Problem, cand: Candidate, s_index: np.ndarray, r
     mapped = geometry.apply(cand.correction, problem.preop)
     rotation = cand.correction[:3, :3]
     own = (rotation @ problem.preop_cov @ rotation.T) if problem.preop_cov is not None else np.zeros((len(mapped), 3, 3))
+    drawn = np.unique(s_index)
+    s = S_GRID_MM[drawn]
+    cov = (correction_covariances(problem, cand.assignment, cand.correction, s, mapped) + own[None]
+           + (s**2)[:, None, None, None] * np.eye(3))                                      # (S, N, 3, 3)
+    factors = np.linalg.cholesky(cov)
     truth = np.empty((len(mapped), len(s_index), 3))
-    for k in np.unique(s_index):
-        s = float(S_GRID_MM[k])
-        chosen = np.flatnonzero(s_index == k)
-        cov = correction_covariance(problem, cand.assignment, cand.correction, s, mapped) + own + s**2 * np.eye(3)
+    for k, index in enumerate(drawn):
+        chosen = np.flatnonzero(s_index == index)
         z = rng.standard_normal((len(chosen), 3))
-        truth[:, chosen] = mapped[:, None, :] + np.einsum("nij,sj->nsi", np.linalg.cholesky(cov), z)
+        truth[:, chosen] = mapped[:, None, :] + np.einsum("nij,sj->nsi", factors[k], z)
     return truth
