@@ -218,6 +218,7 @@ class Recording:
         if unknown:
             raise SessionError(f"a camera state must be one of {', '.join(CAMERA_STATES)}, got {sorted(unknown)[0]!r}")
         codes = np.array([CAMERA_STATES.index(str(v)) for v in names], dtype=np.uint8)
+        codes = np.broadcast_to(codes, np.atleast_1d(t_host_ns).shape)          # one state for every row, or one each
         self._append("camera", t_host_ns=t_host_ns, t_device_ns=t_device_ns, trocar_camera_mm=trocar_camera_mm,
                      state=codes, quality=quality, residual_mm=residual_mm, sd_mm=sd_mm)
 

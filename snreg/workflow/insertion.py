@@ -101,7 +101,7 @@ def insertion_text(step: InsertionStep | None, start_mm: float) -> str:
     calibration, tracked" or "camera LOST (no tissue texture ...): 171.0 mm held"; "" without tracking."""
     if step is None:
         return ""
-    since = f"{step.used_mm - start_mm:+.1f} mm since calibration"
+    since = f"{round(step.used_mm - start_mm, 1) + 0.0:+.1f} mm since calibration"      # + 0.0: never "-0.0"
     if step.estimate.tracked:
         return f"camera {step.used_mm:.1f} mm, {since}, tracked"
     reason = f" ({step.estimate.reason})" if step.estimate.reason else ""
