@@ -10,6 +10,7 @@ import numpy as np
 from snreg import geometry
 from snreg.labels import label_cost
 from snreg.registration._covariance import covariances
+from snreg.registration._landmarks import Landmarks, landmark_pairs
 
 __all__ = ["Problem", "make_problem", "option_number", "option_count"]
 
@@ -34,11 +35,27 @@ class Problem:
     seed: int
     intraop_cov: np.ndarray | None = None      # (M, 3, 3) mm^2 per intraop node, or None
     preop_cov: np.ndarray | None = None        # (N, 3, 3) mm^2 per preop node, turned by ``initial``, or None
+    landmarks: Landmarks | None = None         # landmark pairs (preop ones turned by ``initial``), or None
 
     @property
     def anisotropic(self) -> bool:
         """Whether nodes carry their own covariances (:mod:`snreg.registration._covariance`)."""
         return self.intraop_cov is not None or self.preop_cov is not None
+
+    @property
+    def n_landmarks(self) -> int:
+        return 0 if self.landmarks is None else len(self.landmarks)
+
+    @property
+    def weighted(self) -> bool:
+        """Whether pairs carry errors of their own (covariances, landmarks): the general model of
+        :mod:`snreg.registration._covariance` rather than the isotropic one."""
+        return self.anisotropic or self.n_landmarks > 0
+
+    @property
+    def min_pairs(self) -> int:
+        """Node pairs a candidate needs: three points fix a correction, landmark pairs count."""
+        return max(0, 3 - self.n_landmarks)
 
     @cached_property
     def intraop_eigen(self) -> tuple[np.ndarray, np.ndarray]:
@@ -80,7 +97,7 @@ MAX_NODES = 50                 # per node set: the hypothesis search and the con
 MAX_COORDINATE_MM = 1e5        # 100 m: anything larger is a unit or parsing error, and overflows the fits
 
 
-def _as_points(name: str, value, minimum: int) -> np.ndarray:
+def _as_points(name: str, value, minimum: int, landmarks: int = 0) -> np.ndarray:
     try:
         points = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -90,7 +107,12 @@ def _as_points(name: str, value, minimum: int) -> np.ndarray:
     if not np.all(np.isfinite(points)):
         raise ValueError(f"{name} nodes contain NaN or infinite coordinates; remove or re-measure those nodes")
     if len(points) < minimum:
-        raise ValueError(f"registration needs at least {minimum} {name} nodes; got {len(points)}")
+        if landmarks:
+            raise ValueError(f"registration needs at least {minimum} {name} node{'s' if minimum > 1 else ''} beside "
+                             f"{landmarks} landmark pair{'s' if landmarks > 1 else ''} (3 points in all, 1 node at "
+                             f"least); got {len(points)}")
+        raise ValueError(f"registration needs at least {minimum} {name} nodes (or landmarks named on both sides to "
+                         f"make 3 points with them); got {len(points)}")
     if len(points) > MAX_NODES:
         raise ValueError(f"registration handles at most {MAX_NODES} {name} nodes (sentinel nodes number a few to a few "
                          f"tens); got {len(points)}: pass the sentinel nodes only")
@@ -103,27 +125,62 @@ def _as_points(name: str, value, minimum: int) -> np.ndarray:
 DEGENERATE_MM = 0.01          # nodes closer than this to one point or one line do not fix a rotation
 
 
-def _spans_a_plane(name: str, points: np.ndarray) -> None:
+def _spans_a_plane(name: str, points: np.ndarray, what: str = "nodes") -> None:
     """ValueError naming a degenerate set: all nodes at one point, or all on one line (a rotation about that line
     would fit them equally well, so no registration is determined)."""
     centred = points - points.mean(axis=0)
     singular = np.linalg.svd(centred, compute_uv=False) / np.sqrt(len(points))   # RMS spread along each axis
     if singular[0] < DEGENERATE_MM:
-        raise ValueError(f"the {name} nodes coincide (all {len(points)} within {DEGENERATE_MM:g} mm of one point): "
-                         "a registration needs nodes that span a plane; check the node positions")
+        raise ValueError(f"the {name} {what} coincide (all {len(points)} within {DEGENERATE_MM:g} mm of one point): "
+                         f"a registration needs {what} that span a plane; check the positions")
     if singular[1] < DEGENERATE_MM:
-        raise ValueError(f"the {name} nodes are collinear (all {len(points)} within {DEGENERATE_MM:g} mm of one line): "
-                         "a registration needs nodes that span a plane; check the node positions")
+        raise ValueError(f"the {name} {what} are collinear (all {len(points)} within {DEGENERATE_MM:g} mm of one "
+                         f"line): a registration needs {what} that span a plane; check the positions")
 
 
 def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, initial=None,
                  max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-                 intraop_cov=None, preop_cov=None) -> Problem:
+                 intraop_cov=None, preop_cov=None, preop_landmarks=None, intraop_landmarks=None,
+                 landmark_sd_mm: float = 2.0) -> Problem:
     """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`."""
-    preop = _as_points("preop", preop, 3)
-    intraop = _as_points("intraop", intraop, 3)
-    _spans_a_plane("preop", preop)
-    _spans_a_plane("intraop", intraop)
+    initial = _initial(initial)
+    landmarks = landmark_pairs(preop_landmarks, intraop_landmarks, landmark_sd_mm, initial)
+    paired = 0 if landmarks is None else len(landmarks)
+    preop = _as_points("preop", preop, max(1, 3 - paired), paired)
+    intraop = _as_points("intraop", intraop, max(1, 3 - paired), paired)
+    if paired:
+        preop_original = geometry.apply(geometry.invert(initial), landmarks.preop)
+        _spans_a_plane("preop", np.vstack([preop, preop_original]), "nodes and landmarks")
+        _spans_a_plane("intraop", np.vstack([intraop, landmarks.intraop]), "nodes and landmarks")
+    else:
+        _spans_a_plane("preop", preop)
+        _spans_a_plane("intraop", intraop)
+    for name, labels, n in (("preop", preop_labels, len(preop)), ("intraop", intraop_labels, len(intraop))):
+        if labels is not None and len(labels) != n:
+            raise ValueError(f"{name}_labels has {len(labels)} labels for {n} {name} nodes")
+    if not (0 < max_rotation_deg <= 180 and 0 < max_translation_mm < np.inf):
+        raise ValueError(f"max_rotation_deg must lie in (0, 180] and max_translation_mm be positive and finite; got "
+                         f"{max_rotation_deg} and {max_translation_mm}")
+    intraop_cov = covariances("intraop", intraop_cov, len(intraop))
+    preop_cov = covariances("preop", preop_cov, len(preop))
+    if preop_cov is not None:
+        preop_cov = initial[:3, :3] @ preop_cov @ initial[:3, :3].T
+    return Problem(
+        preop=geometry.apply(initial, preop),
+        intraop=intraop,
+        initial=initial,
+        label_nats=label_cost(preop_labels, intraop_labels, len(preop), len(intraop)),
+        max_rotation_deg=float(max_rotation_deg),
+        max_translation_mm=float(max_translation_mm),
+        seed=int(seed),
+        intraop_cov=intraop_cov,
+        preop_cov=preop_cov,
+        landmarks=landmarks,
+    )
+
+
+def _initial(initial) -> np.ndarray:
+    """The rough alignment as a checked (4, 4) rigid transform (the identity when None)."""
     if initial is None:
         initial = np.eye(4)
     initial = np.asarray(initial, dtype=float)
@@ -137,27 +194,7 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
     if np.abs(initial[:3, 3]).max() > MAX_COORDINATE_MM:
         raise ValueError(f"initial moves the preop nodes by {np.abs(initial[:3, 3]).max():.3g} mm; its translation "
                          "must be in mm and within reach of the intraop nodes")
-    for name, labels, n in (("preop", preop_labels, len(preop)), ("intraop", intraop_labels, len(intraop))):
-        if labels is not None and len(labels) != n:
-            raise ValueError(f"{name}_labels has {len(labels)} labels for {n} {name} nodes")
-    if not (0 < max_rotation_deg <= 180 and 0 < max_translation_mm < np.inf):
-        raise ValueError(f"max_rotation_deg must lie in (0, 180] and max_translation_mm be positive and finite; got "
-                         f"{max_rotation_deg} and {max_translation_mm}")
-    intraop_cov = covariances("intraop", intraop_cov, len(intraop))
-    preop_cov = covariances("preop", preop_cov, len(preop))
-    if preop_cov is not None:
-        preop_cov = rot @ preop_cov @ rot.T
-    return Problem(
-        preop=geometry.apply(initial, preop),
-        intraop=intraop,
-        initial=initial,
-        label_nats=label_cost(preop_labels, intraop_labels, len(preop), len(intraop)),
-        max_rotation_deg=float(max_rotation_deg),
-        max_translation_mm=float(max_translation_mm),
-        seed=int(seed),
-        intraop_cov=intraop_cov,
-        preop_cov=preop_cov,
-    )
+    return initial
 
 
 def option_number(method: str, name: str, value, *, low: float = -np.inf, high: float = np.inf,
