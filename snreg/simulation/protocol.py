@@ -65,6 +65,10 @@ class Trial:
     left_out_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     source: np.ndarray | None = None
     intraop_cov: np.ndarray | None = None       # (M, 3, 3) mm^2: each intraop node's error covariance
+    preop_landmarks: dict | None = None         # {name: (3,)} in the moved frame registration sees
+    intraop_landmarks: dict | None = None       # {name: (3,)} where they were touched (a swapped name stays swapped)
+    landmark_sd_mm: float = 2.0
+    swapped: tuple[str, ...] = ()               # the two landmark names exchanged on the intraop side, if any
 
     def __post_init__(self):
         if self.source is None:                     # without hosts known, an extra's only right claim is -1
@@ -72,11 +76,12 @@ class Trial:
 
 
 def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float, n_extra: int, rep: int,
-               seed_words: tuple[int, ...], n_missing: int = 0, anisotropy: float = 1.0) -> Trial:
-    """One trial; ValueError when ``n_missing`` would leave fewer than 3 true intraop nodes. ``anisotropy``: the
-    error along each node's viewing ray over the error across it (1: the thesis' isotropic error)."""
-    if not 0 <= n_missing <= len(preop) - 3:
-        raise ValueError(f"{patient}: {len(preop)} preop nodes leave fewer than 3 true intraop nodes when "
+               seed_words: tuple[int, ...], n_missing: int = 0, anisotropy: float = 1.0, min_true: int = 3) -> Trial:
+    """One trial; ValueError when ``n_missing`` would leave fewer than ``min_true`` (3; 1 with landmarks) true
+    intraop nodes. ``anisotropy``: the error along each node's viewing ray over the error across it (1: the thesis'
+    isotropic error)."""
+    if not 0 <= n_missing <= len(preop) - min_true:
+        raise ValueError(f"{patient}: {len(preop)} preop nodes leave fewer than {min_true} true intraop nodes when "
                          f"{n_missing} are left out")
     seeds = np.random.SeedSequence(seed_words)
     rng = np.random.default_rng(seeds)
@@ -169,7 +174,10 @@ def oracle_success(trial: Trial) -> dict[str, bool]:
     rows, cols = linear_sum_assignment(d2)
     one_to_one = np.full(len(trial.intraop), -1)
     one_to_one[cols] = rows
-    model = pairing_at(trial.preop, trial.intraop, np.eye(4), max(trial.sigma, 1.0))
+    if min(len(trial.preop), len(trial.intraop)) >= 3:
+        model = pairing_at(trial.preop, trial.intraop, np.eye(4), max(trial.sigma, 1.0))
+    else:                            # one or two nodes: the model's labelling is the nearest one
+        model = nearest
     return {"oracle_nearest": bool(np.all(nearest[true] == trial.truth[true])),
             "oracle_nearest_cov": bool(np.all(nearest_cov[true] == trial.truth[true])),
             "oracle_one_to_one": bool(np.all(one_to_one[true] == trial.truth[true])),
@@ -188,22 +196,30 @@ def error_stats(trial: Trial) -> dict[str, float]:
     return {"mean_error_mm": float(error.mean()), "max_error_mm": float(error.max()), "max_error_ratio": float(ratio.max())}
 
 
-def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool = False, **options) -> TrialOutcome:
-    """Register one trial with ``method`` (given the labels, and the nodes' covariances, when asked); a refusal (no
-    pairing fits the bounds) counts as a failure."""
+def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool = False, use_landmarks: bool = False,
+              **options) -> TrialOutcome:
+    """Register one trial with ``method`` (given the labels, the nodes' covariances and the landmarks, when asked); a
+    refusal (no pairing fits the bounds, or too few nodes without landmarks) counts as a failure."""
     start = time.perf_counter()
     true = trial.truth >= 0
+    marks = {"preop_landmarks": trial.preop_landmarks, "intraop_landmarks": trial.intraop_landmarks,
+             "landmark_sd_mm": trial.landmark_sd_mm} if use_landmarks and trial.preop_landmarks else {}
     try:
         result = register(trial.moved_preop, trial.intraop, method=method,
                           preop_labels=trial.preop_labels if use_labels else None,
                           intraop_labels=trial.intraop_labels if use_labels else None,
-                          intraop_cov=trial.intraop_cov if use_cov else None, **options)
+                          intraop_cov=trial.intraop_cov if use_cov else None, **marks, **options)
     except NoFitError:
+        result = None
+    except ValueError:
+        if len(trial.moved_preop) >= 3 and len(trial.intraop) >= 3:
+            raise                                   # only a patient with too few nodes may be refused here
         result = None
     elapsed_ms = (time.perf_counter() - start) * 1e3
     if result is None:
         nan = float("nan")
-        row = {"success": False, "all_claims": False, "refused": True,
+        row = {"success": False, "all_claims": False, "refused": True, "landmarks_flagged": False,
+               "swapped_flagged": False,
                **{f"success_{rule}": False for rule in RULES}, **{f"all_claims_{rule}": False for rule in RULES},
                "extras_none": 0, "shared": 0, "rms_mm": nan, "tre_mm": nan, "min_confidence": 0.0,
                "time_ms": elapsed_ms}
@@ -226,6 +242,8 @@ def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool
         "tre_mm": float(tre),
         "min_confidence": float(result.confidence[true].min()),
         "time_ms": elapsed_ms,
+        "landmarks_flagged": bool(result.landmarks_suspect),
+        "swapped_flagged": bool(set(result.landmarks_suspect) & set(trial.swapped)),
     }
     left_out_error = np.linalg.norm(mapped[trial.left_out] - trial.left_out_xyz, axis=1)
     return TrialOutcome(row, result.confidence[true], correct, result.confidence, claims,
