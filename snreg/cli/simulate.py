@@ -67,6 +67,14 @@ def add_simulate_parser(subparsers) -> None:
                    help="cut every patient down to N SPECT nodes (1 or 2: patients the thesis' method cannot register)")
     p.add_argument("--swap-landmarks", action="store_true",
                    help="exchange the first two landmarks' names intraop (a wrong name): how often it is flagged")
+    p.add_argument("--start", choices=("rough", "gravity"), default="rough",
+                   help="rough: the thesis' rough alignment (up to 30 degrees per axis, 20 mm); gravity: the preop set "
+                        "turned any way and shifted up to 300 mm, registration given down in both frames (the table "
+                        "tilted 30 degrees head down)")
+    p.add_argument("--tilt-sd", type=float_range(0.0, 45.0, "degrees", low_open=False), default=8.0, metavar="DEG",
+                   help="gravity start: error of the entered table tilt (default 8)")
+    p.add_argument("--imu-down-sd", type=float_range(0.0, 45.0, "degrees", low_open=False), default=1.0,
+                   metavar="DEG", help="gravity start: error of the IMU's down (default 1)")
     p.add_argument("--cohort", help="directory of preop node CSVs, one per patient (default: synthetic cohort)")
     p.add_argument("--seed", type=seed, default=0, help="random seed of the study")
     p.add_argument("--workers", type=workers, default=0, help="processes, at most one per core (0: one per core)")
@@ -101,7 +109,8 @@ def cmd_simulate(args) -> int:
     config = StudyConfig(methods=tuple(args.methods), sigmas=args.sigmas, extras=args.extras, reps=args.reps,
                          seed=args.seed, workers=args.workers, missing=tuple(args.missing), anisotropy=args.anisotropy,
                          landmarks=args.landmarks, landmark_sd=args.landmark_sd, max_nodes=args.max_nodes,
-                         swap_landmarks=args.swap_landmarks)
+                         swap_landmarks=args.swap_landmarks, start=args.start, tilt_sd_deg=args.tilt_sd,
+                         imu_down_sd_deg=args.imu_down_sd)
     study = run_study(patients, config, progress=not args.quiet)
     command = "snreg " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:

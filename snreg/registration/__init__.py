@@ -95,7 +95,8 @@ class RegistrationResult:
 def register(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None, initial=None,
              max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
              preop_landmarks=None, intraop_landmarks=None, landmark_sd_mm: float = 2.0,
-             intraop_cov=None, preop_cov=None, pairing_rule: str | None = None, **options) -> RegistrationResult:
+             intraop_cov=None, preop_cov=None, down=None, down_sd_deg: float = 10.0,
+             pairing_rule: str | None = None, **options) -> RegistrationResult:
     """Register preop (N, 3) to intraop (M, 3) nodes in mm and say which hot spot every intraop node came from.
 
     ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
@@ -111,7 +112,11 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     ``preop_landmarks``/``intraop_landmarks`` ({name: (3,) mm}, or node sets whose ids are the names) are paired by
     name and enter the fit with their correspondence known and ``landmark_sd_mm`` of error per axis; with them one or
     two nodes register (3 points in all, 1 intraop node at least, ``global`` only); a pair that contradicts the rest
-    is left out and named in ``landmarks_suspect``. Everything after ``method`` is keyword-only. Raises ValueError with a message a user understands on bad
+    is left out and named in ``landmarks_suspect``. ``down`` (down in the preop frame, down in the intraop frame)
+    is the gravity prior: without ``initial`` the search starts from the two downs aligned and the centroids
+    matched, covers every heading about the vertical and tilts within a few ``down_sd_deg`` (the tilt's prior sd),
+    and bounds the centroids' displacement by ``max_translation_mm``; ``initial`` still overrides it.
+    Everything after ``method`` is keyword-only. Raises ValueError with a message a user understands on bad
     input, an unknown method or option included.
     """
     _check_method(method, options)
@@ -122,7 +127,7 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
                            preop_cov=preop_cov, preop_landmarks=preop_landmarks, intraop_landmarks=intraop_landmarks,
-                           landmark_sd_mm=landmark_sd_mm)
+                           landmark_sd_mm=landmark_sd_mm, down=down, down_sd_deg=down_sd_deg)
     every, suspects = problem.landmarks, ()
     if method != "global" and min(len(problem.preop), len(problem.intraop)) < MIN_PAIRS:
         raise ValueError(f"{method} needs at least {MIN_PAIRS} nodes on each side; with fewer, landmarks and the "
@@ -228,14 +233,14 @@ def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray, base: Cand
 
 def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,
                     initial=None, max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-                    intraop_cov=None, preop_cov=None, **options) -> np.ndarray:
+                    intraop_cov=None, preop_cov=None, down=None, down_sd_deg: float = 10.0, **options) -> np.ndarray:
     """The method's transform estimate alone, (4, 4) ``intraop_from_preop``: the solver without the pairing and the
     confidence that :func:`register` adds (what ``snreg bench`` times as "solver"). Arguments as :func:`register`."""
     _check_method(method, options)
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
-                           preop_cov=preop_cov)
+                           preop_cov=preop_cov, down=down, down_sd_deg=down_sd_deg)
     return _solve(problem, method, options)[0] @ problem.initial
 
 

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from snreg import geometry
 from snreg.errors import NoFitError
 from snreg.labels import SIDE_CROSSING_NATS
+from snreg.registration._bounded import tilted_within
 from snreg.registration._extras import extra_nats
 from snreg.registration._model import ASSIGN_SIGMAS_MM, C_MISSING, Candidate, pair_nats, refine_many, squared_distances
 from snreg.registration._problem import Problem, option_count
@@ -133,6 +134,10 @@ def landmark_nats(problem: Problem, corrections: np.ndarray) -> np.ndarray:
 def no_fit_message(problem: Problem, outside: bool = False) -> str:
     reason = ("the nodes fit far better by a correction beyond them" if outside else "none lies within them")
     labelled = bool(np.any(problem.label_nats))
+    if problem.vertical is not None:
+        return (f"no pairing of the nodes fits with gravity's start: a tilt within {problem.rotation_bound_deg:g} "
+                f"degrees of the two downs and a centroid shift within {problem.max_translation_mm:g} mm ({reason}): "
+                "check the table tilt and the patient position, give a rough initial alignment, or widen the bounds")
     return (f"no pairing of the nodes fits within {problem.max_rotation_deg:g} degrees and "
             f"{problem.max_translation_mm:g} mm of the initial alignment ({reason}"
             f"{' that the left/right labels allow' if labelled and not outside else ''}): give a rough initial "
@@ -158,10 +163,13 @@ def _pulled_within(problem: Problem, corrections: np.ndarray) -> np.ndarray:
     displacement to the translation bound. Starting points for a refinement that keeps its fits within them."""
     if len(corrections) == 0:
         return corrections
-    rotvec = Rotation.from_matrix(corrections[:, :3, :3]).as_rotvec()
-    angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
-    limit = np.radians(problem.max_rotation_deg)
-    rotation = Rotation.from_rotvec(rotvec * np.minimum(1.0, limit / np.maximum(angle, 1e-12))).as_matrix()
+    if problem.vertical is not None:                      # from a gravity start only the tilt is bounded
+        rotation = tilted_within(corrections[:, :3, :3], problem.vertical, problem.rotation_bound_deg)
+    else:
+        rotvec = Rotation.from_matrix(corrections[:, :3, :3]).as_rotvec()
+        angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
+        limit = np.radians(problem.max_rotation_deg)
+        rotation = Rotation.from_rotvec(rotvec * np.minimum(1.0, limit / np.maximum(angle, 1e-12))).as_matrix()
     centre = problem.centre
     shift = np.einsum("hij,j->hi", corrections[:, :3, :3], centre) + corrections[:, :3, 3] - centre
     length = np.linalg.norm(shift, axis=1, keepdims=True)
@@ -219,7 +227,7 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
     inside = problem.within_bounds(corrections)
     outside_best = _best_outside(problem, corrections[~inside], triplet_labels[~inside])
     angle, shift = problem.correction_size(corrections)
-    leaning = ~inside & (angle <= _LEANING * problem.max_rotation_deg) & (shift <= _LEANING * problem.max_translation_mm)
+    leaning = ~inside & (angle <= _LEANING * problem.rotation_bound_deg) & (shift <= _LEANING * problem.max_translation_mm)
     if not (inside | leaning).any():              # a few very noisy nodes: every triplet fit leans far
         leaning = ~inside
     corrections[leaning] = _pulled_within(problem, corrections[leaning])   # a noisy triplet may lean past a bound

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from snreg import geometry
 from snreg.labels import label_cost
@@ -36,6 +37,8 @@ class Problem:
     intraop_cov: np.ndarray | None = None      # (M, 3, 3) mm^2 per intraop node, or None
     preop_cov: np.ndarray | None = None        # (N, 3, 3) mm^2 per preop node, turned by ``initial``, or None
     landmarks: Landmarks | None = None         # landmark pairs (preop ones turned by ``initial``), or None
+    vertical: np.ndarray | None = None         # (3,) unit: down in the intraop frame when gravity gave the start
+    down_sd_deg: float = 10.0                  # how well the two downs agree (sd of the tilt between them)
 
     @property
     def anisotropic(self) -> bool:
@@ -71,27 +74,45 @@ class Problem:
         """The preop centroid (initial-aligned): translations are measured as its displacement."""
         return self.preop.mean(axis=0)
 
+    @property
+    def rotation_bound_deg(self) -> float:
+        """The bound on the correction's turn: its whole angle, or from a gravity start its tilt alone (the heading
+        about the vertical is free), a few of ``down_sd_deg``."""
+        if self.vertical is None:
+            return self.max_rotation_deg
+        return min(self.max_rotation_deg, TILT_BOUND_SD * self.down_sd_deg)
+
     def correction_size(self, correction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(rotation angle in degrees, centroid displacement in mm) of correction(s) (..., 4, 4)."""
+        """(rotation angle in degrees, centroid displacement in mm) of correction(s) (..., 4, 4); from a gravity start
+        the angle is the tilt (how far the correction turns the vertical)."""
         correction = np.asarray(correction)
-        angle = geometry.rotation_angle_deg(correction)
+        if self.vertical is None:
+            angle = geometry.rotation_angle_deg(correction)
+        else:
+            turned = np.einsum("...ij,j->...i", correction[..., :3, :3], self.vertical)
+            angle = np.degrees(np.arccos(np.clip(turned @ self.vertical, -1.0, 1.0)))
         c = self.centre
         moved_c = np.einsum("...ij,j->...i", correction[..., :3, :3], c) + correction[..., :3, 3]
         return angle, np.linalg.norm(moved_c - c, axis=-1)
 
     def within_bounds(self, correction: np.ndarray) -> np.ndarray:
         angle, shift = self.correction_size(correction)
-        return (angle <= self.max_rotation_deg + 1e-9) & (shift <= self.max_translation_mm + 1e-9)
+        return (angle <= self.rotation_bound_deg + 1e-9) & (shift <= self.max_translation_mm + 1e-9)
 
     def prior_nats(self, correction: np.ndarray) -> np.ndarray:
         """Negative log prior of a correction: Gaussian in angle and shift with the bounds at 2 sigma.
 
         The rough alignment is trusted to be right within the bounds (thesis §3.6.2: 60
-        degrees and 6 cm); smaller corrections are more likely than larger ones.
+        degrees and 6 cm); smaller corrections are more likely than larger ones. From a gravity start the heading is
+        uniform and the tilt Gaussian with ``down_sd_deg``.
         """
         angle, shift = self.correction_size(correction)
-        return 0.5 * (2.0 * angle / self.max_rotation_deg) ** 2 + 0.5 * (2.0 * shift / self.max_translation_mm) ** 2
+        turn = 0.5 * (angle / self.down_sd_deg) ** 2 if self.vertical is not None else \
+            0.5 * (2.0 * angle / self.max_rotation_deg) ** 2
+        return turn + 0.5 * (2.0 * shift / self.max_translation_mm) ** 2
 
+
+TILT_BOUND_SD = 3.0            # from a gravity start, tilts up to this many down_sd_deg are searched
 
 MAX_NODES = 50                 # per node set: the hypothesis search and the confidence grow with N * M * hypotheses
 MAX_COORDINATE_MM = 1e5        # 100 m: anything larger is a unit or parsing error, and overflows the fits
@@ -141,8 +162,13 @@ def _spans_a_plane(name: str, points: np.ndarray, what: str = "nodes") -> None:
 def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, initial=None,
                  max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
                  intraop_cov=None, preop_cov=None, preop_landmarks=None, intraop_landmarks=None,
-                 landmark_sd_mm: float = 2.0) -> Problem:
-    """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`."""
+                 landmark_sd_mm: float = 2.0, down=None, down_sd_deg: float = 10.0) -> Problem:
+    """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`. With ``down``
+    and no ``initial`` the start is gravity's: the two downs aligned, the centroids matched, the heading free."""
+    downs = gravity_downs(down, down_sd_deg)
+    gravity = downs is not None and initial is None
+    if gravity:
+        initial = _gravity_start(downs, preop, intraop)
     initial = _initial(initial)
     landmarks = landmark_pairs(preop_landmarks, intraop_landmarks, landmark_sd_mm, initial)
     paired = 0 if landmarks is None else len(landmarks)
@@ -176,7 +202,50 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
         intraop_cov=intraop_cov,
         preop_cov=preop_cov,
         landmarks=landmarks,
+        vertical=downs[1] if gravity else None,
+        down_sd_deg=float(down_sd_deg),
     )
+
+
+def gravity_downs(down, down_sd_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(down in the preop frame, down in the intraop frame), unit (3,) each, from ``down``; None when None;
+    ValueError in one sentence for anything else."""
+    if down is None:
+        return None
+    try:
+        pair = np.asarray(down, dtype=float)
+    except (TypeError, ValueError):
+        pair = np.zeros(0)
+    if pair.shape != (2, 3):
+        raise ValueError("down must be a pair of vectors: (down in the preop frame, down in the intraop frame), 3 "
+                         "numbers each")
+    if not np.all(np.isfinite(pair)):
+        raise ValueError("down contains NaN or infinite values: give two finite vectors pointing down")
+    lengths = np.linalg.norm(pair, axis=1)
+    if np.any(lengths < 1e-9):
+        raise ValueError(f"down's {'preop' if lengths[0] < 1e-9 else 'intraop'} vector is zero: give a vector pointing "
+                         "down in that frame")
+    try:
+        sd = float(down_sd_deg)
+    except (TypeError, ValueError):
+        sd = float("nan")
+    if not (np.isfinite(sd) and 0.0 < sd <= 45.0):
+        raise ValueError(f"down_sd_deg must be a number of degrees above 0 and at most 45, got {down_sd_deg!r}")
+    return pair[0] / lengths[0], pair[1] / lengths[1]
+
+
+def _gravity_start(downs: tuple[np.ndarray, np.ndarray], preop, intraop) -> np.ndarray:
+    """(4, 4) the start from gravity: the preop down turned onto the intraop down (the least turn), the preop
+    centroid onto the intraop centroid."""
+    rotation = Rotation.align_vectors(downs[1][None], downs[0][None])[0].as_matrix()
+    try:
+        pre_centre = np.asarray(preop, dtype=float).reshape(-1, 3).mean(axis=0)
+        intra_centre = np.asarray(intraop, dtype=float).reshape(-1, 3).mean(axis=0)
+    except (TypeError, ValueError):
+        return np.eye(4)                       # the node checks say what is wrong
+    if not (np.all(np.isfinite(pre_centre)) and np.all(np.isfinite(intra_centre))):
+        return np.eye(4)
+    return geometry.make_transform(rotation, intra_centre - rotation @ pre_centre)
 
 
 def _initial(initial) -> np.ndarray:

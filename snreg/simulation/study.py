@@ -44,6 +44,9 @@ class StudyConfig:
     landmark_sd: float = 2.0    # their own error, mm per axis
     max_nodes: int | None = None   # patients cut down to this many SPECT nodes
     swap_landmarks: bool = False   # the first two landmarks' names exchanged on the intraop side
+    start: str = "rough"        # "rough": the thesis' rough alignment; "gravity": any turn and shift, the downs given
+    tilt_sd_deg: float = 8.0    # gravity start: error of the entered table tilt
+    imu_down_sd_deg: float = 1.0   # gravity start: error of the IMU's down
 
     @property
     def incremental(self) -> bool:
@@ -130,7 +133,8 @@ def _trial(patient: Patient, patient_index: int, sigma_index: int, n_extra: int,
     keep = slice(None) if config.max_nodes is None else slice(0, config.max_nodes)
     trial = make_trial(patient.name, patient.nodes.xyz[keep], patient.nodes.labels[keep], config.sigmas[sigma_index],
                        n_extra, rep, words, n_missing=n_missing, anisotropy=config.anisotropy,
-                       min_true=1 if config.landmarks else 3)
+                       min_true=1 if config.landmarks else 3, start=config.start, tilt_sd_deg=config.tilt_sd_deg,
+                       imu_down_sd_deg=config.imu_down_sd_deg)
     if config.landmarks:
         rng = np.random.default_rng(np.random.SeedSequence(words + (29,)))
         trial = with_landmarks(trial, config.landmarks, config.landmark_sd, rng, config.swap_landmarks)
