@@ -19,6 +19,9 @@ ELLIPSIS = "\u2026"
 NO_VALUE = "\u2014"            # an em dash: no value now (no fix, window not full)
 BIG_SCALE = 1.8                # the large numbers' size, times the application font's
 SPREAD_GOOD, SPREAD_BAD, SPREAD_NONE = "#1a7f1a", "#c00000", "#808080"
+# the tones of the status lines: a warning, a fault that stands out (STALE, LOST, a refusal), good news, paused, idle
+WARN, BAD, GOOD, PAUSED, QUIET = ("color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400",
+                                  "color: #1f4e9e", "color: #707070")
 
 
 def big_font(base: QFont) -> QFont:
