@@ -148,8 +148,9 @@ def test_a_store_while_the_insertion_is_lost_is_refused_offered_and_overridden_o
     qtbot.waitUntil(lambda: screen.confirm_box is not None, timeout=5_000)
     box = screen.confirm_box
     assert box.text().startswith("Refused (F5): the camera's insertion is lost (the view is blurred")
-    assert "the override is kept in the session's record" in box.informativeText()
-    assert screen.store_status.text().startswith("Refused (F5): the camera's insertion is lost")
+    assert box.text().endswith("show the tissue to the camera, or store anyway (the override is kept on record).")
+    assert box.informativeText().startswith("Store anyway only if you know the camera has not slid")
+    assert screen.store_status.text() == "Refused (F5): the camera's insertion is lost; store anyway or not?"
     assert box.defaultButton().text() == DO_NOT_STORE                   # Enter, or a Space meant for Store SN, is safe
     [no] = [b for b in box.buttons() if b.text() == DO_NOT_STORE]
     no.click()
@@ -161,6 +162,7 @@ def test_a_store_while_the_insertion_is_lost_is_refused_offered_and_overridden_o
     [anyway] = [b for b in screen.confirm_box.buttons() if b.text() == STORE_ANYWAY]
     anyway.click()
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=5_000)
+    assert screen.store_status.text().startswith("stored SN1 anyway, the override on record (spread ")
     [node] = window.session.intraop_records()
     assert node.trocar_camera_mm == pytest.approx(START_MM, abs=0.3)          # mapped at the insertion held
     refused = window.session.events("store_refused")
@@ -247,14 +249,15 @@ def test_a_tracked_node_is_re_expressed_with_its_slide_under_a_new_trocar_calibr
     assert "re-expressed SN1" in window.statusBar().currentMessage()
 
 
-def outcome_with(state: str, insertion_mm: float = 171.0, residual_mm: float = 0.05):
+def outcome_with(state: str, insertion_mm: float = 171.0, residual_mm: float = 0.05,
+                 reason: str = "no tissue texture in view"):
     """A frame's outcome whose insertion tracker said ``state`` ("tracked" | "lost" | "" for tracking off)."""
     from snreg.workflow.acquisition import FrameOutcome
     if not state:
         return FrameOutcome(0, None, "", None, 0, np.nan, False, False, 1.0)
     tracked = state == "tracked"
     estimate = InsertionEstimate(0, state, insertion_mm if tracked else np.nan, 0.9 * tracked, 0.02,
-                                 residual_mm if tracked else np.nan, "" if tracked else "no tissue texture in view")
+                                 residual_mm if tracked else np.nan, "" if tracked else reason)
     step = InsertionStep(estimate, insertion_mm, None)
     return FrameOutcome(0, None, "", None, 0, np.nan, False, False, 1.0, insertion=step,
                         insertion_text=insertion_text(step, START_MM))
@@ -263,6 +266,7 @@ def outcome_with(state: str, insertion_mm: float = 171.0, residual_mm: float = 0
 def test_the_insertion_line_reads_each_state_at_a_glance(qtbot):
     line = InsertionLine("camera insertion not tracked: this rig's camera does not slide in a trocar")
     qtbot.addWidget(line)
+    line.show()
     line.show_outcome(outcome_with("tracked"))
     assert (line.text(), line.styleSheet()) == ("camera 171.0 mm, +13.0 mm since calibration, tracked", "")
     line.show_outcome(outcome_with("tracked", residual_mm=1.6))      # a trocar that moved, an IMU that is off
@@ -276,6 +280,10 @@ def test_the_insertion_line_reads_each_state_at_a_glance(qtbot):
     line.show_outcome(outcome_with(""))
     assert line.text() == "camera insertion not tracked: this rig's camera does not slide in a trocar"
     assert line.styleSheet() == QUIET
+    line.resize(300, line.height())                                  # narrow: LOST in bold takes more lines, not cut
+    line.show_outcome(outcome_with("lost", reason="the view is blurred (1.8 times less sharp than the tissue seen "
+                                                  "there before)"))
+    assert line.shown_lines > 2 and line.shown_text() == line.text()
 
 
 def record_tracked_session(path):

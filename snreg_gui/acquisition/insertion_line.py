@@ -13,13 +13,19 @@ from snreg.workflow.acquisition import FrameOutcome
 from snreg.workflow.insertion import residual_text
 from snreg_gui.acquisition.status import BAD, QUIET, WARN, StatusLine, set_style
 
+TEXT_SCALE = 1.2          # a little larger than the status lines: read from a step away, as the angles are
+
 
 class InsertionLine(StatusLine):
     """The insertion of the newest pair, in words, its state as the line's colour; the whole text in the tooltip.
     ``untracked``: what it says when the insertion is not tracked, and why."""
 
     def __init__(self, untracked: str = "camera insertion not tracked"):
-        super().__init__("", 1, 4, min_width=200)
+        super().__init__("", 1, 5, min_width=200)
+        font = self.font()
+        font.setPointSizeF(font.pointSizeF() * TEXT_SCALE)
+        self.setFont(font)
+        self._set_lines(self.lines)
         self.untracked = untracked
         self.state = ""          # "tracked", "lost" or "" (not tracked)
 

@@ -79,6 +79,7 @@ class AcquisitionScreen(QWidget):
         self._last_result: FrameResult | None = None
         self._last_arrival_ns: int | None = None
         self._store_pending = False
+        self._overriding = False             # the store pending is the operator's "Store anyway"
         self._paused = ""
         self._stopped = ""                   # why the feed stopped, once it has
         self.confirm_box: QMessageBox | None = None
@@ -105,7 +106,7 @@ class AcquisitionScreen(QWidget):
         self._missing: list = []
         self.store_button = QPushButton("Store SN")
         self.store_button.setMinimumHeight(self.store_button.sizeHint().height() * 4 // 3)
-        self.store_reason = StatusLine("", 2, 4)
+        self.store_reason = StatusLine("", 2, 6)      # the insertion's refusal runs long
         self.store_status = StatusLine("", 2, 4)
         self.undo_button = QPushButton("Undo last")
         self.undo_button.setEnabled(False)
@@ -265,8 +266,10 @@ class AcquisitionScreen(QWidget):
             self.counts_edit.clear()
         self.label_edit.setPlaceholderText(f"{LABEL_HINT} ({node.id} was '{node.label}')" if node.label
                                            else LABEL_HINT)
-        self._say(f"stored {node.id}{f' {node.label!r}' if node.label else ''} (spread {node.spread_mm:.2f} mm over "
-                  f"{node.n_frames} fixes)", GOOD)
+        anyway = " anyway, the override on record" if self._overriding else ""
+        self._overriding = False
+        self._say(f"stored {node.id}{f' {node.label!r}' if node.label else ''}{anyway} (spread {node.spread_mm:.2f} mm "
+                  f"over {node.n_frames} fixes)", GOOD)
         self._update_store_state()
 
     def remove_node(self, node) -> None:
@@ -283,7 +286,7 @@ class AcquisitionScreen(QWidget):
 
     def show_store_problem(self, message: str) -> None:
         """A store refused or failed: the reason in red, and a beep (a foot pedal does not look at the screen)."""
-        self._store_pending = False
+        self._store_pending = self._overriding = False
         self._say(message, BAD)
         QApplication.beep()
         self._update_store_state()
@@ -301,7 +304,7 @@ class AcquisitionScreen(QWidget):
     def offer_override(self, refusal: str, request: StoreRequest) -> None:
         """A refusal the operator may override (the camera's insertion lost after the camera moved): said in red with
         a beep, then asked; "Store anyway" sends the request again, overriding (the core keeps it on record)."""
-        self.show_store_problem(f"Refused ({request.trigger}): {refusal}.")
+        self.show_store_problem(f"Refused ({request.trigger}): the camera's insertion is lost; store anyway or not?")
         box, store_anyway = override_box(self, refusal, request.trigger)
         box.finished.connect(lambda _: self._answered(box.clickedButton() is store_anyway, request.overriding(),
                                                       "while the camera's insertion is lost"))
@@ -312,6 +315,7 @@ class AcquisitionScreen(QWidget):
         """The question's answer: yes sends ``request``; no says it was not stored (``declined``: what not)."""
         self.confirm_box = None
         if yes:
+            self._overriding = request.override
             self._store_pending = True
             self._set_store_enabled(False, "storing...")
             self.store_requested.emit(request)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from PySide6.QtCore import QRect, Qt
+from PySide6.QtCore import QEvent, QRect, Qt
 from PySide6.QtGui import QFont, QFontDatabase, QFontMetrics, QPainter
 from PySide6.QtWidgets import QGridLayout, QLabel, QSizePolicy, QWidget
 
@@ -110,6 +110,11 @@ class StatusLine(QLabel):
     def resizeEvent(self, event) -> None:                       # noqa: N802
         super().resizeEvent(event)
         self._set_lines(max(self.shown_lines, self._needed_lines()))     # only grows: no loop with a scroll bar
+
+    def changeEvent(self, event) -> None:                       # noqa: N802
+        super().changeEvent(event)
+        if event.type() == QEvent.Type.FontChange:               # e.g. a style made it bold: its text takes more room
+            self._set_lines(self._needed_lines())
 
     def _needed_lines(self) -> int:
         width = self.contentsRect().width()

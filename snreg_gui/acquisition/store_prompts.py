@@ -62,13 +62,12 @@ def near_node_box(parent: QWidget, question: str) -> QMessageBox:
 
 
 def override_box(parent: QWidget, refusal: str, trigger: str) -> tuple[QMessageBox, QPushButton]:
-    """Store although the guard refused (``refusal``, overridable)? The box and its "Store anyway" button; "Don't
-    store" is the default. The box says that an override goes on record."""
+    """Store although the guard refused (``refusal``, overridable: it says the override goes on record)? The box and
+    its "Store anyway" button; "Don't store" is the default."""
     box = QMessageBox(QMessageBox.Icon.Warning, "Store SN refused: the camera's insertion is lost",
                       f"Refused ({trigger}): {refusal}.", parent=parent)
     box.setInformativeText("Store anyway only if you know the camera has not slid since it was last tracked: the "
-                           "node is then mapped at the insertion last tracked, and the override is kept in the "
-                           "session's record.")
+                           "node is then mapped at the insertion tracked last.")
     store_anyway = box.addButton(STORE_ANYWAY, QMessageBox.ButtonRole.AcceptRole)
     box.setDefaultButton(box.addButton(DO_NOT_STORE, QMessageBox.ButtonRole.RejectRole))
     return box, store_anyway

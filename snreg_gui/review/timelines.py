@@ -54,7 +54,7 @@ def _colour_key() -> str:
         return f"{title}: " + " ".join(f"<span style='color:{c}'>{w}</span>" for c, w in zip(_XYZ_COLOURS, words))
     insertion = (f"insertion: tracked, <span style='color:#de2d26'>lost (held)</span>, "
                  f"<span style='color:{_NODE_RING}'>&#9675; node</span>")
-    return f"{names('IMU', ('yaw', 'pitch', 'roll'))} &nbsp;&nbsp; {names('tip', 'xyz')} &nbsp;&nbsp; {insertion}"
+    return f"{names('IMU', ('yaw', 'pitch', 'roll'))} &nbsp;&nbsp; {names('tip (camera)', 'xyz')} &nbsp;&nbsp; {insertion}"
 
 
 class TimelinePlots(pg.GraphicsLayoutWidget):
@@ -71,9 +71,9 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         super().__init__()
         self.key = self.addLabel(_colour_key(), row=0, col=0)      # above the plots: node labels never cover it
         self.angles = self._plot(0, "IMU (deg)")
-        self.tip = self._plot(1, "tip, camera (mm)")
+        self.tip = self._plot(1, "tip (mm)")                  # short labels: five plots share a 700 px screen
         self.insertion = self._plot(2, "insertion (mm)")
-        self.quality = self._plot(3, "tracking quality")
+        self.quality = self._plot(3, "quality")
         self.frame_rate = self._plot(4, "frames (1/s)")
         self.frame_rate.setLabel("bottom", "time since the first sample (s)")
         self.plots = (self.angles, self.tip, self.insertion, self.quality, self.frame_rate)
