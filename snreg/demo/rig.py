@@ -48,6 +48,7 @@ class DemoRig:
     """
 
     simulated = True
+    moving_camera = False      # the phantom's tissue plane follows the probe's depth: tracking would read it as slides
     description = "demo: rendered phantom, simulated IMU"
 
     def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0,
