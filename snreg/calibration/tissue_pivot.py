@@ -63,7 +63,11 @@ def _verdict(pivot: PivotResult) -> tuple[str, str]:
     if pivot.inliers.mean() < BAD_INLIER_FRACTION:
         return "bad", (f"only {pivot.inliers.mean():.0%} of the views agree on one pivot: the tissue or the trocar moved "
                        "while recording; record again")
-    if turn < GOOD_TURN_DEG or rms > GOOD_RMS_MM or sd > GOOD_SD_MM:
+    if turn < GOOD_TURN_DEG:
+        return "check", (f"residual {rms:.2f} mm, uncertainty {sd:.2f} mm over a turn of only {turn:.1f} degrees: "
+                         f"usable, but a turn of {GOOD_TURN_DEG:g} degrees or more would be surer")
+    if rms > GOOD_RMS_MM or sd > GOOD_SD_MM:
         return "check", (f"residual {rms:.2f} mm, uncertainty {sd:.2f} mm over a turn of {turn:.1f} degrees: usable, "
-                         f"but a turn of {GOOD_TURN_DEG:g} degrees or more over still tissue would be surer")
+                         "but the camera may have slid a little or the tissue moved; hold the insertion over still "
+                         "tissue and record again to be sure")
     return "good", f"residual {rms:.2f} mm, uncertainty {sd:.2f} mm over a turn of {turn:.1f} degrees in {used} views"

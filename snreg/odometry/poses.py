@@ -8,13 +8,13 @@ corners matched left to right and triangulated): the keyframe's points are follo
 (:func:`~snreg.odometry.views.follow`) from where the predicted pose puts them, and the pose is fitted to where they
 are seen (:func:`fit_rigid`: both eyes, robustly, so the probe and whatever moves against the tissue drop out).
 
-Prediction: the last pose moved on as between the last two pairs; when the followed points disagree, once more
-from the prediction shifted by what the coarse images show (:func:`~snreg.odometry.search.coarse_shift`). A new
-keyframe is made from a pair when no keyframe is within ``fresh_angle_deg`` of it or the one followed kept too few of
-its points; its pose is the one measured for that pair, so poses far from the first view carry the error of the
-keyframes between (a few tenths of a millimetre over a 20-degree turn on rendered tissue). A keyframe point that
-disagrees with the motion twice running (the probe, an instrument) is dropped from it. A pair is ``tracked`` or
-lost with the reason in words; after a loss the keyframes nearest the last pose are tried again.
+Prediction: the last pose moved on as between the last two pairs (over a few lost pairs too); when the followed
+points disagree, once more from the prediction shifted by what the coarse images show
+(:func:`~snreg.odometry.search.coarse_shift`); after a loss, from the last pose found as well. A new keyframe is made
+from a pair when no keyframe is within ``fresh_angle_deg`` of it or the one followed kept too few of its points; its
+pose is the one measured for that pair, so poses far from the first view carry the error of the keyframes between (a
+few tenths of a millimetre over a 20-degree turn on rendered tissue). A keyframe point that disagrees with the motion
+twice running (the probe, an instrument) is dropped from it. A pair is tracked or lost with the reason in words.
 """
 
 from __future__ import annotations
@@ -25,8 +25,7 @@ import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.geometry import invert, make_transform, rotation_angle_deg
-from snreg.odometry.motion import (_ITERATIONS, MotionFit, Observations, _both_eyes, _minus_cross, _rms,
-                                   _robust_weights, _rotation, _rotvec)
+from snreg.odometry.motion import MotionFit, Observations, _both_eyes, _minus_cross, _rms, _rotation, _rotvec
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography
 from snreg.odometry.views import EyePair, Keyframe, OdometryParams, View, follow, inside, make_keyframe
 from snreg.probe import ProbeModel
@@ -34,9 +33,13 @@ from snreg.probe import ProbeModel
 __all__ = ["TissuePose", "TissuePoseFollower", "fit_rigid"]
 
 _CONVERGED = 1e-7
+_HUBER_PX = (4.0, 1.0)       # the robust fit: four iterations with each Huber width (a poor start, then a good one),
+_FINAL_ITERATIONS = 4        # then the inliers alone: a point's worse eye within
+_CUT_MEDIANS, _CUT_PX = 3.0, (0.75, 2.0)     # this many times the median of all, within these (working pixels)
 _KEPT_SHARE = 0.6            # a keyframe whose followed points fall below this share of its own is renewed
 _STRIKES = 2                 # a keyframe point that disagrees this many times running is dropped
-_TRIED, _SEARCHED = 2, 4     # keyframes tried from the prediction; after a loss, keyframes tried near the last pose
+_TRIED, _SEARCHED = 2, 4     # keyframes tried from the prediction; after a loss, keyframes tried from each start
+_MAX_GAP = 5                 # pairs lost over which the last motion is carried on
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,21 +76,29 @@ class _Anchor:
 
 def fit_rigid(obs: Observations, rotation: np.ndarray, translation: np.ndarray) -> MotionFit:
     """Rotation (3, 3) and translation (3,) mm current_from_keyframe with no model of the motion, from a start: the
-    reprojection error of the keyframe's points in both current eyes minimised robustly (Huber, then the inliers
-    alone) by Gauss-Newton, as :func:`~snreg.odometry.motion.fit_pivot` does under the pivot model. A start that is
-    not quite a rotation (a product of many) is made one first: the fit keeps what it is given."""
+    reprojection error of the keyframe's points in both current eyes minimised robustly by Gauss-Newton, as
+    :func:`~snreg.odometry.motion.fit_pivot` does under the pivot model: Huber weights, then the inliers alone, cut
+    at a few times the median error (the tissue's points agree to tenths of a pixel, and the probe, moving a pixel
+    or two against the tissue between pairs, must not pull the pose). A start that is not quite a rotation (a
+    product of many) is made one first: the fit keeps what it is given."""
     rotation = _rotation(_rotvec(np.asarray(rotation, float)))
     translation = np.asarray(translation, float).copy()
     right_rotation, right_translation = obs.right_from_left[:3, :3], obs.right_from_left[:3, 3]
-    keep = np.zeros(len(obs), bool)
-    error = np.full(len(obs), np.inf)
-    for iteration in range(_ITERATIONS + 3):
+    huber = np.repeat(_HUBER_PX, 4)
+    keep = np.ones(len(obs), bool)
+    for iteration in range(len(huber) + _FINAL_ITERATIONS):
         turned = obs.points @ rotation.T
         d_q = np.zeros((len(obs), 3, 6))
         d_q[:, :, :3] = _minus_cross(turned)
         d_q[:, :, 3:] = np.eye(3)
         rows, values, error = _both_eyes(turned + translation, d_q, obs, right_rotation, right_translation)
-        weights, keep, final = _robust_weights(error, iteration)
+        final = iteration >= len(huber)
+        if final:
+            keep = error < np.clip(_CUT_MEDIANS * float(np.median(error)), *_CUT_PX)
+            point = keep.astype(float)
+        else:
+            point = np.minimum(1.0, huber[iteration] / np.maximum(error, 1e-9))
+        weights = np.repeat(point, 4)
         try:
             step = -np.linalg.solve(rows.T @ (rows * weights[:, None]), rows.T @ (values * weights))
         except np.linalg.LinAlgError:        # no inliers left: nothing agrees with any one motion
@@ -135,24 +146,28 @@ class TissuePoseFollower:
 
     # -- steps ---------------------------------------------------------------
     def _follow(self, view: View) -> tuple[TissuePose | None, str]:
-        """This pair against the keyframes nearest the predicted pose; after a loss, against those nearest the last."""
-        consecutive = self._last[0] == self._index - 1
-        predicted = self._predicted() if consecutive else self._last[1]
-        tried = self._ranked(predicted)[:_TRIED if consecutive else _SEARCHED]
+        """This pair against the keyframes nearest the predicted pose; after a loss, also against those nearest the
+        last pose found."""
+        gap = self._index - self._last[0]
+        starts = [self._predicted(gap)] + ([self._last[1]] if gap > 1 else [])
         reasons = []
-        for anchor in tried:
-            pose, reason = self._measure(view, anchor, predicted)
-            if pose is not None:
-                return pose, ""
-            reasons.append(reason)
+        for start in starts:
+            for anchor in self._ranked(start)[:_TRIED if gap == 1 else _SEARCHED]:
+                pose, reason = self._measure(view, anchor, start)
+                if pose is not None:
+                    return pose, ""
+                reasons.append(reason)
         return None, reasons[0] if reasons else "the view matches no tissue seen before"
 
-    def _predicted(self) -> np.ndarray:
-        """The pose expected now: the last one moved on as between the last two pairs (when they were consecutive)."""
+    def _predicted(self, gap: int) -> np.ndarray:
+        """The pose expected ``gap`` pairs after the last one found: moved on as between the last two (when they were
+        consecutive), for at most ``_MAX_GAP`` pairs."""
         index, last = self._last
-        if self._before is None or self._before[0] != index - 1:
+        if self._before is None or self._before[0] != index - 1 or gap > _MAX_GAP:
             return last
-        return last @ invert(self._before[1]) @ last
+        step = invert(self._before[1]) @ last
+        turn = _rotation(gap * _rotvec(step[:3, :3]))
+        return last @ make_transform(turn, gap * step[:3, 3])
 
     def _ranked(self, pose: np.ndarray) -> list[_Anchor]:
         """The keyframes to try at ``pose``: the least turned from it first (of equals, the first made)."""
