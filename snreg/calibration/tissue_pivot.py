@@ -54,15 +54,15 @@ def _verdict(pivot: PivotResult) -> tuple[str, str]:
         return "bad", (f"only {used} views agree on a pivot, {MIN_VIEWS} are needed; keep textured tissue in view, "
                        "turn the camera more slowly and record again")
     if turn < BAD_TURN_DEG:
-        return "bad", (f"the camera turned through only {turn:.1f} degrees, under the {BAD_TURN_DEG:g} a distance needs; "
-                       "turn it further about the trocar, left-right and up-down, and record again")
+        return "bad", (f"the camera turned through only {turn:.1f} degrees, under the {BAD_TURN_DEG:g} a distance "
+                       "needs; turn it further about the trocar, left-right and up-down, and record again")
     if rms > BAD_RMS_MM or sd > BAD_SD_MM:
         return "bad", (f"residual {rms:.2f} mm, uncertainty {sd:.2f} mm: the camera did not turn about one fixed point "
                        "(it slid through the trocar, or the trocar or the tissue moved); hold the insertion and record "
                        "again")
     if pivot.inliers.mean() < BAD_INLIER_FRACTION:
-        return "bad", (f"only {pivot.inliers.mean():.0%} of the views agree on one pivot: the tissue or the trocar moved "
-                       "while recording; record again")
+        return "bad", (f"only {pivot.inliers.mean():.0%} of the views agree on one pivot: the tissue or the trocar "
+                       "moved while recording; record again")
     if turn < GOOD_TURN_DEG:
         return "check", (f"residual {rms:.2f} mm, uncertainty {sd:.2f} mm over a turn of only {turn:.1f} degrees: "
                          f"usable, but a turn of {GOOD_TURN_DEG:g} degrees or more would be surer")

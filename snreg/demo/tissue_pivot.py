@@ -11,10 +11,13 @@ against the tissue; the chain's axes are all turned against each other (:func:`~
 The pairs come from :class:`~snreg.demo.surgery_video.SurgeryVideo`, which also writes them as files.
 
 A pair costs about 0.15 s to render at a quarter of the thesis resolution and 0.7 s at half, so the feed renders
-each frame of the cycle when first read and replays it afterwards (the first cycle is slow, as a camera is not).
+each frame of the cycle when first read and replays it afterwards (the first cycle is slow, as a camera is not); the
+tissue itself is built at the first frame (seconds), in the thread that reads the feed.
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -60,12 +63,24 @@ class TissuePivotScene:
         self.calibration = calibration
         self.frames_per_cycle = int(frames_per_cycle)
         self.true_chain = surgery_chain(trocar_camera_mm)
-        scene = TissueScene(calibration, default_probe_model(), surface)
-        self.video = SurgeryVideo(scene, pivot_cycle(self.frames_per_cycle, trocar_camera_mm, tilt_deg),
-                                  self.true_chain, VideoOptions(imu_noise_deg=imu_noise_deg, probe=probe, seed=seed))
+        self._make_video = lambda: SurgeryVideo(
+            TissueScene(calibration, default_probe_model(), surface),
+            pivot_cycle(self.frames_per_cycle, trocar_camera_mm, tilt_deg), self.true_chain,
+            VideoOptions(imu_noise_deg=imu_noise_deg, probe=probe, seed=seed))
+        self._video: SurgeryVideo | None = None
+        self._building = threading.Lock()
         self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.shown_index = 0
         self.imu = SceneImu(self)
+
+    @property
+    def video(self) -> SurgeryVideo:
+        """The rendered video of one cycle, built when first needed (seconds: the tissue's height field and texture),
+        so a window can make the scene and leave the building to the capture thread."""
+        with self._building:
+            if self._video is None:
+                self._video = self._make_video()
+            return self._video
 
     def trocar_from_camera(self, index: int) -> np.ndarray:
         """(4, 4) true camera pose at frame ``index`` in the trocar frame, mm."""

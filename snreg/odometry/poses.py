@@ -63,13 +63,11 @@ class TissuePose:
 
 @dataclass(eq=False)
 class _Anchor:
-    """A keyframe with its pose in the tissue frame, the keyframes between it and the first (``hops``: the poses
-    measured against it carry their errors) and, per point, whether it is still used and how many times running
-    it disagreed."""
+    """A keyframe with its pose in the tissue frame and, per point, whether it is still used and how many times
+    running it disagreed."""
 
     keyframe: Keyframe
     tissue_from_keyframe: np.ndarray
-    hops: int
     alive: np.ndarray
     strikes: np.ndarray
 
@@ -136,7 +134,7 @@ class TissuePoseFollower:
         if view.texture < self.params.min_texture:
             return self._lost("no tissue texture in view (covered, dark, smoke or inside the trocar)")
         if not self.anchors:
-            if self._add_anchor(view, np.eye(4), 0) is None:
+            if self._add_anchor(view, np.eye(4)) is None:
                 return self._lost("too few tissue features to start from")
             return self._tracked(TissuePose(self._index, np.eye(4), len(self.anchors[0].keyframe.points), 1.0, 0.0, 0))
         pose, reason = self._follow(view)
@@ -171,7 +169,8 @@ class TissuePoseFollower:
 
     def _ranked(self, pose: np.ndarray) -> list[_Anchor]:
         """The keyframes to try at ``pose``: the least turned from it first (of equals, the first made)."""
-        return sorted(self.anchors, key=lambda a: float(rotation_angle_deg(pose[:3, :3].T @ a.tissue_from_keyframe[:3, :3])))
+        rotation = pose[:3, :3]
+        return sorted(self.anchors, key=lambda a: float(rotation_angle_deg(rotation.T @ a.tissue_from_keyframe[:3, :3])))
 
     def _measure(self, view: View, anchor: _Anchor, predicted: np.ndarray) -> tuple[TissuePose | None, str]:
         """Follow the keyframe's points into this pair from where ``predicted`` puts them and fit the pose; when they
@@ -195,7 +194,8 @@ class TissuePoseFollower:
                 shift, response = coarse_shift(view, keyframe, homography)
                 if response < MIN_RESPONSE:
                     break
-            left_px, found_left = follow(keyframe.left, view.left, keyframe.left_px[usable], guess_left[usable] + shift, p)
+            left_px, found_left = follow(keyframe.left, view.left, keyframe.left_px[usable],
+                                         guess_left[usable] + shift, p)
             right_px, found_right = follow(keyframe.right, view.right, keyframe.right_px[usable],
                                            guess_right[usable] + shift, p)
             found = found_left & found_right
@@ -228,10 +228,12 @@ class TissuePoseFollower:
         fresh = any(float(rotation_angle_deg(pose.tissue_from_camera[:3, :3].T @ a.tissue_from_keyframe[:3, :3]))
                     <= self.params.fresh_angle_deg for a in self.anchors)
         if not fresh or pose.points < _KEPT_SHARE * followed.alive.sum():
-            self._add_anchor(view, pose.tissue_from_camera, followed.hops + 1)
+            self._add_anchor(view, pose.tissue_from_camera)
         return pose
 
-    def _add_anchor(self, view: View, tissue_from_camera: np.ndarray, hops: int) -> _Anchor | None:
+    def _add_anchor(self, view: View, tissue_from_camera: np.ndarray) -> _Anchor | None:
+        """A keyframe of ``view`` at this pose (None with too few tissue points); its right-eye points are first looked
+        for at the keyframes' median depth. Its insertion fields are the insertion tracker's, unused here."""
         number = self.anchors[-1].keyframe.number + 1 if self.anchors else 0
         depth = float(np.median([np.median(a.keyframe.points[:, 2]) for a in self.anchors])) if self.anchors else 80.0
         keyframe = make_keyframe(self.pair, view, self.params, number=number, frame=self._index,
@@ -242,7 +244,7 @@ class TissuePoseFollower:
         if len(self.anchors) >= self.params.max_keyframes:          # forget the oldest, never the first
             self.anchors.pop(1)
         n = len(keyframe.points)
-        self.anchors.append(_Anchor(keyframe, tissue_from_camera, hops, np.ones(n, bool), np.zeros(n, int)))
+        self.anchors.append(_Anchor(keyframe, tissue_from_camera, np.ones(n, bool), np.zeros(n, int)))
         return self.anchors[-1]
 
     def _lost(self, reason: str) -> TissuePose:
