@@ -222,3 +222,28 @@ def test_turning_over_tissue_finds_the_true_chain_and_reset_starts_afresh(qtbot,
           f"(error {distance_error:.2f} mm), IMU-camera rotation error {rotation_error:.3f} degrees")
     assert distance_error < 2.0 and rotation_error < 1.0
     assert not wizard.busy and board_feed.made == [] and tissue_feed.all_closed()   # only the tissue's feed ran
+
+
+def test_the_board_and_tissue_feeds_never_hold_one_camera_at_once(qtbot, scene):
+    class Camera(Sources):
+        """Both feeds of a real rig open the same cameras: a second may open only once the first is closed."""
+
+        overlapped = False
+
+        def __call__(self):
+            self.overlapped |= not self.all_closed()
+            return super().__call__()
+
+    camera = Camera(scene)
+    wizard = TrocarWizard(camera, scene.imu, scene.calibration, BOARD, tissue_source=(camera, scene.imu))
+    qtbot.addWidget(wizard)
+    wizard.show()
+    click(qtbot, next_button(wizard))
+    qtbot.waitUntil(lambda: len(wizard.pivot_page.samples) > 0, timeout=30_000)
+    wizard.back()                                        # and at once on to the tissue page
+    wizard.method_page.tissue_button.click()
+    wizard.next()
+    qtbot.waitUntil(lambda: len(camera.made) == 2 and wizard.tissue_page.imu_label.text().startswith("IMU at frame"),
+                    timeout=30_000)
+    wizard.close()
+    assert not camera.overlapped and camera.all_closed() and not wizard.busy

@@ -49,9 +49,8 @@ class MethodPage(QWizardPage):
         self.setSubTitle("How to find the trocar-camera distance and the IMU-camera axes of the chain.")
         self.pivot_button = QRadioButton("Pivot calibration (recommended): pivot the endoscope in the trocar in front "
                                          "of a still checkerboard; gives the distance and the IMU-camera rotation")
-        self.tissue_button = QRadioButton("Turn the camera over tissue (no board): turn the endoscope about the trocar "
-                                          "over still tissue; gives the distance and the IMU-camera rotation from the "
-                                          "camera's own motion in the stereo video")
+        self.tissue_button = QRadioButton("Turn the camera over tissue (no board): the distance and the IMU-camera "
+                                          "rotation from the camera's own motion in the stereo video")
         self.arc_button = QRadioButton("Arc method (thesis eq. 14): the distance from the swings of the camera; "
                                        "IMU axes aligned by eye")
         self.manual_button = QRadioButton("Manual entry: distances measured by hand (thesis: 460 mm and 158 mm)")

@@ -86,12 +86,17 @@ class TrocarWizard(QWizard):
                 or self.arc_page.fitting or self.tissue_page.fitting or self.summary_page.saving)
 
     def _feed_live_pages(self, page_id: int) -> None:
-        """Run the feed of the live page now shown, and no other (the two may share the cameras)."""
+        """Run the feed of the live page now shown, and no other: the two may open the same cameras, so before one
+        starts the other is waited for (at most the frame it is processing) until its source is closed."""
         page = self.page(page_id)
         wanted = page.capture if isinstance(page, LivePage) else None
         for capture in (self._capture, self._tissue_capture):
-            if capture is not wanted:
+            if capture is wanted:
+                continue
+            if wanted is None:
                 capture.stop()
+            else:
+                capture.shutdown()
         if wanted is not None:
             wanted.start()
 
