@@ -27,6 +27,7 @@ from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.demo.board_tour import board_feed
 from snreg.demo.pivot_scene import PivotScene, SceneImu
+from snreg.demo.tissue_pivot import TissuePivotScene
 from snreg.demo.error_rig import DemoErrors
 from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import true_sources_lps, write_phantom_spect
@@ -42,7 +43,7 @@ IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loa
 class DemoRig:
     """A :class:`~snreg.rig.protocols.Rig` of simulated devices: calibration, chain, simulated IMU;
     :meth:`frame_source` starts the IMU reader and builds the rendered feed; the wizards get a rendered
-    checkerboard tour and a pivot recording with its own IMU.
+    checkerboard tour, and a pivot recording over a board and a turn over tissue, each with its own IMU.
 
     scale: the thesis 1920x1080 cameras at this fraction of their resolution (rendering speed).
     """
@@ -107,6 +108,11 @@ class DemoRig:
         """A rendered pivot recording and the IMU that moves with it (frame and orientation belong together)."""
         scene = PivotScene(self.cameras, THESIS_BOARD)
         return scene.frame_source, SceneImu(scene)
+
+    def tissue_source(self) -> tuple[Callable[[], FrameSource], SceneImu]:
+        """A rendered turn about the trocar over tissue and the IMU that moves with it (0.2 degrees of noise)."""
+        scene = TissuePivotScene(self.cameras, seed=self.seed)
+        return scene.frame_source, scene.imu
 
     def _start_imu(self) -> None:
         if self.imu.started:
