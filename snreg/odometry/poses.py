@@ -194,9 +194,8 @@ class TissuePoseFollower:
                 shift, response = coarse_shift(view, keyframe, homography)
                 if response < MIN_RESPONSE:
                     break
-            left_px, found_left = follow(keyframe.left, view.left, keyframe.left_px[usable],
-                                         guess_left[usable] + shift, p)
-            right_px, found_right = follow(keyframe.right, view.right, keyframe.right_px[usable],
+            left_px, found_left = follow(keyframe, 0, view.left, keyframe.left_px[usable], guess_left[usable] + shift, p)
+            right_px, found_right = follow(keyframe, 1, view.right, keyframe.right_px[usable],
                                            guess_right[usable] + shift, p)
             found = found_left & found_right
             if found.sum() < p.min_points:
