@@ -19,8 +19,9 @@ the calibration, probe model and method given, are mapped through the session's 
 the node's own mean IMU orientation (as the live store did). The node's new position is the median of the new
 fixes, its insertion the median over them (NaN while no pair up to it was tracked: the chain's own distance maps it
 then), its covariance computed anew from the new fixes (:func:`~snreg.tracking.uncertainty.node_covariance` with its
-default magnitudes, the insertion's sd as tracked); :func:`store_retracked` keeps them as a new version of the node (the old values stay on record in the
-session's events, as any re-expression). The session's ``streams/camera`` keeps what was tracked live.
+default magnitudes, the insertion's sd as tracked); :func:`store_retracked` keeps them as a new version of the node
+(the old values stay on record in the session's events, as any re-expression). The session's ``streams/camera``
+keeps what was tracked live.
 
 >>> result = retrack("s.h5", calibration=load_calibration("corrected.yaml"))
 >>> [(node.id, node.moved_mm) for node in result.nodes]
@@ -154,13 +155,13 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
     try:
         tracker = StereoTracker(calibration, probe, method=method)
         if insertion == "video" or (insertion == "auto" and len(camera) > 0):
-            followed, tips, read = _follow(readers, path, segments, frame_times, imu, calibration, stored["chain"],
+            followed, fixes, read = _follow(readers, path, segments, frame_times, imu, calibration, stored["chain"],
                                            probe, tracker, wanted)
         else:
-            followed, (tips, read) = None, _window_tips(readers, sorted(wanted), tracker)
+            followed, (fixes, read) = None, _window_fixes(readers, sorted(wanted), tracker)
     finally:
         readers.close()
-    out = [_retrack_node(node, windows[node.id], tips, read, followed, stored["chain"], tracker) for node in nodes]
+    out = [_retrack_node(node, windows[node.id], fixes, read, followed, stored["chain"], tracker) for node in nodes]
     return RetrackResult(out, calibration_version(stereo_to_dict(calibration)), method, followed)
 
 
@@ -176,9 +177,9 @@ def store_retracked(path: str | Path, result: RetrackResult, reason: str) -> int
     return len(changed)
 
 
-def _window_tips(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[dict[int, ProbeFix], set[int]]:
+def _window_fixes(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[dict[int, ProbeFix], set[int]]:
     """The probe fix tracked in each of ``rows`` by row, and the rows whose pair was read."""
-    tips, read = {}, set()
+    fixes, read = {}, set()
     for row in rows:
         pair = _pair(readers, row)
         if pair is None:
@@ -186,8 +187,8 @@ def _window_tips(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[
         read.add(int(row))
         fix = _track(tracker, pair)
         if fix is not None:
-            tips[int(row)] = fix
-    return tips, read
+            fixes[int(row)] = fix
+    return fixes, read
 
 
 def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu: np.ndarray,
@@ -203,7 +204,7 @@ def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu
     follower = InsertionTracker(calibration, chain, probe=probe)
     used, sd = np.full(n_rows, follower.start_mm), np.full(n_rows, NodeUncertainty.insertion_sd_mm)
     tracked, known = np.zeros(n_rows, bool), np.zeros(n_rows, bool)
-    tips, read, last, seen = {}, set(), follower.start_mm, False
+    fixes, read, last, seen = {}, set(), follower.start_mm, False
     for k, row in enumerate(recorded):
         pair = _pair(readers, row)
         if pair is None:
@@ -213,12 +214,12 @@ def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu
             read.add(int(row))
             own = fix if tracker is masker else _track(tracker, pair)
             if own is not None:
-                tips[int(row)] = own
+                fixes[int(row)] = own
         estimate = follower.update(*pair, orientations[k], probe_fix=fix)
         if estimate.tracked:
             last, seen, tracked[row], sd[row] = estimate.trocar_camera_mm, True, True, estimate.sd_mm
         used[row], known[row] = last, seen
-    return VideoInsertion(used, tracked, known, len(recorded), source, sd), tips, read
+    return VideoInsertion(used, tracked, known, len(recorded), source, sd), fixes, read
 
 
 def _pair(readers: RecordedPairs, row):
