@@ -3,15 +3,26 @@ intraop nodes and pair them; with a session alone, both node sets and the initia
 
 Each side's covariances (a stored node's own error, a hot spot's from the segmentation; a session's nodes or a CSV's
 ``cov_*`` columns) are given to ``register`` when every node of that side has one; ``--no-covariances`` registers
-without them, for comparison. The output says which were used."""
+without them, for comparison. The output says which were used.
+
+Anatomical landmarks come with the nodes: a CSV's rows of ``kind`` landmark, a markups file's landmark points
+(:mod:`snreg.nodes`), a session's stored and preop landmarks; ``--preop-landmarks``/``--intraop-landmarks`` add a file
+of landmarks alone (a Slicer point list saved on its own). They are paired by name and given to ``register``, so one
+or two nodes register when landmarks make three points; each pair's residual and leave-one-out residual are printed,
+and the pairs the registration left out as contradicting the rest are named as suspect."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from snreg.cli.common import check_output_file, finite_float, read_initial, seed, write_text
 from snreg.errors import UserError
+
+if TYPE_CHECKING:                       # numpy and the node files are imported when a command runs, not for --help
+    from snreg.nodes import NodeFile
 
 __all__ = ["add_register_parser", "cmd_register", "METHOD_CHOICES"]
 
@@ -32,6 +43,14 @@ def add_register_parser(subparsers) -> None:
     p.add_argument("--seed", type=seed, default=0, help="random seed of the search")
     p.add_argument("--no-covariances", action="store_true",
                    help="ignore the nodes' own covariances (used by default when every node of a side has one)")
+    p.add_argument("--preop-landmarks", metavar="FILE",
+                   help="anatomical landmarks on the CT (patient LPS, mm): a .mrk.json point list or CSV of landmarks "
+                        "alone, labels = names; added to those the preop file holds (kind landmark)")
+    p.add_argument("--intraop-landmarks", metavar="FILE",
+                   help="landmarks touched in surgery (the intraop frame, mm), a file of landmarks alone; added to "
+                        "those the intraop file or session holds")
+    p.add_argument("--landmark-sd", type=finite_float, default=2.0, metavar="MM",
+                   help="a landmark pair's own error, sd per axis in mm (default 2)")
     p.add_argument("-o", "--output", help="write the result as JSON")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=cmd_register)
@@ -41,38 +60,68 @@ def _is_session(path: str) -> bool:
     return Path(path).suffix.lower() in (".h5", ".hdf5")
 
 
-def _inputs(args):
-    """(preop, intraop, the session's initial alignment or None): from two files, or both node sets and the initial
-    alignment kept with its last registration from one session."""
-    from snreg.nodes import read_nodes
-    from snreg.session import Session, read_intraop_nodes
+@dataclass(frozen=True)
+class Inputs:
+    """What ``snreg register`` registers: each side's nodes and landmarks, and a session's initial alignment."""
+
+    preop: NodeFile
+    intraop: NodeFile
+    initial: object = None              # (4, 4) array or None
+
+
+def _inputs(args) -> Inputs:
+    """Both sides from two files (a session as the intraop one), or both node sets, their landmarks and the initial
+    alignment kept with the last registration from one session; the landmark files of the options added."""
+    from snreg.nodes import NodeFile, read_node_file
+    from snreg.session import Session, read_intraop
 
     if args.intraop is None:
         if not _is_session(args.preop):
             raise UserError(f"{args.preop}: give the preop and the intraop node files, or one session (.h5)")
         with Session.open(args.preop) as session:
-            preop, intraop, initial = session.preop_nodes(), session.intraop_nodes(), session.last_initial()
+            preop, initial = session.preop_nodes(), session.last_initial()
+            intraop = NodeFile(session.intraop_nodes(), session.intraop_landmarks())
+            preop = None if preop is None else NodeFile(preop, session.preop_landmarks())
         if preop is None:
             raise UserError(f"{args.preop}: the session holds no preop nodes; give PREOP.csv {args.preop}")
-        return preop, intraop, initial
-    preop = read_nodes(args.preop)
-    intraop = read_intraop_nodes(args.intraop) if _is_session(args.intraop) else read_nodes(args.intraop)
-    return preop, intraop, None
+    else:
+        preop, initial = read_node_file(args.preop), None
+        intraop = read_intraop(args.intraop) if _is_session(args.intraop) else read_node_file(args.intraop)
+    return Inputs(_with_landmarks(preop, args.preop_landmarks), _with_landmarks(intraop, args.intraop_landmarks),
+                  initial)
+
+
+def _with_landmarks(read, path: str | None):
+    """``read`` (a NodeFile) with the landmarks of the file at ``path`` added; ValueError for a name given twice."""
+    from snreg.nodes import NodeFile, NodeSet, read_landmarks
+
+    if path is None:
+        return read
+    more = read_landmarks(path)
+    twice = sorted(set(more.ids) & set(read.landmarks.ids))
+    if twice:
+        raise ValueError(f"{path}: landmark {twice[0]!r} is in the node file too; give each landmark once")
+    both = NodeSet(read.landmarks.ids + more.ids, read.landmarks.labels + more.labels,
+                   [*read.landmarks.xyz, *more.xyz], frame=read.landmarks.frame or more.frame)
+    return NodeFile(read.nodes, both)
 
 
 def cmd_register(args) -> int:
     from snreg.errors import NodeFileError, NoFitError, SessionError
     from snreg.registration import CONFIDENT, register
     from snreg.registration.naming import PREOP_MARK, ids_collide, marked_missing, marked_rows, pair_text
+    from snreg.registration.landmark_report import landmark_notes, landmark_rows, unpaired_landmarks
     from snreg.registration.report import missing_nodes, node_warnings, pair_rows
 
     if args.output:
         check_output_file(args.output, "result")
     try:
-        preop, intraop, session_initial = _inputs(args)
+        inputs = _inputs(args)
     except (NodeFileError, SessionError, ValueError, OSError) as err:
         raise UserError(str(err)) from None
-    initial = read_initial(args.initial) if args.initial else session_initial
+    preop, intraop = inputs.preop.nodes, inputs.intraop.nodes
+    marks = (inputs.preop.landmarks, inputs.intraop.landmarks)
+    initial = read_initial(args.initial) if args.initial else inputs.initial
     covariances = _covariances(preop, intraop, args.no_covariances)
     try:
         result = register(preop.xyz, intraop.xyz, method=args.method,
@@ -80,7 +129,9 @@ def cmd_register(args) -> int:
                           intraop_labels=intraop.labels if args.labels else None,
                           initial=initial, max_rotation_deg=args.max_rotation,
                           max_translation_mm=args.max_translation, seed=args.seed,
-                          intraop_cov=covariances["intraop"], preop_cov=covariances["preop"])
+                          intraop_cov=covariances["intraop"], preop_cov=covariances["preop"],
+                          preop_landmarks=marks[0] if len(marks[0]) else None,
+                          intraop_landmarks=marks[1] if len(marks[1]) else None, landmark_sd_mm=args.landmark_sd)
     except NoFitError:
         raise UserError(f"no pairing fits within {args.max_rotation:g} degrees and {args.max_translation:g} mm of the "
                         f"{'given' if initial is not None else 'identity'} initial alignment: give a rough alignment "
@@ -95,7 +146,11 @@ def cmd_register(args) -> int:
            "initial": result.initial.tolist(),
            "covariances": {side: covariances[side] is not None for side in ("intraop", "preop")},
            "nodes": [row.as_json() for row in rows],
-           "missing": [node.as_json() for node in missing], "warnings": node_warnings(rows)}
+           "missing": [node.as_json() for node in missing],
+           "warnings": node_warnings(rows) + landmark_notes(result, marks[0].ids, marks[1].ids),
+           "landmark_sd_mm": args.landmark_sd, "landmarks": [row.as_json() for row in landmark_rows(result)],
+           "landmarks_suspect": list(result.landmarks_suspect),
+           "landmarks_unpaired": unpaired_landmarks(marks[0].ids, marks[1].ids)}
     if args.output:
         write_text(args.output, json.dumps(doc, indent=2), "result")
     if args.json:
@@ -117,12 +172,26 @@ def cmd_register(args) -> int:
         x, y, z = node.mapped_xyz
         print(f"missing {node.preop_id} ({node.preop_label or 'no label'}): expected at ({x:.1f}, {y:.1f}, {z:.1f}) mm, "
               f"within {node.bound_mm:.1f} mm (90%)")
-    for text in node_warnings(shown):
+    _print_landmarks(landmark_rows(result), args.landmark_sd)
+    for text in node_warnings(shown) + landmark_notes(result, marks[0].ids, marks[1].ids):
         print(f"warning: {text}")
     print("hot spot: the SPECT node a removed node came from (several may share one: 'with'; none: from no imaged "
           "hot spot);\nloo: the node's distance when the other pairs alone register (a large value flags a suspect "
           "node)")
     return 0
+
+
+def _print_landmarks(rows, sd_mm: float) -> None:
+    """The landmark pairs' table: residual, leave-one-out residual, and SUSPECT where one was left out."""
+    if not rows:
+        return
+    width = max(len("landmark"), *(len(row.name) for row in rows))
+    pairs = f"{len(rows)} pair{'s' if len(rows) > 1 else ''}"
+    print(f"landmarks: {pairs}, each with {sd_mm:g} mm of its own error per axis")
+    print(f"{'landmark':<{width}} {'dist mm':>8} {'loo mm':>7}")
+    for row in rows:
+        print(f"{row.name:<{width}} {row.residual_mm:>8.1f} {row.leave_one_out_mm:>7.1f}"
+              + ("  SUSPECT: left out of the fit" if row.suspect else ""))
 
 
 def _covariances(preop, intraop, ignore: bool) -> dict:
