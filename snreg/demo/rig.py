@@ -3,15 +3,21 @@
 Why: the demo and the GUI tests must exercise what a phantom session runs (a frame source read and
 tracked, an IMU on a serial port read by :class:`SerialImuReader` and fused, the camera-to-trocar
 chain), only with rendered frames and a simulated IMU. The IMU simulator runs as its own process
-(``snreg imu simulate --still``) on a pseudo-terminal, as a real device is outside the app: its work
+(``snreg imu simulate``) on a pseudo-terminal, as a real device is outside the app: its work
 does not compete with the GUI for the interpreter. The session file is not the rig's: whoever runs
 it (the app, the headless demo) creates it.
-The IMU is held still and level, so the trocar frame is the camera frame shifted by the trocar-camera
-distance along the shaft, which the tests use as ground truth.
+
+``camera="still"``: the phantom of :mod:`snreg.demo.scene`; the IMU is held still and level (``--still``), so the
+trocar frame is the camera frame shifted by the trocar-camera distance along the shaft, which the tests use as
+ground truth. ``camera="surgery"``: :mod:`snreg.demo.surgery_scene`, the camera sliding and turning between rests;
+the simulator plays the same motion (``--motion``) counted from the same instant on the host clock as the rendered
+feed (``--start-ns`` and the feed's ``epoch_ns``), so each frame meets the orientation it was rendered at. That
+instant is only known once the tour is rendered, so this simulator starts then, ``IMU_LEAD_S`` before the tour.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -24,19 +30,25 @@ import numpy as np
 
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
-from snreg.chain import ChainCalibration
+from snreg.chain import ChainCalibration, camera_to_trocar, reference_rotation
 from snreg.demo.board_tour import board_feed
 from snreg.demo.pivot_scene import PivotScene, SceneImu
-from snreg.demo.error_rig import DemoErrors
+from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import true_sources_lps, write_phantom_spect
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
+from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain
+from snreg.files import atomic_write
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
 
 DEMO_FPS = 30.0
+CAMERAS = ("still", "surgery")
 IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
+IMU_LEAD_S = 3.0               # the surgery tour starts this long after its IMU simulator is launched: the process
+                               # starts (1-2 s) and its fusion gets a still start (3 s, with the first rest) before
+                               # the camera first moves
 
 
 class DemoRig:
@@ -48,50 +60,93 @@ class DemoRig:
     """
 
     simulated = True
-    description = "demo: rendered phantom, simulated IMU"
 
     def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0,
-                 errors: ErrorModel | None = None):
+                 errors: ErrorModel | None = None, camera: str = "still"):
         """``errors``: an error model (:mod:`snreg.demo.errors`) the rig runs with, drawn under ``seed``
-        (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model)."""
+        (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model).
+        ``camera``: "still" (the thesis' phantom) or "surgery" (the camera slides and turns between nodes)."""
+        if camera not in CAMERAS:
+            raise ValueError(f"the demo camera is 'still' or 'surgery', not {camera!r}")
+        self.camera = camera
         full = thesis_calibration()
         self.cameras = full.scaled(scale)                      # the simulated cameras as they truly are
         self.probe = default_probe_model()
-        self.errors = DemoErrors(errors, self.probe, full, scale=scale, seed=seed) if errors is not None else None
+        injected = INJECTED_MOVING if self.moving_camera else INJECTED
+        self.errors = (DemoErrors(errors, self.probe, full, scale=scale, seed=seed, injected=injected)
+                       if errors is not None else None)
         # what tracking uses (a calibration wizard replaces it): under an error model, one solved from noisy corners
         self.calibration = self.cameras if self.errors is None or self.errors.calibration is None else self.errors.calibration
-        self.chain = ChainCalibration.manual()
+        # the chain as it truly is, and what tracking uses (the trocar wizard replaces it)
+        self.true_chain = surgery_demo_chain() if self.moving_camera else ChainCalibration.manual()
+        self.chain = self.true_chain
         self.schedule, self.fps, self.seed = schedule, fps, seed
-        self.scene: PhantomScene | None = None
+        self.scene: PhantomScene | SurgeryScene | None = None
         self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")
         self._link = Path(self._folder.name) / "imu"
-        self._simulator = subprocess.Popen(
-            [sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--seed", str(seed),
-             "--port-link", str(self._link), "--parent", str(os.getpid())],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self._simulator: subprocess.Popen | None = None
+        self._epoch_ns: int | None = None
+        if not self.moving_camera:
+            self._launch_imu("--still")
         self.imu = ImuMonitor(str(self._link))
+
+    @property
+    def moving_camera(self) -> bool:
+        """Whether the camera slides and turns (so the insertion is worth tracking)."""
+        return self.camera == "surgery"
+
+    @property
+    def description(self) -> str:
+        scene = "rendered surgery, the camera sliding and turning" if self.moving_camera else "rendered phantom"
+        return f"demo: {scene}, simulated IMU"
 
     def frame_source(self) -> FrameSource:
         """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
         pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
-        self._start_imu()
         if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
             options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
                                                        "blur_sigma_px": self.errors.blur_px,
                                                        "tip_offsets_mm": self.errors.tip_offsets_mm}
-            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
+            if self.moving_camera:
+                scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain, fps=self.fps,
+                                     seed=self.seed, **options)
+            else:
+                scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
             scene.prerender()
             self.scene = scene
+        if self.moving_camera and self._simulator is None:
+            motion = Path(self._folder.name) / "motion.json"
+            with atomic_write(motion) as temporary:
+                temporary.write_text(json.dumps(self.scene.tour.motion_profile(self.true_chain, self.fps).to_dict()))
+            self._epoch_ns = time.perf_counter_ns() + round(IMU_LEAD_S * 1e9)
+            self._launch_imu("--motion", str(motion), "--start-ns", str(self._epoch_ns))
+        self._start_imu()
         # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
-        # skipped when tracking falls behind, while the scene goes on at its own pace
-        return CallableSource(self.scene.render, self.fps, live=True, name="Demo phantom")
+        # skipped when tracking falls behind, while the scene goes on at its own pace (the surgery tour's counted
+        # from the IMU motion's start, so a restart goes on where the tour is)
+        name = "Demo surgery" if self.moving_camera else "Demo phantom"
+        return CallableSource(self.scene.render, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
+
+    def nodes_trocar(self) -> np.ndarray:
+        """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured against)."""
+        return camera_to_trocar(self.true_chain, self._start_orientation(), phantom_tips(self.probe))
 
     def phantom_sources_lps(self) -> np.ndarray:
         """(4, 3) LPS mm: where the phantom's sources were when the SPECT was made (the truth the demo's SPECT images)."""
-        tips = phantom_tips(self.probe)
+        tips, start = phantom_tips(self.probe), self._start_orientation()
         if self.errors is None:
-            return true_sources_lps(tips, self.chain)
-        return true_sources_lps(tips, self.chain, setup_deg=self.errors.setup_deg, scan_shift_mm=self.errors.scan_shift_mm)
+            return true_sources_lps(tips, self.true_chain, earth_from_imu=start)
+        return true_sources_lps(tips, self.true_chain, setup_deg=self.errors.setup_deg,
+                                scan_shift_mm=self.errors.scan_shift_mm, earth_from_imu=start)
+
+    def _start_orientation(self) -> np.ndarray:
+        """(3, 3) the IMU's true orientation where the nodes are defined from: level for the still camera; for the
+        surgery tour its start, the chain's reference pose (the camera along the trocar axis)."""
+        if not self.moving_camera:
+            return np.eye(3)
+        chain = self.true_chain
+        return (chain.trocar_from_earth[:3, :3].T @ reference_rotation(chain.shaft_camera)
+                @ chain.imu_from_camera[:3, :3].T)
 
     def write_phantom_spect(self, path) -> Path:
         """Write the phantom's SPECT (NM DICOM) at ``path`` with the error model's voxels, resolution and counts."""
@@ -107,6 +162,13 @@ class DemoRig:
         scene = PivotScene(self.cameras, THESIS_BOARD)
         return scene.frame_source, SceneImu(scene)
 
+    def _launch_imu(self, *motion: str) -> None:
+        """Start the IMU simulator process (``motion``: its options saying what the sensor does) on the rig's link."""
+        self._simulator = subprocess.Popen(
+            [sys.executable, "-m", "snreg.cli", "imu", "simulate", *motion, "--seed", str(self.seed),
+             "--port-link", str(self._link), "--parent", str(os.getpid())],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
     def _start_imu(self) -> None:
         if self.imu.started:
             return
@@ -121,10 +183,11 @@ class DemoRig:
     def close(self) -> None:
         """Stop the IMU reader and its simulator process; call after the worker has stopped."""
         self.imu.stop()
-        self._simulator.terminate()
-        try:
-            self._simulator.wait(5.0)
-        except subprocess.TimeoutExpired:
-            self._simulator.kill()
-            self._simulator.wait()
+        if self._simulator is not None:
+            self._simulator.terminate()
+            try:
+                self._simulator.wait(5.0)
+            except subprocess.TimeoutExpired:
+                self._simulator.kill()
+                self._simulator.wait()
         self._folder.cleanup()
