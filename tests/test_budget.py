@@ -86,6 +86,18 @@ def test_compose_without_errors_is_the_truth_and_each_source_moves_nodes():
     np.testing.assert_allclose(half, full / 2, atol=1e-9)
 
 
+def test_a_tracked_insertion_leaves_the_tracker_error_instead_of_the_slide():
+    model = load_error_model("thesis").with_setting("camera.insertion_sd_mm=20").only(["camera"])
+    draw = _draw(model)
+    assert np.abs(draw.insertion).max() > 2.0
+    unseen = compose(model, GEOMETRY, draw).node_errors
+    tracked = compose(model.with_setting("camera.insertion=tracked"), GEOMETRY, draw).node_errors
+    # unseen, a node moves by its pose's slide along the camera axis; tracked, by the tracker's error alone
+    assert np.linalg.norm(unseen, axis=1).max() > 0.8 * np.abs(draw.insertion).max()
+    assert np.linalg.norm(tracked, axis=1).max() <= np.abs(draw.insertion_tracked).max() + 1e-9
+    assert np.linalg.norm(tracked, axis=1).max() > 0.0
+
+
 def test_rigid_fit_covariance_is_fitzpatrick_and_west():
     rng = np.random.default_rng(3)
     fiducials = rng.normal(0, 30, (5, 3))

@@ -110,8 +110,8 @@ class ErrorDraw:
     tracking: tracked with the true calibration minus truth; residual: the tracker error the renderer does not make;
     pointing: probe tip minus node; imu: (N, 3) rotation vectors (earth frame) of the fused orientation's error;
     turn_error_deg: signed error of the measured camera turn; chain: IMU-trocar and trocar-camera distance errors (mm)
-    and the IMU-camera misalignment (rotation vector); insertion (2,): unseen change of the camera's distance from
-    the pivot per pose, mm; tissue: (N, 3) shift between scan and surgery (trocar frame); spect: (N, 3) segmented
+    and the IMU-camera misalignment (rotation vector); insertion (2,): change of the camera's distance from the pivot
+    per pose, mm; insertion_tracked (2,): the insertion tracker's error per pose, mm (used when it is tracked); tissue: (N, 3) shift between scan and surgery (trocar frame); spect: (N, 3) segmented
     centre minus source (patient LPS).
     """
 
@@ -124,6 +124,7 @@ class ErrorDraw:
     chain_mm: np.ndarray
     misalignment: np.ndarray
     insertion: np.ndarray
+    insertion_tracked: np.ndarray
     tissue: np.ndarray
     spect: np.ndarray
 
@@ -154,9 +155,10 @@ def draw_errors(model: ErrorModel, geometry: PhantomGeometry, rng: np.random.Gen
     misalignment = np.radians(chain_p["imu_camera_deg"]) * axis / np.linalg.norm(axis)
     insertion = rng.normal(0.0, p["camera"]["insertion_sd_mm"], 2)
     tissue = rng.normal(0.0, p["tissue"]["per_node_mm"], (n, 3))
+    insertion_tracked = rng.normal(0.0, p["camera"]["tracked_sd_mm"], 2)
     given = [zeros if v is None else np.asarray(v, float) for v in (calibration, tracking, imu, spect)]
     return ErrorDraw(given[0], given[1], residual, pointing, given[2], float(turn_error), chain_mm, misalignment,
-                     insertion, tissue, given[3])
+                     insertion, insertion_tracked, tissue, given[3])
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,6 +212,11 @@ def compose(model: ErrorModel, geometry: PhantomGeometry, draw: ErrorDraw) -> Sc
     preop = sources_lps + s["spect"] * draw.spect
     measured_chain = chain(THESIS_IMU_TROCAR_MM + s["chain"] * draw.chain_mm[0],
                            THESIS_TROCAR_CAMERA_MM + s["chain"] * draw.chain_mm[1])
+    if model["camera", "insertion"] == "tracked":       # the tracker measures the change, with its own error
+        measured_chains = [measured_chain.with_insertion(measured_chain.trocar_camera_mm + s["camera"] * (
+            draw.insertion[pose] + draw.insertion_tracked[pose])) for pose in (0, 1)]
+    else:
+        measured_chains = [measured_chain, measured_chain]
     misaligned = Rotation.from_rotvec(s["chain"] * draw.misalignment)
     turned = s["camera"] * model["camera", "turn_deg"] > 0
     tips = (geometry.tips_camera + s["pointing"] * draw.pointing + s["tracking"] * (draw.tracking + draw.residual)
@@ -221,7 +228,7 @@ def compose(model: ErrorModel, geometry: PhantomGeometry, draw: ErrorDraw) -> Sc
         if turned and pose == 1:
             error = Rotation.from_euler("z", s["imu"] * draw.turn_error_deg, degrees=True) * error
         measured = error * poses[pose] * misaligned
-        intraop.append(camera_to_trocar(measured_chain, measured, tips[k]))
+        intraop.append(camera_to_trocar(measured_chains[pose], measured, tips[k]))
     # preop labels: the side alone, as the segmentation gives it (the station comes from the radiologist, thesis §3.3)
     return Scenario(preop, [label.strip()[-1:] for label in geometry.labels], np.array(intraop), list(geometry.labels), sources_lps, nodes_trocar,
                     invert(patient_from_trocar), np.array(rotations))

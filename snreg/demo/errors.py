@@ -112,8 +112,11 @@ PARAMETERS: dict[str, dict[str, Parameter]] = {
     },
     "camera": {
         "turn_deg": _p(0.0, "deg", "camera turn about the vertical between the left and the right nodes", high=60.0),
-        "insertion_sd_mm": _p(0.0, "mm", "sd of the unseen change of the camera's distance from the pivot per pose",
+        "insertion_sd_mm": _p(0.0, "mm", "sd of the change of the camera's distance from the pivot per pose",
                               high=100.0),
+        "insertion": _p("unseen", "", "that change: unseen (the chain keeps its distance, as the thesis) or tracked "
+                        "(snreg.odometry measures it, with tracked_sd_mm of error)", choices=("unseen", "tracked")),
+        "tracked_sd_mm": _p(0.05, "mm", "sd of the tracked insertion's error per pose", high=50.0),
     },
 }
 

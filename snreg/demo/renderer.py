@@ -99,9 +99,15 @@ class StereoRenderer:
         pixels = np.stack([u, v, np.ones_like(u)], axis=-1)
         rot = np.asarray(calibration.R, dtype=np.float32)
         self._eyes = []
-        for K, to_left, origin in ((calibration.K1, np.eye(3, dtype=np.float32), np.zeros(3)),
-                                   (calibration.K2, rot.T, -(calibration.R.T @ calibration.T.ravel()))):
-            rays = pixels @ np.linalg.inv(K).astype(np.float32).T @ to_left.T
+        for K, D, to_left, origin in ((calibration.K1, calibration.D1, np.eye(3, dtype=np.float32), np.zeros(3)),
+                                      (calibration.K2, calibration.D2, rot.T,
+                                       -(calibration.R.T @ calibration.T.ravel()))):
+            if np.any(np.asarray(D) != 0):       # each pixel's ray through the lens as calibrated
+                normalised = cv2.undistortPoints(pixels[..., :2].reshape(-1, 1, 2).astype(np.float64), K, D)
+                rays = np.dstack([normalised.reshape(height, width, 2), np.ones((height, width))]).astype(np.float32)
+                rays = rays @ to_left.T
+            else:
+                rays = pixels @ np.linalg.inv(K).astype(np.float32).T @ to_left.T
             rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
             self._eyes.append((rays, origin.astype(np.float32)))
         radius = np.hypot((u - width / 2) / (width / 2), (v - height / 2) / (height / 2))

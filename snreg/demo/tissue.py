@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from snreg.camera import StereoCalibration
-from snreg.demo.renderer import TEXTURE_MM, TEXTURE_PX, ProbePose, RenderOptions, StereoRenderer, tissue_texture
+from snreg.demo.renderer import TEXTURE_MM, TEXTURE_PX, ProbePose, RenderOptions, StereoRenderer
 from snreg.probe import ProbeModel
 
 __all__ = ["TissueSurface", "TissueScene"]
@@ -90,7 +90,7 @@ class TissueScene:
         self.surface, self.probe_in_front = surface, probe_in_front
         self.renderer = StereoRenderer(calibration, probe, texture_seed=surface.texture_seed)
         self._grid = surface.heights()
-        self._texture = tissue_texture(surface.texture_seed) if surface.texture_seed != 7 else self.renderer.texture
+        self._texture = self.renderer.texture
 
     def render(self, trocar_from_camera: np.ndarray, probe: ProbePose | None = None,
                options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:

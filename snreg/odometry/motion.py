@@ -26,9 +26,8 @@ import numpy as np
 
 __all__ = ["Observations", "MotionFit", "fit_pivot", "fit_free", "pivot_departure_mm"]
 
-_ITERATIONS = 8
-_WIDE_HUBER_PX = 4.0          # the first iterations tolerate a poor start
-_HUBER_PX = 1.0
+_PHASES = (4.0, 1.0, None)    # Huber thresholds (px): wide (a poor start), narrow; then the inliers alone
+_PHASE_STEPS = 4              # Gauss-Newton steps per phase at most
 _INLIER_PX = 2.0              # a point whose worse eye is farther than this (at the working scale) is an outlier
 _CONVERGED = 1e-7
 
@@ -79,14 +78,15 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
     rotation, insertion = rotation_imu.copy(), float(guess_mm)
     right_rotation, right_translation = obs.right_from_left[:3, :3], obs.right_from_left[:3, 3]
     keep = np.ones(len(obs), bool)
-    for iteration in range(_ITERATIONS + 3):
+    phase, steps = 0, 0
+    while phase < len(_PHASES):
         turned = lever @ rotation.T
         q = turned - insertion * shaft
         d_q = np.empty((len(q), 3, 4))
         d_q[:, :, :3] = _minus_cross(turned)
         d_q[:, :, 3] = -shaft
         rows, values, error = _both_eyes(q, d_q, obs, right_rotation, right_translation)
-        weights, keep, final = _robust_weights(error, iteration)
+        weights, keep = _robust_weights(error, _PHASES[phase])
         tilt = _rotvec(rotation @ rotation_imu.T)
         normal = rows.T @ (rows * weights[:, None])
         gradient = rows.T @ (values * weights)
@@ -98,8 +98,9 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
             break
         rotation = _rotation(step[:3]) @ rotation
         insertion += step[3]
-        if final and np.abs(step).max() < _CONVERGED:
-            break
+        steps += 1
+        if np.abs(step).max() < _CONVERGED or steps == _PHASE_STEPS:      # this phase settled: the next one
+            phase, steps = phase + 1, 0
     n = int(keep.sum())
     sigma2 = float((values**2 * (weights > 0)).sum()) / max(4 * n - 4, 1)
     try:
@@ -145,17 +146,14 @@ def _both_eyes(q: np.ndarray, d_q: np.ndarray, obs: Observations, right_rotation
     return rows, np.concatenate([left, right], axis=1).reshape(-1), error
 
 
-def _robust_weights(error: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Per-row weights for this iteration (Huber, wide then narrow; then the inliers alone), the inliers, and
-    whether this is a final (inliers-only) iteration."""
-    final = iteration >= _ITERATIONS
+def _robust_weights(error: np.ndarray, huber_px: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row weights (Huber at ``huber_px``; None: the inliers alone) and the inliers."""
     keep = error < _INLIER_PX
-    if final:
+    if huber_px is None:
         point = keep.astype(float)
     else:
-        limit = _WIDE_HUBER_PX if iteration < _ITERATIONS // 2 else _HUBER_PX
-        point = np.minimum(1.0, limit / np.maximum(error, 1e-9))
-    return np.repeat(point, 4), keep, final
+        point = np.minimum(1.0, huber_px / np.maximum(error, 1e-9))
+    return np.repeat(point, 4), keep
 
 
 def _projection_rows(q: np.ndarray, d_q: np.ndarray, seen: np.ndarray, focal: float):

@@ -147,8 +147,9 @@ class View:
             if probe_tip is not None and probe_axis is not None and probe is not None:
                 _cut_probe(mask, pair, eye, np.asarray(probe_tip, float), np.asarray(probe_axis, float), probe,
                            params.lk_window_px // 2 + 3)
-        deviation = np.minimum(cv2.absdiff(grey_left, _MID), _EDGE_CAP)        # the probe's edges do not count double
-        texture = float(deviation[masks[0] > 0].mean()) / _GAIN if masks[0].any() else 0.0
+        deviation = np.minimum(cv2.absdiff(grey_left[::2, ::2], _MID), _EDGE_CAP)   # the probe's edges count once
+        tissue = masks[0][::2, ::2] > 0
+        texture = float(deviation[tissue].mean()) / _GAIN if tissue.any() else 0.0
         contrast = texture / max(float(plain_left.mean()), 1.0)
         coarse, factor = plain_left, 1
         while coarse.shape[1] > COARSE_MAX_WIDTH:
@@ -182,9 +183,24 @@ class Keyframe:
     coarse: np.ndarray
     coarse_mask: np.ndarray
     centre: np.ndarray = field(init=False)       # the points' median (3,), mm
+    _warps: dict = field(init=False, default_factory=dict, repr=False)
 
     def __post_init__(self):
         self.centre = np.median(self.points, axis=0)
+
+    def warped(self, eye: int, homography: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """The image of eye 0 or 1 warped by ``homography`` to ``size`` (width, height); the last warp again when it
+        moves no pixel by more than a hundredth of one from this one (a camera at rest costs no warp)."""
+        width, height = size
+        corners = np.array([[[0.0, 0.0]], [[width, 0.0]], [[0.0, height]], [[width, height]]])
+        last = self._warps.get(eye)
+        if last is not None and last[2] == size and np.abs(cv2.perspectiveTransform(corners, homography)
+                                                            - cv2.perspectiveTransform(corners, last[0])).max() < 0.01:
+            return last[1]
+        image = cv2.warpPerspective(self.left if eye == 0 else self.right, homography, size, flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_CONSTANT, borderValue=_MID)
+        self._warps[eye] = (homography, image, size)
+        return image
 
     @property
     def median_depth_mm(self) -> float:
@@ -237,20 +253,21 @@ def band_pass(grey: np.ndarray) -> np.ndarray:
     return cv2.addWeighted(fine, _GAIN, coarse, -_GAIN, 128.0)
 
 
-def follow(before: np.ndarray, after: np.ndarray, points: np.ndarray, predicted: np.ndarray,
+def follow(keyframe: "Keyframe", eye: int, after: np.ndarray, points: np.ndarray, predicted: np.ndarray,
            params: OdometryParams) -> tuple[np.ndarray, np.ndarray]:
-    """Where ``points`` (N, 2) of a keyframe image ``before`` are in ``after``, predicted at ``predicted`` (N, 2).
+    """Where ``points`` (N, 2) of the keyframe's image of eye 0 (left) or 1 (right) are in ``after``, predicted at
+    ``predicted`` (N, 2).
 
     The keyframe image is first warped by the homography that carries the points to their predicted places, so the
     comparison meets the tissue at the current scale, shear and turn, and Lucas-Kanade only finds what the
     prediction missed: the tissue's fine texture decorrelates over a few percent of scale change."""
+    before = keyframe.left if eye == 0 else keyframe.right
     if len(points) < 8:
         return lucas_kanade(before, after, points, predicted, params)
     homography, _ = cv2.findHomography(points.astype(np.float32), predicted.astype(np.float32), 0)
     if homography is None or not np.isfinite(homography).all():
         return lucas_kanade(before, after, points, predicted, params)
-    warped = cv2.warpPerspective(before, homography, (after.shape[1], after.shape[0]), flags=cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_CONSTANT, borderValue=_MID)
+    warped = keyframe.warped(eye, homography, (after.shape[1], after.shape[0]))
     moved = cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
     return lucas_kanade(warped, after, moved.astype(np.float32), predicted, params)
 
