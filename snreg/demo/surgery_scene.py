@@ -37,11 +37,11 @@ from snreg.probe import ProbeModel
 __all__ = ["SurgeryScene", "REST_KEYS", "VIA_KEYS", "surgery_demo_chain"]
 
 # where the camera rests while the probe rests on node n (the first: the start pose), and the keys it passes on the
-# way to the next rest: slides of up to 30 mm either way and turns of up to 18 degrees, every node in view throughout
+# way to the next rest: every move slides (20-50 mm) and turns (6-18 degrees), two of them out to 30 mm drawn back and
+# pushed in; every node stays in view throughout
 REST_KEYS = (CameraKey(0.0, (0.0, 0.0)), CameraKey(15.0, (-2.0, -6.0)), CameraKey(-10.0, (1.0, 2.0)),
              CameraKey(20.0, (-3.0, -8.0)))
-VIA_KEYS = ((CameraKey(-30.0, (-2.0, -18.0)),), (CameraKey(-25.0, (-8.0, -14.0)),), (CameraKey(30.0, (-2.0, -7.0)),),
-            (CameraKey(-30.0, (-9.0, -16.0)),))
+VIA_KEYS = ((CameraKey(-30.0, (-2.0, -18.0)),), (), (CameraKey(30.0, (-2.0, -7.0)),), ())
 # the tissue: a bowl 245 mm from the pivot on the axis, tilted to recede down the view, through every node
 _TISSUE = dict(depth_mm=245.0, tilt_deg=(5.7, 26.6), relief_mm=2.0, anchor_radius_mm=12.0)
 _EARTH_FROM_LPS = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])   # supine, head north (NWU earth)
@@ -124,11 +124,15 @@ class SurgeryScene:
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback)."""
-        within = index % self.cycle
-        resting = self.resting_node(index)
-        key = (resting, index % self.schedule.noise_variants) if resting is not None else (-1, within)
+        key = self._key(index)
         if key not in self._cache:
             options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
                                     seed=self.seed * 10**7 + (key[0] + 1) * 10**6 + key[1])
             self._cache[key] = self.tissue.render(self.trocar_from_camera(index), self.pose(index), options)
         return self._cache[key]
+
+    def _key(self, index: int) -> tuple[int, int]:
+        """Frames that look alike share a key: (node, noise exposure) while resting, (-1, frame in the tour) moving."""
+        resting = self.resting_node(index)
+        return (resting, index % self.schedule.noise_variants) if resting is not None else (-1, index % self.cycle)
+

@@ -120,17 +120,18 @@ class TissueScene:
 
     def _cast(self, rays: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance along each ray (trocar frame) to the surface, and the lit texture colour there."""
-        r_z = np.where(np.abs(rays[..., 2]) < 1e-3, 1e-3, rays[..., 2])
+        r_x, r_y, ray_z = (np.ascontiguousarray(rays[..., axis]) for axis in range(3))
+        r_z = np.where(np.abs(ray_z) < 1e-3, 1e-3, ray_z)
         t = (self.surface.depth_mm - origin[2]) / r_z
         for _ in range(_NEWTON_STEPS):
-            h = self._heights_at(origin[0] + t * rays[..., 0], origin[1] + t * rays[..., 1])
-            along = r_z - h[..., 1] * rays[..., 0] - h[..., 2] * rays[..., 1]
+            h = self._heights_at(origin[0] + t * r_x, origin[1] + t * r_y)
+            along = r_z - h[..., 1] * r_x - h[..., 2] * r_y
             t = t - (origin[2] + t * r_z - h[..., 0]) / np.where(np.abs(along) < 0.05, 0.05, along)
-        x, y = origin[0] + t * rays[..., 0], origin[1] + t * rays[..., 1]
+        x, y = origin[0] + t * r_x, origin[1] + t * r_y
         h = self._heights_at(x, y)
         t = np.where(t > 1.0, t, np.inf).astype(np.float32)
-        normal = np.dstack([-h[..., 1], -h[..., 2], np.ones_like(t)])
-        lambert = np.abs((normal * rays).sum(-1)) / np.linalg.norm(normal, axis=-1)
+        slope_x, slope_y = h[..., 1], h[..., 2]        # the normal is (-slope_x, -slope_y, 1)
+        lambert = np.abs(ray_z - slope_x * r_x - slope_y * r_y) / np.sqrt(1.0 + slope_x**2 + slope_y**2)
         texels = TEXTURE_PX / TEXTURE_MM
         colour = cv2.remap(self._texture, (x * texels + TEXTURE_PX / 2).astype(np.float32),
                            (y * texels + TEXTURE_PX / 2).astype(np.float32), cv2.INTER_LINEAR,
