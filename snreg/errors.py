@@ -57,7 +57,13 @@ class LiveLinkError(ValueError):
 
 
 class StoreRefused(StoreError):
-    """Store SN refused by its guard (stale IMU or fix, probe moving, window not full); the message says why."""
+    """Store SN refused by its guard (stale IMU or fix, probe moving, window not full, the camera's insertion lost
+    while it moved); the message says why. ``overridable``: the operator may store anyway (the override is put on
+    record)."""
+
+    def __init__(self, reason: str, overridable: bool = False):
+        super().__init__(reason)
+        self.overridable = bool(overridable)
 
 
 class StoreNeedsConfirmation(StoreError):

@@ -2,6 +2,7 @@
 the old values kept on record, mixed calibrations named."""
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from snreg.camera import StereoCalibration, thesis_calibration
@@ -131,3 +132,56 @@ def test_a_registration_run_on_mixed_nodes_says_so_first(tmp_path):
         record = run_registration(RunRequest(preop, intraop, "icp", False, np.eye(4), 60.0, 60.0, session=session))
     assert record.note.startswith("These nodes were mapped with 2 different calibrations (SN1, SN2 and SN3 under ")
     assert record.note.endswith("Stored in the session as registration 0.")
+
+
+def test_a_new_trocar_calibration_keeps_each_tracked_nodes_slide_since_the_start(tmp_path):
+    """A node stored at a tracked insertion d under a chain starting at s is mapped again at s' + (d - s) under a
+    chain starting at s'; a node stored untracked at the new chain's own distance (issue 27)."""
+    rng = np.random.default_rng(SEED)
+    stereo, old, new = thesis_calibration(), ChainCalibration.manual(), _pivoted_chain()      # starts 158 and 171.5
+    stereo_version, chain_version = _versions(stereo, old)
+    cameras = rng.uniform([-30, -20, 70], [30, 20, 130], (2, 3))
+    turned = Rotation.from_euler("ZYX", [8.0, -6.0, 3.0], degrees=True).as_matrix()
+    path = tmp_path / "s.h5"
+    with Session.create(path, case_id="chain-4") as session:
+        session.set_calibration(stereo=stereo, chain=old)
+        session.add_intraop_node("SN1", "", camera_to_trocar(old.with_insertion(170.0), turned, cameras[0]),
+                                 xyz_camera=cameras[0], earth_from_imu=turned, stereo_version=stereo_version,
+                                 chain_version=chain_version, trocar_camera_mm=170.0)    # slid 12 mm in, tracked
+        session.add_intraop_node("SN2", "", camera_to_trocar(old, turned, cameras[1]), xyz_camera=cameras[1],
+                                 earth_from_imu=turned, stereo_version=stereo_version, chain_version=chain_version)
+        session.set_calibration(chain=new)               # as the trocar wizard does before the offer
+        unknown = calibration_change(session, stereo, new)
+        assert [n.id for n in unknown.stuck] == ["SN1"] and [n.id for n in unknown.movable] == ["SN2"]
+        change = calibration_change(session, stereo, new, previous_chain=old)
+        assert not change.stuck and change.starts == {"SN1": pytest.approx(old.trocar_camera_mm)}
+        assert ("SN1 was stored with the camera's insertion tracked: the slide tracked since the start is kept and "
+                "added to the new trocar-camera distance.") in change.question
+        reexpress(session, stereo, new, previous_chain=old)
+        assert calibration_change(session, stereo, new) is None
+    with Session.open(path) as session:
+        first, second = session.intraop_records()
+        [event] = session.events("nodes_reexpressed")
+    assert first.trocar_camera_mm == pytest.approx(171.5 + 12.0)
+    np.testing.assert_allclose(first.xyz_trocar, camera_to_trocar(new.with_insertion(183.5), turned, cameras[0]),
+                               atol=1e-9)
+    assert np.isnan(second.trocar_camera_mm)
+    np.testing.assert_allclose(second.xyz_trocar, camera_to_trocar(new, turned, cameras[1]), atol=1e-9)
+    old_values = {change["id"]: change["old"] for change in event["nodes"]}
+    assert old_values["SN1"]["trocar_camera_mm"] == 170.0 and np.isnan(old_values["SN2"]["trocar_camera_mm"])
+
+
+def test_a_stereo_change_leaves_a_tracked_insertion_as_it_was(tmp_path):
+    stereo, chain = thesis_calibration(), ChainCalibration.manual()
+    longer = StereoCalibration.from_pair(stereo.image_size, stereo.K1, stereo.D1, stereo.K2, stereo.D2, stereo.R,
+                                         np.asarray(stereo.T) * 1.05)
+    camera = np.array([4.0, -3.0, 95.0])
+    with Session.create(tmp_path / "s.h5", case_id="chain-5") as session:
+        session.set_calibration(stereo=stereo, chain=chain)
+        session.add_intraop_node("SN1", "", camera_to_trocar(chain.with_insertion(150.0), np.eye(3), camera),
+                                 xyz_camera=camera, earth_from_imu=np.eye(3), stereo_version=_versions(stereo, chain)[0],
+                                 chain_version=_versions(stereo, chain)[1], trocar_camera_mm=150.0)
+        [moved] = reexpress(session, longer, chain, previous_stereo=stereo)
+    assert moved.trocar_camera_mm == 150.0
+    np.testing.assert_allclose(moved.xyz_trocar, camera_to_trocar(chain.with_insertion(150.0), np.eye(3),
+                                                                  retriangulate(camera, stereo, longer)), atol=1e-9)

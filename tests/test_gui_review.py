@@ -43,7 +43,7 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     path, truth = recorded
     _load(qtbot, screen, path)
     header = screen.header.text()
-    assert str(path) in header and "case review-01" in header and "format version 3" in header
+    assert str(path) in header and "case review-01" in header and "format version 4" in header
     assert f"stereo RMS {STEREO_RMS_PX:.2f} px" in header and "IMU-trocar 460.0 mm, trocar-camera 158.0 mm" in header
     assert "DAMAGED" not in header and "1 gap, longest 0.53 s" in header
     table = screen.node_table

@@ -118,3 +118,77 @@ def test_the_pairing_at_a_known_transform_leaves_a_far_node_to_none_and_lets_a_c
     beside = geometry.apply(TRUTH, xyz[1:2]) + np.array([[7.0, -6.0, 5.0]])
     pairing = pairing_at(xyz, np.vstack([intraop, far, beside]), TRUTH, 2.0)
     np.testing.assert_array_equal(pairing, [0, 1, 2, 3, 4, 5, -1, 1])
+
+
+# -- each node with its own covariance (issue 28) ------------------------------------------------------------------
+def _anisotropic_case(seed, sigma=12.0, ratio=5.0, n_extra=1):
+    """Nodes whose error along each one's viewing ray is ``ratio`` times the error across it (per-axis RMS ``sigma``),
+    an extra beside a host as the thesis makes them, the preop set turned and shifted; with the true covariances."""
+    rng = np.random.default_rng(seed)
+    preop = rng.uniform([-70, -50, 0], [70, 30, 120], (6, 3))
+    while np.min(np.linalg.norm(preop[:, None] - preop[None], axis=-1) + 1e9 * np.eye(6)) < 15:
+        preop = rng.uniform([-70, -50, 0], [70, 30, 120], (6, 3))
+    across = sigma / np.sqrt((ratio**2 + 2) / 3)
+    tilt, turn = np.radians(40) * np.sqrt(rng.uniform(0, 1, 6)), rng.uniform(0, 2 * np.pi, 6)
+    rays = np.c_[np.sin(tilt) * np.cos(turn), np.sin(tilt) * np.sin(turn), np.cos(tilt)]
+    cov = across**2 * (np.eye(3) + (ratio**2 - 1) * rays[:, :, None] * rays[:, None, :])
+    intraop = preop + np.einsum("mij,mj->mi", np.linalg.cholesky(cov), rng.standard_normal((6, 3)))
+    hosts = rng.integers(0, 6, n_extra)
+    intraop = np.vstack([intraop, intraop[hosts] + rng.uniform(5, 15, (n_extra, 3)) * rng.choice([-1, 1], (n_extra, 3))])
+    cov = np.concatenate([cov, cov[hosts]])
+    moved = geometry.apply(geometry.transform_from_euler(*rng.uniform(0, 20, 3), rng.uniform(-15, 15, 3)), preop)
+    return moved, intraop, cov
+
+
+def test_covariances_are_checked_and_a_scalar_is_one_sd_for_every_node():
+    moved, intraop, cov = _anisotropic_case(1)
+    for bad, words in ((cov[:3], r"must be \(7, 3, 3\)"), (-cov, "negative variance"), (np.full_like(cov, np.nan), "NaN"),
+                       (cov + np.triu(np.ones(3), 1), "symmetric"), (-1.0, "from 0"), ("wide", "covariances in mm")):
+        with pytest.raises(ValueError, match=words):
+            register(moved, intraop, intraop_cov=bad)
+    one = register(moved, intraop, intraop_cov=3.0)
+    every = register(moved, intraop, intraop_cov=np.broadcast_to(9.0 * np.eye(3), (7, 3, 3)))
+    np.testing.assert_allclose(one.transform, every.transform)
+    np.testing.assert_array_equal(one.pairing, every.pairing)
+
+
+def test_covariances_pair_anisotropic_nodes_better_than_one_sigma():
+    right = {False: 0, True: 0}
+    for seed in range(30):
+        moved, intraop, cov = _anisotropic_case(100 + seed, sigma=14.0)
+        for given in right:
+            result = register(moved, intraop, intraop_cov=cov if given else None)
+            right[given] += bool(np.all(result.pairing[:6] == np.arange(6)))
+    assert right[True] >= right[False] + 4, right
+
+
+def test_the_weighted_fit_trusts_each_node_across_its_ray():
+    """Errors only along the viewing rays: weighted by covariances that say so, the transform comes out near exact;
+    Kabsch, weighing every direction alike, does not."""
+    rng = np.random.default_rng(7)
+    preop = rng.uniform(-60, 60, (6, 3))
+    rays = rng.normal(size=(6, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    intraop = preop + rng.normal(0, 8.0, (6, 1)) * rays                        # 8 mm along each ray, none across
+    cov = 0.01 * np.eye(3) + 64.0 * rays[:, :, None] * rays[:, None, :]
+    weighted = register(preop, intraop, intraop_cov=cov)
+    plain = register(preop, intraop)
+    assert np.abs(weighted.transform - np.eye(4)).max() < 0.02
+    assert np.abs(plain.transform[:3, 3]).max() > 0.5
+    np.testing.assert_array_equal(weighted.pairing, np.arange(6))
+    assert np.all(np.isfinite(weighted.leave_one_out_mm)) and np.all(weighted.target_error_mm > 0)
+
+
+def test_target_error_bounds_with_covariances_cover_the_truth():
+    inside, total = 0, 0
+    for seed in range(20):
+        rng = np.random.default_rng(300 + seed)
+        moved, intraop, cov = _anisotropic_case(300 + seed, sigma=6.0, n_extra=0)
+        keep = rng.permutation(6)[:4]                            # two SPECT nodes not found yet
+        result = register(moved, intraop[keep], intraop_cov=cov[keep])
+        missing = np.setdiff1d(np.arange(6), keep)
+        mapped = geometry.apply(result.transform, moved[missing])
+        actual = np.linalg.norm(mapped - intraop[missing], axis=1)       # from where they were stored
+        inside += int(np.sum(actual <= result.target_error_mm[missing]))
+        total += len(missing)
+    assert inside >= 0.8 * total, (inside, total)

@@ -35,8 +35,8 @@ def test_info_json(session_file, capsys):
     assert _run(["session", "info", str(session_file), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["case_id"] == "phantom-01" and info["intraop_nodes"] == 2
-    assert info["streams"] == {"imu": 3, "probe": 0, "frames": 0} and info["registrations"] == []
-    assert info["format_version"] == 3 and not info["damaged"] and info["events"] == {"store_refused": 1}
+    assert info["streams"] == {"imu": 3, "probe": 0, "frames": 0, "camera": 0} and info["registrations"] == []
+    assert info["format_version"] == 4 and not info["damaged"] and info["events"] == {"store_refused": 1}
 
 
 def test_info_text(session_file, capsys):

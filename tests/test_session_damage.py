@@ -21,12 +21,12 @@ from snreg.session.filecheck import check_file
 from snreg.session.journal import journal_path
 from snreg.session.recovery import RecoverLock, recover
 
-ROWS = {"imu": 3000, "probe": 700, "frames": 700}      # several chunks each (1024 rows a chunk)
+ROWS = {"imu": 3000, "probe": 700, "frames": 700, "camera": 700}      # imu: several chunks (1024 rows a chunk)
 IDS = ["SN1", "SN2", "SN3", "SN4"]
 
 
 def _session(path, rng):
-    """Calibration, preop nodes, four nodes with snapshots, a registration and three streams."""
+    """Calibration, preop nodes, four nodes with snapshots, a registration and four streams."""
     xyz = np.array([[-55.0, 20, 30], [-45, 42, 8], [52, 18, 35], [12, 100, 72]])
     with Session.create(path, case_id="damage-01") as s:
         s.set_calibration(stereo=thesis_calibration(), chain=ChainCalibration.manual())
@@ -40,6 +40,7 @@ def _session(path, rng):
         s.append_probe(t[:n], t[:n], rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), np.tile([0.0, 0, 1], (n, 1)),
                        np.full(n, 0.9))
         s.append_frames(t[:n], t[:n], np.arange(n))
+        s.append_camera(t[:n], t[:n], rng.uniform(150, 170, n), "tracked", np.full(n, 0.9), np.zeros(n), np.zeros(n))
 
 
 def _crash_root_format(path):
@@ -85,7 +86,7 @@ def test_recover_keeps_every_readable_row_whatever_the_root_attributes_say(sessi
     assert not report.journal and report.backup is not None and report.nodes == (4, "file")
     assert report.streams == ROWS == _rows(session) == _rows(report.backup)
     text = "\n".join(report.lines())
-    assert "there was no journal" in text and "imu 3000, probe 700, frames 700 rows" in text
+    assert "there was no journal" in text and "imu 3000, probe 700, frames 700, camera 700 rows" in text
     with Session.open(session) as s:
         assert not s.damaged and s.intraop_nodes().ids == IDS and len(s.registrations()) == 1
 

@@ -63,8 +63,30 @@ def test_oracles_and_error_ratio_on_a_clean_trial():
     patient = synthetic_cohort()[0]
     trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 0.0, 0, 0, (5,))
     assert oracle_success(trial) == {"oracle_nearest": True, "oracle_one_to_one": True, "oracle_model": True,
-                                     "oracle_nearest_all_claims": True}
+                                     "oracle_nearest_all_claims": True, "oracle_nearest_cov": True}
     assert error_stats(trial)["max_error_ratio"] == 0.0
+
+
+def test_an_anisotropic_trial_errs_along_each_nodes_ray_and_carries_its_covariances():
+    patient = synthetic_cohort()[1]
+    isotropic = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 6.0, 2, 0, (8,))
+    again = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 6.0, 2, 0, (8,), anisotropy=1.0)
+    np.testing.assert_array_equal(isotropic.intraop, again.intraop)         # the thesis' protocol unchanged
+    np.testing.assert_allclose(isotropic.intraop_cov, 36.0 * np.eye(3)[None].repeat(len(isotropic.intraop), 0))
+    trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 6.0, 2, 0, (8,), anisotropy=5.0)
+    eigen = np.linalg.eigvalsh(trial.intraop_cov)
+    np.testing.assert_allclose(eigen[:, 2] / eigen[:, 0], 25.0)             # sd 5 times larger along the ray
+    np.testing.assert_allclose(eigen.sum(axis=1), 3 * 36.0)                 # per-axis RMS still sigma
+    along, across = [], []
+    for rep in range(12):
+        trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 6.0, 0, rep, (8, rep), anisotropy=5.0)
+        errors = trial.intraop - trial.preop[trial.truth]
+        rays = np.linalg.eigh(trial.intraop_cov)[1][:, :, 2]
+        along.append(np.einsum("ni,ni->n", errors, rays))
+        across.append(errors - along[-1][:, None] * rays)
+    along_rms = np.sqrt(np.mean(np.concatenate(along) ** 2))
+    across_rms = np.sqrt(np.mean(np.concatenate(across) ** 2) * 3 / 2)      # per axis across the ray
+    assert 3.5 < along_rms / across_rms < 7.0
 
 
 def test_wilson_interval_and_threshold():
@@ -77,10 +99,12 @@ def test_wilson_interval_and_threshold():
 
 
 def test_parse_method():
-    assert parse_method("global") == ("global", False, {})
-    assert parse_method("global+labels") == ("global", True, {})
-    assert parse_method("cpd:w=0.1") == ("cpd", False, {"w": 0.1})
-    assert parse_method("chamfer:form=volume") == ("chamfer", False, {"form": "volume"})
+    plain = {"use_labels": False, "use_cov": False}
+    assert parse_method("global") == ("global", plain)
+    assert parse_method("global+labels") == ("global", {**plain, "use_labels": True})
+    assert parse_method("global+cov+labels") == ("global", {"use_labels": True, "use_cov": True})
+    assert parse_method("cpd:w=0.1") == ("cpd", {**plain, "w": 0.1})
+    assert parse_method("chamfer:form=volume") == ("chamfer", {**plain, "form": "volume"})
     with pytest.raises(ValueError):
         parse_method("global+magic")
 

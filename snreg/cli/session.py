@@ -56,6 +56,12 @@ def cmd_info(args) -> int:
     print(f"case {info['case_id'] or '(none)'}, created {info['created_utc'] or '(unknown)'}, "
           f"format {info['format_version']}, snreg {info['snreg_version'] or '(unknown)'}")
     print(f"nodes: {info['intraop_nodes']} intraop, {info['preop_nodes']} preop; streams: {streams}")
+    camera = info["camera"]
+    if camera["tracked"] or camera["lost"] or any(node["trocar_camera_mm"] is not None for node in info["nodes"]):
+        mapped = ", ".join(f"{node['id']} " + ("untracked" if node["trocar_camera_mm"] is None else
+                                               f"{node['trocar_camera_mm']:.1f} mm") for node in info["nodes"])
+        print(f"camera insertion: tracked on {camera['tracked']} pairs, lost on {camera['lost']}; nodes mapped at: "
+              f"{mapped or 'none stored'}")
     print(f"calibration: {', '.join(info['calibration']) or 'none'}; registrations: {regs}")
     for video in info["videos"]:
         print(f"video {video['side']}: {video['path']} ({video['frames']} frames, {video['codec']})")

@@ -6,7 +6,7 @@ import argparse
 import shlex
 import sys
 
-from snreg.cli.common import check_output_folder, floats, int_range, ints, seed, workers
+from snreg.cli.common import check_output_folder, float_range, floats, int_range, ints, seed, workers
 from snreg.errors import UserError
 
 __all__ = ["add_simulate_parser", "cmd_simulate", "DEFAULTS"]
@@ -55,6 +55,9 @@ def add_simulate_parser(subparsers) -> None:
                         "0 the report adds accuracy per missing count, target-error coverage and the incremental scenario")
     p.add_argument("--methods", type=_methods, default=DEFAULTS["methods"],
                    help="e.g. icp,cpd,chamfer,global,global+labels (';' to separate specs with options, e.g. 'cpd:w=0.1')")
+    p.add_argument("--anisotropy", type=float_range(1.0, 50.0, low_open=False), default=1.0, metavar="R",
+                   help="each intraop node's error along its own viewing ray is R times its error across it (per-axis "
+                        "RMS still sigma; 1: the thesis' isotropic error); '+cov' methods are given the covariances")
     p.add_argument("--cohort", help="directory of preop node CSVs, one per patient (default: synthetic cohort)")
     p.add_argument("--seed", type=seed, default=0, help="random seed of the study")
     p.add_argument("--workers", type=workers, default=0, help="processes, at most one per core (0: one per core)")
@@ -84,7 +87,7 @@ def cmd_simulate(args) -> int:
         raise UserError(f"{largest.name} has {len(largest.nodes)} nodes, with {max(args.extras)} extras "
                         f"{len(largest.nodes) + max(args.extras)}: registration handles at most {MAX_NODES} per set")
     config = StudyConfig(methods=tuple(args.methods), sigmas=args.sigmas, extras=args.extras, reps=args.reps,
-                         seed=args.seed, workers=args.workers, missing=tuple(args.missing))
+                         seed=args.seed, workers=args.workers, missing=tuple(args.missing), anisotropy=args.anisotropy)
     study = run_study(patients, config, progress=not args.quiet)
     command = "snreg " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:

@@ -29,7 +29,9 @@ from snreg.registration._chamfer import solve_chamfer
 from snreg.registration._cpd import solve_cpd
 from snreg.registration._global import local_moves, solve_global
 from snreg.registration._icp import solve_icp
-from snreg.registration._model import MIN_PAIRS, Candidate, assign, evaluate, source_posterior, squared_distances
+from snreg.registration._covariance import S_GRID_MM
+from snreg.registration._model import (MIN_PAIRS, Candidate, assign, evaluate, fit_pairs, source_posterior,
+                                       squared_distances)
 from snreg.registration._problem import make_problem
 from snreg.registration.confidence import claim_confidence, posterior_weights, source_probabilities
 from snreg.registration.pairing import RULES, pair, shared
@@ -89,7 +91,7 @@ class RegistrationResult:
 
 def register(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None, initial=None,
              max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-             pairing_rule: str | None = None, **options) -> RegistrationResult:
+             intraop_cov=None, preop_cov=None, pairing_rule: str | None = None, **options) -> RegistrationResult:
     """Register preop (N, 3) to intraop (M, 3) nodes in mm and say which hot spot every intraop node came from.
 
     ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
@@ -98,9 +100,12 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     :class:`NoFitError` says that no pairing fits only when the nodes fit far better beyond
     them (a million to one). Labels such as ``"OBT R"`` forbid left/right crossings and favour
     matching stations. ``pairing_rule`` overrides the method's rule; ``options`` go to
-    the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer). Everything after ``method`` is
-    keyword-only. Raises ValueError with a message a user understands on bad input, an unknown
-    method or option included.
+    the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer). ``intraop_cov`` (M, 3, 3) and
+    ``preop_cov`` (N, 3, 3) are each node's own error covariance in mm^2 (or one sd in mm for all): ``global``, the
+    confidence, the target-error bounds and leave-one-out weigh every node by it (a stereo fix is uncertain mostly
+    along its viewing ray); icp, cpd and chamfer fit as without it. None keeps the isotropic model exactly.
+    Everything after ``method`` is keyword-only. Raises ValueError with a message a user understands on bad
+    input, an unknown method or option included.
     """
     _check_method(method, options)
     rule = pairing_rule or PAIRING_RULE[method]
@@ -108,7 +113,8 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
         raise ValueError(f"unknown pairing rule {rule!r}; choose one of {', '.join(RULES)}")
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
-                           max_translation_mm=max_translation_mm, seed=seed)
+                           max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
+                           preop_cov=preop_cov)
     correction, candidates = _solve(problem, method, options)
     if method == "global":
         base = candidates[0]
@@ -138,7 +144,7 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
                               pairings=pairings, score=base.score, initial=problem.initial,
                               target_error_mm=target_error_bound(problem, correction, ranked, weights),
                               missing=~np.isin(np.arange(len(problem.preop)), pairing),
-                              leave_one_out_mm=_leave_one_out(problem, pairing, nearest))
+                              leave_one_out_mm=_leave_one_out(problem, pairing, nearest, base))
 
 
 def _candidate_at(problem, correction: np.ndarray) -> Candidate:
@@ -178,15 +184,24 @@ def _nearest_claimants(pairing: np.ndarray, distances: np.ndarray) -> np.ndarray
     return chosen & (pairing >= 0)
 
 
-def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray, base: Candidate) -> np.ndarray:
     """(M,) per intraop node from a hot spot: its distance from it when the other hot spots' nearest nodes alone fit
-    the correction (NaN for a node from none, and when fewer than 3 other hot spots remain)."""
+    the correction (NaN for a node from none, and when fewer than 3 other hot spots remain); with covariances the
+    weighted fit at the unmodelled error the best candidate makes most likely."""
     out = np.full(len(pairing), np.nan)
+    sigma = None
+    if problem.anisotropic and base.fit_weights is not None:
+        sigma = float(S_GRID_MM[int(np.argmax(base.fit_weights))])
     for j in np.flatnonzero(pairing >= 0):
         rest = np.flatnonzero(nearest & (pairing != pairing[j]))
         if len(rest) < MIN_PAIRS:
             continue
-        correction = geometry.kabsch(problem.preop[pairing[rest]], problem.intraop[rest])
+        if problem.anisotropic:
+            assignment = np.full(len(pairing), -1)
+            assignment[rest] = pairing[rest]
+            correction = fit_pairs(problem, assignment, sigma)
+        else:
+            correction = geometry.kabsch(problem.preop[pairing[rest]], problem.intraop[rest])
         out[j] = float(np.linalg.norm(geometry.apply(correction, problem.preop[pairing[j]][None])[0]
                                       - problem.intraop[j]))
     return out
@@ -194,13 +209,14 @@ def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray) -> np.ndar
 
 def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,
                     initial=None, max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-                    **options) -> np.ndarray:
+                    intraop_cov=None, preop_cov=None, **options) -> np.ndarray:
     """The method's transform estimate alone, (4, 4) ``intraop_from_preop``: the solver without the pairing and the
     confidence that :func:`register` adds (what ``snreg bench`` times as "solver"). Arguments as :func:`register`."""
     _check_method(method, options)
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
-                           max_translation_mm=max_translation_mm, seed=seed)
+                           max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
+                           preop_cov=preop_cov)
     return _solve(problem, method, options)[0] @ problem.initial
 
 

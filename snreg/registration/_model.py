@@ -18,6 +18,9 @@ with J_a the inertia tensor of the paired preop nodes. The number of own nodes i
 min(N, M). Under a fixed sigma the best pairing for a correction is nearly a linear assignment in which every preop
 node may go unpaired (cost C_MISSING) and every intraop node may be extra (its cost beside the mapped hot spots, the
 own nodes not known yet); the score then judges it with the extras beside the own nodes.
+
+With covariances per node (``intraop_cov``/``preop_cov``) the isotropic error becomes each pair's own Gaussian plus an
+unmodelled isotropic part, fitted and integrated the same way (:mod:`snreg.registration._covariance`).
 """
 
 from __future__ import annotations
@@ -29,12 +32,13 @@ from scipy.optimize import linear_sum_assignment
 
 from snreg import geometry
 from snreg.registration._bounded import fit_within_bounds
+from snreg.registration._covariance import S_GRID_MM, blur_sigmas, fit_corrections, fit_nats, pair_nats_given
 from snreg.registration._extras import (ANYWHERE_LOG, EXTRA_NEAR_FRACTION, anchored, anchored_extra_nats,
                                         anchored_near_log, extra_nats, logsumexp)
 from snreg.registration._problem import Problem
 
-__all__ = ["Candidate", "squared_distances", "pair_nats", "assign", "evaluate", "score_many", "refine_many",
-           "sigma_weights", "source_posterior", "SIGMA_GRID_MM", "MIN_PAIRS"]
+__all__ = ["Candidate", "squared_distances", "pair_nats", "pair_costs", "assign", "evaluate", "fit_pairs", "score_many",
+           "refine_many", "sigma_weights", "candidate_sigmas", "source_posterior", "SIGMA_GRID_MM", "MIN_PAIRS"]
 
 MIN_PAIRS = 3
 PI_FOUND = 0.9                    # a SPECT node is found (and stored) during surgery
@@ -50,12 +54,14 @@ _J_FLOOR_MM2 = 25.0               # inertia eigenvalues below this (nearly colli
 @dataclass(frozen=True)
 class Candidate:
     """A partial one-to-one pairing: ``assignment[m]`` is the hot spot whose own node intraop m is, or -1 (an extra);
-    the correction fitted to its pairs, their sum of squared residuals (mm^2) and the score (nats, lower is better)."""
+    the correction fitted to its pairs, their sum of squared residuals (mm^2) and the score (nats, lower is better).
+    The unmodelled error's posterior is :func:`candidate_sigmas`'."""
 
     assignment: np.ndarray
     correction: np.ndarray
     sse: float
     score: float
+    fit_weights: np.ndarray | None = None      # with covariances: the posterior over S_GRID_MM of the unmodelled error
 
     @property
     def key(self) -> bytes:
@@ -85,18 +91,36 @@ def source_posterior(problem: Problem, cand: "Candidate", sigma: float | None = 
     anywhere; sigma is integrated over its posterior given the candidate's fit, unless given."""
     n, m = len(problem.preop), len(problem.intraop)
     d2 = squared_distances(geometry.apply(cand.correction, problem.preop), problem.intraop)        # (N, M)
-    sigmas = SIGMA_GRID_MM if sigma is None else np.array([float(sigma)])
+    sigmas, weights = candidate_sigmas(problem, cand) if sigma is None else (np.array([float(sigma)]), np.ones(1))
     near = (anchored_near_log(*anchored(problem.intraop, cand.assignment[None], d2[None]), sigmas)[0]
             + np.log(EXTRA_NEAR_FRACTION / n) - problem.label_nats[None])                          # (G, N, M)
     anywhere = np.full((len(sigmas), 1, m), ANYWHERE_LOG)
     logs = np.concatenate([near, anywhere], axis=1)                                                  # (G, N+1, M)
     resp = np.exp(logs - logsumexp(logs, axis=1)[:, None, :])
-    weights = sigma_weights(cand.sse, cand.n_pairs) if sigma is None else np.ones(1)
     extra = np.einsum("g,gnm->mn", weights, resp)                                                     # (M, N+1)
     own = np.zeros((m, n + 1))
     paired = cand.assignment >= 0
     own[np.flatnonzero(paired), cand.assignment[paired]] = 1.0
     return np.where(paired[:, None], own, extra)
+
+
+def candidate_sigmas(problem: Problem, cand: Candidate) -> tuple[np.ndarray, np.ndarray]:
+    """The candidate's posterior over the intraop error's scale: (G,) isotropic sds (mm) and their weights. Without
+    covariances, sigma of the isotropic model given the fit; with them, the blur standing for each unmodelled ``s``."""
+    if cand.fit_weights is None:
+        return SIGMA_GRID_MM, sigma_weights(cand.sse, cand.n_pairs)
+    return blur_sigmas(problem, S_GRID_MM), cand.fit_weights
+
+
+def pair_costs(problem: Problem, corrections: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray]:
+    """(A, N, M) pair costs and (A, M) extra costs under corrections (A, 4, 4) at the assignment sigmas (A,): the
+    nodes' own covariances plus sigma when given, else sigma alone."""
+    sigmas = np.broadcast_to(np.asarray(sigmas, dtype=float), (len(corrections),))
+    d2 = squared_distances(_moved(problem, corrections), problem.intraop)
+    if not problem.anisotropic:
+        return pair_nats(d2, sigmas[:, None, None], problem.label_nats), extra_nats(d2, sigmas)
+    pairs = pair_nats_given(problem, corrections, sigmas) + C_FOUND + problem.label_nats
+    return pairs, extra_nats(d2, blur_sigmas(problem, sigmas))
 
 
 def _partial_lsa(pair: np.ndarray, extra: np.ndarray) -> np.ndarray:
@@ -124,22 +148,44 @@ def assign(problem: Problem, correction: np.ndarray, sigma: float, adjust: np.nd
     """The best partial one-to-one pairing under ``correction`` at a fixed ``sigma``: a linear assignment over pairs,
     missing preop nodes and extra intraop nodes. ``adjust`` (N, M) is added to the pair costs (pins, bans).
     Returns the assignment (M,): preop index or -1."""
-    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
-    pair = pair_nats(d2, sigma, problem.label_nats) + (0.0 if adjust is None else adjust)
-    return _partial_lsa(pair, extra_nats(d2, sigma))
+    pair, extra = pair_costs(problem, np.asarray(correction, float)[None], sigma)
+    return _partial_lsa(pair[0] + (0.0 if adjust is None else adjust), extra[0])
 
 
-def _fit(problem: Problem, assignments: np.ndarray, bounded: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Kabsch corrections (A, 4, 4) of pairings (A, M) (each with >= 3 pairs) and their residuals (A,) mm^2; when
+def _fit(problem: Problem, assignments: np.ndarray, bounded: bool = True,
+         sigmas=None) -> tuple[np.ndarray, np.ndarray]:
+    """Corrections (A, 4, 4) of pairings (A, M) (each with >= 3 pairs) and their residuals (A,) mm^2: Kabsch, or with
+    covariances the weighted fit at the unmodelled error ``sigmas`` (A,) (None: the Kabsch residual's sigma); when
     ``bounded``, a correction that leaves the bounds is replaced by the pairing's best fit within them."""
     paired = assignments >= 0
     src = problem.preop[np.maximum(assignments, 0)]                     # (A, M, 3)
     corrections = geometry.kabsch(src, np.broadcast_to(problem.intraop, src.shape), paired.astype(float))
+    if problem.anisotropic:
+        if sigmas is None:
+            sigmas = _residual_sigma(problem, src, corrections, paired)
+        corrections = fit_corrections(problem, assignments, corrections, sigmas)
     if bounded:
         for a in np.flatnonzero(~problem.within_bounds(corrections)):
             corrections[a] = fit_within_bounds(problem, src[a][paired[a]], problem.intraop[paired[a]])
     residual = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3] - problem.intraop
     return corrections, np.einsum("amk,amk,am->a", residual, residual, paired)
+
+
+def _residual_sigma(problem: Problem, src: np.ndarray, corrections: np.ndarray, paired: np.ndarray) -> np.ndarray:
+    """(A,) the sigma of corrections' isotropic residuals less what the given covariances explain (at least the
+    smallest of :data:`S_GRID_MM`): where the weighted fit starts."""
+    residual = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3] - problem.intraop
+    k = paired.sum(axis=1)
+    per_axis = np.einsum("amk,amk,am->a", residual, residual, paired) / np.maximum(3 * k - 6, 1)
+    explained = blur_sigmas(problem, 0.0) ** 2
+    return np.sqrt(np.maximum(per_axis - explained, S_GRID_MM[0] ** 2))
+
+
+def fit_pairs(problem: Problem, assignment: np.ndarray, sigma: float | None = None) -> np.ndarray:
+    """(4, 4) the correction fitted to one pairing (M,) (at least 3 pairs), without bounds: Kabsch, or with covariances
+    the weighted fit at the unmodelled error ``sigma`` (None: from the residual)."""
+    sigmas = None if sigma is None else np.array([float(sigma)])
+    return _fit(problem, np.asarray(assignment, dtype=int)[None], bounded=False, sigmas=sigmas)[0][0]
 
 
 def score_many(problem: Problem, assignments: np.ndarray, bounded: bool = True) -> list[Candidate]:
@@ -149,16 +195,31 @@ def score_many(problem: Problem, assignments: np.ndarray, bounded: bool = True) 
     corrections, sse = _fit(problem, assignments, bounded)
     paired = assignments >= 0
     k = paired.sum(axis=1)
+    if problem.anisotropic:         # refitted at the unmodelled error the first fit makes most likely
+        best_s = S_GRID_MM[np.argmin(fit_nats(problem, assignments, corrections), axis=1)]
+        corrections, sse = _fit(problem, assignments, bounded, best_s)
+        fit_terms = fit_nats(problem, assignments, corrections)     # the Occam factor included
+        occam = 0.0
+        grid = blur_sigmas(problem, S_GRID_MM)
+    else:
+        fit_terms = _fit_terms(sse, k)
+        occam = _occam_nats(problem, assignments)
+        grid = SIGMA_GRID_MM
     d2 = squared_distances(_moved(problem, corrections), problem.intraop)          # (A, N, M)
-    extra = anchored_extra_nats(*anchored(problem.intraop, assignments, d2), SIGMA_GRID_MM)  # (A, G, M)
-    per_sigma = _fit_terms(sse, k) + np.where(paired[:, None, :], 0.0, extra).sum(axis=2)
-    fit = -(logsumexp(-per_sigma, axis=1) - np.log(len(SIGMA_GRID_MM)))
+    extra = anchored_extra_nats(*anchored(problem.intraop, assignments, d2), grid)  # (A, G, M)
+    per_sigma = fit_terms + np.where(paired[:, None, :], 0.0, extra).sum(axis=2)
+    fit = -(logsumexp(-per_sigma, axis=1) - np.log(len(grid)))
     outliers = found_nats(k, len(problem.preop))
     rows, cols = np.nonzero(paired)
     labels = np.zeros(len(assignments))
     np.add.at(labels, rows, problem.label_nats[assignments[rows, cols], cols])
-    scores = fit + _occam_nats(problem, assignments) + outliers + problem.prior_nats(corrections) + labels
-    return [Candidate(a.copy(), c, float(e), float(s)) for a, c, e, s in zip(assignments, corrections, sse, scores)]
+    scores = fit + occam + outliers + problem.prior_nats(corrections) + labels
+    weights = [None] * len(assignments)
+    if problem.anisotropic:
+        posterior = np.exp(-(fit_terms - fit_terms.min(axis=1, keepdims=True)))
+        weights = list(posterior / posterior.sum(axis=1, keepdims=True))
+    return [Candidate(a.copy(), c, float(e), float(s), w)
+            for a, c, e, s, w in zip(assignments, corrections, sse, scores, weights)]
 
 
 def found_nats(k: np.ndarray, n: int) -> np.ndarray:
@@ -187,18 +248,17 @@ def refine_many(problem: Problem, corrections: np.ndarray, sigmas, adjusts: np.n
         index = np.flatnonzero(active)
         if len(index) == 0:
             break
-        d2 = squared_distances(_moved(problem, corrections[index]), problem.intraop)
-        pair = pair_nats(d2, sigmas[index][:, None, None], problem.label_nats)
+        pair, extra = pair_costs(problem, corrections[index], sigmas[index])
         if adjusts is not None:
             pair = pair + adjusts[index]
-        updated = np.array([_partial_lsa(p, e) for p, e in zip(pair, extra_nats(d2, sigmas[index]))])
+        updated = np.array([_partial_lsa(p, e) for p, e in zip(pair, extra)])
         too_few = (updated >= 0).sum(axis=1) < MIN_PAIRS            # keep the last pairing that had enough
         valid[index[too_few & (assignments[index] == -2).all(axis=1)]] = False
         settled = too_few | np.all(updated == assignments[index], axis=1)
         assignments[index[~too_few]] = updated[~too_few]
         active[index[settled]] = False
         moving = index[~settled]
-        corrections[moving], _ = _fit(problem, assignments[moving], bounded)
+        corrections[moving], _ = _fit(problem, assignments[moving], bounded, sigmas[moving])
     return score_many(problem, assignments[valid], bounded) if valid.any() else []
 
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from snreg import geometry
 from snreg.labels import label_cost
+from snreg.registration._covariance import covariances
 
 __all__ = ["Problem", "make_problem", "option_number", "option_count"]
 
@@ -19,7 +21,8 @@ class Problem:
     ``initial`` is the rough ``intraop_from_preop`` the bounds are measured from; every
     solver returns a correction ``D`` in the initial-aligned frame and the final
     transform is ``D @ initial``. ``label_nats`` (N, M) is the label cost of pairing
-    preop n with intraop m in nats (zeros without labels).
+    preop n with intraop m in nats (zeros without labels). Covariances, when given, are each node's own error
+    (the preop ones turned with the nodes by ``initial``).
     """
 
     preop: np.ndarray
@@ -29,6 +32,22 @@ class Problem:
     max_rotation_deg: float
     max_translation_mm: float
     seed: int
+    intraop_cov: np.ndarray | None = None      # (M, 3, 3) mm^2 per intraop node, or None
+    preop_cov: np.ndarray | None = None        # (N, 3, 3) mm^2 per preop node, turned by ``initial``, or None
+
+    @property
+    def anisotropic(self) -> bool:
+        """Whether nodes carry their own covariances (:mod:`snreg.registration._covariance`)."""
+        return self.intraop_cov is not None or self.preop_cov is not None
+
+    @cached_property
+    def intraop_eigen(self) -> tuple[np.ndarray, np.ndarray]:
+        """The intraop covariances' eigenvalues (M, 3) (zeros without them) and eigenvectors (M, 3, 3): a pair's
+        covariance when the hot spots carry none, whatever the correction."""
+        if self.intraop_cov is None:
+            return np.zeros((len(self.intraop), 3)), np.broadcast_to(np.eye(3), (len(self.intraop), 3, 3))
+        eigen, vectors = np.linalg.eigh(self.intraop_cov)
+        return np.maximum(eigen, 0.0), vectors
 
     @property
     def centre(self) -> np.ndarray:
@@ -98,7 +117,8 @@ def _spans_a_plane(name: str, points: np.ndarray) -> None:
 
 
 def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, initial=None,
-                 max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0) -> Problem:
+                 max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
+                 intraop_cov=None, preop_cov=None) -> Problem:
     """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`."""
     preop = _as_points("preop", preop, 3)
     intraop = _as_points("intraop", intraop, 3)
@@ -123,6 +143,10 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
     if not (0 < max_rotation_deg <= 180 and 0 < max_translation_mm < np.inf):
         raise ValueError(f"max_rotation_deg must lie in (0, 180] and max_translation_mm be positive and finite; got "
                          f"{max_rotation_deg} and {max_translation_mm}")
+    intraop_cov = covariances("intraop", intraop_cov, len(intraop))
+    preop_cov = covariances("preop", preop_cov, len(preop))
+    if preop_cov is not None:
+        preop_cov = rot @ preop_cov @ rot.T
     return Problem(
         preop=geometry.apply(initial, preop),
         intraop=intraop,
@@ -131,6 +155,8 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
         max_rotation_deg=float(max_rotation_deg),
         max_translation_mm=float(max_translation_mm),
         seed=int(seed),
+        intraop_cov=intraop_cov,
+        preop_cov=preop_cov,
     )
 
 

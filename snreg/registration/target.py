@@ -11,7 +11,9 @@ and the node itself lies where it is stored with its own error sigma^2 I (the sa
 sigma is not known: its posterior under the fit's residual (3K - 6 degrees of freedom) and the log-uniform prior
 of :mod:`snreg.registration._model` is integrated over, and so are the candidate pairings with their posterior
 weights (a wrong pairing moves every mapped node). The bound is the 90th percentile of the distance from the
-reported mapped position, drawn by Monte Carlo from that mixture under a fixed seed (deterministic).
+reported mapped position, drawn by Monte Carlo from that mixture under a fixed seed (deterministic). With
+covariances per node the fit's uncertainty is the weighted fit's (its inverse Hessian carried to each node) and the
+node's own error is its hot spot's covariance plus the unmodelled error (:mod:`snreg.registration._covariance`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from snreg import geometry
-from snreg.registration._model import SIGMA_GRID_MM, Candidate, sigma_weights
+from snreg.registration._covariance import S_GRID_MM, correction_covariances
+from snreg.registration._model import Candidate, candidate_sigmas
 from snreg.registration._problem import Problem
 
 __all__ = ["target_error_bound", "rigid_fit_covariance", "COVERAGE", "SAMPLES"]
@@ -71,9 +74,33 @@ def target_error_bound(problem: Problem, correction: np.ndarray, candidates: lis
     for cand, count in zip(cands, counts):
         if count == 0:
             continue
-        mapped, factors = _shape_factors(problem, cand)
-        sigma = rng.choice(SIGMA_GRID_MM, size=count, p=sigma_weights(cand.sse, cand.n_pairs))
-        z = rng.standard_normal((count, 3))
-        truth = mapped[:, None, :] + sigma[None, :, None] * np.einsum("nij,sj->nsi", factors, z)
+        sigmas, sigma_weights = candidate_sigmas(problem, cand)
+        if problem.anisotropic:
+            truth = _anisotropic_draws(problem, cand, rng.choice(len(S_GRID_MM), size=count, p=sigma_weights), rng)
+        else:
+            mapped, factors = _shape_factors(problem, cand)
+            sigma = rng.choice(sigmas, size=count, p=sigma_weights)
+            z = rng.standard_normal((count, 3))
+            truth = mapped[:, None, :] + sigma[None, :, None] * np.einsum("nij,sj->nsi", factors, z)
         distances.append(np.linalg.norm(truth - reported[:, None, :], axis=-1))
     return np.quantile(np.concatenate(distances, axis=1), COVERAGE, axis=1)
+
+
+def _anisotropic_draws(problem: Problem, cand: Candidate, s_index: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(N, S) draws of where each preop node really is under the candidate with covariances, the unmodelled error at
+    the grid indices ``s_index`` (S,): the fit's uncertainty at each node plus its own (the hot spot's covariance
+    turned, and the unmodelled error)."""
+    mapped = geometry.apply(cand.correction, problem.preop)
+    rotation = cand.correction[:3, :3]
+    own = (rotation @ problem.preop_cov @ rotation.T) if problem.preop_cov is not None else np.zeros((len(mapped), 3, 3))
+    drawn = np.unique(s_index)
+    s = S_GRID_MM[drawn]
+    cov = (correction_covariances(problem, cand.assignment, cand.correction, s, mapped) + own[None]
+           + (s**2)[:, None, None, None] * np.eye(3))                                      # (S, N, 3, 3)
+    factors = np.linalg.cholesky(cov)
+    truth = np.empty((len(mapped), len(s_index), 3))
+    for k, index in enumerate(drawn):
+        chosen = np.flatnonzero(s_index == index)
+        z = rng.standard_normal((len(chosen), 3))
+        truth[:, chosen] = mapped[:, None, :] + np.einsum("nij,sj->nsi", factors[k], z)
+    return truth

@@ -6,26 +6,38 @@ import json
 from collections import Counter
 from pathlib import Path
 
+import h5py
+import numpy as np
+
 from snreg.camera import save_calibration
 from snreg.files import atomic_write
 from snreg.session import Session
 from snreg.session.integrity import verify
 from snreg.session.journal import journal_path, read_journal
+from snreg.session.pose_streams import tracked_rows
 from snreg.session.schema import STREAM_DTYPES, SessionError
 
 
 def session_info(path: str | Path) -> dict:
-    """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, calibration, registrations,
-    events by kind (e.g. ``store_refused``), the recorded videos; ``damaged`` also when a dataset fails its checksum or
-    digest (``damage`` names them; the videos' SHA-256 is left to ``snreg session verify``)."""
+    """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, each intraop node's id,
+    label and the insertion it was mapped with (``trocar_camera_mm``, null when untracked), the camera stream's
+    tracked and lost pairs, calibration, registrations, events by kind (e.g. ``store_refused``), the recorded videos;
+    ``damaged`` also when a dataset fails its checksum or digest (``damage`` names them; the videos' SHA-256 is left
+    to ``snreg session verify``)."""
     with Session.open(path) as session:                 # refuses what is not a session, in one sentence
         checked = verify(path, videos=False)
         preop = session.preop_nodes()
+        camera = session.stream("camera")
+        tracked = int(tracked_rows(camera[()] if isinstance(camera, h5py.Dataset) else camera).sum())
         return {"case_id": session.case_id, "created_utc": session.header.get("created_utc", ""),
                 "format_version": session.header.get("format_version"),
                 "snreg_version": session.header.get("snreg_version", ""),
                 "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
                 "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
+                "nodes": [{"id": node.id, "label": node.label, "trocar_camera_mm":
+                           float(node.trocar_camera_mm) if np.isfinite(node.trocar_camera_mm) else None}
+                          for node in session.intraop_records()],
+                "camera": {"tracked": tracked, "lost": int(len(camera)) - tracked},
                 "calibration": sorted(session.calibration()),
                 "registrations": [{"n": r.n, "method": r.result.method, "rms_mm": r.result.rms_mm, "final": r.final}
                                   for r in session.registrations()],

@@ -109,7 +109,8 @@ def _read_whole(h5: h5py.File) -> FileParts | None:
     if parts.problems or any(stream_problem(h5, name, None) for name in STREAM_DTYPES):
         return None
     for name in STREAM_DTYPES:
-        walk_chunk_index(h5[f"streams/{name}"])
+        if f"streams/{name}" in h5:                 # a stream newer than the file's format may be absent
+            walk_chunk_index(h5[f"streams/{name}"])
     return parts
 
 

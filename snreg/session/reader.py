@@ -19,13 +19,15 @@ def read_nodes(h5: h5py.File) -> list[IntraopNode]:
     cols = {name: group[name][()] for name in group}
     n = min(len(v) for v in cols.values())
     unknown = np.full((3, 3), np.nan)          # format 1: no orientation or calibration versions stored
+    # format 3 and before: no insertion stored (NaN: the chain's own distance mapped the node)
     return [IntraopNode(_plain(cols["id"][k]), _plain(cols["label"][k]), int(cols["time_ns"][k]),
                         cols["xyz_trocar"][k], cols["xyz_camera"][k], float(cols["spread_mm"][k]),
                         int(cols["n_frames"][k]), float(cols["counts"][k]), bytes(cols["left_jpeg"][k]),
                         bytes(cols["right_jpeg"][k]),
                         cols["earth_from_imu"][k] if "earth_from_imu" in cols else unknown.copy(),
                         _plain(cols["stereo_version"][k]) if "stereo_version" in cols else "",
-                        _plain(cols["chain_version"][k]) if "chain_version" in cols else "")
+                        _plain(cols["chain_version"][k]) if "chain_version" in cols else "",
+                        float(cols["trocar_camera_mm"][k]) if "trocar_camera_mm" in cols else float("nan"))
             for k in range(n)]
 
 

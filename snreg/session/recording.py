@@ -12,7 +12,8 @@ import numpy as np
 
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
 from snreg.session import writer
-from snreg.session.schema import STREAM_DTYPES, IntraopNode, SessionError, jpeg_bytes, position_mm, stereo_to_dict
+from snreg.session.schema import (CAMERA_STATES, STREAM_DTYPES, IntraopNode, SessionError, jpeg_bytes, position_mm,
+                                  stereo_to_dict)
 from snreg.session.video import MIN_FREE_BYTES, RecorderState, StereoRecorder, VideoSegment, free_bytes, segment_files
 
 
@@ -34,11 +35,12 @@ class Recording:
     def add_intraop_node(self, node_id: str, label: str, xyz_trocar, *, xyz_camera=None, spread_mm: float = float("nan"),
                          n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
                          left_jpeg=b"", right_jpeg=b"", earth_from_imu=None, stereo_version: str = "",
-                         chain_version: str = "") -> IntraopNode:
+                         chain_version: str = "", trocar_camera_mm: float = float("nan")) -> IntraopNode:
         """Store a node (positions mm; time ns on the host clock, perf_counter_ns like the streams); on disk when this returns.
 
-        Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here. ``earth_from_imu`` (3, 3) and the
-        calibration versions say what the node was measured with (see :class:`IntraopNode`).
+        Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here. ``earth_from_imu`` (3, 3), the
+        calibration versions and ``trocar_camera_mm`` (the tracked insertion it was mapped with, NaN when untracked)
+        say what the node was measured with (see :class:`IntraopNode`).
         """
         self._writable()
         node_id = str(node_id)
@@ -50,7 +52,7 @@ class Recording:
                            int(n_frames), float(counts), jpeg_bytes(left_jpeg), jpeg_bytes(right_jpeg),
                            np.full((3, 3), np.nan) if earth_from_imu is None
                            else np.asarray(earth_from_imu, dtype=float).reshape(3, 3),
-                           str(stereo_version), str(chain_version))
+                           str(stereo_version), str(chain_version), float(trocar_camera_mm))
         self._journal.append("node", node.to_json())
         writer.write_node(self._h5, node)
         self._h5.flush()
@@ -72,14 +74,14 @@ class Recording:
 
     @serialised
     def reexpress_nodes(self, nodes: list[IntraopNode], reason: str) -> dict:
-        """Replace stored nodes by the same nodes re-expressed (new positions and calibration versions, same ids),
-        all or none: one journal line holds them with their old values, which stay on record in the ``events`` log
-        (kind ``nodes_reexpressed``). Returns that event."""
+        """Replace stored nodes by the same nodes re-expressed (new positions, calibration versions and insertion,
+        same ids), all or none: one journal line holds them with their old values, which stay on record in the
+        ``events`` log (kind ``nodes_reexpressed``). Returns that event."""
         self._writable()
         missing = [node.id for node in nodes if node.id not in self._nodes]
         if missing:
             raise SessionError(f"{self.path}: there is no stored node {missing[0]!r} to re-express")
-        keys = ("xyz_trocar", "xyz_camera", "stereo_version", "chain_version")
+        keys = ("xyz_trocar", "xyz_camera", "stereo_version", "chain_version", "trocar_camera_mm")
         changes = []
         for node in nodes:
             old = self._nodes[node.id]
@@ -102,7 +104,8 @@ class Recording:
                 self._nodes[node.id] = dataclasses.replace(
                     node, xyz_trocar=np.asarray(change["xyz_trocar"], dtype=float),
                     xyz_camera=np.asarray(change["xyz_camera"], dtype=float),
-                    stereo_version=str(change["stereo_version"]), chain_version=str(change["chain_version"]))
+                    stereo_version=str(change["stereo_version"]), chain_version=str(change["chain_version"]),
+                    trocar_camera_mm=float(change.get("trocar_camera_mm", node.trocar_camera_mm)))
 
     @serialised
     def log_event(self, kind: str, **data) -> dict:
@@ -206,6 +209,19 @@ class Recording:
         self._append("probe", t_host_ns=t_host_ns, t_device_ns=t_device_ns, tip_mm=tip_mm, centre_mm=centre_mm,
                      axis=axis, quality=quality)
 
+    def append_camera(self, t_host_ns, t_device_ns, trocar_camera_mm, state, quality, residual_mm, sd_mm) -> None:
+        """The camera's tracked insertion (``streams/camera``): its pairs' grab times (n,) ns (left as host, right as
+        device, as the probe rows), the insertion (n,) mm (NaN when lost), ``state`` "tracked" | "lost" (one or
+        (n,)), quality (n,) 0-1, the pivot model's residual and the insertion's standard error (n,) mm."""
+        names = np.atleast_1d(np.asarray(state, dtype=object))
+        unknown = {str(v) for v in names} - set(CAMERA_STATES)
+        if unknown:
+            raise SessionError(f"a camera state must be one of {', '.join(CAMERA_STATES)}, got {sorted(unknown)[0]!r}")
+        codes = np.array([CAMERA_STATES.index(str(v)) for v in names], dtype=np.uint8)
+        codes = np.broadcast_to(codes, np.atleast_1d(t_host_ns).shape)          # one state for every row, or one each
+        self._append("camera", t_host_ns=t_host_ns, t_device_ns=t_device_ns, trocar_camera_mm=trocar_camera_mm,
+                     state=codes, quality=quality, residual_mm=residual_mm, sd_mm=sd_mm)
+
     def append_frames(self, t_host_ns, t_device_ns, index) -> None:
         """Frame times (n,) ns and frame indices (n,)."""
         self._append("frames", t_host_ns=t_host_ns, t_device_ns=t_device_ns, index=index)
@@ -290,6 +306,10 @@ class Recording:
 
 
 def _plain_values(node: IntraopNode, keys) -> dict:
-    return {key: np.asarray(getattr(node, key), dtype=float).tolist() if key.startswith("xyz")
-            else str(getattr(node, key)) for key in keys}
+    def plain(key):
+        value = getattr(node, key)
+        if key.startswith("xyz"):
+            return np.asarray(value, dtype=float).tolist()
+        return float(value) if key == "trocar_camera_mm" else str(value)
+    return {key: plain(key) for key in keys}
 

@@ -20,14 +20,14 @@ from snreg.session import reader
 from snreg.session.entries import EntryError, check_entry, check_node
 from snreg.session import filecheck
 from snreg.session.filecheck import FileCheck
-from snreg.session.schema import STREAM_DTYPES, IntraopNode
+from snreg.session.schema import STREAM_DTYPES, STREAM_SINCE, IntraopNode
 
 __all__ = ["FileParts", "read_parts", "stream_rows", "stream_problem"]
 
 _ESSENTIAL = ("id", "label", "xyz_trocar")          # a node row is kept when these survive
 _DEFAULTS = {"time_ns": 0, "xyz_camera": [float("nan")] * 3, "spread_mm": float("nan"), "n_frames": 0,
              "counts": float("nan"), "left_jpeg": "", "right_jpeg": "", "earth_from_imu": None,
-             "stereo_version": "", "chain_version": ""}
+             "stereo_version": "", "chain_version": "", "trocar_camera_mm": float("nan")}
 
 
 @dataclass
@@ -94,7 +94,7 @@ def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> 
     try:
         dataset = h5[path]
     except KeyError:
-        return f"stream {name}: missing"
+        return None if _older_than(h5, STREAM_SINCE.get(name)) else f"stream {name}: missing"
     except (OSError, ValueError, RuntimeError, TypeError) as err:
         return f"stream {name}: unreadable ({_short(err)})"
     try:
@@ -112,6 +112,18 @@ def stream_problem(h5: h5py.File | None, name: str, check: FileCheck | None) -> 
     if held < dataset.shape[0]:
         return f"stream {name}: claims {dataset.shape[0]} rows but its chunks hold {held}; those {held} kept"
     return None
+
+
+def _older_than(h5: h5py.File, version: int | None) -> bool:
+    """Whether the file's ``format_version`` is below ``version`` (a stream introduced then may be absent from it);
+    False when ``version`` is None or the attribute cannot be read."""
+    if version is None:
+        return False
+    try:
+        found = h5.attrs.get("format_version")
+        return isinstance(found, (int, np.integer)) and int(found) < version
+    except (OSError, ValueError, KeyError, RuntimeError, TypeError):
+        return False
 
 
 def _rows_around(dataset: h5py.Dataset, bad: set[int]) -> np.ndarray:

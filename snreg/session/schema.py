@@ -19,8 +19,12 @@ from snreg.errors import SessionError
 from snreg.registration import RegistrationResult
 
 FORMAT = "snreg-session"
-FORMAT_VERSION = 3      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (version 1 reads)
+FORMAT_VERSION = 4      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (version 1 reads)
                         # 3: Fletcher-32 on every fixed-size dataset, digests of the variable-length data, ``videos``
+                        # 4: ``streams/camera`` (the tracked insertion) and each node's ``trocar_camera_mm``. Bumped
+                        # because a format-3 reader would ignore both: its retrack or re-expression would map nodes
+                        # stored with a tracked insertion through the chain's constant distance, and resuming the
+                        # file would leave the node column short; a format-3 reader refuses a format-4 file instead.
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
@@ -30,14 +34,20 @@ _NAME_YEAR = re.compile(r"[A-Z][a-z]{2,}[-._]?(19|20)\d{2}(?!\d)")     # "Smith1
 # Stream tables: host time (time.perf_counter_ns, monotonic, as DESIGN.md §3) and device time, both ns.
 # imu: device time = the sensor's microsecond clock x 1000. probe and frames: the cameras have no device clock,
 # so t_host_ns is the left eye's grab time and t_device_ns the right eye's, both on the host clock (their
-# difference is the left/right skew).
+# difference is the left/right skew). camera (format 4): one row per pair while the insertion is tracked, on the
+# frames' clock as probe; ``trocar_camera_mm`` the tracker's insertion (NaN when lost), ``state`` a code of
+# CAMERA_STATES, ``quality``, ``residual_mm`` and ``sd_mm`` as :class:`snreg.odometry.InsertionEstimate` has them.
 STREAM_DTYPES = {
     "imu": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("acc_g", "<f4", (3,)),
                      ("gyro_dps", "<f4", (3,))]),
     "probe": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("tip_mm", "<f4", (3,)),
                        ("centre_mm", "<f4", (3,)), ("axis", "<f4", (3,)), ("quality", "<f4")]),
     "frames": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("index", "<i8")]),
+    "camera": np.dtype([("t_host_ns", "<i8"), ("t_device_ns", "<i8"), ("trocar_camera_mm", "<f8"), ("state", "u1"),
+                        ("quality", "<f4"), ("residual_mm", "<f4"), ("sd_mm", "<f4")]),
 }
+STREAM_SINCE = {"camera": 4}            # streams added after format 3: absent from older files, they read as empty
+CAMERA_STATES = ("lost", "tracked")     # streams/camera ``state``: the code is the index
 
 
 def validate_case_id(case_id: str) -> str:
@@ -64,7 +74,9 @@ class IntraopNode:
     reading (NaN when none); the snapshots are JPEG bytes (empty when none). What the node was measured with,
     so it can be re-expressed when a calibration changes: ``earth_from_imu`` (3, 3) the mean IMU orientation over
     its fixes (NaN when unknown: files of format 1), ``stereo_version`` and ``chain_version`` the
-    :func:`calibration_version` of the stereo calibration and chain that mapped it ("" when unknown).
+    :func:`calibration_version` of the stereo calibration and chain that mapped it ("" when unknown);
+    ``trocar_camera_mm`` the camera's insertion it was mapped with, the median over its fixes while the insertion was
+    tracked (NaN when unknown: tracking off, or files before format 4; the chain's own distance then mapped it).
     """
 
     id: str
@@ -80,6 +92,7 @@ class IntraopNode:
     earth_from_imu: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
     stereo_version: str = ""
     chain_version: str = ""
+    trocar_camera_mm: float = float("nan")
 
     def to_json(self) -> dict:
         """JSON-ready, the snapshots as hex (the journal's form)."""
@@ -88,7 +101,8 @@ class IntraopNode:
                 "spread_mm": float(self.spread_mm), "n_frames": int(self.n_frames), "counts": float(self.counts),
                 "left_jpeg": self.left_jpeg.hex(), "right_jpeg": self.right_jpeg.hex(),
                 "earth_from_imu": np.asarray(self.earth_from_imu, dtype=float).tolist(),
-                "stereo_version": self.stereo_version, "chain_version": self.chain_version}
+                "stereo_version": self.stereo_version, "chain_version": self.chain_version,
+                "trocar_camera_mm": float(self.trocar_camera_mm)}
 
     @classmethod
     def from_json(cls, data: dict) -> "IntraopNode":
@@ -97,7 +111,8 @@ class IntraopNode:
                    float(data["spread_mm"]), int(data["n_frames"]), float(data["counts"]),
                    bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]),
                    np.asarray(data.get("earth_from_imu", np.full((3, 3), np.nan)), dtype=float).reshape(3, 3),
-                   str(data.get("stereo_version", "")), str(data.get("chain_version", "")))
+                   str(data.get("stereo_version", "")), str(data.get("chain_version", "")),
+                   float(data.get("trocar_camera_mm", float("nan"))))
 
     @property
     def measured_under(self) -> tuple[str, str]:

@@ -107,7 +107,7 @@ class Session(Recording):
         session = cls(path, header, h5, Journal(journal_path(path)), damaged=False)
         session._nodes = {node.id: node for node in nodes}
         session._calibration, session._preop = calibration, preop
-        writer.require_v2_tables(h5)
+        writer.require_tables(h5)
         logged = {event.get("n") for event in reader.read_events(h5)}
         for event in events:
             if event.get("n") not in logged:

@@ -2,12 +2,13 @@
 slicer-sequence -o DIR`` writes ``DIR/ProbeTipToTrocar.seq.mha``.
 
 The poses: the stored probe stream holds the tip and axis in the camera frame per fix, not the IMU orientation,
-so the stored IMU samples are fused again with the live filter (:func:`~snreg.session.timeline.fuse_imu`), the
-orientation is interpolated (slerp) at each fix's host time and mapped through the session's chain
-(:mod:`snreg.chain`): ``trocar_from_probe`` per fix, mm, the tip at the probe frame's origin and z along the probe
+so the stored IMU samples are fused again with the live filter, the orientation is interpolated (slerp) at each
+fix's host time, and each fix is mapped through the session's chain at the camera's insertion at that time
+(:mod:`.pose_streams`: the tracked insertion of ``streams/camera``, the chain's constant distance when the
+session has none): ``trocar_from_probe`` per fix, mm, the tip at the probe frame's origin and z along the probe
 from the tip backwards, as the live link's ``ProbeTipToTrocar``. Not RAS: in Slicer the sequence goes under the
-``TrocarToRas`` transform of a registration. The live acquisition mapped each fix with the orientation of its
-processing moment, a few ms after the grab; with the endoscope still both agree.
+``TrocarToRas`` transform of a registration. The live acquisition interpolated the orientation at the frame's grab
+time from the live filter; the filter run again from the first stored sample agrees with it once it has settled.
 
 The format, checked against Slicer's documentation and source: Slicer's ``.seq.nrrd`` is a *volume* sequence (3
 spatial axes and a list axis); a sequence of linear transforms is stored by Slicer's
@@ -29,12 +30,11 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from snreg.chain import camera_from_probe, trocar_from_probe
 from snreg.session import Session, SessionError
 from snreg.session.reader import readable_rows
-from snreg.session.timeline import ImuSeries, fuse_imu
+from snreg.session.pose_streams import insertions_at, orientations_at
 
 __all__ = ["ProbePoses", "probe_poses", "write_slicer_sequence", "SEQUENCE_NAME"]
 
@@ -43,28 +43,33 @@ SEQUENCE_NAME = "ProbeTipToTrocar"          # the live link's device name, so re
 
 @dataclass(frozen=True, eq=False)
 class ProbePoses:
-    """Every stored fix: host time (N,) ns and ``trocar_from_probe`` (N, 4, 4) mm; ``imu``: how the orientation was got."""
+    """Every stored fix: host time (N,) ns and ``trocar_from_probe`` (N, 4, 4) mm; ``imu``: how the orientation was
+    got; ``insertion_mm`` (N,): the camera's insertion each fix was mapped with."""
 
     t_host_ns: np.ndarray
     trocar_from_probe: np.ndarray
     imu: str
+    insertion_mm: np.ndarray | None = None
 
 
 def probe_poses(path: str | Path) -> ProbePoses:
     """The probe pose stream of the session at ``path`` in the trocar frame; :class:`SessionError` in one sentence."""
     with Session.open(path) as session:
         chain = session.calibration().get("chain")
-        probe, imu = (_rows(session.stream(name)) for name in ("probe", "imu"))
+        probe, imu, camera = (_rows(session.stream(name)) for name in ("probe", "imu", "camera"))
     if chain is None:
         raise SessionError(f"{path}: the session has no chain calibration, so its probe fixes cannot be put in the "
                            "trocar frame; record with a calibrated rig")
     if len(probe) == 0:
         raise SessionError(f"{path}: the session holds no probe fixes to export")
     t_ns = np.asarray(probe["t_host_ns"], dtype=np.int64)
-    orientations, source = _orientations_at(imu, t_ns)
-    poses = np.stack([trocar_from_probe(chain, orientations[k], camera_from_probe(probe["tip_mm"][k], probe["axis"][k]))
+    orientations, source = orientations_at(imu, t_ns)
+    insertions = insertions_at(camera, t_ns, chain.trocar_camera_mm)
+    chains = {d: chain.with_insertion(d) for d in np.unique(insertions)}
+    poses = np.stack([trocar_from_probe(chains[insertions[k]], orientations[k],
+                                        camera_from_probe(probe["tip_mm"][k], probe["axis"][k]))
                       for k in range(len(t_ns))])
-    return ProbePoses(t_ns, poses, source)
+    return ProbePoses(t_ns, poses, source, insertions)
 
 
 def write_slicer_sequence(path: str | Path, out_dir: str | Path) -> Path:
@@ -82,23 +87,6 @@ def seconds_text(t_ns: int) -> str:
     t_ns = int(t_ns)
     sign, t_ns = ("-", -t_ns) if t_ns < 0 else ("", t_ns)
     return f"{sign}{t_ns // 10**9}.{t_ns % 10**9:09d}"
-
-
-def _orientations_at(imu: np.ndarray, t_ns: np.ndarray) -> tuple[np.ndarray, str]:
-    """(N, 3, 3) ``earth_from_imu`` at each time: the fused IMU stream, slerped, held at its ends."""
-    if len(imu) == 0:
-        return np.repeat(np.eye(3)[None], len(t_ns), axis=0), "none recorded: level assumed (identity)"
-    t_imu = np.asarray(imu["t_host_ns"], dtype=np.int64)
-    series = ImuSeries((t_imu - t_imu[0]) / 1e9, np.asarray(imu["t_device_ns"] // 1000, dtype=np.int64),
-                       np.asarray(imu["acc_g"], dtype=float), np.asarray(imu["gyro_dps"], dtype=float))
-    rotations = Rotation.from_euler("ZYX", fuse_imu(series), degrees=True)
-    keep = np.r_[np.diff(t_imu) > 0, True]              # strictly increasing times for the slerp: last of equals
-    t_imu, rotations = t_imu[keep], rotations[keep]
-    source = "the stored IMU samples fused again (live filter), slerped at each fix's host time"
-    if len(t_imu) == 1:
-        return np.repeat(rotations.as_matrix(), len(t_ns), axis=0), source
-    at = np.clip(t_ns, t_imu[0], t_imu[-1])
-    return Slerp((t_imu - t_imu[0]) / 1e9, rotations)((at - t_imu[0]) / 1e9).as_matrix(), source
 
 
 def _metafile_bytes(poses: ProbePoses) -> bytes:

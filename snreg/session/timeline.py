@@ -14,7 +14,7 @@ origin ``t0_ns``: the first sample of any stream (the first node when there are 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -26,8 +26,9 @@ from snreg.imu.protocol import DEFAULT_ODR_HZ
 from snreg.registration.report import PairRow, pair_table
 from snreg.session import Session, SessionError, StoredRegistration
 from snreg.session.reader import readable_rows
+from snreg.session.schema import CAMERA_STATES
 
-__all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
+__all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "CameraSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
            "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "gap_after", "with_gaps", "clock_figures",
            "GAP_PERIODS"]
 
@@ -55,6 +56,23 @@ class ProbeSeries:
 
 
 @dataclass(frozen=True, eq=False)
+class CameraSeries:
+    """The camera's tracked insertion (``streams/camera``): time (N,) s, insertion (N,) mm (NaN where lost), whether
+    each pair was tracked, quality (N,) 0-1 and the pivot model's residual (N,) mm. Empty when the insertion was not
+    tracked (files of format 3 among them): the chain's constant distance mapped every node then."""
+
+    t_s: np.ndarray
+    trocar_camera_mm: np.ndarray
+    tracked: np.ndarray
+    quality: np.ndarray
+    residual_mm: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "CameraSeries":
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros(0))
+
+
+@dataclass(frozen=True, eq=False)
 class FrameSeries:
     """Frame times (N,) s; the rate per whole second (``rate_edges_s`` (K + 1,), ``rate_hz`` (K,)), the median
     rate, and the gaps (G, 2): start and duration in s of every interval over :data:`GAP_PERIODS` periods."""
@@ -68,7 +86,8 @@ class FrameSeries:
 
 @dataclass(frozen=True, eq=False)
 class ReviewNode:
-    """A stored node: positions mm (trocar, left camera), time s from the origin, snapshots RGB (H, W, 3) or None."""
+    """A stored node: positions mm (trocar, left camera), time s from the origin, snapshots RGB (H, W, 3) or None,
+    the insertion it was mapped with (mm, NaN when untracked)."""
 
     id: str
     label: str
@@ -80,6 +99,7 @@ class ReviewNode:
     counts: float
     left_rgb: np.ndarray | None
     right_rgb: np.ndarray | None
+    trocar_camera_mm: float = float("nan")
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,13 +157,14 @@ class SessionReview:
     nodes: list[ReviewNode]
     registrations: list[ReviewRegistration]
     problems: tuple[str, ...] = ()          # what could not be read, in words (Session.problems)
+    camera: CameraSeries = field(default_factory=CameraSeries.empty)
 
 
 def load_review(path: str | Path) -> SessionReview:
     """Read a session once and close it; :class:`SessionError` in one sentence when it cannot be read."""
     try:
         with Session.open(path) as session:
-            streams = {name: _rows(session.stream(name)) for name in ("imu", "probe", "frames")}
+            streams = {name: _rows(session.stream(name)) for name in ("imu", "probe", "frames", "camera")}
             records = session.intraop_records()
             preop = session.preop_nodes()
             registrations = session.registrations()
@@ -155,7 +176,7 @@ def load_review(path: str | Path) -> SessionReview:
         raise SessionError(f"{path}: the session could not be read ({err}); check the file or run "
                            "'snreg session recover'") from None
     t0_ns = _origin(streams, [r.time_ns for r in records])
-    imu, probe, frames = streams["imu"], streams["probe"], streams["frames"]
+    imu, probe, frames, camera = streams["imu"], streams["probe"], streams["frames"], streams["camera"]
     stereo, chain = calibration.get("stereo"), calibration.get("chain")
     node_ids = [r.id for r in records]
     return SessionReview(
@@ -170,8 +191,11 @@ def load_review(path: str | Path) -> SessionReview:
         frame_series(_seconds(frames["t_host_ns"], t0_ns)),
         [ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
                     np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
-                    _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg)) for r in records],
-        [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations], problems)
+                    _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg), float(r.trocar_camera_mm)) for r in records],
+        [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations], problems,
+        CameraSeries(_seconds(camera["t_host_ns"], t0_ns), np.asarray(camera["trocar_camera_mm"], dtype=float),
+                     np.asarray(camera["state"]) == CAMERA_STATES.index("tracked"),
+                     np.asarray(camera["quality"], dtype=float), np.asarray(camera["residual_mm"], dtype=float)))
 
 
 def frame_series(t_s: np.ndarray) -> FrameSeries:

@@ -29,8 +29,10 @@ _NODE_FIELDS = {"id": _STR, "label": _STR, "time_ns": "<i8", "xyz_trocar": ("<f8
                 "earth_from_imu": ("<f8", (3, 3)), "stereo_version": _STR, "chain_version": _STR,
                 # format 3: SHA-256 (hex) of each of the row's variable-length fields (DIGESTED), which Fletcher-32
                 # cannot cover
-                "digest": ("S64", (6,))}
-_FILL = {"earth_from_imu": np.nan, "stereo_version": "", "chain_version": "", "digest": b""}
+                "digest": ("S64", (6,)),
+                # format 4: the insertion the node was mapped with (NaN: untracked)
+                "trocar_camera_mm": "<f8"}
+_FILL = {"earth_from_imu": np.nan, "stereo_version": "", "chain_version": "", "digest": b"", "trocar_camera_mm": np.nan}
 DIGESTED = ("id", "label", "left_jpeg", "right_jpeg", "stereo_version", "chain_version")   # the digest's columns
 CHECKED = {"fletcher32": True}        # every fixed-size dataset: HDF5 verifies its chunks on every read
 
@@ -54,18 +56,18 @@ def init_file(h5: h5py.File, header: dict) -> None:
     """Root attributes and the empty groups and tables of a new session."""
     for key, value in header.items():
         h5.attrs[key] = value
-    for group in ("calibration", "nodes/preop", "registration"):
+    for group in ("calibration", "nodes/preop", "registration", "nodes/intraop"):
         h5.require_group(group)
+    require_tables(h5)
+
+
+def require_tables(h5: h5py.File) -> None:
+    """Every stream table, every ``nodes/intraop`` table and the ``events`` log, adding what an older file lacks
+    (existing node rows get NaN or "" there, a new stream is empty) and marking the file of the current format."""
     for name, dtype in STREAM_DTYPES.items():
-        h5.create_dataset(f"streams/{name}", shape=(0,), maxshape=(None,), dtype=dtype, chunks=(1024,),
-                          compression="gzip", compression_opts=1, **CHECKED)
-    h5.require_group("nodes/intraop")
-    require_v2_tables(h5)
-
-
-def require_v2_tables(h5: h5py.File) -> None:
-    """Every ``nodes/intraop`` table and the ``events`` log, adding what a format-1 file lacks (existing rows get
-    NaN or "" there) and marking the file format 2."""
+        if f"streams/{name}" not in h5:
+            h5.create_dataset(f"streams/{name}", shape=(0,), maxshape=(None,), dtype=dtype, chunks=(1024,),
+                              compression="gzip", compression_opts=1, **CHECKED)
     intraop = h5["nodes/intraop"]
     n = intraop["id"].shape[0] if "id" in intraop else 0
     for name, dtype in _NODE_FIELDS.items():
@@ -117,7 +119,8 @@ def write_node(h5: h5py.File, node: IntraopNode) -> None:
               "xyz_camera": node.xyz_camera, "spread_mm": node.spread_mm, "n_frames": node.n_frames,
               "counts": node.counts, "left_jpeg": np.frombuffer(node.left_jpeg, np.uint8),
               "right_jpeg": np.frombuffer(node.right_jpeg, np.uint8), "earth_from_imu": node.earth_from_imu,
-              "stereo_version": node.stereo_version, "chain_version": node.chain_version}
+              "stereo_version": node.stereo_version, "chain_version": node.chain_version,
+              "trocar_camera_mm": node.trocar_camera_mm}
     values["digest"] = [row_digest([values[name]]) for name in DIGESTED]
     for name, value in values.items():
         intraop[name].resize(n + 1, axis=0)

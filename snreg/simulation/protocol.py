@@ -16,6 +16,11 @@ Intraop labels (used only by ``+labels`` methods) copy the preop station and sid
 extra node takes its host's label; each station is then wrong with probability
 ``STATION_ERROR`` (thesis Table 1: stations were revised in 11 of 13 patients), the side
 never.
+
+With ``anisotropy`` R above 1 (issue 28) each true intraop node is seen along its own viewing ray (within
+``VIEW_CONE_DEG`` of the camera's axis) and its error along that ray is R times its error across it, the per-axis RMS
+still sigma; the trial carries every node's covariance (an extra inherits its host's error and covariance, as it
+inherits its noisy position), which ``+cov`` methods are given.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from snreg.registration.pairing import RULES, pairing_at
 __all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "claims_right", "STATION_ERROR"]
 
 STATION_ERROR = 0.3
+VIEW_CONE_DEG = 40.0          # viewing rays of anisotropic trials: within this of the camera's axis
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,7 @@ class Trial:
     left_out: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     left_out_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     source: np.ndarray | None = None
+    intraop_cov: np.ndarray | None = None       # (M, 3, 3) mm^2: each intraop node's error covariance
 
     def __post_init__(self):
         if self.source is None:                     # without hosts known, an extra's only right claim is -1
@@ -65,8 +72,9 @@ class Trial:
 
 
 def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float, n_extra: int, rep: int,
-               seed_words: tuple[int, ...], n_missing: int = 0) -> Trial:
-    """One trial; ValueError when ``n_missing`` would leave fewer than 3 true intraop nodes."""
+               seed_words: tuple[int, ...], n_missing: int = 0, anisotropy: float = 1.0) -> Trial:
+    """One trial; ValueError when ``n_missing`` would leave fewer than 3 true intraop nodes. ``anisotropy``: the
+    error along each node's viewing ray over the error across it (1: the thesis' isotropic error)."""
     if not 0 <= n_missing <= len(preop) - 3:
         raise ValueError(f"{patient}: {len(preop)} preop nodes leave fewer than 3 true intraop nodes when "
                          f"{n_missing} are left out")
@@ -74,15 +82,21 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     rng = np.random.default_rng(seeds)
     label_rng = np.random.default_rng(seeds.spawn(1)[0])   # label noise leaves the geometry's stream alone
     n = len(preop)
-    noisy = preop + rng.normal(0.0, sigma, preop.shape)
+    if anisotropy == 1.0:
+        noisy = preop + rng.normal(0.0, sigma, preop.shape)
+        cov = np.broadcast_to(sigma**2 * np.eye(3), (n, 3, 3))
+    else:
+        cov = _viewing_covariances(n, sigma, anisotropy, np.random.default_rng(seeds.spawn(2)[1]))
+        noisy = preop + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.standard_normal(preop.shape))
     hosts = rng.integers(0, n, n_extra)
     offsets = rng.uniform(5.0, 15.0, (n_extra, 3)) * rng.choice([-1.0, 1.0], (n_extra, 3))
     intraop = np.vstack([noisy, noisy[hosts] + offsets])
+    intraop_cov = np.concatenate([cov, cov[hosts]])
     truth = np.concatenate([np.arange(n), np.full(n_extra, -1)])
     source = np.concatenate([np.arange(n), hosts])
     intra_labels = [_relabel(label, label_rng) for label in list(labels) + [labels[h] for h in hosts]]
     order = rng.permutation(len(intraop))
-    intraop, truth, source = intraop[order], truth[order], source[order]
+    intraop, truth, source, intraop_cov = intraop[order], truth[order], source[order], intraop_cov[order]
     intra_labels = [intra_labels[k] for k in order]
 
     yaw, pitch, roll = rng.uniform(0.0, 30.0, 3)
@@ -95,7 +109,18 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     keep = ~np.isin(truth, left_out)
     return Trial(patient, float(sigma), int(n_extra), int(rep), preop, geometry.apply(moved_from_original, preop),
                  intraop[keep], truth[keep], list(labels), [lab for lab, k in zip(intra_labels, keep) if k],
-                 geometry.invert(moved_from_original), int(n_missing), left_out, noisy[left_out], source[keep])
+                 geometry.invert(moved_from_original), int(n_missing), left_out, noisy[left_out], source[keep],
+                 intraop_cov[keep])
+
+
+def _viewing_covariances(n: int, sigma: float, anisotropy: float, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3, 3) covariances with sd ``anisotropy`` times larger along a viewing ray (each node its own, within
+    ``VIEW_CONE_DEG`` of z) than across it, the per-axis RMS ``sigma``."""
+    across = sigma / np.sqrt((anisotropy**2 + 2.0) / 3.0)
+    tilt = np.radians(VIEW_CONE_DEG) * np.sqrt(rng.uniform(0.0, 1.0, n))
+    turn = rng.uniform(0.0, 2.0 * np.pi, n)
+    rays = np.c_[np.sin(tilt) * np.cos(turn), np.sin(tilt) * np.sin(turn), np.cos(tilt)]
+    return across**2 * (np.eye(3) + (anisotropy**2 - 1.0) * rays[:, :, None] * rays[:, None, :])
 
 
 def _relabel(label: str, rng: np.random.Generator) -> str:
@@ -132,16 +157,21 @@ def claims_right(trial: Trial, pairing: np.ndarray) -> np.ndarray:
 
 def oracle_success(trial: Trial) -> dict[str, bool]:
     """Pairing success of the true nodes with the true transform: nearest-neighbour (the thesis rule), one-to-one
-    assignment, and the hot-spot labelling at the true sigma (what global's own pairing rule reaches once the
+    assignment, the most probable under each node's covariance (``oracle_nearest_cov``), and the hot-spot labelling at
+    the true sigma (what global's own pairing rule reaches once the
     transform is known; :func:`pairing_at`)."""
     true = trial.truth >= 0
     d2 = cdist(trial.preop, trial.intraop, "sqeuclidean")
     nearest = np.argmin(d2, axis=0)
+    residual = trial.preop[:, None, :] - trial.intraop[None]
+    mahalanobis = np.einsum("nmi,mij,nmj->nm", residual, np.linalg.inv(trial.intraop_cov + 1e-9 * np.eye(3)), residual)
+    nearest_cov = np.argmin(mahalanobis + np.linalg.slogdet(trial.intraop_cov + 1e-9 * np.eye(3))[1][None], axis=0)
     rows, cols = linear_sum_assignment(d2)
     one_to_one = np.full(len(trial.intraop), -1)
     one_to_one[cols] = rows
     model = pairing_at(trial.preop, trial.intraop, np.eye(4), max(trial.sigma, 1.0))
     return {"oracle_nearest": bool(np.all(nearest[true] == trial.truth[true])),
+            "oracle_nearest_cov": bool(np.all(nearest_cov[true] == trial.truth[true])),
             "oracle_one_to_one": bool(np.all(one_to_one[true] == trial.truth[true])),
             "oracle_model": bool(np.all(model[true] == trial.truth[true])),
             "oracle_nearest_all_claims": bool(np.all(claims_right(trial, nearest)))}
@@ -158,14 +188,16 @@ def error_stats(trial: Trial) -> dict[str, float]:
     return {"mean_error_mm": float(error.mean()), "max_error_mm": float(error.max()), "max_error_ratio": float(ratio.max())}
 
 
-def run_trial(trial: Trial, method: str, use_labels: bool = False, **options) -> TrialOutcome:
-    """Register one trial with ``method``; a refusal (no pairing fits the bounds) counts as a failure."""
+def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool = False, **options) -> TrialOutcome:
+    """Register one trial with ``method`` (given the labels, and the nodes' covariances, when asked); a refusal (no
+    pairing fits the bounds) counts as a failure."""
     start = time.perf_counter()
     true = trial.truth >= 0
     try:
         result = register(trial.moved_preop, trial.intraop, method=method,
                           preop_labels=trial.preop_labels if use_labels else None,
-                          intraop_labels=trial.intraop_labels if use_labels else None, **options)
+                          intraop_labels=trial.intraop_labels if use_labels else None,
+                          intraop_cov=trial.intraop_cov if use_cov else None, **options)
     except NoFitError:
         result = None
     elapsed_ms = (time.perf_counter() - start) * 1e3

@@ -1,8 +1,8 @@
 """Run the simulation study: every patient x sigma x missing x extras x repetition, every method, in parallel.
 
-A method spec is ``name[+labels][:key=value,...]``: ``global+labels`` is given the station
-labels (an extra node takes the label of the node it sits beside); ``cpd:w=0.1`` or
-``chamfer:form=volume`` pass options to the solver.
+A method spec is ``name[+labels][+cov][:key=value,...]``: ``global+labels`` is given the station
+labels (an extra node takes the label of the node it sits beside), ``global+cov`` each node's error
+covariance; ``cpd:w=0.1`` or ``chamfer:form=volume`` pass options to the solver.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ class StudyConfig:
     seed: int = 0
     workers: int = 0            # 0: one per core; never more than the cores
     missing: tuple[int, ...] = (0,)   # true intraop nodes left out (0: the thesis protocol)
+    anisotropy: float = 1.0     # error along each node's viewing ray over across it (1: the thesis protocol)
 
     @property
     def incremental(self) -> bool:
@@ -59,13 +60,14 @@ class StudyResult:
     incremental: list[dict] = field(default_factory=list)
 
 
-def parse_method(spec: str) -> tuple[str, bool, dict]:
-    """(method, use_labels, solver options) from a spec such as ``cpd:w=0.1`` or ``global+labels``."""
+def parse_method(spec: str) -> tuple[str, dict]:
+    """(method, keywords for :func:`~snreg.simulation.protocol.run_trial`: ``use_labels``, ``use_cov`` and the solver
+    options) from a spec such as ``cpd:w=0.1``, ``global+labels`` or ``global+labels+cov``."""
     head, _, tail = spec.partition(":")
-    name, _, flag = head.partition("+")
-    if flag not in ("", "labels"):
-        raise ValueError(f"method spec {spec!r}: only '+labels' may follow the method name")
-    options = {}
+    name, *flags = head.split("+")
+    if any(flag not in ("labels", "cov") for flag in flags) or len(set(flags)) < len(flags):
+        raise ValueError(f"method spec {spec!r}: only '+labels' and '+cov' may follow the method name")
+    options: dict = {"use_labels": "labels" in flags, "use_cov": "cov" in flags}
     for item in filter(None, tail.split(",")):
         key, sep, value = item.partition("=")
         if not sep:
@@ -74,16 +76,17 @@ def parse_method(spec: str) -> tuple[str, bool, dict]:
             options[key] = float(value)
         except ValueError:
             options[key] = value
-    return name, flag == "labels", options
+    return name, options
 
 
 def check_method(spec: str) -> None:
     """Raise ``ValueError`` naming ``spec`` when it is not a method spec :func:`register` accepts (unknown method
     or option, an option value out of range): one tiny registration, so a study never fails after its first hour."""
-    name, _, options = parse_method(spec)
+    name, options = parse_method(spec)
+    solver = {key: value for key, value in options.items() if key not in ("use_labels", "use_cov")}
     tetrahedron = np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0], [0.0, 30.0, 0.0], [10.0, 10.0, 25.0]])
     try:
-        register(tetrahedron, tetrahedron + 1.0, method=name, **options)
+        register(tetrahedron, tetrahedron + 1.0, method=name, **solver)
     except (ValueError, TypeError) as err:
         raise ValueError(f"method spec {spec!r}: {err}") from None
 
@@ -117,7 +120,8 @@ class _Collected:
 def _trial(patient: Patient, patient_index: int, sigma_index: int, n_extra: int, rep: int, config: StudyConfig,
            n_missing: int = 0) -> Trial:
     return make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, config.sigmas[sigma_index], n_extra, rep,
-                      (config.seed, patient_index, sigma_index, n_extra, rep), n_missing=n_missing)
+                      (config.seed, patient_index, sigma_index, n_extra, rep), n_missing=n_missing,
+                      anisotropy=config.anisotropy)
 
 
 def _run_block(patient: Patient, patient_index: int, sigma_index: int, config: StudyConfig) -> _Collected:
@@ -132,8 +136,8 @@ def _run_block(patient: Patient, patient_index: int, sigma_index: int, config: S
                           "n_missing": n_missing, "n_extra": n_extra, "rep": rep, **oracle_success(trial),
                           **error_stats(trial)}
                 for method in config.methods:
-                    base, use_labels, options = parse_method(method)
-                    out.add(trial, method, run_trial(trial, base, use_labels=use_labels, **options), common)
+                    base, options = parse_method(method)
+                    out.add(trial, method, run_trial(trial, base, **options), common)
     if config.incremental:
         out.incremental = _incremental(patient, patient_index, sigma_index, config)
     return out
@@ -149,11 +153,12 @@ def _incremental(patient: Patient, patient_index: int, sigma_index: int, config:
         for stored in range(3, len(trial.intraop) + 1):
             part = Trial(trial.patient, trial.sigma, trial.n_extra, trial.rep, trial.preop, trial.moved_preop,
                          trial.intraop[:stored], trial.truth[:stored], trial.preop_labels,
-                         trial.intraop_labels[:stored], trial.intraop_from_moved, source=trial.source[:stored])
+                         trial.intraop_labels[:stored], trial.intraop_from_moved, source=trial.source[:stored],
+                         intraop_cov=trial.intraop_cov[:stored])
             true_stored = int(np.sum(part.truth >= 0))
             for method in config.methods:
-                base, use_labels, options = parse_method(method)
-                outcome = run_trial(part, base, use_labels=use_labels, **options)
+                base, options = parse_method(method)
+                outcome = run_trial(part, base, **options)
                 rows.append({"patient": patient.name, "sigma": trial.sigma, "rep": rep, "method": method,
                              "stored": stored, "true_stored": true_stored, "n_nodes": len(patient.nodes),
                              "success": outcome.row["success"], "all_claims_right": bool(outcome.claim_correct.all())})

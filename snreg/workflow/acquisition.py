@@ -12,6 +12,12 @@ acquisition runs without an IMU by choice) or the window spreads over the limit 
 default); a store within ``duplicate_mm`` of a stored node needs ``confirmed=True``
 (:class:`~snreg.errors.StoreNeedsConfirmation` names that node). Auto-store keeps its stricter rule (held still
 within ``STILL_SPREAD_MM``, over ``AUTO_STORE_SEPARATION_MM`` from every node) on top of the guard.
+
+With insertion tracking (``insertion``, issue 27) each pair is mapped with the chain at the camera's insertion at that
+pair (:class:`~snreg.workflow.insertion.CameraInsertion`), the insertion goes to ``streams/camera`` and a node
+records the median insertion of its window. While the insertion is lost and the camera may have moved since it was
+last tracked, Store SN is refused as well, but that refusal alone may be overridden (``store(override=True)``: the
+node is stored and a ``store_override`` event keeps the reason); auto-store never overrides.
 """
 
 from __future__ import annotations
@@ -29,11 +35,13 @@ from snreg.chain import ChainCalibration, camera_from_probe, camera_to_trocar, t
 from snreg.errors import StoreError, StoreNeedsConfirmation, StoreRefused
 from snreg.imu.monitor import STALE_AFTER_S
 from snreg.imu.protocol import ImuSample
+from snreg.odometry import InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
+from snreg.workflow.insertion import CameraInsertion, InsertionStep, insertion_text
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
            "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT", "video_text"]
@@ -59,12 +67,14 @@ class StoreLimits:
 
 @dataclass(frozen=True, eq=False)
 class StoreCheck:
-    """Whether Store SN would store now: ``refusal`` (one sentence, "" when it would), else the stored node within
-    the duplicate distance (``near``, None when none) and how far it is (mm)."""
+    """Whether Store SN would store now: ``refusal`` (one sentence, "" when it would), ``overridable`` when the
+    operator may store anyway (only the insertion's refusal is), and the stored node within the duplicate distance
+    (``near``, None when none) and how far it is (mm)."""
 
     refusal: str
     near: IntraopNode | None = None
     near_mm: float = float("nan")
+    overridable: bool = False
 
     @property
     def question(self) -> str:
@@ -84,7 +94,10 @@ class FrameOutcome:
     ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
     a fix; the live link to 3D Slicer streams it. ``store_check``: what Store SN would meet now (the guard's
     refusal in words, or the near node to confirm); ``imu_gap_s``: from the frame's grab time to the nearest IMU
-    sample; ``video``: the recording's state in words (:func:`video_text`)."""
+    sample; ``video``: the recording's state in words (:func:`video_text`). With insertion tracking: ``insertion``,
+    the tracker's estimate at this pair and the insertion the pair was mapped with (held from the last tracked pair
+    when lost), ``insertion_text`` in words (:func:`~snreg.workflow.insertion.insertion_text`) and ``insertion_ms``
+    its cost; None, "" and 0 without."""
 
     index: int
     fix: ProbeFix | None
@@ -99,6 +112,9 @@ class FrameOutcome:
     store_check: StoreCheck = StoreCheck("waiting for the first frame")
     imu_gap_s: float = 0.0
     video: str = ""
+    insertion: InsertionStep | None = None
+    insertion_text: str = ""
+    insertion_ms: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -128,6 +144,7 @@ class _Fix:
     imu_state: str
     grabbed_ns: int        # its frame's (left) grab time: the stream rows' clock
     seen_ns: int           # host time it was computed
+    insertion_mm: float    # the camera's insertion it was mapped with (NaN: the chain's own, tracking off)
 
 
 class Acquisition:
@@ -136,14 +153,17 @@ class Acquisition:
     ``imu_required``: False only when the acquisition runs without an IMU by choice (stores are then not refused
     for it); ``clock``: host time in ns (tests pass their own). ``video_fps``: record both feeds into the session's
     video at this nominal rate (None: no video); a segment the session is recording already goes on.
+    ``insertion``: track the camera's insertion with it (its start: the trocar calibration's distance, normally);
+    None keeps the chain's constant distance.
     """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
                  *, fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
                  imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns,
-                 video_fps: float | None = None):
+                 video_fps: float | None = None, insertion: InsertionTracker | None = None):
         self.tracker = StereoTracker(calibration, probe)
         self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
+        self.insertion = None if insertion is None else CameraInsertion(insertion, chain)
         self.stereo_version = calibration_version(stereo_to_dict(calibration))
         self.chain_version = calibration_version(chain.to_dict())
         self.fixes_per_node = max(1, int(fixes_per_node))
@@ -168,8 +188,9 @@ class Acquisition:
         self.limits = replace(self.limits, max_spread_mm=float(mm))
 
     def process(self, frame: StereoFrame, imu: ImuReading) -> FrameOutcome:
-        """Track one pair at the IMU orientation of its grab time, record the frame, probe and IMU streams (the probe
-        row at the frame's own time), update the window."""
+        """Track one pair at the IMU orientation of its grab time (and the camera's insertion at it, when tracked),
+        record the frame, probe, IMU and camera streams (the probe and camera rows at the frame's own time), update
+        the window."""
         self._record_imu(imu.samples)
         self._last_imu = imu
         self._record_frame(frame)
@@ -181,12 +202,14 @@ class Acquisition:
             reason = str(err)
         track_ms = (time.perf_counter() - started) * 1e3
         self._last_reason = reason
+        step, insertion_ms = self._follow_insertion(frame, imu, fix)
+        chain = self.chain if step is None else step.chain
         if fix is not None:
-            tip_trocar = camera_to_trocar(self.chain, imu.earth_from_imu, fix.tip)
-            pose = trocar_from_probe(self.chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
+            tip_trocar = camera_to_trocar(chain, imu.earth_from_imu, fix.tip)
+            pose = trocar_from_probe(chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
             quat = Rotation.from_matrix(imu.earth_from_imu).as_quat()
             self._fixes.append(_Fix(fix.tip, tip_trocar, quat, float(imu.gap_s), imu.state, frame.t_left_ns,
-                                    self._clock()))
+                                    self._clock(), float("nan") if step is None else step.used_mm))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)
         window = self._window_trocar()
         spread = window.spread_mm if window is not None else float("nan")
@@ -194,7 +217,19 @@ class Acquisition:
         check = self.check_store(window)
         due = still and not check.refusal and self._away_from_stored(window.xyz)
         return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still, due, track_ms,
-                            pose, check, float(imu.gap_s), video_text(self.session.video_state(), self.video_problem))
+                            pose, check, float(imu.gap_s), video_text(self.session.video_state(), self.video_problem),
+                            step, insertion_text(step, self.insertion.start_mm) if step else "", insertion_ms)
+
+    def _follow_insertion(self, frame: StereoFrame, imu: ImuReading, fix: ProbeFix | None):
+        """(the insertion at this pair, ms it took), its ``streams/camera`` row recorded; (None, 0) without tracking."""
+        if self.insertion is None:
+            return None, 0.0
+        started = time.perf_counter()
+        step = self.insertion.update(frame.left, frame.right, frame.t_left_ns, imu.earth_from_imu, probe_fix=fix)
+        estimate = step.estimate
+        self.session.append_camera(frame.t_left_ns, frame.t_right_ns, estimate.trocar_camera_mm, estimate.state,
+                                   estimate.quality, estimate.residual_mm, estimate.sd_mm)
+        return step, (time.perf_counter() - started) * 1e3
 
     def _start_video(self, width: int, height: int, wait_s: float = 0.0) -> None:
         try:
@@ -231,29 +266,39 @@ class Acquisition:
         if window.spread_mm > self.limits.max_spread_mm:
             return StoreCheck(f"the probe moved: the last {needed} fixes spread {window.spread_mm:.1f} mm (limit "
                               f"{self.limits.max_spread_mm:.1f} mm); hold it still on the node")
-        return self._nearest(window.xyz)
+        near = self._nearest(window.xyz)
+        moved = self.insertion.store_refusal() if self.insertion is not None else ""
+        return replace(near, refusal=moved, overridable=True) if moved else near
 
     def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"", right_jpeg=b"",
-              confirmed: bool = False, trigger: str = "") -> IntraopNode:
+              confirmed: bool = False, trigger: str = "", override: bool = False) -> IntraopNode:
         """The median of the store window as node ``node_id``, durable on return, with the camera-frame tip, the mean
-        IMU orientation and the calibration versions it was mapped with; its time is its newest fix's grab time (on
-        the streams' clock: the node points at its own probe rows, however late the store was asked). Refused (:class:`StoreRefused`, put on
-        record with ``trigger``, e.g. "F5") as :meth:`check_store` says; :class:`StoreNeedsConfirmation` when a
-        stored node is near and ``confirmed`` is False. Snapshots are JPEG bytes or BGR images."""
+        IMU orientation, the calibration versions and the median insertion it was mapped with; its time is its newest
+        fix's grab time (on the streams' clock: the node points at its own probe rows, however late the store was
+        asked). Refused (:class:`StoreRefused`, put on record with ``trigger``, e.g. "F5") as :meth:`check_store`
+        says, unless the refusal is overridable and ``override`` is True (the node is stored and a ``store_override``
+        event keeps the refusal); :class:`StoreNeedsConfirmation` when a stored node is near and ``confirmed`` is
+        False. Snapshots are JPEG bytes or BGR images."""
         check = self.check_store()
-        if check.refusal:
-            self.session.log_event("store_refused", reason=check.refusal, trigger=str(trigger), node_id=str(node_id))
-            raise StoreRefused(check.refusal)
+        overriding = bool(check.refusal) and check.overridable and override
+        if check.refusal and not overriding:
+            self.session.log_event("store_refused", reason=check.refusal, trigger=str(trigger), node_id=str(node_id),
+                                   **({"overridable": True} if check.overridable else {}))
+            raise StoreRefused(check.refusal, overridable=check.overridable)
         if check.near is not None and not confirmed:
             raise StoreNeedsConfirmation(check.question, check.near.id)
         camera = summarise(np.array([f.camera for f in self._fixes]))
         trocar = summarise(np.array([f.trocar for f in self._fixes]))
         orientation = Rotation.from_quat(np.array([f.quat_xyzw for f in self._fixes])).mean().as_matrix()
+        insertion = float(np.median([f.insertion_mm for f in self._fixes]))
         node = self.session.add_intraop_node(node_id, label, trocar.xyz, xyz_camera=camera.xyz,
                                              spread_mm=trocar.spread_mm, n_frames=trocar.n_frames, counts=counts,
                                              time_ns=self._fixes[-1].grabbed_ns, left_jpeg=left_jpeg,
                                              right_jpeg=right_jpeg, earth_from_imu=orientation,
-                                             stereo_version=self.stereo_version, chain_version=self.chain_version)
+                                             stereo_version=self.stereo_version, chain_version=self.chain_version,
+                                             trocar_camera_mm=insertion)
+        if overriding:
+            self.session.log_event("store_override", node_id=node.id, reason=check.refusal, trigger=str(trigger))
         if check.near is not None:
             self.session.log_event("store_near_confirmed", node_id=node.id, near=check.near.id,
                                    distance_mm=round(check.near_mm, 2), trigger=str(trigger))

@@ -9,6 +9,14 @@ under a new stereo calibration, the camera tip is first re-triangulated from the
 calibration saw it (:func:`retriangulate`). The session does it all or nothing and keeps the old values on record
 (:meth:`~snreg.session.Session.reexpress_nodes`).
 
+A node stored while the camera's insertion was tracked (issue 27) was mapped at ``trocar_camera_mm``: the trocar
+calibration's distance, the tracker's start, plus the slide tracked since. A new trocar calibration says where the
+camera was at that start; the slide stays as tracked, so the node is mapped again at
+``d_new = new_start + (d_node - old_start)`` (the same ``d_node`` when only the stereo calibration changed). The
+old start is the distance of the chain the node was measured under: ``previous_chain`` (the chain just replaced),
+or the session's stored chain when it is that one; a tracked node whose chain is neither cannot be re-expressed.
+A node stored without tracking (NaN) is mapped at the new chain's own distance, as before.
+
 >>> change = calibration_change(session, stereo, chain, previous_stereo=old_stereo)
 >>> if change is not None:                # ask: change.message, change.question
 ...     reexpress(session, stereo, chain, previous_stereo=old_stereo)
@@ -18,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -36,7 +44,9 @@ __all__ = ["CalibrationChange", "calibration_change", "reexpress", "retriangulat
 class CalibrationChange:
     """Stored nodes mapped with another calibration than ``stereo_version``/``chain_version`` (the current one):
     ``movable`` can be re-expressed exactly, ``stuck`` cannot (no IMU orientation on record: files of format 1; or
-    measured with a stereo calibration other than the one just replaced)."""
+    measured with a stereo calibration other than the one just replaced; or with a tracked insertion under a chain
+    no longer known). ``starts``: for each movable node with a tracked insertion, the distance (mm) of the chain it
+    was measured under (its tracking's start)."""
 
     movable: list[IntraopNode]
     stuck: list[IntraopNode]
@@ -44,6 +54,7 @@ class CalibrationChange:
     chain_changed: bool
     stereo_version: str
     chain_version: str
+    starts: dict[str, float] = field(default_factory=dict)
 
     @property
     def message(self) -> str:
@@ -64,33 +75,55 @@ class CalibrationChange:
         """The offer to make ("" when no node can be re-expressed)."""
         if not self.movable:
             return ""
-        return (f"Re-express {id_list(self.movable)} under the new calibration? Their positions as first stored stay "
-                "on record in the session.")
+        tracked = [node for node in self.movable if node.id in self.starts]
+        slid = (f" {id_list(tracked)} {'was' if len(tracked) == 1 else 'were'} stored with the camera's insertion "
+                "tracked: the slide tracked since the start is kept and added to the new trocar-camera distance."
+                if tracked and self.chain_changed else "")
+        return (f"Re-express {id_list(self.movable)} under the new calibration?{slid} Their positions as first stored "
+                "stay on record in the session.")
 
 
 def calibration_change(session: Session, stereo: StereoCalibration, chain: ChainCalibration, *,
-                       previous_stereo: StereoCalibration | None = None) -> CalibrationChange | None:
-    """The stored nodes not mapped with ``stereo`` and ``chain``; None when there are none."""
+                       previous_stereo: StereoCalibration | None = None,
+                       previous_chain: ChainCalibration | None = None) -> CalibrationChange | None:
+    """The stored nodes not mapped with ``stereo`` and ``chain``; None when there are none. ``previous_stereo`` and
+    ``previous_chain``: the calibrations just replaced (module docstring)."""
     stereo_version, chain_version = calibration_version(stereo_to_dict(stereo)), calibration_version(chain.to_dict())
     previous = calibration_version(stereo_to_dict(previous_stereo)) if previous_stereo is not None else None
-    movable, stuck = [], []
+    distances = _chain_distances(session, chain, previous_chain)
+    movable, stuck, starts = [], [], {}
     for node in session.intraop_records():
         if node.measured_under == (stereo_version, chain_version):
             continue
-        known = np.isfinite(node.earth_from_imu).all() and node.stereo_version in (stereo_version, previous)
+        tracked = np.isfinite(node.trocar_camera_mm)
+        known = (np.isfinite(node.earth_from_imu).all() and node.stereo_version in (stereo_version, previous)
+                 and (not tracked or node.chain_version in distances))
         (movable if known else stuck).append(node)
+        if known and tracked:
+            starts[node.id] = distances[node.chain_version]
     if not movable and not stuck:
         return None
     nodes = movable + stuck
     return CalibrationChange(movable, stuck, any(n.stereo_version != stereo_version for n in nodes),
-                             any(n.chain_version != chain_version for n in nodes), stereo_version, chain_version)
+                             any(n.chain_version != chain_version for n in nodes), stereo_version, chain_version,
+                             starts)
+
+
+def _chain_distances(session: Session, chain: ChainCalibration, previous_chain: ChainCalibration | None) -> dict:
+    """{chain version: trocar-camera distance mm} of the chains a node may have been measured under: the new one, the
+    one just replaced, the session's stored one."""
+    stored = session.calibration().get("chain")
+    return {calibration_version(c.to_dict()): c.trocar_camera_mm for c in (stored, previous_chain, chain)
+            if c is not None}
 
 
 def reexpress(session: Session, stereo: StereoCalibration, chain: ChainCalibration, *,
-              previous_stereo: StereoCalibration | None = None) -> list[IntraopNode]:
-    """Map every movable node of :func:`calibration_change` through ``stereo`` and ``chain``, in one durable step
-    (all or none); returns the nodes as now stored (empty when there was nothing to do)."""
-    change = calibration_change(session, stereo, chain, previous_stereo=previous_stereo)
+              previous_stereo: StereoCalibration | None = None,
+              previous_chain: ChainCalibration | None = None) -> list[IntraopNode]:
+    """Map every movable node of :func:`calibration_change` through ``stereo`` and ``chain`` (a node with a tracked
+    insertion at its slide from the new start: module docstring), in one durable step (all or none); returns the
+    nodes as now stored (empty when there was nothing to do)."""
+    change = calibration_change(session, stereo, chain, previous_stereo=previous_stereo, previous_chain=previous_chain)
     if change is None or not change.movable:
         return []
     updated = []
@@ -98,9 +131,14 @@ def reexpress(session: Session, stereo: StereoCalibration, chain: ChainCalibrati
         camera = np.asarray(node.xyz_camera, dtype=float)
         if node.stereo_version != change.stereo_version:
             camera = retriangulate(camera, previous_stereo, stereo)
+        insertion, mapping = float("nan"), chain
+        if node.id in change.starts:
+            insertion = chain.trocar_camera_mm + (node.trocar_camera_mm - change.starts[node.id])
+            mapping = chain.with_insertion(insertion)
         updated.append(dataclasses.replace(node, xyz_camera=camera,
-                                           xyz_trocar=camera_to_trocar(chain, node.earth_from_imu, camera),
-                                           stereo_version=change.stereo_version, chain_version=change.chain_version))
+                                           xyz_trocar=camera_to_trocar(mapping, node.earth_from_imu, camera),
+                                           stereo_version=change.stereo_version, chain_version=change.chain_version,
+                                           trocar_camera_mm=insertion))
     session.reexpress_nodes(updated, reason=change.message)
     stored = {node.id: node for node in session.intraop_records()}
     return [stored[node.id] for node in updated]

@@ -1,23 +1,111 @@
-"""The camera's insertion over a recorded sequence of pairs: the probe found in each (to leave it out of the tissue)
-and the insertion tracked, as ``snreg track-camera`` and a session's re-tracking run it.
+"""The camera's insertion in the workflows: followed pair by pair during acquisition (the chain of each pair and the
+store guard's word on it), and over a recorded sequence of pairs as ``snreg track-camera`` and re-tracking run it.
 
 Why here: following the insertion needs both the probe tracker (:mod:`snreg.tracking`) and the insertion tracker
-(:mod:`snreg.odometry`), which sit side by side and do not know each other.
+(:mod:`snreg.odometry`), which sit side by side and do not know each other, and the acquisition maps every pair
+through the chain at that pair's insertion (DESIGN.md §1).
+
+During acquisition (:class:`CameraInsertion`): each pair is mapped with the insertion tracked at it; a lost pair
+with the last one tracked (before any, the tracker's start: the trocar calibration's distance), and says so. The
+IMU sees every turn of the camera but not a pure slide, so while the insertion is lost the store guard refuses
+(:meth:`CameraInsertion.store_refusal`) once the camera may have moved since it was last tracked: the IMU turned
+more than :data:`MOVED_TURN_DEG` since that pair, or the insertion has been lost for more than
+:data:`MOVED_AFTER_S` (long enough for an unseen slide).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
+from snreg.geometry import rotation_angle_deg
 from snreg.odometry import InsertionEstimate, InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.tracking import StereoTracker, TrackingError
 
-__all__ = ["follow_insertion"]
+__all__ = ["follow_insertion", "CameraInsertion", "InsertionStep", "MOVED_TURN_DEG", "MOVED_AFTER_S",
+           "insertion_text"]
+
+MOVED_TURN_DEG = 1.0     # the IMU turned more than this since the last tracked pair: the camera moved
+MOVED_AFTER_S = 2.0      # lost for longer than this: it may have slid unseen
+
+
+@dataclass(frozen=True, eq=False)
+class InsertionStep:
+    """One pair's insertion: the tracker's ``estimate``, the insertion the pair is mapped with (``used_mm``: the
+    estimate's when tracked, else the last tracked, or the start) and the chain at that insertion."""
+
+    estimate: InsertionEstimate
+    used_mm: float
+    chain: ChainCalibration
+
+    @property
+    def held(self) -> bool:
+        """The pair is mapped with an insertion tracked earlier (this one is lost)."""
+        return not self.estimate.tracked
+
+
+class CameraInsertion:
+    """The insertion during acquisition: ``tracker`` fed pair by pair, ``chain`` (the trocar calibration) moved to
+    each pair's insertion, and what the store guard needs (the last tracked pair's grab time and IMU orientation)."""
+
+    def __init__(self, tracker: InsertionTracker, chain: ChainCalibration):
+        self.tracker, self.chain = tracker, chain
+        self.start_mm = float(tracker.start_mm)
+        self.last: InsertionStep | None = None
+        self._known_ns: int | None = None          # grab time of the last tracked pair (the first pair before any)
+        self._known_orientation: np.ndarray | None = None
+        self._now_ns = 0
+        self._now_orientation = np.eye(3)
+        self._chain_at = (self.start_mm, chain.with_insertion(self.start_mm))
+
+    def update(self, left: np.ndarray, right: np.ndarray, t_ns: int, earth_from_imu: np.ndarray,
+               probe_fix=None) -> InsertionStep:
+        """Track the insertion at this pair (grabbed at ``t_ns``, host clock; ``probe_fix`` left out of the tissue)
+        and give the chain to map it with."""
+        estimate = self.tracker.update(left, right, earth_from_imu, probe_fix=probe_fix)
+        orientation = np.asarray(earth_from_imu, dtype=float)[:3, :3]
+        self._now_ns, self._now_orientation = int(t_ns), orientation
+        if estimate.tracked or self._known_ns is None:
+            self._known_ns, self._known_orientation = int(t_ns), orientation
+        used = estimate.trocar_camera_mm if estimate.tracked else (self.last.used_mm if self.last else self.start_mm)
+        if used != self._chain_at[0]:
+            self._chain_at = (used, self.chain.with_insertion(used))
+        self.last = InsertionStep(estimate, float(used), self._chain_at[1])
+        return self.last
+
+    def store_refusal(self) -> str:
+        """Why a store must wait for the insertion, in words ("" when it need not): it is lost now and the camera may
+        have moved since it was last tracked (module docstring)."""
+        if self.last is None or self.last.estimate.tracked:
+            return ""
+        reason = f" ({self.last.estimate.reason})" if self.last.estimate.reason else ""
+        turned = float(rotation_angle_deg(self._known_orientation.T @ self._now_orientation))
+        lost_s = (self._now_ns - self._known_ns) / 1e9
+        if turned > MOVED_TURN_DEG:
+            moved = f"the camera turned {turned:.1f} degrees since it was last tracked"
+        elif lost_s > MOVED_AFTER_S:
+            moved = f"it has been lost for {lost_s:.1f} s, long enough for an unseen slide"
+        else:
+            return ""
+        return (f"the camera's insertion is lost{reason} and {moved}: show the tissue to the camera, or store anyway "
+                "(the override is kept on record)")
+
+
+def insertion_text(step: InsertionStep | None, start_mm: float) -> str:
+    """The insertion in words for the screens and the live link's status, e.g. "camera 171.0 mm, +13.0 mm since
+    calibration, tracked" or "camera LOST (no tissue texture ...): 171.0 mm held"; "" without tracking."""
+    if step is None:
+        return ""
+    since = f"{round(step.used_mm - start_mm, 1) + 0.0:+.1f} mm since calibration"      # + 0.0: never "-0.0"
+    if step.estimate.tracked:
+        return f"camera {step.used_mm:.1f} mm, {since}, tracked"
+    reason = f" ({step.estimate.reason})" if step.estimate.reason else ""
+    return f"camera LOST{reason}: {step.used_mm:.1f} mm held, {since}"
 
 
 def follow_insertion(pairs: Iterable[tuple[np.ndarray, np.ndarray]], orientations: Iterable[np.ndarray],

@@ -1,12 +1,25 @@
-"""Re-tracking a recorded session: every stored node's store window tracked again on the recorded video.
+"""Re-tracking a recorded session: the camera's insertion over the recorded video, and every stored node's store
+window tracked again and mapped with it.
 
 Why: a calibration found wrong after surgery, a better tracker or another probe model must not lose a session's
-nodes. Each node's window is the ``n_frames`` frames of its last valid fixes before it was stored (its probe rows,
-which carry their frame's grab time, up to the node's time); those frames are decoded from the video (frame k of the
-files is row k of ``streams/frames``), tracked with the calibration, probe model and method given, and mapped through
-the session's chain at the node's own mean IMU orientation (as the live store did). The node's new position is the
-median of the new fixes; :func:`store_retracked` keeps it as a new version of the node (the old values stay on record
-in the session's events, as any re-expression).
+nodes, nor must a camera that slid while its insertion was not tracked (issue 27). ``insertion``: "video" tracks the
+camera's insertion over the recorded video, "chain" takes the chain's constant distance (the thesis' still camera),
+"auto" (default) the video when the session tracked the insertion live (its ``streams/camera`` has rows), else the
+chain: the insertion tracker reads tissue that moves as a whole (breathing, a retractor, the old demo's tissue plane
+that followed the probe) as a slide, so it is not imposed on a session recorded without it unless asked.
+
+With the insertion followed, the video is read once, pair by pair from the recording's first (frame k of the files is
+row k of ``streams/frames``): the probe is tracked in each pair (and left out of the tissue) and the insertion is
+tracked (:mod:`snreg.odometry`) with the session's IMU
+orientation at the pair's grab time (the stored samples fused again, :func:`~snreg.session.pose_streams.orientations_at`),
+from the session chain's distance at the first pair with tissue in view; a lost pair keeps the last tracked
+insertion, as the live acquisition did. Each node's window is the ``n_frames`` frames of its last valid fixes before
+it was stored (its probe rows, which carry their frame's grab time, up to the node's time); their tips, tracked with
+the calibration, probe model and method given, are mapped through the session's chain at each pair's insertion and
+the node's own mean IMU orientation (as the live store did). The node's new position is the median of the new
+fixes, its insertion the median over them (NaN while no pair up to it was tracked: the chain's own distance maps it
+then); :func:`store_retracked` keeps both as a new version of the node (the old values stay on record in the
+session's events, as any re-expression). The session's ``streams/camera`` keeps what was tracked live.
 
 >>> result = retrack("s.h5", calibration=load_calibration("corrected.yaml"))
 >>> [(node.id, node.moved_mm) for node in result.nodes]
@@ -20,20 +33,26 @@ from pathlib import Path
 import numpy as np
 
 from snreg.camera import StereoCalibration
-from snreg.chain import camera_to_trocar
+from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.odometry import InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, SessionError, calibration_version
+from snreg.session.pose_streams import orientations_at
 from snreg.session.reader import readable_rows
 from snreg.session.schema import stereo_to_dict
-from snreg.session.video import RecordedPairs
+from snreg.session.video import RecordedPairs, rows_with_video
 from snreg.tracking import StereoTracker, TrackingError, summarise
 
-__all__ = ["RetrackedNode", "RetrackResult", "retrack", "store_retracked", "window_rows"]
+__all__ = ["RetrackedNode", "RetrackResult", "VideoInsertion", "retrack", "store_retracked", "window_rows",
+           "INSERTION_SOURCES"]
+
+INSERTION_SOURCES = ("auto", "video", "chain")
 
 
 @dataclass(frozen=True, eq=False)
 class RetrackedNode:
-    """One node before and after (mm, trocar and left-camera frames), the frames of its window and the fixes found."""
+    """One node before and after (mm, trocar and left-camera frames; the insertion it is mapped with, NaN when
+    untracked), the frames of its window, the fixes found and how many of them had the insertion lost (held)."""
 
     node: IntraopNode
     after_trocar: np.ndarray | None
@@ -41,6 +60,8 @@ class RetrackedNode:
     frames: int
     fixes: int
     problem: str = ""
+    after_insertion_mm: float = float("nan")
+    insertion_lost: int = 0
 
     @property
     def moved_mm(self) -> float:
@@ -50,11 +71,31 @@ class RetrackedNode:
     def to_json(self) -> dict:
         def xyz(value):
             return None if value is None else [round(float(v), 4) for v in value]
+        def mm(value):
+            return round(float(value), 4) if np.isfinite(value) else None
         return {"id": self.node.id, "label": self.node.label, "before_mm": xyz(self.node.xyz_trocar),
                 "after_mm": xyz(self.after_trocar), "moved_mm": None if self.after_trocar is None else
                 round(self.moved_mm, 4), "before_camera_mm": xyz(self.node.xyz_camera),
-                "after_camera_mm": xyz(self.after_camera), "frames": self.frames, "fixes": self.fixes,
-                "problem": self.problem}
+                "after_camera_mm": xyz(self.after_camera), "before_trocar_camera_mm": mm(self.node.trocar_camera_mm),
+                "after_trocar_camera_mm": mm(self.after_insertion_mm), "insertion_lost": self.insertion_lost,
+                "frames": self.frames, "fixes": self.fixes, "problem": self.problem}
+
+
+@dataclass(frozen=True, eq=False)
+class VideoInsertion:
+    """The insertion over the recorded video: per ``streams/frames`` row the insertion it is mapped with (``used_mm``,
+    the start before any pair was tracked), whether that row's own pair was tracked, and whether any pair up to it
+    was (``known``); how the orientations were got, in words."""
+
+    used_mm: np.ndarray
+    tracked: np.ndarray
+    known: np.ndarray
+    pairs: int
+    orientation: str
+
+    def to_json(self) -> dict:
+        tracked = int(self.tracked.sum())
+        return {"pairs": self.pairs, "tracked": tracked, "lost": self.pairs - tracked, "orientation": self.orientation}
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,6 +103,7 @@ class RetrackResult:
     nodes: list[RetrackedNode]
     stereo_version: str
     method: str
+    insertion: VideoInsertion | None = None
 
 
 def window_rows(frame_times_ns: np.ndarray, probe_times_ns: np.ndarray, node: IntraopNode) -> np.ndarray:
@@ -74,20 +116,18 @@ def window_rows(frame_times_ns: np.ndarray, probe_times_ns: np.ndarray, node: In
     return np.unique(rows[frame_times_ns[rows] == fixes])
 
 
-def _times(stream) -> np.ndarray:
-    rows = readable_rows(stream) if hasattr(stream, "id") else np.asarray(stream)
-    return np.asarray(rows["t_host_ns"], dtype=np.int64)
-
-
 def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, probe: ProbeModel | None = None,
-            method: str = "triangulation") -> RetrackResult:
-    """Track every stored node's window again (the session's own calibration unless ``calibration``); SessionError
-    in one sentence when the session has no video, no chain or a calibration of another image size."""
+            method: str = "triangulation", insertion: str = "auto") -> RetrackResult:
+    """Track every stored node's window again (the session's own calibration unless ``calibration``) and map it with
+    the insertion from ``insertion`` (module docstring); SessionError in one sentence when the session has no video,
+    no chain or a calibration of another image size."""
+    if insertion not in INSERTION_SOURCES:
+        raise ValueError(f"the insertion comes from {', '.join(INSERTION_SOURCES)}, not {insertion!r}")
     with Session.open(path) as session:
         stored = session.calibration()
         segments = session.videos()
         nodes = session.intraop_records()
-        frame_times, probe_times = (_times(session.stream(name)) for name in ("frames", "probe"))
+        frames, probe_rows, imu, camera = (_rows(session.stream(name)) for name in ("frames", "probe", "imu", "camera"))
     if not segments:
         raise SessionError(f"{path}: the session has no recorded video; only sessions recorded with video can be "
                            "re-tracked")
@@ -100,47 +140,116 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
     if tuple(calibration.image_size) != size:
         raise SessionError(f"the calibration is for {calibration.image_size[0]}x{calibration.image_size[1]} images "
                            f"but the session's video is {size[0]}x{size[1]}; use a calibration made at that size")
-    tracker = StereoTracker(calibration, probe, method=method)
+    frame_times = np.asarray(frames["t_host_ns"], dtype=np.int64)
+    probe_times = np.asarray(probe_rows["t_host_ns"], dtype=np.int64)
+    windows = {node.id: window_rows(frame_times, probe_times, node) for node in nodes}
+    wanted = set(np.concatenate([np.zeros(0, int), *windows.values()]).tolist())
     readers = RecordedPairs(path, segments)
     try:
-        out = [_retrack_node(node, window_rows(frame_times, probe_times, node), readers, tracker, stored["chain"])
-               for node in nodes]
+        tracker = StereoTracker(calibration, probe, method=method)
+        if insertion == "video" or (insertion == "auto" and len(camera) > 0):
+            followed, tips, read = _follow(readers, path, segments, frame_times, imu, calibration, stored["chain"],
+                                           probe, tracker, wanted)
+        else:
+            followed, (tips, read) = None, _window_tips(readers, sorted(wanted), tracker)
     finally:
         readers.close()
-    return RetrackResult(out, calibration_version(stereo_to_dict(calibration)), method)
+    out = [_retrack_node(node, windows[node.id], tips, read, followed, stored["chain"]) for node in nodes]
+    return RetrackResult(out, calibration_version(stereo_to_dict(calibration)), method, followed)
 
 
 def store_retracked(path: str | Path, result: RetrackResult, reason: str) -> int:
     """Keep the re-tracked positions as new versions of their nodes (the old ones stay on record); returns how many."""
     changed = [replace(r.node, xyz_trocar=r.after_trocar, xyz_camera=r.after_camera,
-                       stereo_version=result.stereo_version) for r in result.nodes if r.after_trocar is not None]
+                       stereo_version=result.stereo_version, trocar_camera_mm=r.after_insertion_mm)
+               for r in result.nodes if r.after_trocar is not None]
     if changed:
         with Session.resume(path) as session:
             session.reexpress_nodes(changed, reason)
     return len(changed)
 
 
-def _retrack_node(node: IntraopNode, rows: np.ndarray, readers: RecordedPairs, tracker: StereoTracker,
-                  chain) -> RetrackedNode:
-    if not np.all(np.isfinite(node.earth_from_imu)):
-        return RetrackedNode(node, None, None, 0, 0, "the node has no IMU orientation on record (format 1)")
-    tips, read = [], 0
+def _window_tips(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[dict[int, np.ndarray], set[int]]:
+    """The probe tip (3,) mm tracked in each of ``rows`` by row, and the rows whose pair was read."""
+    tips, read = {}, set()
     for row in rows:
-        try:
-            pair = readers.pair(int(row))
-        except OSError:
-            pair = None
+        pair = _pair(readers, row)
         if pair is None:
             continue
-        read += 1
-        try:
-            tips.append(tracker.track(*pair).tip)
-        except TrackingError:
+        read.add(int(row))
+        fix = _track(tracker, pair)
+        if fix is not None:
+            tips[int(row)] = fix.tip
+    return tips, read
+
+
+def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu: np.ndarray,
+            calibration: StereoCalibration, chain: ChainCalibration, probe: ProbeModel | None,
+            tracker: StereoTracker, wanted: set[int]) -> tuple[VideoInsertion, dict[int, np.ndarray], set[int]]:
+    """Every recorded pair once, in order: the probe tracked (left out of the tissue; ``tracker``'s tip kept in the
+    ``wanted`` rows) and the insertion tracked. Returns the insertion, the tips (3,) mm by row and the wanted rows
+    that were read."""
+    n_rows = len(frame_times)
+    recorded = np.flatnonzero(rows_with_video(path, segments, n_rows))
+    orientations, source = orientations_at(imu, frame_times[recorded])
+    masker = tracker if tracker.method == "triangulation" else StereoTracker(calibration, probe)
+    follower = InsertionTracker(calibration, chain, probe=probe)
+    used = np.full(n_rows, follower.start_mm)
+    tracked, known = np.zeros(n_rows, bool), np.zeros(n_rows, bool)
+    tips, read, last, seen = {}, set(), follower.start_mm, False
+    for k, row in enumerate(recorded):
+        pair = _pair(readers, row)
+        if pair is None:
             continue
-    if not tips:
-        problem = "none of its window's frames is in the video" if not read else "no fix in its window's frames"
-        return RetrackedNode(node, None, None, read, 0, problem)
-    tips = np.array(tips)
-    camera = summarise(tips).xyz
-    trocar = summarise(camera_to_trocar(chain, node.earth_from_imu, tips)).xyz
-    return RetrackedNode(node, trocar, camera, read, len(tips))
+        fix = _track(masker, pair)
+        if row in wanted:
+            read.add(int(row))
+            own = fix if tracker is masker else _track(tracker, pair)
+            if own is not None:
+                tips[int(row)] = own.tip
+        estimate = follower.update(*pair, orientations[k], probe_fix=fix)
+        if estimate.tracked:
+            last, seen, tracked[row] = estimate.trocar_camera_mm, True, True
+        used[row], known[row] = last, seen
+    return VideoInsertion(used, tracked, known, len(recorded), source), tips, read
+
+
+def _pair(readers: RecordedPairs, row):
+    try:
+        return readers.pair(int(row))
+    except OSError:
+        return None
+
+
+def _track(tracker: StereoTracker, pair):
+    try:
+        return tracker.track(*pair)
+    except TrackingError:
+        return None
+
+
+def _rows(stream) -> np.ndarray:
+    return readable_rows(stream) if hasattr(stream, "id") else np.asarray(stream)
+
+
+def _retrack_node(node: IntraopNode, rows: np.ndarray, tips: dict[int, np.ndarray], read: set[int],
+                  insertion: VideoInsertion | None, chain: ChainCalibration) -> RetrackedNode:
+    frames = sum(int(row) in read for row in rows)
+    if not np.all(np.isfinite(node.earth_from_imu)):
+        return RetrackedNode(node, None, None, 0, 0, "the node has no IMU orientation on record (format 1)")
+    found = [int(row) for row in rows if int(row) in tips]
+    if not found:
+        problem = "none of its window's frames is in the video" if not frames else "no fix in its window's frames"
+        return RetrackedNode(node, None, None, frames, 0, problem)
+    camera_tips = np.array([tips[row] for row in found])
+    if insertion is None:                   # the chain's constant distance
+        trocar = camera_to_trocar(chain, node.earth_from_imu, camera_tips)
+        return RetrackedNode(node, summarise(trocar).xyz, summarise(camera_tips).xyz, frames, len(found))
+    known = insertion.known[found].all()
+    used = insertion.used_mm[found]
+    chains = {d: chain.with_insertion(d) for d in np.unique(used)} if known else {}
+    trocar = np.array([camera_to_trocar(chains[d] if known else chain, node.earth_from_imu, tip)
+                       for d, tip in zip(used, camera_tips)])
+    lost = int(np.sum(~insertion.tracked[found]))
+    return RetrackedNode(node, summarise(trocar).xyz, summarise(camera_tips).xyz, frames, len(found), "",
+                         float(np.median(used)) if known else float("nan"), lost)
