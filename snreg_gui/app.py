@@ -214,7 +214,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self._show_in_acquisition_tab(self.acquisition)
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
                                         self.rig.imu, self.session, self.rig.fps, self.fixes_per_node, limits,
-                                        self.record_video_action.isChecked())
+                                        self.record_video_action.isChecked(), track_insertion=self.rig.moving_camera)
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
         self.missing_for_worker.connect(self.worker.set_missing, queued)
         self._missing_changed(self.registration.missing_nodes)

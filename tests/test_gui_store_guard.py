@@ -46,7 +46,7 @@ class FakeImu:
 class FakeRig:
     """Rendered phantom frames chosen by ``frames(index) -> scene index or None (black)``, a live feed."""
 
-    simulated, description, fps = True, "test rig", 30.0
+    simulated, description, fps, moving_camera = True, "test rig", 30.0, False
 
     def __init__(self, scene, frames, imu):
         self.scene, self.frames, self.imu = scene, frames, imu

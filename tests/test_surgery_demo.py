@@ -7,11 +7,14 @@ import pytest
 
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.demo.headless import run_headless
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule, phantom_tips
-from snreg.demo.surgery_scene import SurgeryScene
+from snreg.demo.surgery_scene import REST_KEYS, SurgeryScene
 from snreg.geometry import apply, invert, rotation_angle_deg
 from snreg.probe import default_probe_model
+from snreg.session import Session
+from snreg.session.schema import CAMERA_STATES
 from snreg.workflow.acquisition import ImuReading
 
 FPS = 30.0
@@ -105,3 +108,23 @@ def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame():
     moved = max(float(rotation_angle_deg(truth[0].T @ rotation)) for rotation in truth)
     assert moved > 10.0 and moving.sum() > 40
     assert np.median(errors[moving]) < 0.15 and errors.max() < 0.6, (np.median(errors[moving]), errors.max())
+
+
+def test_the_headless_surgery_demo_stores_every_node_where_it_is(tmp_path):
+    """End to end on the app's code (a quarter of the thesis resolution, 20 fixes a node): the camera's insertion is
+    tracked, each node is mapped at the insertion it was stored at and pairs with its own hot spot."""
+    run = run_headless(tmp_path / "surgery.h5", seed=1, fixes_per_node=20, scale=0.25, camera="surgery")
+    out = run.to_json()
+    assert out["camera"] == "surgery" and out["camera_tracking"] is True
+    assert out["pairing_correct"] and len(out["nodes"]) == 4 and out["rms_mm"] < 2.0
+    errors = [np.linalg.norm(np.subtract(node["xyz_trocar"], node["truth_trocar"])) for node in out["nodes"]]
+    assert max(errors) < 2.0, errors                     # a 10-20 mm slide unseen would put them that far off
+    with Session.open(run.session_path) as session:
+        camera = session.stream("camera")
+        insertion = {node.id: node.trocar_camera_mm for node in session.intraop_records()}
+        frames = len(session.stream("frames"))
+    tracked = camera["state"] == CAMERA_STATES.index("tracked")
+    assert len(camera) == frames and tracked.mean() > 0.95
+    start = ChainCalibration.manual().trocar_camera_mm
+    slides = [REST_KEYS[["EXT L", "EXT R", "OBT R", "OBT L"].index(node["label"])].slide_mm for node in out["nodes"]]
+    np.testing.assert_allclose([insertion[node["id"]] for node in out["nodes"]], start + np.array(slides), atol=0.5)

@@ -23,6 +23,7 @@ import numpy as np
 from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
+from snreg.odometry import InsertionTracker
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
@@ -54,6 +55,7 @@ class HeadlessResult:
     frames: int
     truth_trocar: np.ndarray              # (M, 3) where each stored node's phantom node really is, trocar frame, mm
     camera: str = "still"
+    camera_tracking: bool = False
     recording_s: float = float("nan")
     link_s: float = 0.0
     link_calls: int = 0
@@ -69,7 +71,7 @@ class HeadlessResult:
                   "confidence": round(row.confidence, 4)} for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
-                "camera": self.camera, "frames": self.frames, "recording_s": round(self.recording_s, 3),
+                "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames, "recording_s": round(self.recording_s, 3),
                 "session": str(self.session_path), "spect": str(self.spect_path)}
 
 
@@ -95,22 +97,27 @@ class _TimedLink:
 
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
-                 link=None, errors=None, video: bool = True, camera: str = "still") -> HeadlessResult:
+                 link=None, errors=None, video: bool = True, camera: str = "still",
+                 camera_tracking: bool = True) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
     ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
     :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
-    beside the session; ``camera``: "still" or "surgery" (:class:`~snreg.demo.rig.DemoRig`)."""
+    beside the session; ``camera``: "still" or "surgery" (:class:`~snreg.demo.rig.DemoRig`); ``camera_tracking``:
+    follow the insertion of a camera that moves (off: every node is mapped at the trocar calibration's distance, to
+    compare)."""
     session_path = Path(session_path)
-    # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs
-    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed, errors=errors,
-                  camera=camera)
+    # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs, three
+    # times with the surgery camera (tracking its insertion costs time too)
+    rest_frames = (3 if camera == "surgery" else 2) * fixes_per_node + 30
+    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=rest_frames), seed=seed, errors=errors, camera=camera)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             started = time.perf_counter()
-            frames, stored_at = _record(rig, session, fixes_per_node, feed, video)
+            tracking = camera_tracking and rig.moving_camera
+            frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking)
             recording_s = time.perf_counter() - started
             sources = rig.phantom_sources_lps()
             spect = rig.write_phantom_spect(spect_path_for(session_path))
@@ -128,18 +135,19 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     truth = _true_pairing(preop.xyz, sources, stored_at)
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
-                          recording_s, feed.seconds, feed.calls)
+                          tracking, recording_s, feed.seconds, feed.calls)
 
 
-def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink,
-            video: bool = True) -> tuple[int, list[int]]:
+def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,
+            tracking: bool = False) -> tuple[int, list[int]]:
     """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
-    skips some) and, per stored node, the phantom node the probe rested on."""
+    skips some) and, per stored node, the phantom node the probe rested on. ``tracking``: follow the insertion."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
+    insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if tracking else None
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
-                              video_fps=rig.fps if video else None)
+                              video_fps=rig.fps if video else None, insertion=insertion)
     limit, read, tail, stored_at = 2 * rig.scene.cycle, 0, 0, []
     with source:
         for frame in source:

@@ -58,6 +58,7 @@ class ReplayRig:
     """
 
     simulated = True
+    moving_camera = False          # replayed at the trocar calibration's distance, as recorded before issue 27
 
     def __init__(self, path: str | Path, *, speed: float = 1.0):
         self.path, self.speed = Path(path), float(speed)

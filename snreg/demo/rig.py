@@ -45,6 +45,7 @@ from snreg.sources import CallableSource, FrameSource
 
 DEMO_FPS = 30.0
 CAMERAS = ("still", "surgery")
+SURGERY_REST_FRAMES = 180      # the surgery demo's rests by default: 6 s
 IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
 IMU_LEAD_S = 3.0               # the surgery tour starts this long after its IMU simulator is launched: the process
                                # starts (1-2 s) and its fusion gets a still start (3 s, with the first rest) before
@@ -61,11 +62,13 @@ class DemoRig:
 
     simulated = True
 
-    def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0,
+    def __init__(self, *, scale: float = 0.5, schedule: Schedule | None = None, fps: float = DEMO_FPS, seed: int = 0,
                  errors: ErrorModel | None = None, camera: str = "still"):
         """``errors``: an error model (:mod:`snreg.demo.errors`) the rig runs with, drawn under ``seed``
         (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model).
-        ``camera``: "still" (the thesis' phantom) or "surgery" (the camera slides and turns between nodes)."""
+        ``camera``: "still" (the thesis' phantom) or "surgery" (the camera slides and turns between nodes).
+        ``schedule``: the probe's rests and moves (default: 3 s rests; 6 s with the surgery camera, whose insertion
+        tracking takes its share of each frame, so the live feed skips more)."""
         if camera not in CAMERAS:
             raise ValueError(f"the demo camera is 'still' or 'surgery', not {camera!r}")
         self.camera = camera
@@ -80,6 +83,8 @@ class DemoRig:
         # the chain as it truly is, and what tracking uses (the trocar wizard replaces it)
         self.true_chain = surgery_demo_chain() if self.moving_camera else ChainCalibration.manual()
         self.chain = self.true_chain
+        if schedule is None:
+            schedule = Schedule(rest_frames=SURGERY_REST_FRAMES) if self.moving_camera else Schedule()
         self.schedule, self.fps, self.seed = schedule, fps, seed
         self.scene: PhantomScene | SurgeryScene | None = None
         self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")

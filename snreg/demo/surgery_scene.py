@@ -16,7 +16,7 @@ The chain is the thesis' manual one with the endoscope held as the phantom's set
 34 degrees below the horizontal, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`), so a turn left or right is mostly a
 turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
 resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: ``noise_variants``
-exposures per rest, one per moving frame) and replayed from memory.
+exposures per rest, one per moving frame: about 145 pairs, 0.45 GB, 20-40 s) and replayed from memory.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from snreg.probe import ProbeModel
 __all__ = ["SurgeryScene", "REST_KEYS", "VIA_KEYS", "surgery_demo_chain"]
 
 # where the camera rests while the probe rests on node n (the first: the start pose), and the keys it passes on the
-# way to the next rest: every move slides (20-50 mm) and turns (6-18 degrees), two of them out to 30 mm drawn back and
-# pushed in; every node stays in view throughout
+# way to the next rest: every move slides 20 mm or more and turns 6 degrees or more, one by way of the camera drawn
+# back 30 mm and turned 18 degrees, one by way of it pushed in 30 mm; every node stays in view throughout
 REST_KEYS = (CameraKey(0.0, (0.0, 0.0)), CameraKey(15.0, (-2.0, -6.0)), CameraKey(-10.0, (1.0, 2.0)),
              CameraKey(20.0, (-3.0, -8.0)))
 VIA_KEYS = ((CameraKey(-30.0, (-2.0, -18.0)),), (), (CameraKey(30.0, (-2.0, -7.0)),), ())

@@ -48,7 +48,8 @@ class Rig(Protocol):
 
     ``calibration`` is what tracking uses (a stereo calibration wizard replaces it), ``probe`` the probe model,
     ``chain`` the transform chain (the trocar wizard replaces it), ``imu`` the started endoscope IMU, ``fps`` the
-    nominal frame rate; ``simulated`` and ``description`` say what the rig is, for display only.
+    nominal frame rate; ``moving_camera``: the camera slides in the trocar, so acquisition follows its insertion
+    (issue 27; the demo's surgery camera); ``simulated`` and ``description`` say what the rig is, for display only.
     """
 
     calibration: StereoCalibration
@@ -56,6 +57,7 @@ class Rig(Protocol):
     chain: ChainCalibration
     imu: Imu
     fps: float
+    moving_camera: bool
     simulated: bool
 
     @property

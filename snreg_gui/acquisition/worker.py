@@ -21,6 +21,7 @@ from snreg import geometry
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration, trocar_from_camera
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
+from snreg.odometry import InsertionTracker
 from snreg.session import Session, SessionError
 from snreg.sources import FrameSource, SourceError, SourceState
 from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading,
@@ -70,7 +71,8 @@ class StoreRequest:
 
 class AcquisitionWorker(QObject):
     """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build);
-    ``record_video``: both feeds go into the session's video (its encoder works in a process of its own)."""
+    ``record_video``: both feeds go into the session's video (its encoder works in a process of its own);
+    ``track_insertion``: follow the camera's insertion (a camera that slides in the trocar), from the chain's distance."""
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
@@ -82,9 +84,10 @@ class AcquisitionWorker(QObject):
     def __init__(self, make_source: Callable[[], FrameSource], calibration: StereoCalibration, probe,
                  chain: ChainCalibration, imu: ImuMonitor, session: Session, fps: float,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
-                 record_video: bool = True):
+                 record_video: bool = True, *, track_insertion: bool = False):
         super().__init__()
         self._make_source, self._imu, self._fps, self._record_video = make_source, imu, fps, record_video
+        self._track_insertion = track_insertion
         self._setup = (calibration, probe, chain, session, fixes_per_node, limits)
         self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
@@ -98,9 +101,10 @@ class AcquisitionWorker(QObject):
     def start(self) -> None:
         calibration, probe, chain, session, fixes, limits = self._setup
         without_imu = self._imu.snapshot().state == IMU_ABSENT      # no IMU port chosen in the device dialog
+        insertion = InsertionTracker(calibration, chain, probe=probe) if self._track_insertion else None
         self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes, limits=limits,
                                        imu_required=not without_imu,
-                                       video_fps=self._fps if self._record_video else None)
+                                       video_fps=self._fps if self._record_video else None, insertion=insertion)
         try:
             session.log_event("acquisition_started", imu="none (chosen)" if without_imu else "required",
                               stereo_version=self.acquisition.stereo_version,
