@@ -39,8 +39,8 @@ class DemoErrors:
         IMU that really turns, leaves "imu" and "camera" out: :data:`INJECTED_MOVING`)."""
         self.model = model
         geometry = phantom_geometry(probe)
-        rotations = fused_imu_errors(model, geometry, seed)
-        draw = draw_errors(model, geometry, np.random.default_rng([seed, 5]), imu=rotations)
+        rotations = fused_imu_errors(model, geometry, seed) if "imu" in injected else None   # a simulated session
+        draw = draw_errors(model, geometry, np.random.default_rng([seed, 5]), imu=rotations)     # (the same draws)
         self.tip_offsets_mm = camera_displacements(model, geometry, draw, injected)
         self.scan_shift_mm = model.on("tissue") * draw.tissue
         calibration = model.values["calibration"]

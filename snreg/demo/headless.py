@@ -34,6 +34,7 @@ from snreg.workflow.acquisition import Acquisition, ImuReading
 
 N_NODES = len(NODE_CENTRES_MM)
 _IMU_WAIT_S = 5.0
+_TOURS = 3                 # of the nodes at most, before giving up (a loaded computer skips frames: rests miss nodes)
 
 
 class DemoError(RuntimeError):
@@ -148,7 +149,7 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
     insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if tracking else None
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
                               video_fps=rig.fps if video else None, insertion=insertion)
-    limit, read, tail, stored_at = 2 * rig.scene.cycle, 0, 0, []
+    limit, read, tail, stored_at = _TOURS * rig.scene.cycle, 0, 0, []
     with source:
         for frame in source:
             read += 1
