@@ -212,8 +212,9 @@ def test_a_profile_holds_its_first_pose_before_time_0_and_round_trips_through_it
     """A program hands its motion to the simulator process as a file; before the motion's time 0 (the stream started
     early, its start set on the host clock) the sensor holds the first pose, also when the profile repeats."""
     start = Rotation.from_euler("ZYX", [0.0, 30.0, 120.0], degrees=True)
-    profile = MotionProfile([still(0.5), rotate((0.3, 0.4, 0.5), 12.0, 8.0), still(0.2), rotate((0.3, 0.4, 0.5), -12.0, 8.0)],
-                            start, repeat=True)
+    axis = (0.3, 0.4, 0.5)
+    profile = MotionProfile([still(0.5), rotate(axis, 12.0, 8.0), still(0.2), rotate(axis, -12.0, 8.0)], start,
+                            repeat=True)
     assert profile.orientation([-3.0])[0].approx_equal(start)
     np.testing.assert_array_equal(profile.angular_velocity_dps([-3.0]), np.zeros((1, 3)))
     path = tmp_path / "motion.json"
@@ -222,10 +223,10 @@ def test_a_profile_holds_its_first_pose_before_time_0_and_round_trips_through_it
     times = np.linspace(-1.0, 2 * profile.duration_s, 97)
     assert np.all(np.degrees((again.orientation(times) * profile.orientation(times).inv()).magnitude()) < 1e-9)
     np.testing.assert_allclose(again.angular_velocity_dps(times), profile.angular_velocity_dps(times), atol=1e-9)
+    backwards = {**profile.to_dict(), "segments": [{"duration_s": -1, "axis": [0, 0, 1], "angle_deg": 0,
+                                                    "smooth": True}]}
     for bad, words in (("[1, 2]", "not a motion profile"), ('{"segments": []', "not a motion file"),
-                       (json.dumps({**profile.to_dict(), "repeat": True, "segments": [{"duration_s": -1, "axis": [0, 0, 1],
-                                                                                          "angle_deg": 0, "smooth": True}]}),
-                        "positive duration")):
+                       (json.dumps(backwards), "positive duration")):
         path.write_text(bad)
         with pytest.raises(ValueError, match=words):
             read_motion_file(path)

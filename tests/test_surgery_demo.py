@@ -30,7 +30,8 @@ def in_view_px(calibration, points_camera: np.ndarray) -> np.ndarray:
     """(N,) how far (px) inside both images each point (left camera frame) projects; negative: outside."""
     width, height = calibration.image_size
     margins = []
-    for K, points in ((calibration.K1, points_camera), (calibration.K2, points_camera @ calibration.R.T + calibration.T.ravel())):
+    in_right = points_camera @ calibration.R.T + calibration.T.ravel()
+    for K, points in ((calibration.K1, points_camera), (calibration.K2, in_right)):
         uv = (points / points[:, 2:]) @ K.T
         margins.append(np.min([uv[:, 0], width - uv[:, 0], uv[:, 1], height - uv[:, 1]], axis=0))
     return np.min(margins, axis=0)

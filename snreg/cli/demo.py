@@ -39,8 +39,8 @@ def add_demo_parser(subparsers) -> None:
                    help="still: the thesis' phantom, the camera never moves (default); surgery: the camera slides "
                         "through the trocar (+-30 mm) and turns about the pivot (up to 18 deg) between nodes")
     p.add_argument("--no-camera-tracking", action="store_true",
-                   help="with --camera surgery: do not follow the camera's insertion; every node is mapped at the trocar "
-                        "calibration's distance (to compare)")
+                   help="with --camera surgery: do not follow the camera's insertion; every node is mapped at the "
+                        "trocar calibration's distance (to compare)")
     p.set_defaults(func=cmd_demo)
 
 

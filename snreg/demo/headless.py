@@ -62,8 +62,8 @@ class HeadlessResult:
     link_calls: int = 0
 
     def to_json(self) -> dict:
-        """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the API;
-        each node with ``truth_trocar``, the simulator's truth."""
+        """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the
+        API; each node with ``truth_trocar``, the simulator's truth."""
         rows = pair_table(self.result, self.preop_ids, self.intraop_ids, intraop_labels=self.intraop_labels)
         nodes = [{"id": row.intraop_id, "label": row.intraop_label,
                   "xyz_trocar": [round(float(v), 3) for v in self.intraop_xyz[k]],
@@ -72,8 +72,9 @@ class HeadlessResult:
                   "confidence": round(row.confidence, 4)} for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
-                "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames, "recording_s": round(self.recording_s, 3),
-                "session": str(self.session_path), "spect": str(self.spect_path)}
+                "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames,
+                "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
+                "spect": str(self.spect_path)}
 
 
 def spect_path_for(session_path: str | Path) -> Path:

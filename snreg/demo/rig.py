@@ -108,6 +108,8 @@ class DemoRig:
     def frame_source(self) -> FrameSource:
         """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
         pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
+        if self._simulator is not None:         # the still IMU streams while the tour renders
+            self._start_imu()
         if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
             options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
                                                        "blur_sigma_px": self.errors.blur_px,
@@ -133,7 +135,7 @@ class DemoRig:
         return CallableSource(self.scene.render, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
 
     def nodes_trocar(self) -> np.ndarray:
-        """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured against)."""
+        """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured by)."""
         return camera_to_trocar(self.true_chain, self._start_orientation(), phantom_tips(self.probe))
 
     def phantom_sources_lps(self) -> np.ndarray:

@@ -55,7 +55,8 @@ def surgery_demo_chain() -> ChainCalibration:
     yaw = Rotation.from_matrix(earth_from_trocar).as_euler("ZYX")[0]
     earth_from_trocar = Rotation.from_euler("z", -yaw).as_matrix() @ earth_from_trocar
     manual = ChainCalibration.manual()
-    return ChainCalibration(manual.imu_from_camera, manual.imu_trocar_mm, make_transform(earth_from_trocar.T, np.zeros(3)))
+    return ChainCalibration(manual.imu_from_camera, manual.imu_trocar_mm,
+                            make_transform(earth_from_trocar.T, np.zeros(3)))
 
 
 class SurgeryScene:
@@ -80,7 +81,8 @@ class SurgeryScene:
         self.nodes_trocar = apply(start, tips)
         offsets = np.zeros_like(tips) if tip_offsets_mm is None else np.asarray(tip_offsets_mm, float)
         rests = [self.trocar_from_camera(first) for first in self.tour.rest_starts]
-        self._rest_tips = self.nodes_trocar + np.einsum("nij,nj->ni", np.array([pose[:3, :3] for pose in rests]), offsets)
+        rotations = np.array([pose[:3, :3] for pose in rests])
+        self._rest_tips = self.nodes_trocar + np.einsum("nij,nj->ni", rotations, offsets)
         self._rest_axes = np.array([pose[:3, :3] @ PROBE_AXIS for pose in rests])
         surface = TissueSurface(**_TISSUE, anchors=tuple(tuple(float(v) for v in p) for p in self.nodes_trocar))
         self.tissue = TissueScene(calibration, probe, surface, probe_in_front=True)

@@ -72,7 +72,7 @@ class StoreRequest:
 class AcquisitionWorker(QObject):
     """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build);
     ``record_video``: both feeds go into the session's video (its encoder works in a process of its own);
-    ``track_insertion``: follow the camera's insertion (a camera that slides in the trocar), from the chain's distance."""
+    ``track_insertion``: follow the insertion of a camera that slides in the trocar, from the chain's distance."""
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
