@@ -99,10 +99,11 @@ def test_wilson_interval_and_threshold():
 
 
 def test_parse_method():
-    plain = {"use_labels": False, "use_cov": False}
+    plain = {"use_labels": False, "use_cov": False, "use_landmarks": False}
     assert parse_method("global") == ("global", plain)
     assert parse_method("global+labels") == ("global", {**plain, "use_labels": True})
-    assert parse_method("global+cov+labels") == ("global", {"use_labels": True, "use_cov": True})
+    assert parse_method("global+cov+labels") == ("global", {**plain, "use_labels": True, "use_cov": True})
+    assert parse_method("global+landmarks") == ("global", {**plain, "use_landmarks": True})
     assert parse_method("cpd:w=0.1") == ("cpd", {**plain, "w": 0.1})
     assert parse_method("chamfer:form=volume") == ("chamfer", {**plain, "form": "volume"})
     with pytest.raises(ValueError):

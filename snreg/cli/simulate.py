@@ -58,6 +58,23 @@ def add_simulate_parser(subparsers) -> None:
     p.add_argument("--anisotropy", type=float_range(1.0, 50.0, low_open=False), default=1.0, metavar="R",
                    help="each intraop node's error along its own viewing ray is R times its error across it (per-axis "
                         "RMS still sigma; 1: the thesis' isotropic error); '+cov' methods are given the covariances")
+    p.add_argument("--landmarks", type=int_range(0, 6), default=0, metavar="K",
+                   help="K anatomical landmarks per trial (aortic bifurcation, common iliac bifurcations, top of the "
+                        "pubic symphysis, internal iliac origins, in that order), given to '+landmarks' methods")
+    p.add_argument("--landmark-sd", type=float_range(0.0, 50.0, "mm"), default=2.0, metavar="MM",
+                   help="each landmark pair's own error, mm per axis (default 2)")
+    p.add_argument("--max-nodes", type=int_range(1, 50), metavar="N",
+                   help="cut every patient down to N SPECT nodes (1 or 2: patients the thesis' method cannot register)")
+    p.add_argument("--swap-landmarks", action="store_true",
+                   help="exchange the first two landmarks' names intraop (a wrong name): how often it is flagged")
+    p.add_argument("--start", choices=("rough", "gravity"), default="rough",
+                   help="rough: the thesis' rough alignment (up to 30 degrees per axis, 20 mm); gravity: the preop set "
+                        "turned any way and shifted up to 300 mm, registration given down in both frames (the table "
+                        "tilted 30 degrees head down)")
+    p.add_argument("--tilt-sd", type=float_range(0.0, 45.0, "degrees", low_open=False), default=8.0, metavar="DEG",
+                   help="gravity start: error of the entered table tilt (default 8)")
+    p.add_argument("--imu-down-sd", type=float_range(0.0, 45.0, "degrees", low_open=False), default=1.0,
+                   metavar="DEG", help="gravity start: error of the IMU's down (default 1)")
     p.add_argument("--cohort", help="directory of preop node CSVs, one per patient (default: synthetic cohort)")
     p.add_argument("--seed", type=seed, default=0, help="random seed of the study")
     p.add_argument("--workers", type=workers, default=0, help="processes, at most one per core (0: one per core)")
@@ -79,6 +96,9 @@ def cmd_simulate(args) -> int:
         patients = load_cohort(args.cohort) if args.cohort else synthetic_cohort()
     except ValueError as err:
         raise UserError(str(err)) from None
+    if args.max_nodes is not None and args.max_nodes < 3 and not args.landmarks:
+        raise UserError(f"--max-nodes {args.max_nodes} needs --landmarks: without landmarks fewer than 3 nodes cannot "
+                        "be registered")
     largest = max(patients, key=lambda patient: len(patient.nodes))
     if len(largest.nodes) - max(args.missing) < 3:
         raise UserError(f"--missing {max(args.missing)}: the largest patient ({largest.name}) has {len(largest.nodes)} "
@@ -87,7 +107,10 @@ def cmd_simulate(args) -> int:
         raise UserError(f"{largest.name} has {len(largest.nodes)} nodes, with {max(args.extras)} extras "
                         f"{len(largest.nodes) + max(args.extras)}: registration handles at most {MAX_NODES} per set")
     config = StudyConfig(methods=tuple(args.methods), sigmas=args.sigmas, extras=args.extras, reps=args.reps,
-                         seed=args.seed, workers=args.workers, missing=tuple(args.missing), anisotropy=args.anisotropy)
+                         seed=args.seed, workers=args.workers, missing=tuple(args.missing), anisotropy=args.anisotropy,
+                         landmarks=args.landmarks, landmark_sd=args.landmark_sd, max_nodes=args.max_nodes,
+                         swap_landmarks=args.swap_landmarks, start=args.start, tilt_sd_deg=args.tilt_sd,
+                         imu_down_sd_deg=args.imu_down_sd)
     study = run_study(patients, config, progress=not args.quiet)
     command = "snreg " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:

@@ -28,10 +28,10 @@ from snreg.registration._bounded import fit_within_bounds
 from snreg.registration._chamfer import solve_chamfer
 from snreg.registration._cpd import solve_cpd
 from snreg.registration._global import local_moves, solve_global
+from snreg.registration._landmark_fit import landmark_residuals, trusted_landmarks
 from snreg.registration._icp import solve_icp
-from snreg.registration._covariance import S_GRID_MM
 from snreg.registration._model import (MIN_PAIRS, Candidate, assign, evaluate, fit_pairs, source_posterior,
-                                       squared_distances)
+                                       squared_distances, unmodelled_grid)
 from snreg.registration._problem import make_problem
 from snreg.registration.confidence import claim_confidence, posterior_weights, source_probabilities
 from snreg.registration.pairing import RULES, pair, shared
@@ -77,6 +77,9 @@ class RegistrationResult:
     target_error_mm: np.ndarray | None = None   # (N,) per preop node: 90% bound on |mapped - where it really is|
     missing: np.ndarray | None = None           # (N,) bool: hot spots no intraop node came from
     leave_one_out_mm: np.ndarray | None = None  # (M,) per node from a hot spot: its distance when the others register
+    landmark_residual_mm: dict[str, float] = field(default_factory=dict)        # landmark pair name -> mm
+    landmark_leave_one_out_mm: dict[str, float] = field(default_factory=dict)   # ... when the rest alone register
+    landmarks_suspect: list[str] = field(default_factory=list)   # pairs that contradict the rest: left out of the fit
 
     @property
     def shares(self) -> np.ndarray:
@@ -91,7 +94,9 @@ class RegistrationResult:
 
 def register(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None, initial=None,
              max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-             intraop_cov=None, preop_cov=None, pairing_rule: str | None = None, **options) -> RegistrationResult:
+             preop_landmarks=None, intraop_landmarks=None, landmark_sd_mm: float = 2.0,
+             intraop_cov=None, preop_cov=None, down=None, down_sd_deg: float = 10.0,
+             pairing_rule: str | None = None, **options) -> RegistrationResult:
     """Register preop (N, 3) to intraop (M, 3) nodes in mm and say which hot spot every intraop node came from.
 
     ``initial`` is a rough ``intraop_from_preop`` (identity if None); the search stays
@@ -104,6 +109,13 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     ``preop_cov`` (N, 3, 3) are each node's own error covariance in mm^2 (or one sd in mm for all): ``global``, the
     confidence, the target-error bounds and leave-one-out weigh every node by it (a stereo fix is uncertain mostly
     along its viewing ray); icp, cpd and chamfer fit as without it. None keeps the isotropic model exactly.
+    ``preop_landmarks``/``intraop_landmarks`` ({name: (3,) mm}, or node sets whose ids are the names) are paired by
+    name and enter the fit with their correspondence known and ``landmark_sd_mm`` of error per axis; with them one or
+    two nodes register (3 points in all, 1 intraop node at least, ``global`` only); a pair that contradicts the rest
+    is left out and named in ``landmarks_suspect``. ``down`` (down in the preop frame, down in the intraop frame)
+    is the gravity prior: without ``initial`` the search starts from the two downs aligned and the centroids
+    matched, covers every heading about the vertical and tilts within a few ``down_sd_deg`` (the tilt's prior sd),
+    and bounds the centroids' displacement by ``max_translation_mm``; ``initial`` still overrides it.
     Everything after ``method`` is keyword-only. Raises ValueError with a message a user understands on bad
     input, an unknown method or option included.
     """
@@ -114,8 +126,17 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
-                           preop_cov=preop_cov)
-    correction, candidates = _solve(problem, method, options)
+                           preop_cov=preop_cov, preop_landmarks=preop_landmarks, intraop_landmarks=intraop_landmarks,
+                           landmark_sd_mm=landmark_sd_mm, down=down, down_sd_deg=down_sd_deg)
+    every, suspects = problem.landmarks, ()
+    if method != "global" and min(len(problem.preop), len(problem.intraop)) < MIN_PAIRS:
+        raise ValueError(f"{method} needs at least {MIN_PAIRS} nodes on each side; with fewer, landmarks and the "
+                         "global method register them")
+    if problem.n_landmarks and method == "global":
+        problem, candidates, suspects = trusted_landmarks(problem, lambda trial: solve_global(trial, **options))
+        correction = candidates[0].correction
+    else:
+        correction, candidates = _solve(problem, method, options)
     if method == "global":
         base = candidates[0]
     else:
@@ -139,12 +160,15 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     distances = np.sqrt(np.where(pairing >= 0, d2[np.maximum(pairing, 0), np.arange(len(pairing))], d2.min(axis=0)))
     nearest = _nearest_claimants(pairing, distances)
     rms = float(np.sqrt(np.mean(distances[nearest] ** 2))) if nearest.any() else float("nan")
+    residual, loo = landmark_residuals(problem, base, correction, every) if every is not None and len(every) else ({}, {})
     return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
                               distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
                               pairings=pairings, score=base.score, initial=problem.initial,
                               target_error_mm=target_error_bound(problem, correction, ranked, weights),
                               missing=~np.isin(np.arange(len(problem.preop)), pairing),
-                              leave_one_out_mm=_leave_one_out(problem, pairing, nearest, base))
+                              leave_one_out_mm=_leave_one_out(problem, pairing, nearest, base),
+                              landmark_residual_mm=residual, landmark_leave_one_out_mm=loo,
+                              landmarks_suspect=list(suspects))
 
 
 def _candidate_at(problem, correction: np.ndarray) -> Candidate:
@@ -190,13 +214,13 @@ def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray, base: Cand
     weighted fit at the unmodelled error the best candidate makes most likely."""
     out = np.full(len(pairing), np.nan)
     sigma = None
-    if problem.anisotropic and base.fit_weights is not None:
-        sigma = float(S_GRID_MM[int(np.argmax(base.fit_weights))])
+    if problem.weighted and base.fit_weights is not None:
+        sigma = float(unmodelled_grid(problem)[int(np.argmax(base.fit_weights))])
     for j in np.flatnonzero(pairing >= 0):
         rest = np.flatnonzero(nearest & (pairing != pairing[j]))
-        if len(rest) < MIN_PAIRS:
+        if len(rest) < problem.min_pairs:
             continue
-        if problem.anisotropic:
+        if problem.weighted:
             assignment = np.full(len(pairing), -1)
             assignment[rest] = pairing[rest]
             correction = fit_pairs(problem, assignment, sigma)
@@ -209,14 +233,14 @@ def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray, base: Cand
 
 def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,
                     initial=None, max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
-                    intraop_cov=None, preop_cov=None, **options) -> np.ndarray:
+                    intraop_cov=None, preop_cov=None, down=None, down_sd_deg: float = 10.0, **options) -> np.ndarray:
     """The method's transform estimate alone, (4, 4) ``intraop_from_preop``: the solver without the pairing and the
     confidence that :func:`register` adds (what ``snreg bench`` times as "solver"). Arguments as :func:`register`."""
     _check_method(method, options)
     problem = make_problem(preop, intraop, preop_labels=preop_labels, intraop_labels=intraop_labels,
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
-                           preop_cov=preop_cov)
+                           preop_cov=preop_cov, down=down, down_sd_deg=down_sd_deg)
     return _solve(problem, method, options)[0] @ problem.initial
 
 

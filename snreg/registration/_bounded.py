@@ -17,7 +17,7 @@ import numpy as np
 from snreg import geometry
 from snreg.registration._problem import Problem
 
-__all__ = ["fit_within_bounds"]
+__all__ = ["fit_within_bounds", "tilted_within"]
 
 _ALTERNATIONS = 6
 
@@ -54,10 +54,36 @@ def _best_rotation(m: np.ndarray, theta: float) -> np.ndarray:
     return np.cos(theta) * np.eye(3) + np.sin(theta) * k + (1.0 - np.cos(theta)) * np.outer(axis, axis)
 
 
+def tilted_within(rotation: np.ndarray, vertical: np.ndarray, bound_deg: float) -> np.ndarray:
+    """(..., 3, 3) ``rotation`` with its tilt (how far it turns ``vertical``) cut to ``bound_deg``: turned back about
+    the axis between the turned and the true vertical, its heading kept. The gravity start's bound."""
+    rotation = np.asarray(rotation, dtype=float)
+    turned = np.einsum("...ij,j->...i", rotation, vertical)
+    tilt = np.arccos(np.clip(turned @ vertical, -1.0, 1.0))
+    excess = np.maximum(tilt - np.radians(bound_deg), 0.0)
+    axis = np.cross(turned, vertical)
+    axis /= np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12)
+    k = np.zeros(rotation.shape)
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
+    k -= np.swapaxes(k, -1, -2)
+    sin, cos = np.sin(excess)[..., None, None], np.cos(excess)[..., None, None]
+    back = np.eye(3) + sin * k + (1.0 - cos) * k @ k
+    return back @ rotation
+
+
 def fit_within_bounds(problem: Problem, source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """(4, 4) correction minimising the squared distances of ``source`` (K, 3, initial-aligned preop) moved onto
-    ``target`` (K, 3) with rotation angle <= ``max_rotation_deg`` and centroid shift <= ``max_translation_mm``."""
+    ``target`` (K, 3) with rotation angle <= ``max_rotation_deg`` (from a gravity start: tilt <= its bound, the best
+    rotation's tilt cut back) and centroid shift <= ``max_translation_mm``."""
     centre = problem.centre
+    if problem.vertical is not None:
+        q, y = source - centre, target - centre
+        q_mean, y_mean = q.mean(axis=0), y.mean(axis=0)
+        rotation = tilted_within(_best_rotation((y - y_mean).T @ (q - q_mean), np.pi), problem.vertical,
+                                 problem.rotation_bound_deg)
+        shift = y_mean - rotation @ q_mean
+        shift *= min(1.0, problem.max_translation_mm / max(np.linalg.norm(shift), 1e-12))
+        return geometry.make_transform(rotation, centre + shift - rotation @ centre)
     theta = np.radians(problem.max_rotation_deg)
     q = source - centre                      # about the preop centroid, whose displacement is bounded
     y = target - centre

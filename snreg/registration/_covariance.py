@@ -1,4 +1,4 @@
-"""Each node with its own error: the model of :mod:`snreg.registration._model` when covariances are given.
+"""Each node with its own error: the model of :mod:`snreg.registration._model` when covariances or landmarks are given.
 
 Why: a stereo fix is uncertain mostly along its viewing ray (at 80 mm with the Firefly's 4.3 mm baseline, about 19
 times more than across it), and each node is seen along another ray; weighing every node as an isotropic point throws
@@ -14,8 +14,9 @@ Gauss-Newton from Kabsch, and integrated by Laplace's method as the isotropic mo
     nats(s) = 1/2 sum r^T C^-1 r + 1/2 sum log det(2 pi C) - 3 log(2 pi) + 1/2 log det H,   H = sum J^T C^-1 J
 
 with ``J = [-[D p - c]x, I]`` the residual's derivative by a small turn about the paired centroid ``c`` and a shift.
-With ``S = 0`` this is the isotropic model's fit term and Occam factor exactly. Each ``C`` is diagonalised once per
-correction, so every ``s`` of the grid costs a division. Extras keep the isotropic density of
+With ``S = 0`` this is the isotropic model's fit term and Occam factor exactly. Landmark pairs
+(:mod:`snreg.registration._landmarks`) are pairs of known correspondence whose covariance is their own error alone
+(no ``s``). Each ``C`` is diagonalised once per correction, so every ``s`` of the grid costs a division. Extras keep the isotropic density of
 :mod:`snreg.registration._extras`, blurred by ``s`` and the nodes' mean given variance.
 """
 
@@ -113,25 +114,36 @@ def _eigen(problem, rotations: np.ndarray, assignments: np.ndarray | None = None
 
 
 def _paired_terms(problem, assignments: np.ndarray, corrections: np.ndarray):
-    """Residuals (A, M, 3), Jacobians (A, M, 3, 6), the given covariances' eigenvalues (A, M, 3) and eigenvectors
-    (A, M, 3, 3) of the pairs, the pair mask (A, M) and the pairs' centroid (A, 3)."""
+    """The pairs' rows: the M intraop nodes, then the L landmark pairs (always paired, their error fixed): residuals
+    (A, R, 3), Jacobians (A, R, 3, 6), the given covariances' eigenvalues (A, R, 3) and eigenvectors (A, R, 3, 3), the
+    pair mask (A, R), which rows take the unmodelled error (R,), and the pairs' centroid (A, 3)."""
     paired = assignments >= 0
     src = problem.preop[np.maximum(assignments, 0)]
+    target = problem.intraop
+    eigen, vectors = _eigen(problem, corrections[:, :3, :3], assignments)
+    count, m, landmarks = len(corrections), len(problem.intraop), problem.n_landmarks
+    if landmarks:
+        marks = problem.landmarks
+        src = np.concatenate([src, np.broadcast_to(marks.preop, (count, landmarks, 3))], axis=1)
+        target = np.vstack([target, marks.intraop])
+        paired = np.concatenate([paired, np.ones((count, landmarks), bool)], axis=1)
+        eigen = np.concatenate([eigen, np.full((count, landmarks, 3), marks.sd_mm**2)], axis=1)
+        vectors = np.concatenate([vectors, np.broadcast_to(np.eye(3), (count, landmarks, 3, 3))], axis=1)
+    unmodelled = np.arange(m + landmarks) < m
     moved = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3]
     weights = paired.astype(float)
     centre = np.einsum("am,amk->ak", weights, moved) / np.maximum(weights.sum(axis=1), 1.0)[:, None]
-    eigen, vectors = _eigen(problem, corrections[:, :3, :3], assignments)
-    return moved - problem.intraop, _jacobians(moved, centre), eigen, vectors, paired, centre
+    return moved - target, _jacobians(moved, centre), eigen, vectors, paired, unmodelled, centre
 
 
 def fit_corrections(problem, assignments: np.ndarray, corrections: np.ndarray, s_mm) -> np.ndarray:
-    """Corrections (A, 4, 4) minimising the pairs' Mahalanobis residuals at the unmodelled error ``s_mm`` (scalar or
-    (A,)), by Gauss-Newton from ``corrections`` (Kabsch's, say)."""
+    """Corrections (A, 4, 4) minimising the pairs' Mahalanobis residuals (landmark pairs' included) at the unmodelled
+    error ``s_mm`` (scalar or (A,)), by Gauss-Newton from ``corrections`` (Kabsch's, say)."""
     corrections = np.array(corrections, dtype=float)
     s2 = np.broadcast_to(np.asarray(s_mm, dtype=float) ** 2, (len(corrections),))
     for _ in range(_GAUSS_NEWTON_STEPS):
-        residual, jac, eigen, vectors, paired, centre = _paired_terms(problem, assignments, corrections)
-        inverse = paired[..., None] / (eigen + s2[:, None, None])                          # (A, M, 3)
+        residual, jac, eigen, vectors, paired, unmodelled, centre = _paired_terms(problem, assignments, corrections)
+        inverse = paired[..., None] / (eigen + s2[:, None, None] * unmodelled[None, :, None])   # (A, R, 3)
         rotated_r = np.einsum("amki,amk->ami", vectors, residual)                           # V^T r
         rotated_j = np.einsum("amki,amkp->amip", vectors, jac)                              # V^T J
         hessian = np.einsum("amip,ami,amiq->apq", rotated_j, inverse, rotated_j)
@@ -143,12 +155,12 @@ def fit_corrections(problem, assignments: np.ndarray, corrections: np.ndarray, s
     return corrections
 
 
-def fit_nats(problem, assignments: np.ndarray, corrections: np.ndarray) -> np.ndarray:
-    """(A, G) nats of each pairing's fit at its correction for every ``s`` of :data:`S_GRID_MM` (module docstring):
-    the Gaussian fit term and the correction's Occam factor together."""
-    residual, jac, eigen, vectors, paired, _ = _paired_terms(problem, assignments, corrections)
-    s2 = S_GRID_MM**2
-    variance = eigen[:, None] + s2[None, :, None, None]                                     # (A, G, M, 3)
+def fit_nats(problem, assignments: np.ndarray, corrections: np.ndarray, grid_mm: np.ndarray) -> np.ndarray:
+    """(A, G) nats of each pairing's fit at its correction for every unmodelled error of ``grid_mm`` (G,) (module
+    docstring): the Gaussian fit term of the node and landmark pairs and the correction's Occam factor together."""
+    residual, jac, eigen, vectors, paired, unmodelled, _ = _paired_terms(problem, assignments, corrections)
+    s2 = np.asarray(grid_mm, dtype=float) ** 2
+    variance = eigen[:, None] + s2[None, :, None, None] * unmodelled[None, None, :, None]   # (A, G, R, 3)
     mask = paired[:, None, :, None]
     rotated_r = np.einsum("amki,amk->ami", vectors, residual)
     rotated_j = np.einsum("amki,amkp->amip", vectors, jac)
@@ -185,8 +197,9 @@ def correction_covariances(problem, assignment: np.ndarray, correction: np.ndarr
     """(S, T, 3, 3) covariance of where the correction puts ``targets`` (T, 3, problem frame, already moved) at each
     unmodelled error of ``s_mm`` (S,): the weighted fit's inverse H carried to each target (the anisotropic
     counterpart of Fitzpatrick and West's target error)."""
-    _, jac, eigen, vectors, paired, centre = _paired_terms(problem, assignment[None], correction[None])
-    inverse = paired[0][None, :, None] / (eigen[0][None] + (np.asarray(s_mm, float) ** 2)[:, None, None])
+    _, jac, eigen, vectors, paired, unmodelled, centre = _paired_terms(problem, assignment[None], correction[None])
+    s2 = (np.asarray(s_mm, float) ** 2)[:, None, None] * unmodelled[None, :, None]
+    inverse = paired[0][None, :, None] / (eigen[0][None] + s2)
     rotated_j = np.einsum("mki,mkp->mip", vectors[0], jac[0])
     hessian = np.einsum("mip,smi,miq->spq", rotated_j, inverse, rotated_j)
     covariance = np.linalg.pinv(hessian)

@@ -1,8 +1,9 @@
 """``global``: our correspondence-hypothesis search over partial pairings, the default method.
 
 1. Hypotheses: every preop triplet (the largest-area ones when there are too many) against every ordered intraop
-   triplet, each laid on the other at once; those whose correction leaves the rotation/translation bounds, or that
-   cross left/right labels, are dropped, and a robust residual keeps the most promising few hundred.
+   triplet, each laid on the other at once, and with landmarks (:mod:`snreg.registration._landmarks`) the landmark
+   pairs completed by node pairs to three points; those whose correction leaves the rotation/translation bounds, or
+   that cross left/right labels, are dropped, and a robust residual keeps the most promising few hundred.
 2. The rest are ranked by a quick score: each intraop node pairs with its nearest preop node or is extra,
    whichever costs less under the model of :mod:`snreg.registration._model`, at the best of a few sigmas.
 3. The best hypotheses with distinct nearest-neighbour patterns are refined at several sigmas by alternating the
@@ -24,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from snreg import geometry
 from snreg.errors import NoFitError
 from snreg.labels import SIDE_CROSSING_NATS
+from snreg.registration._bounded import tilted_within
 from snreg.registration._extras import extra_nats
 from snreg.registration._model import ASSIGN_SIGMAS_MM, C_MISSING, Candidate, pair_nats, refine_many, squared_distances
 from snreg.registration._problem import Problem, option_count
@@ -64,8 +66,11 @@ def _triangle_transforms(source: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def _hypotheses(problem: Problem, max_hypotheses: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Preop triplets (P, 3) and ordered intraop triplets (I, 3) to pair, all against all."""
+    """Preop triplets (P, 3) and ordered intraop triplets (I, 3) to pair, all against all (none with fewer than 3
+    nodes on a side)."""
     n, m = len(problem.preop), len(problem.intraop)
+    if n < 3 or m < 3:
+        return np.zeros((0, 3), dtype=int), np.zeros((0, 3), dtype=int)
     intra = np.array(list(permutations(range(m), 3)), dtype=int)
     if len(intra) > max_hypotheses:
         intra = intra[np.sort(rng.choice(len(intra), max_hypotheses, replace=False))]
@@ -76,9 +81,63 @@ def _hypotheses(problem: Problem, max_hypotheses: int, rng: np.random.Generator)
     return pre, intra
 
 
+def _node_triplets(problem: Problem, max_hypotheses: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Corrections (H, 4, 4) laying preop node triplets on intraop node triplets, and their label nats (H,); those
+    crossing left/right labels left out."""
+    pre, intra = _hypotheses(problem, max_hypotheses, rng)
+    pre_idx = np.repeat(pre, len(intra), axis=0)
+    intra_idx = np.tile(intra, (len(pre), 1))
+    keep = problem.label_nats[pre_idx, intra_idx].max(axis=1) < SIDE_CROSSING_NATS if len(pre_idx) else np.zeros(0, bool)
+    if len(pre_idx) and not keep.any() and problem.n_landmarks == 0:
+        raise ValueError("every node pairing crosses left/right labels; check the L/R labels of both node sets")
+    corrections = _triangle_transforms(problem.preop[pre_idx[keep]], problem.intraop[intra_idx[keep]])
+    return corrections, problem.label_nats[pre_idx[keep], intra_idx[keep]].sum(axis=1)
+
+
+def _landmark_hypotheses(problem: Problem, max_hypotheses: int) -> tuple[np.ndarray, np.ndarray]:
+    """Corrections (H, 4, 4) from the landmark pairs, completed by node pairs to three points when fewer than three:
+    all landmarks (three or more), both with each node pair (two), the one with each two node pairs (one); with
+    their label nats (H,)."""
+    marks, n, m = problem.landmarks, len(problem.preop), len(problem.intraop)
+    if problem.n_landmarks == 0:
+        return np.zeros((0, 4, 4)), np.zeros(0)
+    if len(marks) >= 3:
+        return geometry.kabsch(marks.preop, marks.intraop)[None], np.zeros(1)
+    pairs = np.array([(a, b) for a in range(n) for b in range(m)], dtype=int)
+    if len(marks) == 2:
+        chosen = pairs[:, None, :]                                              # (P, 1, 2): one node pair each
+    else:
+        firsts, seconds = np.triu_indices(len(pairs), 1)
+        both = (pairs[firsts, 0] != pairs[seconds, 0]) & (pairs[firsts, 1] != pairs[seconds, 1])
+        chosen = np.stack([pairs[firsts[both]], pairs[seconds[both]]], axis=1)  # (P, 2, 2): two node pairs each
+        if len(chosen) > max_hypotheses:
+            chosen = chosen[:max_hypotheses]
+    labels = problem.label_nats[chosen[..., 0], chosen[..., 1]]
+    keep = labels.max(axis=1) < SIDE_CROSSING_NATS
+    chosen = chosen[keep]
+    source = np.concatenate([np.broadcast_to(marks.preop, (len(chosen),) + marks.preop.shape),
+                             problem.preop[chosen[..., 0]]], axis=1)
+    target = np.concatenate([np.broadcast_to(marks.intraop, (len(chosen),) + marks.intraop.shape),
+                             problem.intraop[chosen[..., 1]]], axis=1)
+    return geometry.kabsch(source, target), labels[keep].sum(axis=1)
+
+
+def landmark_nats(problem: Problem, corrections: np.ndarray) -> np.ndarray:
+    """(H,) nats of the landmark pairs' residuals under corrections (H, 4, 4): Gaussian with their own error."""
+    if problem.n_landmarks == 0:
+        return np.zeros(len(corrections))
+    marks = problem.landmarks
+    moved = np.einsum("hij,lj->hli", corrections[:, :3, :3], marks.preop) + corrections[:, None, :3, 3]
+    return np.sum((moved - marks.intraop) ** 2, axis=(1, 2)) / (2.0 * marks.sd_mm**2)
+
+
 def no_fit_message(problem: Problem, outside: bool = False) -> str:
     reason = ("the nodes fit far better by a correction beyond them" if outside else "none lies within them")
     labelled = bool(np.any(problem.label_nats))
+    if problem.vertical is not None:
+        return (f"no pairing of the nodes fits with gravity's start: a tilt within {problem.rotation_bound_deg:g} "
+                f"degrees of the two downs and a centroid shift within {problem.max_translation_mm:g} mm ({reason}): "
+                "check the table tilt and the patient position, give a rough initial alignment, or widen the bounds")
     return (f"no pairing of the nodes fits within {problem.max_rotation_deg:g} degrees and "
             f"{problem.max_translation_mm:g} mm of the initial alignment ({reason}"
             f"{' that the left/right labels allow' if labelled and not outside else ''}): give a rough initial "
@@ -93,6 +152,8 @@ def _screened(problem: Problem, corrections: np.ndarray, triplet_labels: np.ndar
     moved = np.einsum("hij,nj->hni", corrections[:, :3, :3], problem.preop) + corrections[:, None, :3, 3]
     nearest = squared_distances(moved, problem.intraop).min(axis=1)                  # (H, M)
     robust = np.minimum(nearest, _SCREEN_MM**2).sum(axis=1) + triplet_labels
+    if problem.n_landmarks:            # a landmark pair counts as a node pair would, by its own error
+        robust = robust + 2.0 * ASSIGN_SIGMAS_MM[0] ** 2 * landmark_nats(problem, corrections)
     chosen = np.argsort(robust, kind="stable")[:count]
     return corrections[chosen], triplet_labels[chosen]
 
@@ -102,10 +163,13 @@ def _pulled_within(problem: Problem, corrections: np.ndarray) -> np.ndarray:
     displacement to the translation bound. Starting points for a refinement that keeps its fits within them."""
     if len(corrections) == 0:
         return corrections
-    rotvec = Rotation.from_matrix(corrections[:, :3, :3]).as_rotvec()
-    angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
-    limit = np.radians(problem.max_rotation_deg)
-    rotation = Rotation.from_rotvec(rotvec * np.minimum(1.0, limit / np.maximum(angle, 1e-12))).as_matrix()
+    if problem.vertical is not None:                      # from a gravity start only the tilt is bounded
+        rotation = tilted_within(corrections[:, :3, :3], problem.vertical, problem.rotation_bound_deg)
+    else:
+        rotvec = Rotation.from_matrix(corrections[:, :3, :3]).as_rotvec()
+        angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
+        limit = np.radians(problem.max_rotation_deg)
+        rotation = Rotation.from_rotvec(rotvec * np.minimum(1.0, limit / np.maximum(angle, 1e-12))).as_matrix()
     centre = problem.centre
     shift = np.einsum("hij,j->hi", corrections[:, :3, :3], centre) + corrections[:, :3, 3] - centre
     length = np.linalg.norm(shift, axis=1, keepdims=True)
@@ -145,7 +209,7 @@ def _quick_scores(problem: Problem, corrections: np.ndarray, triplet_labels: np.
         better = score < best
         best = np.where(better, score, best)
         patterns[better] = np.where(paired, nearest, -1)[better]
-    return best + problem.prior_nats(corrections) + triplet_labels, patterns
+    return best + problem.prior_nats(corrections) + triplet_labels + landmark_nats(problem, corrections), patterns
 
 
 def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: int = 12) -> list[Candidate]:
@@ -153,18 +217,17 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
     max_hypotheses = option_count("global", "max_hypotheses", max_hypotheses)
     refine_top = option_count("global", "refine_top", refine_top)
     rng = np.random.default_rng(problem.seed)
-    pre, intra = _hypotheses(problem, max_hypotheses, rng)
-    pre_idx = np.repeat(pre, len(intra), axis=0)
-    intra_idx = np.tile(intra, (len(pre), 1))
-    keep = problem.label_nats[pre_idx, intra_idx].max(axis=1) < SIDE_CROSSING_NATS
-    if not keep.any():
+    corrections, triplet_labels = _node_triplets(problem, max_hypotheses, rng)
+    if problem.n_landmarks:
+        marked, marked_labels = _landmark_hypotheses(problem, max_hypotheses)
+        corrections = np.concatenate([corrections.reshape(-1, 4, 4), marked])
+        triplet_labels = np.concatenate([triplet_labels, marked_labels])
+    if len(corrections) == 0:
         raise ValueError("every node pairing crosses left/right labels; check the L/R labels of both node sets")
-    corrections = _triangle_transforms(problem.preop[pre_idx[keep]], problem.intraop[intra_idx[keep]])
-    triplet_labels = problem.label_nats[pre_idx[keep], intra_idx[keep]].sum(axis=1)
     inside = problem.within_bounds(corrections)
     outside_best = _best_outside(problem, corrections[~inside], triplet_labels[~inside])
     angle, shift = problem.correction_size(corrections)
-    leaning = ~inside & (angle <= _LEANING * problem.max_rotation_deg) & (shift <= _LEANING * problem.max_translation_mm)
+    leaning = ~inside & (angle <= _LEANING * problem.rotation_bound_deg) & (shift <= _LEANING * problem.max_translation_mm)
     if not (inside | leaning).any():              # a few very noisy nodes: every triplet fit leans far
         leaning = ~inside
     corrections[leaning] = _pulled_within(problem, corrections[leaning])   # a noisy triplet may lean past a bound

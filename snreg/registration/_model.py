@@ -38,7 +38,8 @@ from snreg.registration._extras import (ANYWHERE_LOG, EXTRA_NEAR_FRACTION, ancho
 from snreg.registration._problem import Problem
 
 __all__ = ["Candidate", "squared_distances", "pair_nats", "pair_costs", "assign", "evaluate", "fit_pairs", "score_many",
-           "refine_many", "sigma_weights", "candidate_sigmas", "source_posterior", "SIGMA_GRID_MM", "MIN_PAIRS"]
+           "refine_many", "sigma_weights", "candidate_sigmas", "unmodelled_grid", "source_posterior", "SIGMA_GRID_MM",
+           "MIN_PAIRS"]
 
 MIN_PAIRS = 3
 PI_FOUND = 0.9                    # a SPECT node is found (and stored) during surgery
@@ -61,7 +62,7 @@ class Candidate:
     correction: np.ndarray
     sse: float
     score: float
-    fit_weights: np.ndarray | None = None      # with covariances: the posterior over S_GRID_MM of the unmodelled error
+    fit_weights: np.ndarray | None = None      # with covariances or landmarks: the unmodelled error's posterior
 
     @property
     def key(self) -> bytes:
@@ -104,12 +105,18 @@ def source_posterior(problem: Problem, cand: "Candidate", sigma: float | None = 
     return np.where(paired[:, None], own, extra)
 
 
+def unmodelled_grid(problem: Problem) -> np.ndarray:
+    """The support of the unmodelled isotropic error's prior: down to a quarter mm when nodes carry covariances (they
+    may be the whole error), the isotropic model's sigma grid when they do not."""
+    return S_GRID_MM if problem.anisotropic else SIGMA_GRID_MM
+
+
 def candidate_sigmas(problem: Problem, cand: Candidate) -> tuple[np.ndarray, np.ndarray]:
-    """The candidate's posterior over the intraop error's scale: (G,) isotropic sds (mm) and their weights. Without
-    covariances, sigma of the isotropic model given the fit; with them, the blur standing for each unmodelled ``s``."""
+    """The candidate's posterior over the intraop error's scale: (G,) isotropic sds (mm) and their weights. In the
+    isotropic model, sigma given the fit; with covariances or landmarks, the blur standing for each unmodelled ``s``."""
     if cand.fit_weights is None:
         return SIGMA_GRID_MM, sigma_weights(cand.sse, cand.n_pairs)
-    return blur_sigmas(problem, S_GRID_MM), cand.fit_weights
+    return blur_sigmas(problem, unmodelled_grid(problem)), cand.fit_weights
 
 
 def pair_costs(problem: Problem, corrections: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray]:
@@ -117,7 +124,7 @@ def pair_costs(problem: Problem, corrections: np.ndarray, sigmas) -> tuple[np.nd
     nodes' own covariances plus sigma when given, else sigma alone."""
     sigmas = np.broadcast_to(np.asarray(sigmas, dtype=float), (len(corrections),))
     d2 = squared_distances(_moved(problem, corrections), problem.intraop)
-    if not problem.anisotropic:
+    if not problem.anisotropic:          # isotropic nodes (with or without landmarks)
         return pair_nats(d2, sigmas[:, None, None], problem.label_nats), extra_nats(d2, sigmas)
     pairs = pair_nats_given(problem, corrections, sigmas) + C_FOUND + problem.label_nats
     return pairs, extra_nats(d2, blur_sigmas(problem, sigmas))
@@ -159,26 +166,38 @@ def _fit(problem: Problem, assignments: np.ndarray, bounded: bool = True,
     ``bounded``, a correction that leaves the bounds is replaced by the pairing's best fit within them."""
     paired = assignments >= 0
     src = problem.preop[np.maximum(assignments, 0)]                     # (A, M, 3)
-    corrections = geometry.kabsch(src, np.broadcast_to(problem.intraop, src.shape), paired.astype(float))
-    if problem.anisotropic:
+    if problem.n_landmarks:          # Kabsch over the nodes and the landmark pairs, the weighted fit from there
+        marks = problem.landmarks
+        count = len(assignments)
+        corrections = geometry.kabsch(
+            np.concatenate([src, np.broadcast_to(marks.preop, (count,) + marks.preop.shape)], axis=1),
+            np.broadcast_to(np.vstack([problem.intraop, marks.intraop]), (count, paired.shape[1] + len(marks), 3)),
+            np.concatenate([paired, np.ones((count, len(marks)), bool)], axis=1).astype(float))
+    else:
+        corrections = geometry.kabsch(src, np.broadcast_to(problem.intraop, src.shape), paired.astype(float))
+    if problem.weighted:
         if sigmas is None:
             sigmas = _residual_sigma(problem, src, corrections, paired)
         corrections = fit_corrections(problem, assignments, corrections, sigmas)
     if bounded:
+        marks = problem.landmarks if problem.n_landmarks else None
         for a in np.flatnonzero(~problem.within_bounds(corrections)):
-            corrections[a] = fit_within_bounds(problem, src[a][paired[a]], problem.intraop[paired[a]])
+            source, target = src[a][paired[a]], problem.intraop[paired[a]]
+            if marks is not None:
+                source, target = np.vstack([source, marks.preop]), np.vstack([target, marks.intraop])
+            corrections[a] = fit_within_bounds(problem, source, target)
     residual = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3] - problem.intraop
     return corrections, np.einsum("amk,amk,am->a", residual, residual, paired)
 
 
 def _residual_sigma(problem: Problem, src: np.ndarray, corrections: np.ndarray, paired: np.ndarray) -> np.ndarray:
     """(A,) the sigma of corrections' isotropic residuals less what the given covariances explain (at least the
-    smallest of :data:`S_GRID_MM`): where the weighted fit starts."""
+    smallest of the unmodelled grid): where the weighted fit starts."""
     residual = src @ np.swapaxes(corrections[:, :3, :3], 1, 2) + corrections[:, None, :3, 3] - problem.intraop
     k = paired.sum(axis=1)
     per_axis = np.einsum("amk,amk,am->a", residual, residual, paired) / np.maximum(3 * k - 6, 1)
     explained = blur_sigmas(problem, 0.0) ** 2
-    return np.sqrt(np.maximum(per_axis - explained, S_GRID_MM[0] ** 2))
+    return np.sqrt(np.maximum(per_axis - explained, unmodelled_grid(problem)[0] ** 2))
 
 
 def fit_pairs(problem: Problem, assignment: np.ndarray, sigma: float | None = None) -> np.ndarray:
@@ -195,12 +214,13 @@ def score_many(problem: Problem, assignments: np.ndarray, bounded: bool = True) 
     corrections, sse = _fit(problem, assignments, bounded)
     paired = assignments >= 0
     k = paired.sum(axis=1)
-    if problem.anisotropic:         # refitted at the unmodelled error the first fit makes most likely
-        best_s = S_GRID_MM[np.argmin(fit_nats(problem, assignments, corrections), axis=1)]
+    if problem.weighted:            # refitted at the unmodelled error the first fit makes most likely
+        unmodelled = unmodelled_grid(problem)
+        best_s = unmodelled[np.argmin(fit_nats(problem, assignments, corrections, unmodelled), axis=1)]
         corrections, sse = _fit(problem, assignments, bounded, best_s)
-        fit_terms = fit_nats(problem, assignments, corrections)     # the Occam factor included
+        fit_terms = fit_nats(problem, assignments, corrections, unmodelled)     # the Occam factor included
         occam = 0.0
-        grid = blur_sigmas(problem, S_GRID_MM)
+        grid = blur_sigmas(problem, unmodelled)
     else:
         fit_terms = _fit_terms(sse, k)
         occam = _occam_nats(problem, assignments)
@@ -215,7 +235,7 @@ def score_many(problem: Problem, assignments: np.ndarray, bounded: bool = True) 
     np.add.at(labels, rows, problem.label_nats[assignments[rows, cols], cols])
     scores = fit + occam + outliers + problem.prior_nats(corrections) + labels
     weights = [None] * len(assignments)
-    if problem.anisotropic:
+    if problem.weighted:
         posterior = np.exp(-(fit_terms - fit_terms.min(axis=1, keepdims=True)))
         weights = list(posterior / posterior.sum(axis=1, keepdims=True))
     return [Candidate(a.copy(), c, float(e), float(s), w)
@@ -228,8 +248,9 @@ def found_nats(k: np.ndarray, n: int) -> np.ndarray:
 
 
 def evaluate(problem: Problem, assignment: np.ndarray) -> Candidate | None:
-    """Fit (Kabsch) and score one pairing; None when it has fewer than :data:`MIN_PAIRS` pairs."""
-    if np.sum(assignment >= 0) < MIN_PAIRS:
+    """Fit (Kabsch) and score one pairing; None when it has fewer pairs than the problem needs (:data:`MIN_PAIRS`
+    less its landmark pairs)."""
+    if np.sum(assignment >= 0) < problem.min_pairs:
         return None
     return score_many(problem, assignment[None])[0]
 
@@ -252,7 +273,7 @@ def refine_many(problem: Problem, corrections: np.ndarray, sigmas, adjusts: np.n
         if adjusts is not None:
             pair = pair + adjusts[index]
         updated = np.array([_partial_lsa(p, e) for p, e in zip(pair, extra)])
-        too_few = (updated >= 0).sum(axis=1) < MIN_PAIRS            # keep the last pairing that had enough
+        too_few = (updated >= 0).sum(axis=1) < problem.min_pairs    # keep the last pairing that had enough
         valid[index[too_few & (assignments[index] == -2).all(axis=1)]] = False
         settled = too_few | np.all(updated == assignments[index], axis=1)
         assignments[index[~too_few]] = updated[~too_few]

@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from snreg import geometry
-from snreg.registration._covariance import S_GRID_MM, correction_covariances
-from snreg.registration._model import Candidate, candidate_sigmas
+from snreg.registration._covariance import correction_covariances
+from snreg.registration._model import Candidate, candidate_sigmas, unmodelled_grid
 from snreg.registration._problem import Problem
 
 __all__ = ["target_error_bound", "rigid_fit_covariance", "COVERAGE", "SAMPLES"]
@@ -75,8 +75,8 @@ def target_error_bound(problem: Problem, correction: np.ndarray, candidates: lis
         if count == 0:
             continue
         sigmas, sigma_weights = candidate_sigmas(problem, cand)
-        if problem.anisotropic:
-            truth = _anisotropic_draws(problem, cand, rng.choice(len(S_GRID_MM), size=count, p=sigma_weights), rng)
+        if problem.weighted:
+            truth = _weighted_draws(problem, cand, rng.choice(len(sigmas), size=count, p=sigma_weights), rng)
         else:
             mapped, factors = _shape_factors(problem, cand)
             sigma = rng.choice(sigmas, size=count, p=sigma_weights)
@@ -86,15 +86,15 @@ def target_error_bound(problem: Problem, correction: np.ndarray, candidates: lis
     return np.quantile(np.concatenate(distances, axis=1), COVERAGE, axis=1)
 
 
-def _anisotropic_draws(problem: Problem, cand: Candidate, s_index: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(N, S) draws of where each preop node really is under the candidate with covariances, the unmodelled error at
-    the grid indices ``s_index`` (S,): the fit's uncertainty at each node plus its own (the hot spot's covariance
-    turned, and the unmodelled error)."""
+def _weighted_draws(problem: Problem, cand: Candidate, s_index: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(N, S) draws of where each preop node really is under the candidate with covariances or landmarks, the
+    unmodelled error at the grid indices ``s_index`` (S,): the fit's uncertainty at each node plus its own (the hot
+    spot's covariance turned, and the unmodelled error)."""
     mapped = geometry.apply(cand.correction, problem.preop)
     rotation = cand.correction[:3, :3]
     own = (rotation @ problem.preop_cov @ rotation.T) if problem.preop_cov is not None else np.zeros((len(mapped), 3, 3))
     drawn = np.unique(s_index)
-    s = S_GRID_MM[drawn]
+    s = unmodelled_grid(problem)[drawn]
     cov = (correction_covariances(problem, cand.assignment, cand.correction, s, mapped) + own[None]
            + (s**2)[:, None, None, None] * np.eye(3))                                      # (S, N, 3, 3)
     factors = np.linalg.cholesky(cov)

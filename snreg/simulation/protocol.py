@@ -17,6 +17,11 @@ extra node takes its host's label; each station is then wrong with probability
 ``STATION_ERROR`` (thesis Table 1: stations were revised in 11 of 13 patients), the side
 never.
 
+With ``start="gravity"`` (issue 30) the preop set is not roughly aligned: it is turned any way (a uniformly
+random rotation) and shifted anywhere within +-``GRAVITY_SHIFT_MM`` per axis, and registration is given gravity
+instead: down in each frame, the patient tilted ``TABLE_TILT_DEG`` head down (Trendelenburg), the preop down from
+a tilt entered with ``tilt_sd_deg`` of error, the intraop down from the IMU off by ``imu_down_sd_deg``.
+
 With ``anisotropy`` R above 1 (issue 28) each true intraop node is seen along its own viewing ray (within
 ``VIEW_CONE_DEG`` of the camera's axis) and its error along that ray is R times its error across it, the per-axis RMS
 still sigma; the trial carries every node's covariance (an extra inherits its host's error and covariance, as it
@@ -31,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
+from scipy.spatial.transform import Rotation
 
 from snreg import geometry
 from snreg.labels import STATIONS, parse_label
@@ -41,6 +47,8 @@ __all__ = ["Trial", "make_trial", "run_trial", "TrialOutcome", "claims_right", "
 
 STATION_ERROR = 0.3
 VIEW_CONE_DEG = 40.0          # viewing rays of anisotropic trials: within this of the camera's axis
+GRAVITY_SHIFT_MM = 300.0      # gravity-start trials: the preop set anywhere within this per axis
+TABLE_TILT_DEG = 30.0         # the head-down tilt of robotic prostatectomy
 
 
 @dataclass(frozen=True)
@@ -65,6 +73,11 @@ class Trial:
     left_out_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     source: np.ndarray | None = None
     intraop_cov: np.ndarray | None = None       # (M, 3, 3) mm^2: each intraop node's error covariance
+    preop_landmarks: dict | None = None         # {name: (3,)} in the moved frame registration sees
+    intraop_landmarks: dict | None = None       # {name: (3,)} where they were touched (a swapped name stays swapped)
+    landmark_sd_mm: float = 2.0
+    swapped: tuple[str, ...] = ()               # the two landmark names exchanged on the intraop side, if any
+    down: tuple[np.ndarray, np.ndarray] | None = None   # gravity start: (down in the moved preop frame, intraop)
 
     def __post_init__(self):
         if self.source is None:                     # without hosts known, an extra's only right claim is -1
@@ -72,11 +85,13 @@ class Trial:
 
 
 def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float, n_extra: int, rep: int,
-               seed_words: tuple[int, ...], n_missing: int = 0, anisotropy: float = 1.0) -> Trial:
-    """One trial; ValueError when ``n_missing`` would leave fewer than 3 true intraop nodes. ``anisotropy``: the
-    error along each node's viewing ray over the error across it (1: the thesis' isotropic error)."""
-    if not 0 <= n_missing <= len(preop) - 3:
-        raise ValueError(f"{patient}: {len(preop)} preop nodes leave fewer than 3 true intraop nodes when "
+               seed_words: tuple[int, ...], n_missing: int = 0, anisotropy: float = 1.0, min_true: int = 3,
+               start: str = "rough", tilt_sd_deg: float = 8.0, imu_down_sd_deg: float = 1.0) -> Trial:
+    """One trial; ValueError when ``n_missing`` would leave fewer than ``min_true`` (3; 1 with landmarks) true
+    intraop nodes. ``anisotropy``: the error along each node's viewing ray over the error across it (1: the thesis'
+    isotropic error)."""
+    if not 0 <= n_missing <= len(preop) - min_true:
+        raise ValueError(f"{patient}: {len(preop)} preop nodes leave fewer than {min_true} true intraop nodes when "
                          f"{n_missing} are left out")
     seeds = np.random.SeedSequence(seed_words)
     rng = np.random.default_rng(seeds)
@@ -104,13 +119,33 @@ def make_trial(patient: str, preop: np.ndarray, labels: list[str], sigma: float,
     centre = preop.mean(axis=0)
     rotation = geometry.rotation_from_euler(yaw, pitch, roll)
     moved_from_original = geometry.make_transform(rotation, centre + shift - rotation @ centre)
+    down = None
+    if start == "gravity":
+        moved_from_original, down = _gravity_start(centre, np.random.default_rng(seeds.spawn(3)[2]), tilt_sd_deg,
+                                                   imu_down_sd_deg)
     missing_rng = np.random.default_rng(seeds.spawn(1)[0])
     left_out = np.sort(missing_rng.choice(n, n_missing, replace=False)) if n_missing else np.zeros(0, dtype=int)
     keep = ~np.isin(truth, left_out)
     return Trial(patient, float(sigma), int(n_extra), int(rep), preop, geometry.apply(moved_from_original, preop),
                  intraop[keep], truth[keep], list(labels), [lab for lab, k in zip(intra_labels, keep) if k],
                  geometry.invert(moved_from_original), int(n_missing), left_out, noisy[left_out], source[keep],
-                 intraop_cov[keep])
+                 intraop_cov[keep], down=down)
+
+
+def _gravity_start(centre: np.ndarray, rng: np.random.Generator, tilt_sd_deg: float,
+                   imu_down_sd_deg: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """A preop frame turned any way and shifted anywhere (``moved_from_original``), and the downs registration is
+    given: the table's tilt entered with its error in the preop frame, the IMU's with its error in the intraop."""
+    turn = Rotation.random(random_state=rng)
+    shift = rng.uniform(-GRAVITY_SHIFT_MM, GRAVITY_SHIFT_MM, 3)
+    moved_from_original = geometry.make_transform(turn.as_matrix(), centre + shift - turn.apply(centre))
+    tilt = np.radians(TABLE_TILT_DEG)
+    true_down = np.array([0.0, np.cos(tilt), np.sin(tilt)])          # LPS, supine, head down: posterior and cranial
+    entered = np.radians(TABLE_TILT_DEG + rng.normal(0.0, tilt_sd_deg))
+    entered_down = np.array([0.0, np.cos(entered), np.sin(entered)])
+    axis = rng.normal(size=3)
+    imu_error = Rotation.from_rotvec(np.radians(imu_down_sd_deg) * rng.normal() * axis / np.linalg.norm(axis))
+    return moved_from_original, (turn.apply(entered_down), imu_error.apply(true_down))
 
 
 def _viewing_covariances(n: int, sigma: float, anisotropy: float, rng: np.random.Generator) -> np.ndarray:
@@ -169,7 +204,10 @@ def oracle_success(trial: Trial) -> dict[str, bool]:
     rows, cols = linear_sum_assignment(d2)
     one_to_one = np.full(len(trial.intraop), -1)
     one_to_one[cols] = rows
-    model = pairing_at(trial.preop, trial.intraop, np.eye(4), max(trial.sigma, 1.0))
+    if min(len(trial.preop), len(trial.intraop)) >= 3:
+        model = pairing_at(trial.preop, trial.intraop, np.eye(4), max(trial.sigma, 1.0))
+    else:                            # one or two nodes: the model's labelling is the nearest one
+        model = nearest
     return {"oracle_nearest": bool(np.all(nearest[true] == trial.truth[true])),
             "oracle_nearest_cov": bool(np.all(nearest_cov[true] == trial.truth[true])),
             "oracle_one_to_one": bool(np.all(one_to_one[true] == trial.truth[true])),
@@ -188,22 +226,32 @@ def error_stats(trial: Trial) -> dict[str, float]:
     return {"mean_error_mm": float(error.mean()), "max_error_mm": float(error.max()), "max_error_ratio": float(ratio.max())}
 
 
-def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool = False, **options) -> TrialOutcome:
-    """Register one trial with ``method`` (given the labels, and the nodes' covariances, when asked); a refusal (no
-    pairing fits the bounds) counts as a failure."""
+def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool = False, use_landmarks: bool = False,
+              **options) -> TrialOutcome:
+    """Register one trial with ``method`` (given the labels, the nodes' covariances and the landmarks, when asked); a
+    refusal (no pairing fits the bounds, or too few nodes without landmarks) counts as a failure."""
     start = time.perf_counter()
     true = trial.truth >= 0
+    marks = {"preop_landmarks": trial.preop_landmarks, "intraop_landmarks": trial.intraop_landmarks,
+             "landmark_sd_mm": trial.landmark_sd_mm} if use_landmarks and trial.preop_landmarks else {}
+    if trial.down is not None:
+        marks["down"] = trial.down
     try:
         result = register(trial.moved_preop, trial.intraop, method=method,
                           preop_labels=trial.preop_labels if use_labels else None,
                           intraop_labels=trial.intraop_labels if use_labels else None,
-                          intraop_cov=trial.intraop_cov if use_cov else None, **options)
+                          intraop_cov=trial.intraop_cov if use_cov else None, **marks, **options)
     except NoFitError:
+        result = None
+    except ValueError:
+        if len(trial.moved_preop) >= 3 and len(trial.intraop) >= 3:
+            raise                                   # only a patient with too few nodes may be refused here
         result = None
     elapsed_ms = (time.perf_counter() - start) * 1e3
     if result is None:
         nan = float("nan")
-        row = {"success": False, "all_claims": False, "refused": True,
+        row = {"success": False, "all_claims": False, "refused": True, "landmarks_flagged": False,
+               "swapped_flagged": False,
                **{f"success_{rule}": False for rule in RULES}, **{f"all_claims_{rule}": False for rule in RULES},
                "extras_none": 0, "shared": 0, "rms_mm": nan, "tre_mm": nan, "min_confidence": 0.0,
                "time_ms": elapsed_ms}
@@ -226,6 +274,8 @@ def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool
         "tre_mm": float(tre),
         "min_confidence": float(result.confidence[true].min()),
         "time_ms": elapsed_ms,
+        "landmarks_flagged": bool(result.landmarks_suspect),
+        "swapped_flagged": bool(set(result.landmarks_suspect) & set(trial.swapped)),
     }
     left_out_error = np.linalg.norm(mapped[trial.left_out] - trial.left_out_xyz, axis=1)
     return TrialOutcome(row, result.confidence[true], correct, result.confidence, claims,

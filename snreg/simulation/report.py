@@ -13,7 +13,7 @@ from snreg.simulation.stats import accuracy, calibration, column, extras_breakdo
 from snreg.simulation.study import StudyResult
 
 __all__ = ["markdown_report", "write_report", "table6", "missing_table", "claims_table", "coverage_table",
-           "incremental_table"]
+           "incremental_table", "landmarks_table"]
 
 ORACLES = ("oracle_nearest", "oracle_one_to_one")
 
@@ -199,6 +199,25 @@ def incremental_table(study: StudyResult) -> str:
     return _table(header, lines)
 
 
+def landmarks_table(study: StudyResult) -> str:
+    """Per sigma and method: pairing success, the share of trials with a landmark flagged (and the swapped ones)."""
+    methods = list(study.config.methods)
+    swap = study.config.swap_landmarks
+    header = ["sigma (mm)"] + [f"{m}: success / flagged" + (" / swapped flagged" if swap else "") for m in methods]
+    lines = []
+    for sigma in study.config.sigmas:
+        cells = []
+        for m in methods:
+            rows = select(study.rows, sigma=sigma, method=m)
+            if not rows:
+                cells.append("")
+                continue
+            cell = f"{_rate(rows, 'success')} / {_rate(rows, 'landmarks_flagged')}"
+            cells.append(cell + (f" / {_rate(rows, 'swapped_flagged')}" if swap else ""))
+        lines.append([f"{sigma:g}"] + cells)
+    return _table(header, lines)
+
+
 def markdown_report(study: StudyResult, command: str = "") -> str:
     cfg = study.config
     parts = [
@@ -224,6 +243,14 @@ def markdown_report(study: StudyResult, command: str = "") -> str:
         "## Claims of every intraop node, extras included",
         claims_table(study),
     ]
+    if study.config.landmarks:
+        parts += ["## Anatomical landmarks",
+                  f"{cfg.landmarks} landmark pairs per trial, {cfg.landmark_sd:g} mm per axis each"
+                  + (f"; patients cut to {cfg.max_nodes} SPECT nodes" if cfg.max_nodes else "")
+                  + ("; the first two landmarks' names exchanged intraop" if cfg.swap_landmarks else "") + ". "
+                  "Success as above; flagged: any landmark pair in landmarks_suspect"
+                  + ("; swapped flagged: one of the two exchanged ones" if cfg.swap_landmarks else "") + ".",
+                  landmarks_table(study)]
     if study.config.incremental:
         parts += [
             "## With SPECT nodes not found (missing)",

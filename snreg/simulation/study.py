@@ -1,8 +1,9 @@
 """Run the simulation study: every patient x sigma x missing x extras x repetition, every method, in parallel.
 
-A method spec is ``name[+labels][+cov][:key=value,...]``: ``global+labels`` is given the station
+A method spec is ``name[+labels][+cov][+landmarks][:key=value,...]``: ``global+labels`` is given the station
 labels (an extra node takes the label of the node it sits beside), ``global+cov`` each node's error
-covariance; ``cpd:w=0.1`` or ``chamfer:form=volume`` pass options to the solver.
+covariance, ``global+landmarks`` the anatomical landmarks; ``cpd:w=0.1`` or ``chamfer:form=volume`` pass options
+to the solver.
 """
 
 from __future__ import annotations
@@ -10,12 +11,13 @@ from __future__ import annotations
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from snreg.registration import register
 from snreg.simulation.cohort import Patient
+from snreg.simulation.landmarks import with_landmarks
 from snreg.simulation.protocol import Trial, error_stats, make_trial, oracle_success, run_trial
 from snreg.simulation.workers import end_with_parent, worker_count
 
@@ -25,6 +27,7 @@ DEFAULT_METHODS = ("icp", "cpd", "chamfer", "global")
 DEFAULT_SIGMAS = (2.0, 5.0, 10.0, 15.0, 20.0)
 DEFAULT_EXTRAS = (0, 1, 2, 3)
 DEFAULT_REPS = 25
+_FLAGS = ("labels", "cov", "landmarks")
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,13 @@ class StudyConfig:
     workers: int = 0            # 0: one per core; never more than the cores
     missing: tuple[int, ...] = (0,)   # true intraop nodes left out (0: the thesis protocol)
     anisotropy: float = 1.0     # error along each node's viewing ray over across it (1: the thesis protocol)
+    landmarks: int = 0          # anatomical landmark pairs per trial (issue 29)
+    landmark_sd: float = 2.0    # their own error, mm per axis
+    max_nodes: int | None = None   # patients cut down to this many SPECT nodes
+    swap_landmarks: bool = False   # the first two landmarks' names exchanged on the intraop side
+    start: str = "rough"        # "rough": the thesis' rough alignment; "gravity": any turn and shift, the downs given
+    tilt_sd_deg: float = 8.0    # gravity start: error of the entered table tilt
+    imu_down_sd_deg: float = 1.0   # gravity start: error of the IMU's down
 
     @property
     def incremental(self) -> bool:
@@ -65,9 +75,9 @@ def parse_method(spec: str) -> tuple[str, dict]:
     options) from a spec such as ``cpd:w=0.1``, ``global+labels`` or ``global+labels+cov``."""
     head, _, tail = spec.partition(":")
     name, *flags = head.split("+")
-    if any(flag not in ("labels", "cov") for flag in flags) or len(set(flags)) < len(flags):
-        raise ValueError(f"method spec {spec!r}: only '+labels' and '+cov' may follow the method name")
-    options: dict = {"use_labels": "labels" in flags, "use_cov": "cov" in flags}
+    if any(flag not in _FLAGS for flag in flags) or len(set(flags)) < len(flags):
+        raise ValueError(f"method spec {spec!r}: only {', '.join('+' + f for f in _FLAGS)} may follow the method name")
+    options: dict = {f"use_{flag}": flag in flags for flag in _FLAGS}
     for item in filter(None, tail.split(",")):
         key, sep, value = item.partition("=")
         if not sep:
@@ -83,7 +93,7 @@ def check_method(spec: str) -> None:
     """Raise ``ValueError`` naming ``spec`` when it is not a method spec :func:`register` accepts (unknown method
     or option, an option value out of range): one tiny registration, so a study never fails after its first hour."""
     name, options = parse_method(spec)
-    solver = {key: value for key, value in options.items() if key not in ("use_labels", "use_cov")}
+    solver = {key: value for key, value in options.items() if not key.startswith("use_")}
     tetrahedron = np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0], [0.0, 30.0, 0.0], [10.0, 10.0, 25.0]])
     try:
         register(tetrahedron, tetrahedron + 1.0, method=name, **solver)
@@ -119,16 +129,24 @@ class _Collected:
 
 def _trial(patient: Patient, patient_index: int, sigma_index: int, n_extra: int, rep: int, config: StudyConfig,
            n_missing: int = 0) -> Trial:
-    return make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, config.sigmas[sigma_index], n_extra, rep,
-                      (config.seed, patient_index, sigma_index, n_extra, rep), n_missing=n_missing,
-                      anisotropy=config.anisotropy)
+    words = (config.seed, patient_index, sigma_index, n_extra, rep)
+    keep = slice(None) if config.max_nodes is None else slice(0, config.max_nodes)
+    trial = make_trial(patient.name, patient.nodes.xyz[keep], patient.nodes.labels[keep], config.sigmas[sigma_index],
+                       n_extra, rep, words, n_missing=n_missing, anisotropy=config.anisotropy,
+                       min_true=1 if config.landmarks else 3, start=config.start, tilt_sd_deg=config.tilt_sd_deg,
+                       imu_down_sd_deg=config.imu_down_sd_deg)
+    if config.landmarks:
+        rng = np.random.default_rng(np.random.SeedSequence(words + (29,)))
+        trial = with_landmarks(trial, config.landmarks, config.landmark_sd, rng, config.swap_landmarks)
+    return trial
 
 
 def _run_block(patient: Patient, patient_index: int, sigma_index: int, config: StudyConfig) -> _Collected:
     out = _Collected(config.methods)
     for n_missing in config.missing:
-        if len(patient.nodes) - n_missing < 3:
-            continue                                   # at least 3 true nodes remain
+        nodes = len(patient.nodes) if config.max_nodes is None else min(len(patient.nodes), config.max_nodes)
+        if nodes - n_missing < (1 if config.landmarks else 3):
+            continue                                   # at least 3 true nodes remain (1 beside landmarks)
         for n_extra in config.extras:
             for rep in range(config.reps):
                 trial = _trial(patient, patient_index, sigma_index, n_extra, rep, config, n_missing)
@@ -151,10 +169,10 @@ def _incremental(patient: Patient, patient_index: int, sigma_index: int, config:
         n_extra = config.extras[rep % len(config.extras)]
         trial = _trial(patient, patient_index, sigma_index, n_extra, rep, config)
         for stored in range(3, len(trial.intraop) + 1):
-            part = Trial(trial.patient, trial.sigma, trial.n_extra, trial.rep, trial.preop, trial.moved_preop,
-                         trial.intraop[:stored], trial.truth[:stored], trial.preop_labels,
-                         trial.intraop_labels[:stored], trial.intraop_from_moved, source=trial.source[:stored],
-                         intraop_cov=trial.intraop_cov[:stored])
+            part = replace(trial, intraop=trial.intraop[:stored], truth=trial.truth[:stored],
+                           intraop_labels=trial.intraop_labels[:stored], source=trial.source[:stored],
+                           intraop_cov=trial.intraop_cov[:stored], n_missing=0, left_out=np.zeros(0, dtype=int),
+                           left_out_xyz=np.zeros((0, 3)))
             true_stored = int(np.sum(part.truth >= 0))
             for method in config.methods:
                 base, options = parse_method(method)
