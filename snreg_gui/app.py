@@ -5,6 +5,10 @@ Why one window: in the operating room the technician records nodes, then registe
 without leaving the app; offline, the same window reviews a saved session. The window owns the session
 and the rig (demo or hardware) and restarts the acquisition worker whenever either changes.
 
+The camera's insertion (issue 27), when tracked, goes on across a restart of the worker with the same calibration and
+chain (a switch toggled, a wizard closed without a new calibration): the camera may have slid since the start. A new
+stereo or trocar calibration starts it again from the new chain's distance.
+
 A calibration applied while nodes are stored is said plainly, with the offer to re-express them under it
 (:mod:`snreg.workflow.chain_change`); closing while recording asks first ("N nodes stored, all saved; end the
 session?"), as an accidental close would end a surgical session.
@@ -26,7 +30,8 @@ from PySide6.QtWidgets import QApplication, QLabel, QMainWindow, QMessageBox, QT
 from snreg import __version__
 from snreg.demo.rig import DemoRig
 from snreg.session import Session
-from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
+from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
+from snreg_gui.acquisition.options import AcquisitionOptions
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
 from snreg_gui.common import wheel_guard
@@ -44,8 +49,6 @@ from snreg_gui.wizards.launcher import WizardLauncher
 # stalls short (measured with the heartbeat in tests/test_gui_acquisition.py).
 GIL_SWITCH_INTERVAL_S = 0.001
 
-MAX_SPREAD_KEY = "acquisition/max_spread_mm"      # the store guard's spread limit, a setting (default 2 mm)
-RECORD_VIDEO_KEY = "acquisition/record_video"     # both feeds recorded beside the session, a setting (default on)
 NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IMU... for the real rig, "
                "or start with --demo for the simulated one.")
 
@@ -66,7 +69,9 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self.settings = settings or QSettings("snreg", "snreg")
         self.recent = RecentSessions(self.settings)
         self.fixes_per_node = fixes_per_node
+        self.options = AcquisitionOptions(self.settings, self)
         self.rig = self.session = self.worker = self.acquisition = None
+        self._kept_insertion = None      # the camera's insertion the last worker tracking it followed
         self._thread = None
         self._waiting_for_frames = False
         self._registration_stale = False
@@ -93,6 +98,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self.review.failed.connect(self.statusBar().showMessage)
         self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
         self.live_link.failed.connect(self.statusBar().showMessage)
+        self.options.switched.connect(self._option_switched)
         self.registration.registered.connect(
             lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
         self.registration.preop_box.nodes_changed.connect(self.live_link.set_preop_nodes)
@@ -135,9 +141,8 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         devices = self.menuBar().addMenu("&Devices")
         self._action(devices, "Select cameras and IMU...", self.wizards.select_devices)
         devices.addAction(self.live_link.action)
-        self.record_video_action = self._action(devices, "Record video with the session", self._record_video_toggled)
-        self.record_video_action.setCheckable(True)
-        self.record_video_action.setChecked(self.settings.value(RECORD_VIDEO_KEY, True, type=bool))
+        devices.addAction(self.options.record_video)
+        devices.addAction(self.options.track_insertion)
         calibrate = self.menuBar().addMenu("&Calibrate")
         self._action(calibrate, "Stereo cameras (checkerboard)...", self.wizards.stereo)
         self._action(calibrate, "Trocar distance...", self.wizards.trocar)
@@ -149,13 +154,12 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
             action.setShortcut(shortcut)
         return action
 
-    def _record_video_toggled(self, on: bool) -> None:
-        """Recording the video on or off from the next frame on (the segment recorded so far is closed)."""
-        self.settings.setValue(RECORD_VIDEO_KEY, bool(on))
+    def _option_switched(self, sentence: str) -> None:
+        """Video recording or insertion tracking switched: from the next frame on (a video segment recorded so far
+        is closed)."""
         if self.worker is not None:
             self.restart_acquisition()
-        self.statusBar().showMessage("both feeds are recorded with the session" if on else
-                                     "video recording is off: the session keeps only two snapshots per node")
+        self.statusBar().showMessage(sentence)
 
     def set_session(self, session: Session | None) -> None:
         """Record into ``session`` from now on (the previous one is closed)."""
@@ -208,13 +212,17 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         if self.rig is None or self.session is None:
             self._show_placeholder(NO_RIG_TEXT if self.rig is None else "No session: File > New session...")
             return
-        limits = StoreLimits(max_spread_mm=float(self.settings.value(MAX_SPREAD_KEY, StoreLimits.max_spread_mm)))
-        self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm)
+        limits = self.options.limits()
+        self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm,
+                                             self.options.untracked_text(self.rig))
         self.acquisition.set_nodes(self.session.intraop_records())
         self._show_in_acquisition_tab(self.acquisition)
+        kept = self._kept_insertion
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
                                         self.rig.imu, self.session, self.rig.fps, self.fixes_per_node, limits,
-                                        self.record_video_action.isChecked(), track_insertion=self.rig.moving_camera)
+                                        self.options.record_video.isChecked(),
+                                        track_insertion=self.options.tracks_insertion(self.rig),
+                                        resume_insertion=kept and kept.on(self.rig.calibration, self.rig.chain))
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
         self.missing_for_worker.connect(self.worker.set_missing, queued)
         self._missing_changed(self.registration.missing_nodes)
@@ -225,8 +233,9 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self.worker.node_removed.connect(self._nodes_changed, queued)
         self.worker.store_failed.connect(self.acquisition.show_store_problem, queued)
         self.worker.store_confirm.connect(self.acquisition.ask_to_confirm, queued)
+        self.worker.store_override_offered.connect(self.acquisition.offer_override, queued)
         self.acquisition.max_spread_changed.connect(self.worker.set_max_spread, queued)
-        self.acquisition.max_spread_changed.connect(lambda mm: self.settings.setValue(MAX_SPREAD_KEY, mm))
+        self.acquisition.max_spread_changed.connect(self.options.set_max_spread)
         self.worker.source_stopped.connect(self.statusBar().showMessage, queued)
         self.worker.source_stopped.connect(self.acquisition.show_source_stopped, queued)
         self.acquisition.store_requested.connect(self.worker.store_node, queued)
@@ -276,6 +285,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say
         if self._thread is not None:
             stop_worker(self.worker, self._thread)
+            self._kept_insertion = self.worker.kept_insertion or self._kept_insertion
             self._thread = None
             self.worker = None
 

@@ -1,6 +1,7 @@
 """What the main window does when a wizard applies a calibration: track or map with it from now on, store it in the
 session, say so in words, and when stored nodes were measured with another calibration, offer to re-express them
-(:mod:`snreg.workflow.chain_change`; the session keeps their old values on record).
+(:mod:`snreg.workflow.chain_change`; the session keeps their old values on record). The chain just replaced goes
+with the offer: a node stored with the camera's insertion tracked keeps the slide tracked since that chain's distance.
 
 A mixin of :class:`snreg_gui.app.MainWindow`: it uses the window's ``rig``, ``session``, ``acquisition`` and status
 bar.
@@ -29,37 +30,38 @@ class CalibrationApplying:
         applied = (f"The stereo calibration (RMS {calibration.rms_reprojection_px:.3f} px, baseline "
                    f"{calibration.baseline_mm:.2f} mm) is {' and '.join(places + ['applied'])}: tracking uses it "
                    "from now on.")
-        self._calibration_applied(applied, previous)
+        self._calibration_applied(applied, previous, self.rig.chain)
 
     def apply_chain(self, chain) -> None:
         """Map the tip through ``chain`` from now on (the trocar wizard has stored it in the session); say so in
         words; stored nodes: say so, offer to re-express them."""
-        self.rig.chain = chain
+        previous, self.rig.chain = self.rig.chain, chain
         stored = self.session is not None and self.session.writable
         where = (f"saved in the session {self.session.path} and applied" if stored else
                  "applied (not saved: no session is open)")
         applied = (f"The trocar calibration (trocar-camera {chain.trocar_camera_mm:.1f} mm) is {where}: stored "
                    "positions use it from now on.")
-        self._calibration_applied(applied, self.rig.calibration)
+        self._calibration_applied(applied, self.rig.calibration, previous)
 
-    def _calibration_applied(self, applied: str, previous_stereo) -> None:
+    def _calibration_applied(self, applied: str, previous_stereo, previous_chain) -> None:
         """Say ``applied`` in the status bar and in a box (:attr:`calibration_notice`), or, when stored nodes were
         mapped with another calibration, in the box that offers to re-express them (:attr:`calibration_prompt`)."""
         self.statusBar().showMessage(applied)
-        if self._offer_reexpression(previous_stereo, applied):
+        if self._offer_reexpression(previous_stereo, previous_chain, applied):
             return
         box = QMessageBox(QMessageBox.Icon.Information, "Calibration applied", applied, parent=self)
         box.finished.connect(lambda _: setattr(self, "calibration_notice", None))
         self.calibration_notice = box
         box.open()
 
-    def _offer_reexpression(self, previous_stereo, applied: str = "") -> bool:
+    def _offer_reexpression(self, previous_stereo, previous_chain, applied: str = "") -> bool:
         """When stored nodes were mapped with another calibration than the rig's now: say so plainly and offer to
         re-express them (the session keeps their old values on record); True when the box is shown."""
         session = self.session
         if session is None or not session.writable:
             return False
-        change = calibration_change(session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
+        change = calibration_change(session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo,
+                                    previous_chain=previous_chain)
         if change is None:
             return False
         box = QMessageBox(QMessageBox.Icon.Warning, "Calibration changed: stored nodes", change.message, parent=self)
@@ -72,12 +74,12 @@ class CalibrationApplying:
             box.setInformativeText(applied)
             box.addButton(QMessageBox.StandardButton.Ok)
         offered = bool(change.question)
-        box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo, offered))
+        box.finished.connect(lambda _: self._reexpression_answered(box, previous_stereo, previous_chain, offered))
         self.calibration_prompt = box
         box.open()
         return True
 
-    def _reexpression_answered(self, box: QMessageBox, previous_stereo, offered: bool) -> None:
+    def _reexpression_answered(self, box: QMessageBox, previous_stereo, previous_chain, offered: bool) -> None:
         """``offered``: the box asked (Re-express / Keep); an OK on a box that only told re-expresses nothing."""
         self.calibration_prompt = None
         role = box.buttonRole(box.clickedButton()) if box.clickedButton() is not None else None
@@ -85,7 +87,8 @@ class CalibrationApplying:
             self.statusBar().showMessage("stored nodes kept as measured: a registration will say it mixes calibrations")
             return
         try:
-            moved = reexpress(self.session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo)
+            moved = reexpress(self.session, self.rig.calibration, self.rig.chain, previous_stereo=previous_stereo,
+                              previous_chain=previous_chain)
         except (SessionError, OSError) as err:
             self.statusBar().showMessage(f"The nodes could not be re-expressed: {err}")
             return

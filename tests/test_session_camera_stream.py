@@ -184,3 +184,14 @@ def test_the_review_carries_the_insertion_timeline_and_each_nodes_insertion(tmp_
     np.testing.assert_array_equal(review.camera.trocar_camera_mm, INSERTIONS)
     assert list(review.camera.tracked) == [s == "tracked" for s in STATES]
     assert review.nodes[0].trocar_camera_mm == 165.0 and review.nodes[0].t_s == pytest.approx(review.camera.t_s[2])
+
+
+def test_lost_stretches_say_where_the_insertion_was_held():
+    """The review's lost stretches: each run of lost pairs until the next pair, at the insertion last tracked before
+    it (the chain's distance before any; NaN when that is unknown)."""
+    from snreg.session.timeline import CameraSeries, lost_stretches
+    tracked = np.array([0, 1, 1, 0, 0, 1, 0, 0], bool)
+    camera = CameraSeries(np.arange(8.0), np.where(tracked, [0, 160, 161, 0, 0, 163, 0, 0], np.nan), tracked,
+                          np.zeros(8), np.zeros(8))
+    np.testing.assert_array_equal(lost_stretches(camera, 158.0), [[0, 1, 158], [3, 5, 161], [6, 7, 163]])
+    assert np.isnan(lost_stretches(camera, None)[0, 2]) and lost_stretches(CameraSeries.empty(), 158.0).shape == (0, 3)

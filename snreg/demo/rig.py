@@ -97,7 +97,8 @@ class DemoRig:
 
     @property
     def moving_camera(self) -> bool:
-        """Whether the camera slides and turns (so the insertion is worth tracking)."""
+        """Whether the camera slides and turns, so acquisition follows its insertion: the surgery camera's. Not the
+        still phantom's, whose tissue plane follows the probe's depth (tracking would read that as slides)."""
         return self.camera == "surgery"
 
     @property

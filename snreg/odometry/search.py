@@ -22,15 +22,17 @@ __all__ = ["MIN_RESPONSE", "coarse_shift", "search_insertion"]
 
 MIN_RESPONSE = 0.3            # correlation of a view with a keyframe it shows
 _REACH, _MIN_REACH_PX = 0.06, 4     # the largest shift looked for: a share of the coarse width, in coarse pixels
+_SEARCH_REACH = 0.03                # while trying insertions: what the IMU's error leaves at the coarse scale
 
 
-def coarse_shift(view: View, keyframe: Keyframe, homography: np.ndarray) -> tuple[np.ndarray, float]:
+def coarse_shift(view: View, keyframe: Keyframe, homography: np.ndarray,
+                 reach_share: float = _REACH) -> tuple[np.ndarray, float]:
     """The shift (2,) in working pixels that remains between ``view`` and ``keyframe`` warped by ``homography``
-    (keyframe working pixels to predicted view pixels), at most a few percent of the image width (what the IMU's
+    (keyframe working pixels to predicted view pixels), at most ``reach_share`` of the image width (what the IMU's
     error can leave; a larger shift would follow something else, such as the probe), and how well the two agree
     there (normalised cross-correlation of the coarse band-passed images)."""
     height, width = view.coarse.shape
-    reach = max(_MIN_REACH_PX, int(round(_REACH * width)))
+    reach = max(_MIN_REACH_PX, int(round(reach_share * width)))
     to_coarse = np.diag([1.0 / view.coarse_factor, 1.0 / view.coarse_factor, 1.0])
     coarse = to_coarse @ homography @ np.linalg.inv(to_coarse)
     warped = cv2.warpPerspective(keyframe.coarse, coarse, (width, height), flags=cv2.INTER_LINEAR,
@@ -57,7 +59,7 @@ def search_insertion(pair: EyePair, view: View, keyframe: Keyframe, rotation_imu
         ahead = moved[:, 2] > 1.0
         homography = predicted_homography(keyframe.left_px[ahead], pair.project(moved[ahead], 0))
         if homography is not None:
-            responses[k] = coarse_shift(view, keyframe, homography)[1]
+            responses[k] = coarse_shift(view, keyframe, homography, _SEARCH_REACH)[1]
     padded = np.r_[-np.inf, responses, -np.inf]
     peaks = [k for k in range(len(candidates))
              if responses[k] >= MIN_RESPONSE and padded[k] < responses[k] >= padded[k + 2]]

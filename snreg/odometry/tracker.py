@@ -36,7 +36,8 @@ TRACKED, LOST = "tracked", "lost"
 _MAX_PREDICTED_MM = 10.0     # the prediction never runs further from the last insertion
 _SEARCH_STEP = 0.015         # candidate insertions this share of the tissue's depth apart
 _NEAR_STEPS = 8              # candidates on each side of the prediction
-_MAX_SEARCHED = 4            # keyframes searched whole when the view is lost
+_MAX_SEARCHED = 4            # keyframes searched whole when the view is lost (one per pair, in turn)
+_RECENT_PAIRS = 5            # the last insertion is searched about this long after it was measured
 # the fit's standard error assumes independent feature errors, which neighbouring Lucas-Kanade windows are not:
 # doubled, 94 % of the errors lie within two and 73 % within one (rendered videos, half HD, seeds 11-13)
 _SD_INFLATION = 2.0
@@ -108,6 +109,7 @@ class InsertionTracker:
         self._last: _Step | None = None          # the last tracked pair's step
         self._last_index = -1
         self._velocity = 0.0                      # mm per pair between the last two tracked pairs
+        self._searched = 0                        # wide searches so far: which keyframe the next one tries
 
     def update(self, left: np.ndarray, right: np.ndarray, earth_from_imu: np.ndarray, *,
                probe_fix=None) -> InsertionEstimate:
@@ -171,17 +173,21 @@ class InsertionTracker:
         return last.insertion_mm + float(np.clip(self._velocity * pairs, -_MAX_PREDICTED_MM, _MAX_PREDICTED_MM))
 
     def _search_plan(self, rotation: np.ndarray, guess: float, usable: list[Keyframe]):
-        """(keyframe, candidate insertions) to search: near the guess on the best usable keyframe, then over the
-        whole range each keyframe of a similar turn can be followed in."""
+        """(keyframe, candidate insertions) to search: near the guess on the best usable keyframe while the last
+        insertion is recent, then the whole range one keyframe of a similar turn can be followed in (one per pair, in
+        turn: a long lost stretch costs each pair a bounded search, not one of every keyframe)."""
         p = self.params
-        if usable:
+        if usable and self._index - self._last_index <= _RECENT_PAIRS:
             keyframe = usable[0]
             step = _SEARCH_STEP * keyframe.median_depth_mm
             yield keyframe, guess + step * np.arange(-_NEAR_STEPS, _NEAR_STEPS + 1)
-        turned = [k for k in self.keyframes if rotation_angle_deg(rotation.T @ k.rotation) <= p.usable_angle_deg]
-        for keyframe in sorted(turned, key=lambda k: k.variance_mm2)[:_MAX_SEARCHED]:
+        turned = sorted((k for k in self.keyframes if rotation_angle_deg(rotation.T @ k.rotation) <= p.usable_angle_deg),
+                        key=lambda k: k.variance_mm2)[:_MAX_SEARCHED]
+        if turned:
+            self._searched += 1
+            keyframe = turned[self._searched % len(turned)]
             reach = p.search_scale * keyframe.median_depth_mm
-            step = _SEARCH_STEP * keyframe.median_depth_mm
+            step = 2.0 * _SEARCH_STEP * keyframe.median_depth_mm
             yield keyframe, keyframe.insertion_mm + step * np.arange(-np.ceil(reach / step), np.ceil(reach / step) + 1)
 
     def _measure(self, view: View, rotation: np.ndarray, keyframe: Keyframe,

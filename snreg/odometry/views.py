@@ -27,7 +27,7 @@ class OdometryParams:
     """Tuning of the insertion tracker; pixels at the working scale, mm, degrees."""
 
     work_width: int = 960                 # the pair is reduced by a whole factor to about this width
-    max_features: int = 220               # tissue corners per keyframe
+    max_features: int = 160               # tissue corners per keyframe
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
     lk_window_px: int = 17
@@ -49,7 +49,8 @@ class OdometryParams:
 
 _FINE_PX, _COARSE_PX, _GAIN = 0.8, 8.0, 3.0      # band-pass of the working images (px at the working scale)
 _MID = 128
-_NEAR_MM, _PROBE_SAMPLES = 5.0, 16                  # the probe's outline in the masks
+_UNWARPED = 0.01                                     # a homography this close to a shift is not warped for
+_NEAR_MM, _PROBE_SAMPLES = 5.0, 8                   # the probe's outline in the masks
 _EDGE_CAP = 24                                       # band-pass deviations counted towards the texture, at most
 COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
 _LK_STEPS, _LK_EPS_PX = 20, 0.01
@@ -267,6 +268,9 @@ def follow(keyframe: "Keyframe", eye: int, after: np.ndarray, points: np.ndarray
     homography, _ = cv2.findHomography(points.astype(np.float32), predicted.astype(np.float32), 0)
     if homography is None or not np.isfinite(homography).all():
         return lucas_kanade(before, after, points, predicted, params)
+    if np.abs(homography[:2, :2] / homography[2, 2] - np.eye(2)).max() < _UNWARPED and \
+            np.abs(homography[2, :2]).max() * max(after.shape) < _UNWARPED:
+        return lucas_kanade(before, after, points, predicted, params)      # a shift: Lucas-Kanade needs no warp
     warped = keyframe.warped(eye, homography, (after.shape[1], after.shape[0]))
     moved = cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
     return lucas_kanade(warped, after, moved.astype(np.float32), predicted, params)

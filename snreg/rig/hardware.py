@@ -188,7 +188,7 @@ class HardwareRig:
         self.chain = chain if chain is not None else ChainCalibration.manual()
         self.fps = config.fps
         self.simulated = False
-        self.moving_camera = False          # the insertion is not followed on hardware yet (no setting for it)
+        self.moving_camera = True           # an endoscope in surgery slides in its trocar
         self.imu = _start_imu(config)
 
     def frame_source(self) -> FrameSource:

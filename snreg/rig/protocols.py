@@ -49,7 +49,8 @@ class Rig(Protocol):
     ``calibration`` is what tracking uses (a stereo calibration wizard replaces it), ``probe`` the probe model,
     ``chain`` the transform chain (the trocar wizard replaces it), ``imu`` the started endoscope IMU, ``fps`` the
     nominal frame rate; ``moving_camera``: the camera slides in the trocar, so acquisition follows its insertion
-    (issue 27; the demo's surgery camera); ``simulated`` and ``description`` say what the rig is, for display only.
+    (issue 27) unless the operator turned that off; ``simulated`` and ``description`` say what the rig is, for display
+    only.
     """
 
     calibration: StereoCalibration

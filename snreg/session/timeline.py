@@ -29,8 +29,8 @@ from snreg.session.reader import readable_rows
 from snreg.session.schema import CAMERA_STATES
 
 __all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "CameraSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
-           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "gap_after", "with_gaps", "clock_figures",
-           "GAP_PERIODS"]
+           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "gap_after", "with_gaps", "lost_stretches",
+           "clock_figures", "GAP_PERIODS"]
 
 GAP_PERIODS = 3.0          # an interval longer than this many median frame periods is a gap (>= 2 frames lost)
 FUSION_BLOCK = 65536       # samples fused between progress reports: ~5 min of IMU data, ~0.4 s of work at ~6 us/sample
@@ -229,6 +229,25 @@ def with_gaps(t_s: np.ndarray, values: np.ndarray, after: np.ndarray) -> tuple[n
     at = np.asarray(after, dtype=int) + 1
     return (np.insert(np.asarray(t_s, dtype=float), at, np.nan),
             np.insert(np.asarray(values, dtype=float), at, np.nan, axis=0))
+
+
+def lost_stretches(camera: CameraSeries, start_mm: float | None) -> np.ndarray:
+    """(K, 3): start s, end s and the insertion held (mm) of each run of lost pairs in ``camera``, in time order. A
+    run ends at the next pair's time (its own last pair's when none follows); its pairs were mapped at the insertion
+    last tracked before it (``start_mm``, the chain's distance, before any; NaN when that is unknown)."""
+    lost = ~np.asarray(camera.tracked, dtype=bool)
+    if not lost.any():
+        return np.zeros((0, 3))
+    edges = np.diff(np.concatenate([[0], lost.astype(np.int8), [0]]))
+    first, after = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)      # run k: rows first[k] .. after[k] - 1
+    t = np.asarray(camera.t_s, dtype=float)
+    ends = t[np.minimum(after, len(t) - 1)]
+    tracked_rows = np.flatnonzero(~lost)
+    before = np.searchsorted(tracked_rows, first) - 1                           # the last tracked row before each run
+    held = np.full(len(first), np.nan if start_mm is None else float(start_mm))
+    known = before >= 0
+    held[known] = np.asarray(camera.trocar_camera_mm, dtype=float)[tracked_rows[before[known]]]
+    return np.column_stack([t[first], ends, held])
 
 
 def clock_figures(path: str | Path) -> dict:

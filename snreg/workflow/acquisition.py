@@ -154,16 +154,19 @@ class Acquisition:
     for it); ``clock``: host time in ns (tests pass their own). ``video_fps``: record both feeds into the session's
     video at this nominal rate (None: no video); a segment the session is recording already goes on.
     ``insertion``: track the camera's insertion with it (its start: the trocar calibration's distance, normally);
-    None keeps the chain's constant distance.
+    None keeps the chain's constant distance. A :class:`~snreg.workflow.insertion.CameraInsertion` an earlier
+    acquisition followed on the same calibration and chain (the app restarting its worker) goes on from where it
+    stopped: its keyframes, the last insertion tracked and when, so a camera that slid meanwhile is not taken to be
+    back at the start.
     """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
                  *, fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
                  imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns,
-                 video_fps: float | None = None, insertion: InsertionTracker | None = None):
+                 video_fps: float | None = None, insertion: InsertionTracker | CameraInsertion | None = None):
         self.tracker = StereoTracker(calibration, probe)
         self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
-        self.insertion = None if insertion is None else CameraInsertion(insertion, chain)
+        self.insertion = CameraInsertion(insertion, chain) if isinstance(insertion, InsertionTracker) else insertion
         self.stereo_version = calibration_version(stereo_to_dict(calibration))
         self.chain_version = calibration_version(chain.to_dict())
         self.fixes_per_node = max(1, int(fixes_per_node))

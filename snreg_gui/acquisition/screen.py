@@ -10,7 +10,10 @@ is computed here. Auto-store only presses Store SN for the technician when the w
 
 Store SN (button, Space, F5 alike) stays pressable while frames arrive: the core decides, and a refusal comes back
 in words (red, with a beep for a foot pedal that cannot see the screen) and goes on record in the session; the
-ready line says beforehand what a press would meet. A store near a stored node asks first, naming it.
+ready line says beforehand what a press would meet (:mod:`snreg_gui.acquisition.store_prompts`). A store near a
+stored node asks first, naming it; a refusal the operator may override (the camera's insertion lost after the camera
+moved) asks whether to store anyway, and the override goes on record. Auto-store never overrides. Beside the IMU
+angles, the camera's insertion (:mod:`snreg_gui.acquisition.insertion_line`).
 While a calibration wizard holds the cameras the screen says "paused for calibration", not that the feed died.
 """
 
@@ -25,13 +28,16 @@ from PySide6.QtWidgets import (QApplication, QBoxLayout, QCheckBox, QDoubleSpinB
                                QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QScrollArea, QSpinBox,
                                QSplitter, QVBoxLayout, QWidget)
 
-from snreg.imu.monitor import STALE_AFTER_S, ImuMonitor
+from snreg.imu.monitor import ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg.workflow.guidance import guidance_line, targets_text
+from snreg_gui.acquisition.health import camera_health, imu_health
+from snreg_gui.acquisition.insertion_line import InsertionLine
 from snreg_gui.acquisition.live_view import LiveView
 from snreg_gui.acquisition.node_table import StoredNodes
 from snreg_gui.acquisition.orientation_plot import ANGLE_COLOURS, OrientationPlot
-from snreg_gui.acquisition.status import BigNumber, StatusLine, ValueRow, set_style, spread_colour
+from snreg_gui.acquisition.status import BAD, GOOD, WARN, BigNumber, StatusLine, ValueRow, set_style, spread_colour
+from snreg_gui.acquisition.store_prompts import near_node_box, override_box, ready_line
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.common.feed_view import FeedView
 from snreg_gui.common.splitters import first_width
@@ -42,7 +48,6 @@ DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest 
 PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
 LABEL_HINT = "station, e.g. OBT R"
 PAUSED_TEXT = "paused for calibration (a wizard has the cameras)"
-_WARN, _BAD, _GOOD, _PAUSED = "color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400", "color: #1f4e9e"
 
 
 def _row(*parts) -> QHBoxLayout:
@@ -59,7 +64,8 @@ def _row(*parts) -> QHBoxLayout:
 class AcquisitionScreen(QWidget):
     """Emits ``store_requested(StoreRequest)``, ``undo_requested()``, ``fixes_per_node_changed(int)`` and
     ``max_spread_changed(float)``; fed by :meth:`show_result`, :meth:`add_node`, :meth:`remove_node`,
-    :meth:`show_store_problem`, :meth:`ask_to_confirm` and :meth:`set_paused`."""
+    :meth:`show_store_problem`, :meth:`ask_to_confirm`, :meth:`offer_override` and :meth:`set_paused`.
+    ``confirm_box``: the question a press asked, while it is open."""
 
     store_requested = Signal(object)
     undo_requested = Signal()
@@ -67,12 +73,13 @@ class AcquisitionScreen(QWidget):
     max_spread_changed = Signal(float)
 
     def __init__(self, imu: ImuMonitor, fixes_per_node: int = THESIS_FIXES_PER_NODE,
-                 max_spread_mm: float = StoreLimits.max_spread_mm):
+                 max_spread_mm: float = StoreLimits.max_spread_mm, untracked: str = "camera insertion not tracked"):
         super().__init__()
         self._imu = imu
         self._last_result: FrameResult | None = None
         self._last_arrival_ns: int | None = None
         self._store_pending = False
+        self._overriding = False             # the store pending is the operator's "Store anyway"
         self._paused = ""
         self._stopped = ""                   # why the feed stopped, once it has
         self.confirm_box: QMessageBox | None = None
@@ -80,6 +87,7 @@ class AcquisitionScreen(QWidget):
         self.orientation = OrientationPlot()
         self.angles = ValueRow(("yaw", "pitch", "roll"), "-888.8", tuple(ANGLE_COLOURS.values()), columns=1)
         self.angles.setToolTip("endoscope orientation from the IMU, degrees (yaw about z, pitch about y, roll about x)")
+        self.insertion_line = InsertionLine(untracked)
         self.tip_values = ValueRow(("x", "y", "z"), "-8888.8")
         self.tip_values.setToolTip("the probe tip in the trocar frame, mm")
         self.tip_trocar = StatusLine("no fix yet", 1, 2)
@@ -98,7 +106,7 @@ class AcquisitionScreen(QWidget):
         self._missing: list = []
         self.store_button = QPushButton("Store SN")
         self.store_button.setMinimumHeight(self.store_button.sizeHint().height() * 4 // 3)
-        self.store_reason = StatusLine("", 2, 4)
+        self.store_reason = StatusLine("", 2, 6)      # the insertion's refusal runs long
         self.store_status = StatusLine("", 2, 4)
         self.undo_button = QPushButton("Undo last")
         self.undo_button.setEnabled(False)
@@ -141,6 +149,7 @@ class AcquisitionScreen(QWidget):
         plot_box.setContentsMargins(0, 0, 0, 0)
         plot_box.addWidget(self.orientation, 1)
         plot_box.addWidget(self.angles, 0, Qt.AlignmentFlag.AlignCenter)
+        plot_box.addWidget(self.insertion_line)
         self.live = LiveView(self.left_feed, self.right_feed, plot)
         self.live.arranged.connect(lambda arrangement: self.angles.set_columns(0 if arrangement.stacked else 1))
         column_widget = QWidget()
@@ -218,6 +227,7 @@ class AcquisitionScreen(QWidget):
         if result.left_rgb.shape[1]:
             self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
         self.angles.show_values(result.imu.euler_deg)
+        self.insertion_line.show_outcome(outcome)
         self.guidance.setText(guidance_line(self._missing, outcome.tip_trocar))
         self.tip_values.show_values(outcome.tip_trocar)
         self.tip_trocar.setText("tracked" if outcome.tip_trocar is not None else f"no fix ({outcome.reason})")
@@ -256,8 +266,10 @@ class AcquisitionScreen(QWidget):
             self.counts_edit.clear()
         self.label_edit.setPlaceholderText(f"{LABEL_HINT} ({node.id} was '{node.label}')" if node.label
                                            else LABEL_HINT)
-        self._say(f"stored {node.id}{f' {node.label!r}' if node.label else ''} (spread {node.spread_mm:.2f} mm over "
-                  f"{node.n_frames} fixes)", _GOOD)
+        anyway = " anyway, the override on record" if self._overriding else ""
+        self._overriding = False
+        self._say(f"stored {node.id}{f' {node.label!r}' if node.label else ''}{anyway} (spread {node.spread_mm:.2f} mm "
+                  f"over {node.n_frames} fixes)", GOOD)
         self._update_store_state()
 
     def remove_node(self, node) -> None:
@@ -274,8 +286,8 @@ class AcquisitionScreen(QWidget):
 
     def show_store_problem(self, message: str) -> None:
         """A store refused or failed: the reason in red, and a beep (a foot pedal does not look at the screen)."""
-        self._store_pending = False
-        self._say(message, _BAD)
+        self._store_pending = self._overriding = False
+        self._say(message, BAD)
         QApplication.beep()
         self._update_store_state()
 
@@ -283,21 +295,32 @@ class AcquisitionScreen(QWidget):
         """A store near a stored node: ask (the question names it); yes sends the request again, confirmed."""
         self._store_pending = False
         self._update_store_state()
-        box = QMessageBox(QMessageBox.Icon.Question, "Store SN near a stored node", question,
-                          QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, self)
-        box.setDefaultButton(QMessageBox.StandardButton.No)
-        box.finished.connect(lambda answer: self._confirmed(answer, request))
+        box = near_node_box(self, question)
+        box.finished.connect(lambda answer: self._answered(answer == QMessageBox.StandardButton.Yes, request.confirm(),
+                                                           "a node so close to a stored one"))
         self.confirm_box = box
         box.open()
 
-    def _confirmed(self, answer: int, request: StoreRequest) -> None:
+    def offer_override(self, refusal: str, request: StoreRequest) -> None:
+        """A refusal the operator may override (the camera's insertion lost after the camera moved): said in red with
+        a beep, then asked; "Store anyway" sends the request again, overriding (the core keeps it on record)."""
+        self.show_store_problem(f"Refused ({request.trigger}): the camera's insertion is lost; store anyway or not?")
+        box, store_anyway = override_box(self, refusal, request.trigger)
+        box.finished.connect(lambda _: self._answered(box.clickedButton() is store_anyway, request.overriding(),
+                                                      "while the camera's insertion is lost"))
+        self.confirm_box = box
+        box.open()
+
+    def _answered(self, yes: bool, request: StoreRequest, declined: str) -> None:
+        """The question's answer: yes sends ``request``; no says it was not stored (``declined``: what not)."""
         self.confirm_box = None
-        if answer == QMessageBox.StandardButton.Yes:
+        if yes:
+            self._overriding = request.override
             self._store_pending = True
             self._set_store_enabled(False, "storing...")
-            self.store_requested.emit(request.confirm())
+            self.store_requested.emit(request)
         else:
-            self._say("Not stored: you chose not to store a node so close to a stored one.", _WARN)
+            self._say(f"Not stored: you chose not to store {declined}.", WARN)
 
     def show_source_stopped(self, problem: str) -> None:
         """The feed ended or was lost (a replay played to its end, a camera unplugged): say why instead of "stale"."""
@@ -321,7 +344,7 @@ class AcquisitionScreen(QWidget):
         try:
             counts_value = float(counts) if counts else float("nan")
         except ValueError:
-            self._say("Gamma counts must be a number; correct it or leave it empty.", _BAD)
+            self._say("Gamma counts must be a number; correct it or leave it empty.", BAD)
             return
         self._store_pending = True
         self._set_store_enabled(False, "storing...")
@@ -337,30 +360,10 @@ class AcquisitionScreen(QWidget):
             self.undo_requested.emit()
 
     def _update_store_state(self) -> None:
-        """The button is pressable whenever frames arrive (the core answers every press); the ready line says what a
-        press would meet, in the core's words."""
-        outcome, needed = (self._last_result.outcome if self._last_result else None), self.fixes_spin.value()
-        if self._paused:
-            self._set_store_enabled(False, "paused for calibration", _PAUSED)
-        elif self._store_pending:
-            self._set_store_enabled(False, "storing...")
-        elif outcome is None:
-            self._set_store_enabled(False, "waiting for the first frame")
-        elif self._feed_age_s() > STALE_AFTER_S:
-            self._set_store_enabled(False, self._stopped or f"no frames for {self._feed_age_s():.0f} s: check the cameras",
-                                    _BAD)
-        elif outcome.valid_fixes < needed:
-            self._set_store_enabled(True, f"not ready: collecting fixes, {outcome.valid_fixes} of {needed}"
-                                          + ("" if outcome.fix is not None else f" (no valid fix: {outcome.reason})"),
-                                    _WARN)
-        elif outcome.store_check.refusal:
-            self._set_store_enabled(True, f"not ready: {outcome.store_check.refusal}", _WARN)
-        else:
-            state = "held still" if outcome.still else "within the limit, not quite still"
-            near = outcome.store_check
-            ask = f"; {near.near.id} is {near.near_mm:.1f} mm away: you will be asked" if near.near is not None else ""
-            self._set_store_enabled(True, f"ready: median of the last {needed} fixes, spread "
-                                          f"{outcome.window_spread_mm:.1f} mm ({state}){ask}", _GOOD)
+        line = ready_line(self._last_result.outcome if self._last_result else None, self.fixes_spin.value(),
+                          paused=bool(self._paused), pending=self._store_pending, feed_age_s=self._feed_age_s(),
+                          stopped=self._stopped)
+        self._set_store_enabled(line.enabled, line.text, line.style)
 
     def _set_store_enabled(self, enabled: bool, reason: str, style: str = "") -> None:
         self.store_button.setEnabled(enabled)
@@ -376,20 +379,8 @@ class AcquisitionScreen(QWidget):
     def _show_health(self) -> None:
         if self._last_result is not None:
             self._update_store_state()           # a feed that stopped disables Store SN
-        result = self._last_result
-        if self._paused:
-            self.video_health.setText(f"camera: {self._paused}")
-        elif result is None:
-            self.video_health.setText("camera: waiting for frames")
-        else:
-            age_s = self._feed_age_s()
-            stale = f"  STALE {age_s:.1f} s" if age_s > STALE_AFTER_S else ""
-            self.video_health.setText(f"camera: {result.fps:4.1f} fps, skew {result.skew_ms:+.1f} ms, "
-                                      f"tracking {result.outcome.track_ms:.0f} ms{stale}\n{result.outcome.video}")
-        imu = self._imu.snapshot()
-        stale = "  STALE" if imu.stale else ""
-        problem = f" ({imu.problem})" if imu.problem else ""
-        self.imu_health.setText(f"IMU: {imu.state}, {imu.rate_hz:.0f} Hz, {imu.corrupt} corrupt{stale}{problem}")
-        problem = any(word in self.video_health.text() for word in ("STALE", "DROPPED", "STOPPED", "not recorded"))
-        set_style(self.video_health, _PAUSED if self._paused else _BAD if problem else "")
-        set_style(self.imu_health, _BAD if imu.stale else "")
+        for line, (text, style) in ((self.video_health, camera_health(self._last_result, self._feed_age_s(),
+                                                                      self._paused)),
+                                    (self.imu_health, imu_health(self._imu.snapshot()))):
+            line.setText(text)
+            set_style(line, style)

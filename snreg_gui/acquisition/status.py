@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from PySide6.QtCore import QRect, Qt
+from PySide6.QtCore import QEvent, QRect, Qt
 from PySide6.QtGui import QFont, QFontDatabase, QFontMetrics, QPainter
 from PySide6.QtWidgets import QGridLayout, QLabel, QSizePolicy, QWidget
 
@@ -19,6 +19,9 @@ ELLIPSIS = "\u2026"
 NO_VALUE = "\u2014"            # an em dash: no value now (no fix, window not full)
 BIG_SCALE = 1.8                # the large numbers' size, times the application font's
 SPREAD_GOOD, SPREAD_BAD, SPREAD_NONE = "#1a7f1a", "#c00000", "#808080"
+# the tones of the status lines: a warning, a fault that stands out (STALE, LOST, a refusal), good news, paused, idle
+WARN, BAD, GOOD, PAUSED, QUIET = ("color: #b35c00", "color: #c00000; font-weight: bold", "color: #006400",
+                                  "color: #1f4e9e", "color: #707070")
 
 
 def big_font(base: QFont) -> QFont:
@@ -107,6 +110,11 @@ class StatusLine(QLabel):
     def resizeEvent(self, event) -> None:                       # noqa: N802
         super().resizeEvent(event)
         self._set_lines(max(self.shown_lines, self._needed_lines()))     # only grows: no loop with a scroll bar
+
+    def changeEvent(self, event) -> None:                       # noqa: N802
+        super().changeEvent(event)
+        if event.type() == QEvent.Type.FontChange:               # e.g. a style made it bold: its text takes more room
+            self._set_lines(self._needed_lines())
 
     def _needed_lines(self) -> int:
         width = self.contentsRect().width()

@@ -5,7 +5,13 @@ lives in its own QThread, paced by a timer there; every frame ends as one :class
 and "Store SN" and undo requests arrive as queued slot calls between frames, so a node is the median
 of fixes this worker itself kept. The core decides whether a store is refused (said in ``store_failed``) or
 must be confirmed first (``store_confirm``: the question naming the near node, and the request to send back with
-``confirmed=True``). Connect the signals before :func:`start_worker`.
+``confirmed=True``). A refusal the operator may override (the camera's insertion lost after the camera moved) is
+offered instead (``store_override_offered``: the refusal and the request to send back with ``override=True``), unless
+auto-store asked: auto-store never overrides. Connect the signals before :func:`start_worker`.
+
+With ``track_insertion`` the camera's insertion is followed in this thread too (:class:`~snreg.odometry.
+InsertionTracker`, built here: its cost never lands on the GUI thread), from the trocar calibration's distance, or
+from where ``resume_insertion`` (what an earlier worker followed on the same calibration and chain) left it.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acqui
                                         StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
 from snreg.workflow.guidance import point_to_nearest, target_circle
+from snreg.workflow.insertion import CameraInsertion
 
 _AXIS_DRAWN_MM = 50.0
 
@@ -58,36 +65,56 @@ class FrameResult:
 class StoreRequest:
     """Store SN as asked for on screen; the id is the session's next free ``SN<k>``. ``trigger``: what asked
     ("button", "Space", "F5", "auto"), kept on record with a refusal; ``confirmed``: the technician said yes to
-    storing near a stored node."""
+    storing near a stored node; ``override``: the technician chose "Store anyway" over an overridable refusal."""
 
     label: str
     counts: float = float("nan")
     trigger: str = "button"
     confirmed: bool = False
+    override: bool = False
 
     def confirm(self) -> "StoreRequest":
         return replace(self, confirmed=True)
+
+    def overriding(self) -> "StoreRequest":
+        return replace(self, override=True)
+
+
+@dataclass(frozen=True, eq=False)
+class KeptInsertion:
+    """The camera's insertion a stopped worker followed, and the calibration and chain it followed it on: a later
+    worker on the very same two goes on with it (a wizard's new calibration is a new object, and starts again)."""
+
+    calibration: StereoCalibration
+    chain: ChainCalibration
+    insertion: CameraInsertion
+
+    def on(self, calibration: StereoCalibration, chain: ChainCalibration) -> CameraInsertion | None:
+        """The insertion to go on with under ``calibration`` and ``chain``; None when either is another."""
+        return self.insertion if calibration is self.calibration and chain is self.chain else None
 
 
 class AcquisitionWorker(QObject):
     """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build);
     ``record_video``: both feeds go into the session's video (its encoder works in a process of its own);
-    ``track_insertion``: follow the insertion of a camera that slides in the trocar, from the chain's distance."""
+    ``track_insertion``, ``resume_insertion``: follow the camera's insertion (module docstring)."""
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
     node_removed = Signal(object)        # snreg.session.IntraopNode taken back by undo
     store_failed = Signal(str)           # one sentence saying what to do
     store_confirm = Signal(str, object)  # the question naming the near node, the StoreRequest to confirm
+    store_override_offered = Signal(str, object)   # an overridable refusal, the StoreRequest to send back overriding
     source_stopped = Signal(str)         # the source's problem
 
     def __init__(self, make_source: Callable[[], FrameSource], calibration: StereoCalibration, probe,
                  chain: ChainCalibration, imu: ImuMonitor, session: Session, fps: float,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
-                 record_video: bool = True, *, track_insertion: bool = False):
+                 record_video: bool = True, *, track_insertion: bool = False,
+                 resume_insertion: CameraInsertion | None = None):
         super().__init__()
         self._make_source, self._imu, self._fps, self._record_video = make_source, imu, fps, record_video
-        self._track_insertion = track_insertion
+        self._track_insertion, self._resume_insertion = track_insertion, resume_insertion
         self._setup = (calibration, probe, chain, session, fixes_per_node, limits)
         self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
@@ -101,12 +128,14 @@ class AcquisitionWorker(QObject):
     def start(self) -> None:
         calibration, probe, chain, session, fixes, limits = self._setup
         without_imu = self._imu.snapshot().state == IMU_ABSENT      # no IMU port chosen in the device dialog
-        insertion = InsertionTracker(calibration, chain, probe=probe) if self._track_insertion else None
+        insertion = (self._resume_insertion or InsertionTracker(calibration, chain, probe=probe)
+                     if self._track_insertion else None)
         self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes, limits=limits,
                                        imu_required=not without_imu,
                                        video_fps=self._fps if self._record_video else None, insertion=insertion)
         try:
             session.log_event("acquisition_started", imu="none (chosen)" if without_imu else "required",
+                              insertion=self._insertion_started(),
                               stereo_version=self.acquisition.stereo_version,
                               chain_version=self.acquisition.chain_version, max_spread_mm=limits.max_spread_mm)
         except (SessionError, OSError) as err:
@@ -120,6 +149,22 @@ class AcquisitionWorker(QObject):
         self._timer.setTimerType(Qt.TimerType.PreciseTimer)
         self._timer.timeout.connect(self._step)
         self._timer.start(round(1000 / self._fps))
+
+    def _insertion_started(self) -> str:
+        """How this run follows the camera's insertion, for the record."""
+        if self.acquisition.insertion is None:
+            return "not tracked"
+        resumed = self.acquisition.insertion.last
+        return (f"tracked, from {self.acquisition.insertion.start_mm:.1f} mm" if resumed is None else
+                f"tracked, resumed at {resumed.used_mm:.1f} mm")
+
+    @property
+    def kept_insertion(self) -> KeptInsertion | None:
+        """What this worker followed of the camera's insertion (None without tracking); read it once it stopped."""
+        if self.acquisition is None or self.acquisition.insertion is None:
+            return None
+        calibration, _, chain, *_ = self._setup
+        return KeptInsertion(calibration, chain, self.acquisition.insertion)
 
     @Slot()
     def stop(self) -> None:
@@ -150,12 +195,16 @@ class AcquisitionWorker(QObject):
         try:
             node = self.acquisition.store(self.acquisition.session.next_node_id(), request.label,
                                           counts=request.counts, left_jpeg=left, right_jpeg=right,
-                                          confirmed=request.confirmed, trigger=request.trigger)
+                                          confirmed=request.confirmed, trigger=request.trigger,
+                                          override=request.override)
         except StoreNeedsConfirmation as err:
             self.store_confirm.emit(str(err), request)
             return
         except StoreRefused as err:
-            self.store_failed.emit(f"Refused ({request.trigger}): {err}.")
+            if err.overridable and request.trigger != "auto":
+                self.store_override_offered.emit(str(err), request)
+            else:
+                self.store_failed.emit(f"Refused ({request.trigger}): {err}.")
             return
         except StoreError as err:
             self.store_failed.emit(f"Not stored: {err}.")

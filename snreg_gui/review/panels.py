@@ -23,8 +23,10 @@ from snreg.registration.naming import marked_rows, pair_text
 from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
 from snreg_gui.common.feed_view import FeedView
 
-NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "spread (mm)", "frames",
-                "counts")
+NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "insertion (mm)",
+                "spread (mm)", "frames", "counts")
+INSERTION_TIP = ("the camera's insertion (pivot to camera) the node was mapped with, tracked from the video; "
+                 "empty: not tracked, the chain's distance")
 REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
 PAIRING_COLUMNS = ("intraop -> hot spot", "distance (mm)", "confidence")
 
@@ -51,7 +53,11 @@ def header_text(review: SessionReview) -> str:
         gaps = len(frames.gaps_s)
         longest = f", longest {frames.gaps_s[:, 1].max():.2f} s" if gaps else ""
         frame_text += f" ({frames.median_rate_hz:.1f}/s median, {gaps} gap{'' if gaps == 1 else 's'}{longest})"
-    lines.append(f"streams: IMU {len(review.imu.t_s)} samples, probe {len(review.probe.t_s)} fixes, {frame_text}")
+    camera = review.camera
+    insertion = (f", insertion tracked on {int(camera.tracked.sum())} pairs, lost on {int((~camera.tracked).sum())}"
+                 if len(camera.t_s) else ", insertion not tracked")
+    lines.append(f"streams: IMU {len(review.imu.t_s)} samples, probe {len(review.probe.t_s)} fixes, {frame_text}"
+                 f"{insertion}")
     return "\n".join(lines)
 
 
@@ -76,8 +82,8 @@ def fill_table(table: QTableWidget, rows: Sequence[Sequence[str]]) -> None:
 
 
 def node_rows(nodes: Sequence[ReviewNode]) -> list[list[str]]:
-    return [[n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar), _xyz(n.xyz_camera), _number(n.spread_mm, 2),
-             str(n.n_frames), _number(n.counts, 0)] for n in nodes]
+    return [[n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar), _xyz(n.xyz_camera), _number(n.trocar_camera_mm, 1),
+             _number(n.spread_mm, 2), str(n.n_frames), _number(n.counts, 0)] for n in nodes]
 
 
 def _xyz(v: np.ndarray) -> str:

@@ -1,8 +1,8 @@
 """The offline review screen: what a saved session recorded, when, and how well.
 
 Why: a research engineer reviews a session after the fact: its header and calibration, the IMU angles,
-probe tip, tracking quality and frame rate on one time axis with the stored nodes marked, each node's
-snapshots, and the stored registrations. Reading and fusing run in workers
+probe tip, the camera's insertion, tracking quality and frame rate on one time axis with the stored nodes marked,
+each node's snapshots, and the stored registrations. Reading and fusing run in workers
 (:func:`snreg.session.timeline.load_review`, then :func:`~snreg.session.timeline.fuse_imu_blocks`,
 whose blocks are drawn as they come), so an hour-long session never blocks the GUI; the file is
 closed once read, so it can be opened elsewhere while it is shown. A session still being recorded (by this app
@@ -25,8 +25,8 @@ from PySide6.QtWidgets import QGroupBox, QHBoxLayout, QLabel, QPushButton, QSpli
 from snreg.session import SessionError, set_final_in_file
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
 from snreg_gui.common.workers import Worker
-from snreg_gui.review.panels import (NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table, header_text,
-                                     node_rows, read_only_table)
+from snreg_gui.review.panels import (INSERTION_TIP, NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table,
+                                     header_text, node_rows, read_only_table)
 from snreg_gui.review.timelines import TimelinePlots
 from snreg_gui.review.video_view import VideoScrubber
 
@@ -58,6 +58,7 @@ class ReviewScreen(QWidget):
         self.header.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.header.setWordWrap(True)                 # a damage line is long: it must not widen the window
         self.node_table = read_only_table(NODE_COLUMNS)
+        self.node_table.horizontalHeaderItem(NODE_COLUMNS.index("insertion (mm)")).setToolTip(INSERTION_TIP)
         self.snapshots = SnapshotPair()
         self.registrations = StoredRegistrations()
         self.timelines = TimelinePlots()

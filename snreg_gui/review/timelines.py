@@ -1,9 +1,12 @@
-"""The review screen's timelines: IMU angles, probe tip, tracking quality and frame rate on one linked time axis.
+"""The review screen's timelines: IMU angles, probe tip, the camera's insertion, tracking quality and frame rate on one
+linked time axis.
 
 Why: a reviewer reads what was recorded when, and how well, against the moments nodes were stored. An
 hour of IMU is 750k points per curve, so every curve is made once, drawn with pyqtgraph's peak
 downsampling clipped to the view, and only fed with ``setData``; the IMU angles arrive in blocks while
-the fusion runs in a worker (:meth:`TimelinePlots.add_imu_block`).
+the fusion runs in a worker (:meth:`TimelinePlots.add_imu_block`). The insertion (issue 27) is drawn where it was
+tracked; where it was lost the curve breaks and a red bar shows the insertion those pairs were mapped at (the last
+tracked), and each node's insertion is a ring at its store.
 
 >>> plots = TimelinePlots()
 >>> plots.show_review(review)            # a snreg.session.timeline.SessionReview
@@ -16,12 +19,14 @@ from __future__ import annotations
 import numpy as np
 import pyqtgraph as pg
 
-from snreg.session.timeline import SessionReview, gap_after, with_gaps
+from snreg.session.timeline import SessionReview, gap_after, lost_stretches, with_gaps
 
 _XYZ_COLOURS = ("#e6550d", "#31a354", "#3182bd")        # yaw/x, pitch/y, roll/z
 _MARKER_PEN = pg.mkPen("#bbbbbb", width=1, style=pg.QtCore.Qt.PenStyle.DashLine)
 _CURSOR_PEN = pg.mkPen("#ffd700", width=2)
 _GAP_PEN = pg.mkPen("#de2d26", width=6)
+_LOST_PEN = pg.mkPen("#de2d26", width=4)
+_NODE_RING = "#ffd700"          # a node's insertion, at its store
 PROGRESS_POINTS = 20_000       # IMU points per curve drawn while the fusion is still running
 LABEL_GAP = 0.06               # node labels closer than this fraction of the time span go on different rows
 LABEL_TOP, LABEL_STEP, LABEL_ROWS = 0.95, 0.12, 6     # label rows, as fractions of the top plot's height
@@ -47,11 +52,13 @@ def _colour_key() -> str:
     """One line naming the curves' colours (an in-plot legend sat under the node labels)."""
     def names(title: str, words) -> str:
         return f"{title}: " + " ".join(f"<span style='color:{c}'>{w}</span>" for c, w in zip(_XYZ_COLOURS, words))
-    return f"{names('IMU', ('yaw', 'pitch', 'roll'))} &nbsp;&nbsp; {names('tip', 'xyz')}"
+    insertion = (f"insertion: tracked, <span style='color:#de2d26'>lost (held)</span>, "
+                 f"<span style='color:{_NODE_RING}'>&#9675; node</span>")
+    return f"{names('IMU', ('yaw', 'pitch', 'roll'))} &nbsp;&nbsp; {names('tip (camera)', 'xyz')} &nbsp;&nbsp; {insertion}"
 
 
 class TimelinePlots(pg.GraphicsLayoutWidget):
-    """Four stacked plots with linked x (seconds from the first sample); node markers and a cursor on each.
+    """Five stacked plots with linked x (seconds from the first sample); node markers and a cursor on each.
 
     ``node_markers`` maps a node id to its vertical lines (one per plot, labelled on the top plot). The cursor is
     dragged, or put where a plot is clicked: ``cursor_moved(t_s)`` says where (the review shows the video there);
@@ -64,16 +71,23 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         super().__init__()
         self.key = self.addLabel(_colour_key(), row=0, col=0)      # above the plots: node labels never cover it
         self.angles = self._plot(0, "IMU (deg)")
-        self.tip = self._plot(1, "tip, camera (mm)")
-        self.quality = self._plot(2, "tracking quality")
-        self.frame_rate = self._plot(3, "frames (1/s)")
+        self.tip = self._plot(1, "tip (mm)")                  # short labels: five plots share a 700 px screen
+        self.insertion = self._plot(2, "insertion (mm)")
+        self.quality = self._plot(3, "quality")
+        self.frame_rate = self._plot(4, "frames (1/s)")
         self.frame_rate.setLabel("bottom", "time since the first sample (s)")
-        self.plots = (self.angles, self.tip, self.quality, self.frame_rate)
+        self.plots = (self.angles, self.tip, self.insertion, self.quality, self.frame_rate)
         for plot in self.plots[1:]:
             plot.setXLink(self.angles)
         self.imu_curves = [self._curve(self.angles, colour, name)
                            for colour, name in zip(_XYZ_COLOURS, ("yaw", "pitch", "roll"))]
         self.tip_curves = [self._curve(self.tip, colour, name) for colour, name in zip(_XYZ_COLOURS, "xyz")]
+        self.insertion_curve = self._curve(self.insertion, "#dddddd", "insertion")
+        self.lost_curve = self.insertion.plot(pen=_LOST_PEN, connect="pairs", name="lost")
+        self.node_insertions = pg.ScatterPlotItem(symbol="o", size=9, pen=pg.mkPen(_NODE_RING, width=2), brush=None)
+        self.insertion.addItem(self.node_insertions)
+        self.untracked_note = pg.TextItem("", color="#bbbbbb")     # in the plot's own pixels: stays top left
+        self.untracked_note.setParentItem(self.insertion.vb)
         self.quality_curve = self._curve(self.quality, "#dddddd", None)
         self.rate_curve = self.frame_rate.plot(pen=pg.mkPen("#dddddd", width=1), stepMode="center", name="frames per s")
         self.gap_curve = self.frame_rate.plot(pen=_GAP_PEN, connect="pairs", name="gaps")
@@ -110,8 +124,10 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
 
     def clear_review(self) -> None:
         """Empty every curve, remove the node markers, hide the cursor."""
-        for curve in (*self.imu_curves, *self.tip_curves, self.quality_curve, self.gap_curve):
+        for curve in (*self.imu_curves, *self.tip_curves, self.insertion_curve, self.lost_curve, self.quality_curve,
+                      self.gap_curve, self.node_insertions):
             curve.setData([], [])
+        self.untracked_note.setText("")
         self.rate_curve.setData([0.0], [], stepMode="center")
         self._remove_markers()
         for cursor in self.cursors:
@@ -129,6 +145,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         for curve, column in zip(self.tip_curves, tips.T):
             curve.setData(t_probe, column)
         self.quality_curve.setData(*with_gaps(review.probe.t_s, review.probe.quality, probe_gaps))
+        self._show_insertion(review, 1.0 / frames.median_rate_hz if frames.median_rate_hz > 0 else None)
         self.rate_curve.setData(frames.rate_edges_s, frames.rate_hz, stepMode="center")
         self.gap_curve.setData(np.column_stack([frames.gaps_s[:, 0], frames.gaps_s.sum(axis=1)]).ravel(),
                                np.zeros(2 * len(frames.gaps_s)))
@@ -137,7 +154,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         samples = np.arange(len(review.imu.t_s))
         self._imu_rows = samples + np.searchsorted(imu_gaps, samples, side="left")   # each sample's row after the NaNs
         self._euler = np.full((len(self._imu_t), 3), np.nan)
-        ends = [t[[0, -1]] for t in (review.imu.t_s, review.probe.t_s, frames.t_s) if len(t)]
+        ends = [t[[0, -1]] for t in (review.imu.t_s, review.probe.t_s, frames.t_s, review.camera.t_s) if len(t)]
         ends.append(np.array([node.t_s for node in review.nodes]))
         span = np.concatenate(ends)
         width = float(np.ptp(span)) if len(span) else 0.0
@@ -146,6 +163,20 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
             self._add_marker(node.id, node.t_s, LABEL_TOP - LABEL_STEP * row)
         if len(span):
             self.angles.setXRange(float(span.min()), float(span.max()), padding=0.02)
+
+    def _show_insertion(self, review: SessionReview, period_s: float | None) -> None:
+        """The insertion where tracked (breaks where lost or not recorded), the lost stretches at the insertion held,
+        each node's insertion at its store; a note when the session did not track it."""
+        camera = review.camera
+        self.insertion_curve.setData(*with_gaps(camera.t_s, camera.trocar_camera_mm, gap_after(camera.t_s, period_s)))
+        lost = lost_stretches(camera, review.trocar_camera_mm)
+        lost = lost[np.isfinite(lost[:, 2])]                    # held at an unknown distance: the break says it
+        self.lost_curve.setData(lost[:, :2].ravel(), np.repeat(lost[:, 2], 2))
+        nodes = [(node.t_s, node.trocar_camera_mm) for node in review.nodes if np.isfinite(node.trocar_camera_mm)]
+        self.node_insertions.setData(*(np.array(nodes).T if nodes else ([], [])))
+        distance = review.trocar_camera_mm
+        chain = "the chain's distance" if distance is None else f"the chain's {distance:.1f} mm"
+        self.untracked_note.setText("" if len(camera.t_s) else f"not tracked in this session: {chain} throughout")
 
     def add_imu_block(self, euler_deg: np.ndarray) -> None:
         """The next (n, 3) yaw, pitch, roll values in degrees, in sample order; redraws the IMU curves.
