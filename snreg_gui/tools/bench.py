@@ -96,9 +96,12 @@ def _run(args, app, work: Path) -> int:
         time.sleep(0.01)
     encoder = window.session.video_state()             # updated in place until the session closes
     heartbeat = Heartbeat()
-    QTimer.singleShot(round(args.seconds * 1000), window.quit_without_asking)
+
+    def end() -> None:          # the heartbeat stops first: closing the window (0.5 s) is not acquisition
+        heartbeat.stop()
+        window.quit_without_asking()
+    QTimer.singleShot(round(args.seconds * 1000), end)
     app.exec()                                          # the app's own event loop, as in use
-    heartbeat.stop()
     gaps = heartbeat.gaps_ms()
     stored = window.acquisition.nodes.rowCount()
     window.shutdown()
