@@ -1,7 +1,10 @@
 """Node sets and their files: CSV (DESIGN.md §4) and 3D Slicer markups (``.mrk.json``).
 
 A :class:`NodeSet` is the one currency between preop, session and registration:
-ids, anatomical labels (``"OBT R"``), positions in mm and optional gamma counts.
+ids, anatomical labels (``"OBT R"``), positions in mm, optional gamma counts and optional covariances (each node's
+own error, mm^2, in the set's frame: a SPECT hot spot's from the segmentation, a stored node's from the tracker and
+chain). A CSV carries the covariance in six columns ``cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz`` (mm^2; a node's
+cells all empty when its covariance is unknown).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ PREOP_PREFIX = "P"
 INTRAOP_PREFIX = "SN"
 
 MAX_NODE_FILE_BYTES = 16 << 20        # a node file holds tens of nodes; 16 MB holds hundreds of thousands
+COV_COLUMNS = ("cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz")   # the upper triangle, row by row
+_UPPER = np.triu_indices(3)
 
 SLICER_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
@@ -35,7 +40,8 @@ SLICER_SCHEMA = (
 
 @dataclass
 class NodeSet:
-    """Nodes with ids (unique str), labels (str, may be empty), xyz (N, 3) mm and counts (N,) or None.
+    """Nodes with ids (unique str), labels (str, may be empty), xyz (N, 3) mm, counts (N,) or None, and ``cov``
+    (N, 3, 3) mm^2 or None: each node's own error covariance in the set's frame (a node's NaN when unknown).
 
     ``frame`` names the coordinate frame (``"trocar"``, ``"LPS"``...) when known.
     """
@@ -46,6 +52,7 @@ class NodeSet:
     counts: np.ndarray | None = None
     frame: str = ""
     comments: list[str] = field(default_factory=list)
+    cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.ids = [str(i) for i in self.ids]
@@ -66,6 +73,15 @@ class NodeSet:
             self.counts = np.asarray(self.counts, dtype=float).reshape(-1)
             if len(self.counts) != n:
                 raise ValueError(f"counts has {len(self.counts)} values for {n} nodes")
+        if self.cov is not None:
+            self.cov = np.asarray(self.cov, dtype=float)
+            if self.cov.shape != (n, 3, 3):
+                raise ValueError(f"cov must hold one 3x3 covariance (mm^2) per node: ({n}, 3, 3), got {self.cov.shape}")
+
+    @property
+    def known_cov(self) -> np.ndarray | None:
+        """(N, 3, 3) mm^2 when every node's covariance is known (finite), else None."""
+        return self.cov if self.cov is not None and np.all(np.isfinite(self.cov)) else None
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -85,12 +101,15 @@ class NodeSet:
         for comment in self.comments:
             out.write(f"# {comment}\n")
         writer = csv.writer(out, lineterminator="\n")
-        header = ["id", "label", "x", "y", "z"] + (["counts"] if self.counts is not None else [])
+        header = (["id", "label", "x", "y", "z"] + (["counts"] if self.counts is not None else [])
+                  + (list(COV_COLUMNS) if self.cov is not None else []))
         writer.writerow(header)
         for k in range(len(self)):
             row = [self.ids[k], self.labels[k]] + [_fmt(v) for v in self.xyz[k]]
             if self.counts is not None:
                 row.append(_fmt(self.counts[k]))
+            if self.cov is not None:
+                row += [_fmt(v) for v in self.cov[k][_UPPER]]
             writer.writerow(row)
         return out.getvalue()
 
@@ -124,8 +143,9 @@ class NodeSet:
         col = {}
         for index, name in enumerate(header):
             col.setdefault(name, index)
-        ids, labels, xyz, counts = [], [], [], []
+        ids, labels, xyz, counts, covs = [], [], [], [], []
         has_counts = "counts" in col
+        has_cov = _cov_columns(col, source)
         for row_no, row in enumerate(rows[1:], start=1):
             where = f"data row {row_no} (line {body_lines[row_no]})"
             if len(row) < len(header):
@@ -145,9 +165,12 @@ class NodeSet:
             labels.append(row[col["label"]].strip())
             xyz.append(point)
             counts.append(count)
+            if has_cov:
+                covs.append(_cov_cells([row[col[name]] for name in COV_COLUMNS], f"{source}: {where}"))
         try:
             return cls(ids, labels, np.array(xyz).reshape(-1, 3),
-                       np.array(counts) if has_counts else None, frame=frame, comments=comments)
+                       np.array(counts) if has_counts else None, frame=frame, comments=comments,
+                       cov=np.array(covs).reshape(-1, 3, 3) if has_cov else None)
         except ValueError as err:
             raise NodeFileError(f"{source}: {err}") from None
 
@@ -220,6 +243,32 @@ def write_nodes(nodes: NodeSet, path: str | Path) -> None:
     text = json.dumps(nodes.to_slicer(), indent=2) if path.name.lower().endswith(".json") else nodes.to_csv()
     with atomic_write(path) as temporary:
         temporary.write_text(text, encoding="utf-8")
+
+
+def _cov_columns(col: dict, source: str) -> bool:
+    """Whether the header carries the covariance; NodeFileError when only some of its six columns are there."""
+    present = [name for name in COV_COLUMNS if name in col]
+    if present and len(present) < len(COV_COLUMNS):
+        missing = [name for name in COV_COLUMNS if name not in col]
+        raise NodeFileError(f"{source}: the covariance needs all six columns {','.join(COV_COLUMNS)} (mm^2); "
+                            f"{', '.join(missing)} missing")
+    return bool(present)
+
+
+def _cov_cells(cells: list[str], where: str) -> np.ndarray:
+    """(3, 3) mm^2 from a row's six covariance cells: NaN when all are empty (unknown); NodeFileError otherwise when
+    one is empty or not a number."""
+    cells = [cell.strip() for cell in cells]
+    if not any(cells):
+        return np.full((3, 3), np.nan)
+    try:
+        upper = [float(cell) for cell in cells]
+    except ValueError:
+        raise NodeFileError(f"{where} has a covariance cell that is not a number (mm^2); leave all six empty if "
+                            "unknown") from None
+    matrix = np.zeros((3, 3))
+    matrix[_UPPER] = upper
+    return matrix + np.triu(matrix, 1).T
 
 
 def _separator_hint(header: str) -> str:

@@ -128,14 +128,16 @@ def test_budget_reports_every_source_alone_and_all_but(small_budget, tmp_path):
     assert set(out) == {"all", "alone", "all_but", "tre_predicted_mm", "dominant"}
     assert set(out["alone"]) == set(out["all_but"]) == set(SOURCES) and out["dominant"] in SOURCES
     for figure in [out["all"], *out["alone"].values(), *out["all_but"].values()]:
-        assert set(figure) == {"rms_mm", "node_error_mm", "pairing_success"}
+        assert set(figure) == {"rms_mm", "node_error_mm", "pairing_success", "coverage_90"}
         assert set(figure["rms_mm"]) == set(figure["node_error_mm"]) == {"median", "p90"}
     assert result.figures["none"].rms_median < 0.5                 # nothing errs: only the method's own floor
     assert out["alone"]["calibration"]["node_error_mm"]["median"] > 0   # solved from noisy corners, then tracked
     assert out["alone"]["tracking"]["node_error_mm"]["median"] > 0
     assert out["tre_predicted_mm"] > 0 and json.dumps(out)
+    assert 0.0 <= out["all"]["coverage_90"] <= 1.0 and out["alone"]["pointing"]["coverage_90"] is not None
+    assert out["alone"]["spect"]["coverage_90"] is None         # no intraop error: no node has an ellipsoid
     text = markdown_report(result, "snreg budget --reps 2")
-    assert "Dominant source" in text and "thesis Table 4" in text
+    assert "Dominant source" in text and "thesis Table 4" in text and "registered without the covariances" in text
     png = plot_tornado(result, tmp_path / "t.png")
     assert png.read_bytes()[:4] == b"\x89PNG"
 
@@ -196,3 +198,28 @@ def test_cohort_runs_the_model_over_patient_like_node_sets():
     assert len(result.figures["all"].node_error_mm) == sum(sizes)          # repetition r meets patient r
     assert result.figures["none"].rms_median < 0.5 and result.figures["all"].rms_median > 1.0
     assert "patient-like" in markdown_report(result)
+
+
+def test_each_nodes_covariance_holds_its_error_and_the_budget_can_register_with_it():
+    """The rig's covariance from the model's magnitudes: on one draw it is the function the acquisition runs; over a
+    small run the 90 % ellipsoids hold about 90 % of the nodes' intraop errors; --covariances registers with them."""
+    from snreg.demo.error_covariance import intraop_covariances, node_uncertainty
+    from snreg.tracking.uncertainty import NodeUncertainty, node_covariance
+
+    model = load_error_model("thesis")
+    mapped = node_uncertainty(model)               # the thesis model's magnitudes are the cited defaults
+    assert mapped.imu_deg == pytest.approx(np.hypot(0.4625, 0.1167))
+    assert mapped == NodeUncertainty(imu_deg=mapped.imu_deg)
+    assert node_uncertainty(model.only(["pointing"])).residual_mm == 0.0
+    scenario = compose(model, GEOMETRY, _draw(model))
+    cameras = thesis_calibration()
+    covariances = intraop_covariances(model, scenario, cameras, PROBE, GEOMETRY.axis_camera)
+    np.testing.assert_allclose(covariances[2], node_covariance(
+        node_uncertainty(model), cameras, PROBE, scenario.chains[2], scenario.earth_from_imu[2],
+        scenario.tips_camera[2], GEOMETRY.axis_camera))
+    pointing = model.only(["pointing"]).with_setting("pointing=2")       # formula-drawn: the ellipsoids hold it
+    config = BudgetConfig(reps=60, workers=1, seed=3, method="icp")
+    figure = run_budget(pointing, config).figures["all"]
+    assert len(figure.covered) == 240 and figure.coverage_90 > 0.9
+    with_cov = run_budget(pointing, BudgetConfig(reps=2, workers=1, method="global", covariances=True))
+    assert "registration global with each node's covariance" in markdown_report(with_cov)

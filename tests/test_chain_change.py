@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from snreg.camera import StereoCalibration, thesis_calibration
-from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.chain import ChainCalibration, camera_to_trocar, trocar_from_camera
 from snreg.nodes import NodeSet
 from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
@@ -14,6 +14,7 @@ from snreg.workflow.chain_change import calibration_change, mixed_calibration_no
 from snreg.workflow.registration_run import RunRequest, run_registration
 
 SEED = 1212
+CAMERA_COV = np.diag([1.0, 2.0, 25.0])        # mm^2, camera frame: a stereo fix, long along the depth
 
 
 def _versions(stereo, chain):
@@ -21,14 +22,16 @@ def _versions(stereo, chain):
 
 
 def _store_nodes(session, stereo, chain, rng, n=4):
-    """Nodes as Acquisition.store keeps them: camera tip, orientation, trocar tip through ``chain``, versions."""
+    """Nodes as Acquisition.store keeps them: camera tip, orientation, trocar tip through ``chain``, versions, and a
+    covariance made in the camera frame (long along z) turned into the trocar frame."""
     stereo_version, chain_version = _versions(stereo, chain)
     for k in range(n):
         camera = rng.uniform([-30, -20, 70], [30, 20, 130])
         earth_from_imu = Rotation.from_euler("ZYX", rng.uniform(-15, 15, 3), degrees=True).as_matrix()
+        turn = trocar_from_camera(chain, earth_from_imu)[:3, :3]
         session.add_intraop_node(f"SN{k + 1}", "", camera_to_trocar(chain, earth_from_imu, camera), xyz_camera=camera,
                                  earth_from_imu=earth_from_imu, stereo_version=stereo_version,
-                                 chain_version=chain_version)
+                                 chain_version=chain_version, cov_trocar_mm2=turn @ CAMERA_COV @ turn.T)
 
 
 def _pivoted_chain():
@@ -63,10 +66,13 @@ def test_a_chain_change_is_said_and_reexpresses_the_nodes_exactly(tmp_path):
             np.testing.assert_allclose(node.xyz_trocar, expected, atol=1e-9)
             np.testing.assert_allclose(node.xyz_camera, old_node.xyz_camera)
             assert node.measured_under == _versions(stereo, new)
+            turn = trocar_from_camera(new, old_node.earth_from_imu)[:3, :3]     # the covariance turned with the node
+            np.testing.assert_allclose(node.cov_trocar_mm2, turn @ CAMERA_COV @ turn.T, atol=1e-9)
         [event] = session.events("nodes_reexpressed")
         kept = {change["id"]: change["old"] for change in event["nodes"]}
         for node_id, old_node in before.items():        # the positions as first stored stay on record
             np.testing.assert_allclose(kept[node_id]["xyz_trocar"], old_node.xyz_trocar)
+            np.testing.assert_allclose(kept[node_id]["cov_trocar_mm2"], old_node.cov_trocar_mm2)
             assert kept[node_id]["chain_version"] == old_node.chain_version
 
 

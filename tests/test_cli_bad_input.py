@@ -162,6 +162,18 @@ CASES = [
       "--chain", "{chain.json}"], "the calibration is for 960x540"),
     (["track-camera", "--left", "{l.png}", "--right", "{r.png}", "--imu-csv", "{imu1.csv}", "--calib", CALIB],
      "--chain"),
+    # calibrate trocar tissue
+    (["calibrate", "trocar", "tissue", "--left", "{l.png}", "--right", "{missing.png}", "--calib", CALIB],
+     "No right images"),
+    (["calibrate", "trocar", "tissue", "--left", "{l.png}", "--right", "{r.png}", "--calib", "{half.yaml}"],
+     "the calibration is for 960x540"),
+    (["calibrate", "trocar", "tissue", "--left", "{l.png}", "--right", "{r.png}", "--calib", CALIB,
+      "--imu-csv", "{imu2.csv}"], "2 IMU rows for 1 pairs"),
+    (["calibrate", "trocar", "tissue", "--left", "{l.png}", "--right", "{r.png}", "--calib", CALIB],
+     "found in only 0 of 1 pairs"),
+    (["calibrate", "trocar", "tissue", "--left", "{l.png}", "--right", "{r.png}", "--calib", CALIB, "-o",
+      MISSING + "/chain.json"], "does not exist"),
+    (["calibrate", "trocar", "tissue", "--left", "{l.png}", "--right", "{r.png}"], "--calib"),
     # simulate
     (["simulate", "--sigmas", "-5"], "--sigmas"),
     (["simulate", "--sigmas", "nan"], "--sigmas"),

@@ -21,7 +21,9 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     assert all(node["confidence"] > 0.9 for node in out["nodes"])
     assert out["camera"] == "still" and out["camera_tracking"] is False
     assert all(np.linalg.norm(np.subtract(node["xyz_trocar"], node["truth_trocar"])) < 1.5 for node in out["nodes"])
+    assert all(np.linalg.eigvalsh(node["cov_trocar_mm2"]).min() > 0 for node in out["nodes"])
     with Session.open(path) as session:
+        assert session.preop_nodes().cov.shape == (4, 3, 3)          # each hot spot's own, from the segmentation
         assert session.intraop_nodes().ids == ["SN1", "SN2", "SN3", "SN4"]
         assert session.preop_nodes().ids == ["P1", "P2", "P3", "P4"]    # never mistaken for the intraop SN1...
         assert all(node["preop"].startswith("P") for node in out["nodes"])

@@ -1,6 +1,7 @@
 """The trocar wizard offscreen on the rendered pivot recording (snreg.demo.pivot_scene): pivot and arc methods
 against the true chain, the chain saved into a real session file, manual entry refusing a bad value, and no
-thread or source left behind when the wizard is closed mid-run."""
+thread or source left behind when the wizard is closed mid-run; the turn over tissue (snreg.demo.tissue_pivot)
+against its true chain."""
 
 import math
 
@@ -12,6 +13,8 @@ from PySide6.QtWidgets import QWizard
 from snreg.calibration.checkerboard import Board
 from snreg.camera import thesis_calibration
 from snreg.demo.pivot_scene import PivotScene
+from snreg.demo.tissue_pivot import TissuePivotScene
+from snreg.probe import default_probe_model
 from snreg.geometry import rotation_distance_deg
 from snreg.session import Session
 from snreg.sources import SourceError, SourceState
@@ -183,3 +186,64 @@ def test_a_feed_that_cannot_open_is_named_in_one_sentence(qtbot, scene):
     assert page.status.text() == ("The feed stopped (No camera answers at index 3; check the cable and the device "
                                   "number); go Back, then Next to start it again.")
     assert not page.accept_button.isEnabled() and not next_button(wizard).isEnabled()
+
+
+def test_turning_over_tissue_finds_the_true_chain_and_reset_starts_afresh(qtbot, scene):
+    calibration = thesis_calibration().scaled(0.25)           # the tissue renders 5 times faster than at half size
+    tissue = TissuePivotScene(calibration, frames_per_cycle=FRAMES_PER_CYCLE, seed=2)
+    board_feed, tissue_feed = Sources(scene), Sources(tissue)
+    wizard = TrocarWizard(board_feed, scene.imu, calibration, BOARD, tissue_source=(tissue_feed, tissue.imu),
+                          probe=default_probe_model())
+    qtbot.addWidget(wizard)
+    with qtbot.waitExposed(wizard):
+        wizard.show()
+    wizard.method_page.tissue_button.click()
+    click(qtbot, next_button(wizard))
+    page = wizard.tissue_page
+    assert wizard.currentId() == PageId.TISSUE and not page.accept_button.isEnabled()
+    qtbot.waitUntil(lambda: len(page.samples) >= 3, timeout=30_000)
+    click(qtbot, page.reset_button)                           # a new tissue frame: the old samples are gone
+    assert page.samples == [] and page.table.rowCount() == 0
+    wait_for_samples(qtbot, page, FRAMES_PER_CYCLE + 4)       # round the whole ellipse once
+    starts = {sample.start for sample in page.samples}
+    assert len(starts) == 1 and starts != {1}                 # all of one start, after the reset's
+    for sample in page.samples:                               # each pose paired with the IMU at its own frame
+        assert np.allclose(sample.earth_from_imu, tissue.earth_from_imu(sample.frame_index), atol=1e-12)
+    assert page.fit.pivot.verdict != "bad" and "verdict:" in page.verdict.text()
+    assert "IMU-camera rotation (yaw, pitch, roll)" in page.rotation.text()
+    click(qtbot, page.accept_button)
+    assert "tissue" in wizard.summary_page.method.text()
+    with qtbot.waitSignal(wizard.chain_calibrated, timeout=10_000) as emitted:
+        click(qtbot, finish_button(wizard))
+    chain = emitted.args[0]
+    distance_error = abs(chain.trocar_camera_mm - tissue.true_chain.trocar_camera_mm)
+    rotation_error = float(rotation_distance_deg(chain.imu_from_camera, tissue.true_chain.imu_from_camera))
+    print(f"tissue: {page.fit.n_samples} samples, trocar-camera {chain.trocar_camera_mm:.2f} mm "
+          f"(error {distance_error:.2f} mm), IMU-camera rotation error {rotation_error:.3f} degrees")
+    assert distance_error < 2.0 and rotation_error < 1.0
+    assert not wizard.busy and board_feed.made == [] and tissue_feed.all_closed()   # only the tissue's feed ran
+
+
+def test_the_board_and_tissue_feeds_never_hold_one_camera_at_once(qtbot, scene):
+    class Camera(Sources):
+        """Both feeds of a real rig open the same cameras: a second may open only once the first is closed."""
+
+        overlapped = False
+
+        def __call__(self):
+            self.overlapped |= not self.all_closed()
+            return super().__call__()
+
+    camera = Camera(scene)
+    wizard = TrocarWizard(camera, scene.imu, scene.calibration, BOARD, tissue_source=(camera, scene.imu))
+    qtbot.addWidget(wizard)
+    wizard.show()
+    click(qtbot, next_button(wizard))
+    qtbot.waitUntil(lambda: len(wizard.pivot_page.samples) > 0, timeout=30_000)
+    wizard.back()                                        # and at once on to the tissue page
+    wizard.method_page.tissue_button.click()
+    wizard.next()
+    qtbot.waitUntil(lambda: len(camera.made) == 2 and wizard.tissue_page.imu_label.text().startswith("IMU at frame"),
+                    timeout=30_000)
+    wizard.close()
+    assert not camera.overlapped and camera.all_closed() and not wizard.busy

@@ -246,6 +246,13 @@ def test_hardware_and_demo_rigs_answer_the_rig_protocol_with_their_wizard_feeds(
             if rig is demo:                  # the pivot recording's IMU follows the frame just read
                 assert isinstance(imu, SceneImu) and imu.take_samples() == []
                 np.testing.assert_allclose(imu.snapshot().earth_from_imu, imu._scene.earth_from_imu(frame.index))
+            make_source, imu = rig.tissue_source()          # the turn over tissue: the same contract
+            assert isinstance(imu, Imu)
+            if rig is demo:
+                with make_source() as source:
+                    frame = next(iter(source))
+                assert frame.left.shape[1::-1] == rig.calibration.image_size
+                np.testing.assert_allclose(imu.snapshot().earth_from_imu, imu._scene.earth_from_imu(frame.index))
         assert not hardware.simulated and demo.simulated
         with hardware.board_source() as source:          # the cameras themselves, for the stereo wizard
             np.testing.assert_array_equal(source.read().left, pairs[0][0])

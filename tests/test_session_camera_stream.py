@@ -102,7 +102,7 @@ def test_a_format_3_file_without_the_camera_stream_reads_as_the_chains_constant(
         assert np.isnan(node.trocar_camera_mm)
     assert verify(path).ok
     info = session_info(path)
-    assert info["nodes"] == [{"id": "SN1", "label": "OBT R", "trocar_camera_mm": None}]
+    assert info["nodes"] == [{"id": "SN1", "label": "OBT R", "trocar_camera_mm": None, "cov_trocar_mm2": None}]
     assert info["streams"]["camera"] == 0 and info["camera"] == {"tracked": 0, "lost": 0} and not info["damaged"]
     poses = probe_poses(path)                                   # the constant insertion maps the fix
     np.testing.assert_allclose(poses.insertion_mm, [chain.trocar_camera_mm])
@@ -128,8 +128,8 @@ def test_a_nodes_insertion_is_in_the_file_the_journal_and_session_info(tmp_path,
         assert [n.trocar_camera_mm for n in session.intraop_records()][0] == 171.25
     assert main(["session", "info", str(path), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert info["nodes"] == [{"id": "SN1", "label": "", "trocar_camera_mm": 171.25},
-                             {"id": "SN2", "label": "INT L", "trocar_camera_mm": None}]
+    assert info["nodes"] == [{"id": "SN1", "label": "", "trocar_camera_mm": 171.25, "cov_trocar_mm2": None},
+                             {"id": "SN2", "label": "INT L", "trocar_camera_mm": None, "cov_trocar_mm2": None}]
     assert main(["session", "info", str(path)]) == 0
     assert "nodes mapped at: SN1 171.2 mm, SN2 untracked" in capsys.readouterr().out
     path.unlink()                                               # the journal alone holds it too

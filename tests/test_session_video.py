@@ -57,6 +57,8 @@ def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_sca
     own = retrack(path)
     assert [n.fixes for n in own.nodes] == [VIDEO_FIXES] * len(NODE_CENTRES_MM)
     assert max(n.moved_mm for n in own.nodes) < 0.5
+    for node in own.nodes:          # the same window again: the covariance the acquisition stored, computed anew
+        np.testing.assert_allclose(node.after_cov, node.node.cov_trocar_mm2, atol=0.1)      # mm^2, of some 16
     longer = StereoCalibration.from_pair(cameras.image_size, cameras.K1, cameras.D1, cameras.K2, cameras.D2,
                                          cameras.R, cameras.T * 1.05)
     scaled = retrack(path, calibration=longer)
@@ -73,6 +75,7 @@ def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_sca
     assert event["reason"] == "retrack: baseline 5% longer"
     assert np.allclose([c["old"]["xyz_camera"] for c in event["nodes"]], [n.node.xyz_camera for n in scaled.nodes])
     assert np.allclose([n.xyz_camera for n in nodes], [n.after_camera for n in scaled.nodes])
+    np.testing.assert_allclose([n.cov_trocar_mm2 for n in nodes], [n.after_cov for n in scaled.nodes])
 
 
 def test_retrack_refuses_another_image_size_and_a_session_without_video(recorded_video, tmp_path, capsys):

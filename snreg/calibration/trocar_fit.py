@@ -1,9 +1,11 @@
-"""The trocar calibration of a recording of board poses and IMU orientations: the pivot and the arc method.
+"""The trocar calibration of a recording of camera poses and IMU orientations: the pivot method (over a board or
+over tissue) and the arc method.
 
 Why: the trocar wizard refits its live samples after each new one, in a worker thread, and shows what the
 recording gives so far; these are the fits it runs, on plain arrays. All the computing is in
-:mod:`snreg.calibration.pivot` and :mod:`snreg.calibration.trocar`; this module only feeds them, the same way
-``snreg calibrate trocar`` does from image files, and builds the :class:`~snreg.chain.ChainCalibration`.
+:mod:`snreg.calibration.pivot`, :mod:`snreg.calibration.tissue_pivot` and :mod:`snreg.calibration.trocar`; this
+module only feeds them, the same way ``snreg calibrate trocar`` does from image files, and builds the
+:class:`~snreg.chain.ChainCalibration`.
 """
 
 from __future__ import annotations
@@ -14,17 +16,18 @@ import numpy as np
 
 from snreg.calibration.pivot import (HandEyeRotation, PivotResult, imu_camera_rotation, imu_from_camera_transform,
                                      pivot_calibration)
+from snreg.calibration.tissue_pivot import tissue_pivot_calibration
 from snreg.calibration.trocar import DistanceEstimate, arc_distance
 from snreg.chain import THESIS_IMU_TROCAR_MM, ChainCalibration
 
-__all__ = ["PivotFit", "ArcFit", "fit_pivot", "fit_arc", "MIN_ARC_PAIRS"]
+__all__ = ["PivotFit", "ArcFit", "fit_pivot", "fit_tissue_pivot", "fit_arc", "MIN_ARC_PAIRS"]
 
 MIN_ARC_PAIRS = 10            # a median of fewer swings is not worth a calibration
 
 
 @dataclass(frozen=True, eq=False)
 class PivotFit:
-    """The pivot method on ``n_samples`` samples: ``pivot`` (None with ``problem`` saying why), the IMU-camera
+    """The pivot method on ``n_samples`` samples (board or tissue poses): ``pivot`` (None with ``problem`` saying why), the IMU-camera
     rotation ``hand_eye`` (None with ``rotation_problem``: the chain then assumes the identity, as the thesis
     did) and the resulting ``chain``."""
 
@@ -57,16 +60,28 @@ class ArcFit:
 
 def fit_pivot(board_from_camera: np.ndarray, earth_from_imu: np.ndarray,
               imu_trocar_mm: float = THESIS_IMU_TROCAR_MM) -> PivotFit:
-    """Pivot calibration of (n, 4, 4) poses, the IMU-camera rotation from the (n, 3, 3) orientations of its
+    """Pivot calibration of (n, 4, 4) board poses, the IMU-camera rotation from the (n, 3, 3) orientations of its
     inlier poses, and the chain with the IMU ``imu_trocar_mm`` behind the pivot (it cancels out of the chain)."""
-    n = len(board_from_camera)
+    return _fit_poses(pivot_calibration, board_from_camera, earth_from_imu, imu_trocar_mm)
+
+
+def fit_tissue_pivot(tissue_from_camera: np.ndarray, earth_from_imu: np.ndarray,
+                     imu_trocar_mm: float = THESIS_IMU_TROCAR_MM) -> PivotFit:
+    """:func:`fit_pivot` on (n, 4, 4) free camera poses over tissue, with the tissue method's verdict
+    (:func:`~snreg.calibration.tissue_pivot.tissue_pivot_calibration`)."""
+    return _fit_poses(tissue_pivot_calibration, tissue_from_camera, earth_from_imu, imu_trocar_mm)
+
+
+def _fit_poses(calibrate, poses: np.ndarray, earth_from_imu: np.ndarray, imu_trocar_mm: float) -> PivotFit:
+    """``calibrate`` (poses -> PivotResult) on the poses, the IMU-camera rotation of its inliers, and the chain."""
+    n = len(poses)
     try:
-        pivot = pivot_calibration(board_from_camera)
+        pivot = calibrate(poses)
     except ValueError as err:
         return PivotFit(n, None, None, None, str(err), "")
     hand_eye, rotation_problem = None, ""
     try:
-        hand_eye = imu_camera_rotation(earth_from_imu[pivot.inliers], board_from_camera[pivot.inliers])
+        hand_eye = imu_camera_rotation(earth_from_imu[pivot.inliers], poses[pivot.inliers])
     except ValueError as err:
         rotation_problem = str(err)
     rotation = hand_eye.imu_from_camera if hand_eye is not None else np.eye(3)

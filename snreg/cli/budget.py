@@ -32,12 +32,16 @@ def add_budget_parser(subparsers) -> None:
                    help="error model: ideal, thesis (default) or a YAML file like resources/errors/thesis.yaml")
     p.add_argument("--reps", type=int_range(1, MAX_REPS), default=DEFAULT_REPS, help=f"repetitions (at most {MAX_REPS})")
     p.add_argument("--method", choices=_METHODS, default="chamfer", help="registration method (thesis: chamfer)")
+    p.add_argument("--covariances", action="store_true",
+                   help="register with each node's own covariance (as the rig gives it from the model's magnitudes) "
+                        "and each hot spot's (as the segmentation gives it); global weighs nodes by them, the other "
+                        "methods fit as without")
     p.add_argument("--set", action="append", default=None, metavar="SOURCE=VALUE", dest="settings",
                    help="what if: SOURCE=FACTOR scales a source's error (0: off), SOURCE.PARAMETER=VALUE sets one "
                         "magnitude, e.g. --set tracking=0.5 --set imu.turn_error_deg=0.2")
     p.add_argument("-o", "--output", default="snreg-budget", help="report folder (budget.md, tornado.png, budget.json)")
     p.add_argument("--json", action="store_true", help='print one JSON object: {"all", "alone", "all_but", '
-                   '"tre_predicted_mm", "dominant"}')
+                   '"tre_predicted_mm", "dominant"}; each figure: rms_mm, node_error_mm, pairing_success, coverage_90')
     p.add_argument("--cohort", nargs="?", const="synthetic", metavar="DIR",
                    help="over patient-like node sets instead of the phantom: the synthetic 13-patient cohort of snreg "
                         "simulate, or a directory of preop node CSVs, one per patient")
@@ -52,7 +56,7 @@ def add_budget_parser(subparsers) -> None:
 def cmd_budget(args) -> int:
     from snreg.demo.errors import load_error_model
     from snreg.simulation.budget import BudgetConfig, run_budget
-    from snreg.simulation.budget_report import format_table, phantom_gap, write_budget_report
+    from snreg.simulation.budget_report import coverage_line, format_table, phantom_gap, write_budget_report
 
     try:
         model = load_error_model(args.errors)
@@ -63,7 +67,7 @@ def cmd_budget(args) -> int:
         raise UserError(str(err)) from None
     check_output_folder(args.output, "budget report")
     config = BudgetConfig(reps=args.reps, method=args.method, seed=args.seed, draws=args.draws, workers=args.workers,
-                          cohort=cohort)
+                          cohort=cohort, covariances=args.covariances)
     started = time.perf_counter()
     result = run_budget(model, config, progress=None if args.quiet else progress("budget"))
     seconds = time.perf_counter() - started
@@ -81,6 +85,7 @@ def cmd_budget(args) -> int:
               f" mm instead of {result.figures['all'].rms_median:.2f} mm)")
     print(f"Fitzpatrick-West: FLE {result.fle_mm:.2f} mm -> TRE {result.tre_predicted_mm:.2f} mm, FRE "
           f"{result.fre_predicted_mm:.2f} mm; Monte Carlo TRE {result.tre_mc_mm:.2f} mm")
+    print(coverage_line(result))
     if not config.cohort:
         print("\n".join(phantom_gap(result)))
     print(f"\nreport: {paths['markdown']}  chart: {paths['tornado']}  ({seconds:.0f} s)", file=sys.stderr)

@@ -1,12 +1,13 @@
-"""``snreg experiment tracking|camera|imu``: the thesis' tracking (Table 4) and IMU (Fig. 19) accuracy experiments, and
-the camera's insertion tracked on rendered surgery videos."""
+"""``snreg experiment tracking|camera|tissue-pivot|imu``: the thesis' tracking (Table 4) and IMU (Fig. 19) accuracy
+experiments, the camera's insertion tracked on rendered surgery videos, and the pivot distance from rendered turns
+over tissue."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from snreg.cli.common import finite_float, float_range, int_range, ints, positive_int, progress, seed
+from snreg.cli.common import finite_float, float_range, floats, int_range, ints, positive_int, progress, seed
 
 __all__ = ["add_experiment_parser"]
 
@@ -26,6 +27,13 @@ def _noise(text: str) -> float:
     if not 0 <= value <= 255:
         raise argparse.ArgumentTypeError(f"expected a noise sigma from 0 to 255 grey levels, got {text!r}")
     return value
+
+
+def _turns(text: str) -> tuple[float, ...]:
+    values = floats(text)
+    if not values or not all(0 < v <= 60 for v in values):
+        raise argparse.ArgumentTypeError(f"expected turns above 0 and at most 60 degrees, comma-separated, got {text!r}")
+    return values
 
 
 def add_experiment_parser(subparsers) -> None:
@@ -51,6 +59,22 @@ def add_experiment_parser(subparsers) -> None:
                    help="render at this fraction of 1920x1080 (default 1: full HD)")
     e.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     e.set_defaults(func=cmd_experiment_camera)
+    e = experiments.add_parser("tissue-pivot", help="the pivot distance from rendered turns over tissue",
+                               description="The trocar-camera distance calibrated from the camera turning about the "
+                                           "trocar over tissue (as 'snreg calibrate trocar tissue'), on rendered turns "
+                                           "of the thesis' rig whose truth is known: per seed a distance of 130-180 mm "
+                                           "and its own tissue, the probe in view, the IMU at 0.2 degrees of noise; "
+                                           "each turn spread in --turns (about 30 s per turn of 36 pairs at half "
+                                           "size; progress on stderr).")
+    e.add_argument("--seeds", type=ints, default=(1, 2, 3), metavar="S,S,...",
+                   help="one scene per seed: distance, tissue, texture and noise (default 1,2,3)")
+    e.add_argument("--turns", type=_turns, default=(20.0, 12.0, 8.0, 4.0), metavar="DEG,DEG,...",
+                   help="the shaft's orientation spread of each recording, degrees (default 20,12,8,4)")
+    e.add_argument("--pairs", type=int_range(12, 400, "pairs"), default=36, help="pairs per turn (default 36)")
+    e.add_argument("--scale", type=float_range(0.2, 1.0, low_open=False), default=0.5,
+                   help="render at this fraction of 1920x1080 (default 0.5)")
+    e.add_argument("--json", action="store_true", help="print the trials and the summary per turn as one JSON object")
+    e.set_defaults(func=cmd_experiment_tissue_pivot)
     e = experiments.add_parser("imu", help="thesis Fig. 19: simulated protractor rotations")
     e.add_argument("--seed", type=seed, default=0, help="seed of the simulated sensor")
     e.set_defaults(func=cmd_experiment_imu)
@@ -84,6 +108,24 @@ def cmd_experiment_camera(args) -> int:
                           "all": camera_study.summary(trials)}))
     else:
         print(camera_study.format_camera_table(trials))
+    return 0
+
+
+def cmd_experiment_tissue_pivot(args) -> int:
+    import dataclasses
+    import json
+
+    from snreg.simulation import tissue_pivot as study
+
+    trials = [study.run_tissue_pivot_trial(s, turn, pairs=args.pairs, scale=args.scale,
+                                           progress=progress(f"tissue pivot, seed {s}, turn {turn:g}: pairs", always=True))
+              for turn in args.turns for s in args.seeds]
+    if args.json:
+        print(json.dumps({"trials": [dataclasses.asdict(t) | {"error_mm": t.error_mm} for t in trials],
+                          "turns": {f"{turn:g}": study.summary([t for t in trials if t.turn_deg == turn])
+                                    for turn in args.turns}}))
+    else:
+        print(study.format_tissue_pivot_table(trials))
     return 0
 
 

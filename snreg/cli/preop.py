@@ -1,8 +1,9 @@
-"""``snreg preop SPECT_PATH -o nodes.csv [--threshold REL] [--nodes N] [--stations CSV]``.
+"""``snreg preop SPECT_PATH -o nodes.csv [--threshold REL] [--nodes N] [--stations CSV] [--resolution MM]``.
 
 Loads a SPECT (NM) volume -- a multi-frame file, a series directory or slice files -- segments
 its nodes (:mod:`snreg.preop.segment`) and writes them as a node file (CSV, or Slicer markups
-for ``.mrk.json``) in LPS mm. Nothing from the patient module (name, ID, birth date) is
+for ``.mrk.json``) in LPS mm; the CSV carries each centre's covariance (``cov_*`` columns, mm^2), which
+``snreg register`` weighs the hot spots by. Nothing from the patient module (name, ID, birth date) is
 ever printed or written.
 """
 
@@ -17,6 +18,7 @@ from snreg.errors import UserError
 __all__ = ["add_preop_parser", "cmd_preop"]
 
 NODE_FILE_SUFFIXES = (".csv", ".mrk.json", ".json")
+RESOLUTION_MM = 12.0      # snreg.preop.segment.RESOLUTION_MM, stated here so that building the parser imports no numpy
 
 
 def add_preop_parser(subparsers) -> argparse.ArgumentParser:
@@ -32,6 +34,9 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--nodes", type=positive_int, metavar="N",
                    help="expected number of nodes (default: every hot spot and peak found)")
     p.add_argument("--stations", metavar="CSV", help="station per node id: a CSV with columns id,station; the nodes are P1, P2, ... hottest first")
+    p.add_argument("--resolution", type=finite_float, default=RESOLUTION_MM, metavar="MM",
+                   help="the scanner's resolution, FWHM of a point source, for each centre's covariance "
+                        f"(default {RESOLUTION_MM:g})")
     p.add_argument("--midline-x", type=finite_float, metavar="MM",
                    help="patient x of the midline for left/right labels (default: the volume centre)")
     p.set_defaults(func=cmd_preop)
@@ -40,6 +45,8 @@ def add_preop_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_preop(args) -> int:
     """Run ``snreg preop``; bad input raises ``snreg.errors.UserError`` with one sentence."""
+    import numpy as np
+
     from snreg.nodes import write_nodes
     from snreg.preop.segment import read_station_table, segment_nodes
     from snreg.preop.volume import PreopError, load_volume
@@ -52,7 +59,7 @@ def cmd_preop(args) -> int:
         stations = read_station_table(args.stations) if args.stations else None
         volume = load_volume(source, modality="NM")
         result = segment_nodes(volume, threshold=args.threshold, n_nodes=args.nodes,
-                               midline_x=args.midline_x, stations=stations)
+                               midline_x=args.midline_x, stations=stations, resolution_mm=args.resolution)
     except PreopError as err:
         raise UserError(str(err)) from None
     for warning in volume.warnings:
@@ -68,9 +75,10 @@ def cmd_preop(args) -> int:
     sx, sy, sz = volume.spacing_mm
     print(f"{len(nodes)} node(s) above {args.threshold:g} x maximum in a {x}x{y}x{z} volume "
           f"({sx:.3f} x {sy:.3f} x {sz:.3f} mm), written to {args.output}")
-    print(f"{'id':<5} {'label':<8} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'peak':>10} {'total':>12}")
+    print(f"{'id':<5} {'label':<8} {'x mm':>8} {'y mm':>8} {'z mm':>8} {'peak':>10} {'total':>12} {'sd mm':>6}")
     for k in range(len(nodes)):
         px, py, pz = nodes.xyz[k]
+        sd = np.sqrt(np.linalg.eigvalsh(nodes.cov[k]).max())          # along the centre's least certain axis
         print(f"{nodes.ids[k]:<5} {nodes.labels[k]:<8} {px:8.1f} {py:8.1f} {pz:8.1f} "
-              f"{result.peak_counts[k]:10.4g} {result.total_counts[k]:12.6g}")
+              f"{result.peak_counts[k]:10.4g} {result.total_counts[k]:12.6g} {sd:6.2f}")
     return 0

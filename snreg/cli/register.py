@@ -1,5 +1,9 @@
 """``snreg register PREOP.csv INTRAOP.(csv|h5)`` or ``snreg register SESSION.h5``: register the preop nodes to the
-intraop nodes and pair them; with a session alone, both node sets and the initial alignment come from it."""
+intraop nodes and pair them; with a session alone, both node sets and the initial alignment come from it.
+
+Each side's covariances (a stored node's own error, a hot spot's from the segmentation; a session's nodes or a CSV's
+``cov_*`` columns) are given to ``register`` when every node of that side has one; ``--no-covariances`` registers
+without them, for comparison. The output says which were used."""
 
 from __future__ import annotations
 
@@ -26,6 +30,8 @@ def add_register_parser(subparsers) -> None:
     p.add_argument("--max-rotation", type=finite_float, default=60.0, help="degrees from the initial alignment")
     p.add_argument("--max-translation", type=finite_float, default=60.0, help="mm from the initial alignment")
     p.add_argument("--seed", type=seed, default=0, help="random seed of the search")
+    p.add_argument("--no-covariances", action="store_true",
+                   help="ignore the nodes' own covariances (used by default when every node of a side has one)")
     p.add_argument("-o", "--output", help="write the result as JSON")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=cmd_register)
@@ -67,12 +73,14 @@ def cmd_register(args) -> int:
     except (NodeFileError, SessionError, ValueError, OSError) as err:
         raise UserError(str(err)) from None
     initial = read_initial(args.initial) if args.initial else session_initial
+    covariances = _covariances(preop, intraop, args.no_covariances)
     try:
         result = register(preop.xyz, intraop.xyz, method=args.method,
                           preop_labels=preop.labels if args.labels else None,
                           intraop_labels=intraop.labels if args.labels else None,
                           initial=initial, max_rotation_deg=args.max_rotation,
-                          max_translation_mm=args.max_translation, seed=args.seed)
+                          max_translation_mm=args.max_translation, seed=args.seed,
+                          intraop_cov=covariances["intraop"], preop_cov=covariances["preop"])
     except NoFitError:
         raise UserError(f"no pairing fits within {args.max_rotation:g} degrees and {args.max_translation:g} mm of the "
                         f"{'given' if initial is not None else 'identity'} initial alignment: give a rough alignment "
@@ -84,7 +92,9 @@ def cmd_register(args) -> int:
     missing = missing_nodes(preop, result)
     doc = {"method": result.method, "pairing_rule": result.pairing_rule, "rms_mm": result.rms_mm,
            "confident_threshold": CONFIDENT, "intraop_from_preop": result.transform.tolist(),
-           "initial": result.initial.tolist(), "nodes": [row.as_json() for row in rows],
+           "initial": result.initial.tolist(),
+           "covariances": {side: covariances[side] is not None for side in ("intraop", "preop")},
+           "nodes": [row.as_json() for row in rows],
            "missing": [node.as_json() for node in missing], "warnings": node_warnings(rows)}
     if args.output:
         write_text(args.output, json.dumps(doc, indent=2), "result")
@@ -92,6 +102,7 @@ def cmd_register(args) -> int:
         print(json.dumps(doc))
         return 0
     print(f"method {result.method}, RMS {result.rms_mm:.2f} mm, pairing rule {result.pairing_rule}")
+    print(_covariance_text(covariances, preop, intraop, args.no_covariances))
     if ids_collide(preop.ids, intraop.ids):
         print(f"the preop ids repeat intraop ids: preop nodes are shown as {PREOP_MARK}<id>")
     shown = marked_rows(rows, preop.ids)
@@ -112,3 +123,23 @@ def cmd_register(args) -> int:
           "hot spot);\nloo: the node's distance when the other pairs alone register (a large value flags a suspect "
           "node)")
     return 0
+
+
+def _covariances(preop, intraop, ignore: bool) -> dict:
+    """``{"intraop", "preop"}``: each side's covariances (N, 3, 3) mm^2 when every node of it has one, else None (and
+    both None when ``ignore``)."""
+    if ignore:
+        return {"intraop": None, "preop": None}
+    return {"intraop": intraop.known_cov, "preop": preop.known_cov}
+
+
+def _covariance_text(covariances: dict, preop, intraop, ignore: bool) -> str:
+    """One line: which sides' own covariances weighed the nodes, and why a side's did not."""
+    if ignore:
+        return "covariances: not used (--no-covariances); every node weighed alike"
+    used = [side for side in ("intraop", "preop") if covariances[side] is not None]
+    missing = [f"{side} nodes {'have none' if nodes.cov is None else 'lack some'}"
+               for side, nodes in (("intraop", intraop), ("preop", preop)) if covariances[side] is None]
+    text = f"covariances: each {' and '.join(used)} node weighed by its own" if used else \
+        "covariances: none used; every node weighed alike"
+    return f"{text} ({'; '.join(missing)})" if missing else text

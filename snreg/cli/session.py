@@ -62,6 +62,12 @@ def cmd_info(args) -> int:
                                                f"{node['trocar_camera_mm']:.1f} mm") for node in info["nodes"])
         print(f"camera insertion: tracked on {camera['tracked']} pairs, lost on {camera['lost']}; nodes mapped at: "
               f"{mapped or 'none stored'}")
+    if any(node["cov_trocar_mm2"] is not None for node in info["nodes"]):
+        from snreg.tracking.uncertainty import ellipsoid_radius_mm
+        spreads = ", ".join(f"{node['id']} " + ("unknown" if node["cov_trocar_mm2"] is None else
+                                                f"{ellipsoid_radius_mm(node['cov_trocar_mm2']):.1f} mm")
+                            for node in info["nodes"])
+        print(f"node errors, 90 % ellipsoid's longest semi-axis: {spreads}")
     print(f"calibration: {', '.join(info['calibration']) or 'none'}; registrations: {regs}")
     for video in info["videos"]:
         print(f"video {video['side']}: {video['path']} ({video['frames']} frames, {video['codec']})")

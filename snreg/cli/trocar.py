@@ -6,8 +6,15 @@ of a still board taken while the endoscope pivots about the trocar; with an IMU 
 ``pitch``, ``roll`` in degrees, sensor to earth, one row per image in sorted image order) also the
 IMU-camera rotation.
 
+``snreg calibrate trocar tissue --left GLOB --right GLOB --calib calib.yaml [--imu-csv CSV] [--imu-trocar MM]
+[--probe P.yaml] [-o chain.json] [--json]``: the same pivot calibration with no board, from stereo pairs of still
+tissue taken while the endoscope turns about the trocar (:mod:`snreg.calibration.tissue_pivot`); the IMU CSV as for
+``pivot``, one row per pair.
+
 ``snreg calibrate trocar manual --imu-trocar MM --trocar-camera MM [-o chain.json]``: the thesis's
 hand-measured chain (§4.1: 460 and 158 mm, axes aligned by eye), printed as JSON.
+
+A recording judged bad writes no chain file (exit status 2).
 """
 
 from __future__ import annotations
@@ -35,7 +42,8 @@ def _distance(text: str) -> float:
 
 
 def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
-    """Add ``trocar`` with its modes ``pivot`` and ``manual`` to the ``calibrate`` subparsers; returns its parser."""
+    """Add ``trocar`` with its modes ``pivot``, ``tissue`` and ``manual`` to the ``calibrate`` subparsers; returns its
+    parser."""
     trocar = calibrate_subparsers.add_parser("trocar", help="trocar and IMU calibration of the chain (thesis §3.5, §4.1)")
     modes = trocar.add_subparsers(dest="trocar_mode", required=True)
     p = modes.add_parser("pivot", help="pivot calibration from images of a still board",
@@ -52,6 +60,26 @@ def add_trocar_parser(calibrate_subparsers) -> argparse.ArgumentParser:
                         "it cancels out of the chain)")
     p.add_argument("-o", "--output", metavar="JSON", help="write the chain constants as JSON")
     p.set_defaults(func=cmd_trocar_pivot)
+    p = modes.add_parser("tissue", help="pivot calibration from stereo pairs of tissue, no board",
+                         description="Find the trocar pivot in the camera frame from stereo pairs of still tissue taken "
+                                     "while the endoscope turns about the trocar in two directions without sliding: "
+                                     "the camera's own motion from the stereo pairs, fitted to one pivot.")
+    p.add_argument("--left", required=True, metavar="GLOB", help="left images (natural name order), e.g. 'turn/left/*.png'")
+    p.add_argument("--right", required=True, metavar="GLOB", help="right images, one per left image")
+    p.add_argument("--calib", required=True, help="stereo calibration file (.yaml)")
+    p.add_argument("--imu-csv", metavar="CSV", help="IMU orientation per pair: columns yaw,pitch,roll (degrees, "
+                                                    "earth_from_imu), rows in sorted image order")
+    p.add_argument("--imu-trocar", type=_distance, default=THESIS_IMU_TROCAR_MM, metavar="MM",
+                   help=f"IMU-trocar distance for the chain file, mm (default {THESIS_IMU_TROCAR_MM:g}; it cancels out "
+                        "of the chain)")
+    p.add_argument("--probe", help="probe model file, to leave the probe out of the tissue (default: "
+                                   "resources/probe/drop_in_probe.yaml)")
+    p.add_argument("-o", "--output", metavar="JSON", help="write the chain constants as JSON (method \"tissue\")")
+    p.add_argument("--json", action="store_true",
+                   help='print one JSON object: {"trocar_camera_mm", "distance_sd_mm", "rms_mm", "tilt_range_deg", '
+                        '"pivot_camera_mm", "pairs", "views", "used", "lost", "verdict", "advice", "imu_from_camera" '
+                        '({"yaw", "pitch", "roll", "rms_deg", "pairs"} or null), "chain" (the file written or null)}')
+    p.set_defaults(func=cmd_trocar_tissue)
     p = modes.add_parser("manual", help="hand-measured distances (thesis §4.1)",
                          description="Chain constants from measured distances, IMU axes aligned with the camera's by eye.")
     p.add_argument("--imu-trocar", required=True, type=_distance, metavar="MM",
@@ -136,6 +164,117 @@ def cmd_trocar_pivot(args) -> int:
         write_text(output, _chain_json(chain, "pivot") + "\n", "chain file")
         print(f"wrote {output}")
     return 0
+
+
+def cmd_trocar_tissue(args) -> int:
+    """Follow the camera over the tissue pairs, fit the pivot and report it; bad input raises ``UserError``, and so
+    does a recording judged bad: then no chain file is written."""
+    import numpy as np
+
+    from snreg.calibration.pivot import MIN_POSES, imu_camera_rotation, imu_from_camera_transform
+    from snreg.calibration.tissue_pivot import tissue_pivot_calibration
+    from snreg.camera import CalibrationFileError, load_calibration
+    from snreg.chain import ChainCalibration
+    from snreg.probe import load_probe_model
+    from snreg.sources import ImageFolderSource, SourceError
+    from snreg.workflow.tissue_capture import follow_tissue
+
+    output = check_output_file(args.output, "chain file") if args.output else None
+    try:
+        calibration = load_calibration(args.calib)
+        probe = load_probe_model(args.probe)
+        source = ImageFolderSource(args.left, args.right)
+        imu = read_orientations(args.imu_csv, len(source), "pair") if args.imu_csv else None
+    except (CalibrationFileError, SourceError, ValueError) as err:
+        raise UserError(str(err)) from None
+    report = progress("tissue: pairs followed")
+
+    def pairs():
+        with source:
+            for k in range(len(source)):
+                frame = source.read()
+                if frame is None:
+                    raise UserError(source.problem or f"pair {k} could not be read")
+                report(k + 1, len(source))
+                yield frame.left, frame.right
+
+    followed = []
+    try:
+        for pose in follow_tissue(pairs(), calibration, probe):
+            followed.append(pose)
+    except ValueError as err:
+        raise UserError(f"pair {len(followed)}: {err}") from None
+    tracked = [k for k, pose in enumerate(followed) if pose.tracked]
+    if len(tracked) < MIN_POSES:
+        reasons = sorted({pose.reason for pose in followed if not pose.tracked})
+        raise UserError(f"the camera's pose over the tissue was found in only {len(tracked)} of {len(followed)} pairs, "
+                        f"need {MIN_POSES} ({'; '.join(reasons)}); record pairs with textured tissue in view")
+    poses = np.array([followed[k].tissue_from_camera for k in tracked])
+    try:
+        pivot = tissue_pivot_calibration(poses)
+        hand_eye = (imu_camera_rotation(imu[tracked][pivot.inliers], poses[pivot.inliers]) if imu is not None
+                    else None)
+        rotation = hand_eye.imu_from_camera if hand_eye is not None else np.eye(3)
+        chain = ChainCalibration(imu_from_camera_transform(rotation, pivot, args.imu_trocar), args.imu_trocar)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    written = output if output is not None and pivot.verdict != "bad" else None
+    if args.json:
+        print(json.dumps(_tissue_summary(pivot, hand_eye, followed, tracked, written)))
+    else:
+        print("\n".join(_tissue_report(pivot, hand_eye, followed, tracked)))
+    if pivot.verdict == "bad":
+        raise UserError(f"tissue pivot calibration refused: {pivot.advice}{'; no chain file written' if output else ''}")
+    if written is not None:
+        write_text(written, _chain_json(chain, "tissue") + "\n", "chain file")
+        if not args.json:
+            print(f"wrote {written}")
+    return 0
+
+
+def _tissue_summary(pivot, hand_eye, followed: list, tracked: list[int], written) -> dict:
+    """The ``--json`` object of ``calibrate trocar tissue``."""
+    from snreg.geometry import euler_from_rotation
+
+    rotation = None
+    if hand_eye is not None:
+        yaw, pitch, roll = euler_from_rotation(hand_eye.imu_from_camera)
+        rotation = {"yaw": round(yaw, 4), "pitch": round(pitch, 4), "roll": round(roll, 4),
+                    "rms_deg": round(hand_eye.rms_deg, 4), "pairs": hand_eye.n_pairs}
+    return {"trocar_camera_mm": round(pivot.trocar_camera_mm, 3), "distance_sd_mm": round(pivot.distance_sd_mm, 3),
+            "rms_mm": round(pivot.rms_mm, 3), "tilt_range_deg": round(pivot.tilt_range_deg, 2),
+            "pivot_camera_mm": [round(float(v), 3) for v in pivot.pivot_camera_mm], "pairs": len(followed),
+            "views": len(tracked), "used": pivot.n_used, "lost": len(followed) - len(tracked),
+            "verdict": pivot.verdict, "advice": pivot.advice, "imu_from_camera": rotation,
+            "chain": None if written is None else str(written)}
+
+
+def _tissue_report(pivot, hand_eye, followed: list, tracked: list[int]) -> list[str]:
+    """The text report of ``calibrate trocar tissue`` (pairs numbered from 0 in sorted image order)."""
+    from collections import Counter
+
+    import numpy as np
+
+    from snreg.geometry import euler_from_rotation
+
+    x, y, z = pivot.pivot_camera_mm
+    lines = [f"tissue pivot calibration: camera pose found in {len(tracked)} of {len(followed)} pairs"]
+    for reason, count in Counter(pose.reason for pose in followed if not pose.tracked).most_common():
+        lines.append(f"lost in {count} pair{'s' if count > 1 else ''}: {reason}")
+    outliers = [str(tracked[k]) for k in np.flatnonzero(~pivot.inliers)]
+    if outliers:
+        lines.append(f"views left out as outliers: pairs {', '.join(outliers)}")
+    lines += [f"pivot in the camera frame: {x:.2f}, {y:.2f}, {z:.2f} mm",
+              f"trocar-camera distance: {pivot.trocar_camera_mm:.2f} mm (standard error {pivot.distance_sd_mm:.2f} mm)",
+              f"RMS residual: {pivot.rms_mm:.2f} mm over {pivot.n_used} views; turn range {pivot.tilt_range_deg:.1f} degrees"]
+    if hand_eye is not None:
+        yaw, pitch, roll = euler_from_rotation(hand_eye.imu_from_camera)
+        lines.append(f"IMU-camera rotation (imu_from_camera; yaw, pitch, roll): {yaw:.2f}, {pitch:.2f}, {roll:.2f} degrees; "
+                     f"RMS residual {hand_eye.rms_deg:.2f} degrees over {hand_eye.n_pairs} pose pairs")
+    else:
+        lines.append("IMU-camera rotation: identity assumed (no --imu-csv)")
+    lines.append(f"verdict: {pivot.verdict}: {pivot.advice}")
+    return lines
 
 
 def _report(pivot, board, paths: list[str], found: list[int]) -> list[str]:

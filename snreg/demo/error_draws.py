@@ -164,8 +164,9 @@ def draw_errors(model: ErrorModel, geometry: PhantomGeometry, rng: np.random.Gen
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """What a registration sees and the truth to score it: preop (N, 3) LPS and intraop (N, 3) trocar frame (both
-    measured, with their labels), the true nodes in both frames, the true ``trocar_from_patient``, and the rotation
-    each node's store saw the camera at."""
+    measured, with their labels), the true nodes in both frames, the true ``trocar_from_patient``, the rotation
+    each node's store saw the camera at, and what the rig mapped each node with: its tip (N, 3) in the camera frame,
+    the chain (at the insertion it used) and the IMU orientation (N, 3, 3), as measured."""
 
     preop: np.ndarray
     preop_labels: list[str]
@@ -175,6 +176,9 @@ class Scenario:
     nodes_trocar: np.ndarray
     trocar_from_patient: np.ndarray
     store_rotation: np.ndarray      # (N, 3, 3) true trocar_from_camera rotation at each node's store
+    tips_camera: np.ndarray         # (N, 3) measured tips, camera frame
+    chains: tuple                   # (N,) ChainCalibration each node was mapped with
+    earth_from_imu: np.ndarray      # (N, 3, 3) measured IMU orientation at each node's store
 
     @property
     def node_errors(self) -> np.ndarray:
@@ -221,7 +225,7 @@ def compose(model: ErrorModel, geometry: PhantomGeometry, draw: ErrorDraw) -> Sc
     turned = s["camera"] * model["camera", "turn_deg"] > 0
     tips = (geometry.tips_camera + s["pointing"] * draw.pointing + s["tracking"] * (draw.tracking + draw.residual)
             + s["calibration"] * draw.calibration)
-    intraop = []
+    intraop, orientations = [], []
     for k in range(geometry.n):
         pose = int(geometry.poses[k])
         error = Rotation.from_rotvec(s["imu"] * draw.imu[k])
@@ -229,9 +233,11 @@ def compose(model: ErrorModel, geometry: PhantomGeometry, draw: ErrorDraw) -> Sc
             error = Rotation.from_euler("z", s["imu"] * draw.turn_error_deg, degrees=True) * error
         measured = error * poses[pose] * misaligned
         intraop.append(camera_to_trocar(measured_chains[pose], measured, tips[k]))
+        orientations.append(measured.as_matrix())
     # preop labels: the side alone, as the segmentation gives it (the station comes from the radiologist, thesis §3.3)
-    return Scenario(preop, [label.strip()[-1:] for label in geometry.labels], np.array(intraop), list(geometry.labels), sources_lps, nodes_trocar,
-                    invert(patient_from_trocar), np.array(rotations))
+    return Scenario(preop, [label.strip()[-1:] for label in geometry.labels], np.array(intraop), list(geometry.labels),
+                    sources_lps, nodes_trocar, invert(patient_from_trocar), np.array(rotations), tips,
+                    tuple(measured_chains[int(pose)] for pose in geometry.poses), np.array(orientations))
 
 
 def camera_displacements(model: ErrorModel, geometry: PhantomGeometry, draw: ErrorDraw, sources) -> np.ndarray:

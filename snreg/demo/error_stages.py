@@ -8,6 +8,8 @@ Each function is seeded and returns the error it measured against the truth it s
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -24,8 +26,8 @@ from snreg.imu.fusion import Fusion
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import Volume
 
-__all__ = ["estimate_calibration", "imu_session_errors", "spect_errors", "BOARD_DISTANCE_MM", "IMU_RATE_HZ",
-           "IMU_STILL_START_S", "CAMERA_TURN_RATE_DPS"]
+__all__ = ["estimate_calibration", "imu_session_errors", "spect_errors", "SpectErrors", "BOARD_DISTANCE_MM",
+           "IMU_RATE_HZ", "IMU_STILL_START_S", "CAMERA_TURN_RATE_DPS"]
 
 BOARD_DISTANCE_MM = (110.0, 250.0)   # snreg.demo.board_tour's distances: the board fills much of the image (§4.2.2)
 IMU_RATE_HZ = 208.0                  # the LSM6DSOX output rate of the thesis set-up (snreg.simulation.imu)
@@ -89,11 +91,20 @@ def imu_session_errors(*, earth_from_imu_start: Rotation, turn_deg: float, store
     return (error[1:] * error[0].inv()).as_rotvec()
 
 
+@dataclass(frozen=True, eq=False)
+class SpectErrors:
+    """Per source: the segmented centre minus the true source (N, 3) and the covariance the segmentation gave that
+    centre (N, 3, 3), LPS mm and mm^2."""
+
+    offsets: np.ndarray
+    covariances: np.ndarray
+
+
 def spect_errors(sources_lps: np.ndarray, *, voxel_mm: float, fwhm_mm: float, peak_counts: float,
-                 seed: int) -> np.ndarray:
-    """(N, 3) segmented centre minus true source (LPS mm) per source for a SPECT
-    of the ``sources`` at this voxel size, resolution and counts (Poisson, seeded), its grid placed at a random
-    sub-voxel offset, segmented by :func:`~snreg.preop.segment.segment_nodes` into as many nodes as sources."""
+                 seed: int) -> SpectErrors:
+    """Each source's segmented centre's error and covariance for a SPECT of the ``sources`` at this voxel size,
+    resolution and counts (Poisson, seeded), its grid placed at a random sub-voxel offset, segmented by
+    :func:`~snreg.preop.segment.segment_nodes` (told the scanner's resolution) into as many nodes as sources."""
     sources = np.asarray(sources_lps, float)
     rng = np.random.default_rng([seed, 13])
     centre = sources.mean(axis=0) + rng.uniform(-0.5, 0.5, 3) * voxel_mm
@@ -102,9 +113,9 @@ def spect_errors(sources_lps: np.ndarray, *, voxel_mm: float, fwhm_mm: float, pe
                                     peak_counts=peak_counts, seed=int(rng.integers(1 << 31)))
     volume = Volume(counts, np.diag([voxel_mm, voxel_mm, voxel_mm, 1.0]) + np.c_[np.zeros((4, 3)), [*origin, 0]],
                     "NM")
-    nodes = segment_nodes(volume, n_nodes=len(sources)).nodes
+    nodes = segment_nodes(volume, n_nodes=len(sources), resolution_mm=fwhm_mm).nodes
     distance = np.linalg.norm(sources[:, None, :] - nodes.xyz[None, :, :], axis=2)
     match = np.argmin(distance, axis=1)
     if len(set(match.tolist())) < len(sources):          # two sources took one hot spot: pair one-to-one
         match = linear_sum_assignment(distance)[1]
-    return nodes.xyz[match] - sources
+    return SpectErrors(nodes.xyz[match] - sources, nodes.cov[match])

@@ -60,6 +60,7 @@ class HeadlessResult:
     recording_s: float = float("nan")
     link_s: float = 0.0
     link_calls: int = 0
+    intraop_cov: np.ndarray | None = None         # (M, 3, 3) each stored node's covariance, mm^2, trocar frame
 
     def to_json(self) -> dict:
         """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the
@@ -69,7 +70,9 @@ class HeadlessResult:
                   "xyz_trocar": [round(float(v), 3) for v in self.intraop_xyz[k]],
                   "truth_trocar": [round(float(v), 3) for v in self.truth_trocar[k]],
                   "preop": row.preop_id if row.paired else None, "distance_mm": round(row.distance_mm, 3),
-                  "confidence": round(row.confidence, 4)} for k, row in enumerate(rows)]
+                  "confidence": round(row.confidence, 4),
+                  "cov_trocar_mm2": None if self.intraop_cov is None else np.round(self.intraop_cov[k], 4).tolist()}
+                 for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
                 "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames,
@@ -137,7 +140,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     truth = _true_pairing(preop.xyz, sources, stored_at)
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
-                          tracking, recording_s, feed.seconds, feed.calls)
+                          tracking, recording_s, feed.seconds, feed.calls, intraop.cov)
 
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,

@@ -116,13 +116,14 @@ class PivotScene:
 
 class SceneImu:
     """The IMU stand-in (a :class:`~snreg.rig.protocols.Imu`): :meth:`snapshot` gives the orientation at the frame
-    the scene rendered last.
+    the scene rendered last. ``scene``: anything with ``earth_from_imu(index)`` and ``shown_index``, as
+    :class:`PivotScene` and :class:`~snreg.demo.tissue_pivot.TissuePivotScene`.
 
     A wizard that takes a snapshot right after reading a frame pairs the two exactly, as it would a camera frame
     with the IMU at the frame's host time. It has no raw samples to record.
     """
 
-    def __init__(self, scene: PivotScene):
+    def __init__(self, scene):
         self._scene = scene
 
     def start(self) -> "SceneImu":

@@ -108,6 +108,9 @@ class ReplayRig:
     def pivot_source(self):
         raise SourceError("A replay has no pivot recording; choose cameras and an IMU (Devices) to calibrate.")
 
+    def tissue_source(self):
+        return self.pivot_source()
+
     def close(self) -> None:
         self.imu.stop()
         if self._port is not None:

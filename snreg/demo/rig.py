@@ -32,12 +32,13 @@ from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration, camera_to_trocar, reference_rotation
 from snreg.demo.board_tour import board_feed
-from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import true_sources_lps, write_phantom_spect
+from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
 from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain
+from snreg.demo.tissue_pivot import TissuePivotScene
 from snreg.files import atomic_write
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
@@ -55,7 +56,7 @@ IMU_LEAD_S = 3.0               # the surgery tour starts this long after its IMU
 class DemoRig:
     """A :class:`~snreg.rig.protocols.Rig` of simulated devices: calibration, chain, simulated IMU;
     :meth:`frame_source` starts the IMU reader and builds the rendered feed; the wizards get a rendered
-    checkerboard tour and a pivot recording with its own IMU.
+    checkerboard tour, and a pivot recording over a board and a turn over tissue, each with its own IMU.
 
     scale: the thesis 1920x1080 cameras at this fraction of their resolution (rendering speed).
     """
@@ -169,6 +170,11 @@ class DemoRig:
         """A rendered pivot recording and the IMU that moves with it (frame and orientation belong together)."""
         scene = PivotScene(self.cameras, THESIS_BOARD)
         return scene.frame_source, SceneImu(scene)
+
+    def tissue_source(self) -> tuple[Callable[[], FrameSource], SceneImu]:
+        """A rendered turn about the trocar over tissue and the IMU that moves with it (0.2 degrees of noise)."""
+        scene = TissuePivotScene(self.cameras, seed=self.seed)
+        return scene.frame_source, scene.imu
 
     def _launch_imu(self, *motion: str) -> None:
         """Start the IMU simulator process (``motion``: its options saying what the sensor does) on the rig's link."""

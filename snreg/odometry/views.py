@@ -27,7 +27,7 @@ class OdometryParams:
     """Tuning of the insertion tracker; pixels at the working scale, mm, degrees."""
 
     work_width: int = 960                 # the pair is reduced by a whole factor to about this width
-    max_features: int = 160               # tissue corners per keyframe
+    max_features: int = 220               # tissue corners per keyframe
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
     lk_window_px: int = 17

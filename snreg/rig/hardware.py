@@ -209,6 +209,10 @@ class HardwareRig:
         """The trocar wizard's feed factory (the rig's cameras) and the IMU that goes with it (the rig's own)."""
         return self.frame_source, self.imu
 
+    def tissue_source(self) -> tuple[Callable[[], FrameSource], ImuMonitor | AbsentImu]:
+        """The same as :meth:`pivot_source`: the camera turns over tissue instead of a board."""
+        return self.pivot_source()
+
     @property
     def description(self) -> str:
         """The devices in a few words, for the title bar and the status line."""

@@ -75,5 +75,8 @@ class Rig(Protocol):
         """The trocar wizard's feed factory (called in its capture thread) and the IMU whose orientation belongs to
         the frames it delivers."""
 
+    def tissue_source(self) -> tuple[Callable[[], FrameSource], Imu]:
+        """As :meth:`pivot_source`, for the trocar wizard's turn over tissue (the same cameras and IMU on a real rig)."""
+
     def close(self) -> None:
         """Release every device; call after the workers have stopped."""

@@ -94,9 +94,11 @@ _NODE = {"id": lambda v: _text(v, empty=False), "label": _text, "time_ns": _inte
          "xyz_trocar": _array((3,), finite=True), "xyz_camera": _array((3,)), "spread_mm": _number,
          "n_frames": _integer, "counts": _number, "left_jpeg": _hex, "right_jpeg": _hex,
          "earth_from_imu": _optional(_array((3, 3))), "stereo_version": _optional(_text),
-         "chain_version": _optional(_text), "trocar_camera_mm": _optional(_number)}
+         "chain_version": _optional(_text), "trocar_camera_mm": _optional(_number),
+         "cov_trocar_mm2": _optional(_array((3, 3)))}
 _CHANGE = {"id": lambda v: _text(v, empty=False), "xyz_trocar": _array((3,), finite=True), "xyz_camera": _array((3,)),
-           "stereo_version": _text, "chain_version": _text, "trocar_camera_mm": _optional(_number)}
+           "stereo_version": _text, "chain_version": _text, "trocar_camera_mm": _optional(_number),
+           "cov_trocar_mm2": _optional(_array((3, 3)))}
 _REGISTRATION = {"n": _integer, "method": _text, "rms_mm": _number, "pairing_rule": _text,
                  "transform": _array((4, 4), finite=True), "pairing": _array((-1,), finite=True),
                  "distances_mm": _array((-1,)), "confidence": _array((-1,)), "preop_ids": _optional(_texts),
@@ -104,9 +106,9 @@ _REGISTRATION = {"n": _integer, "method": _text, "rms_mm": _number, "pairing_rul
                  "target_error_mm": _optional(_array((-1,))), "missing": _optional(_array((-1,))),
                  "leave_one_out_mm": _optional(_array((-1,))), "final": _optional(lambda v: bool(v))}
 _DROPPED_WHEN_NULL = {"earth_from_imu", "stereo_version", "chain_version",   # null there means "not recorded"
-                      "trocar_camera_mm"}
+                      "trocar_camera_mm", "cov_trocar_mm2"}
 _PREOP = {"ids": _texts, "labels": _texts, "xyz": _array((-1, 3), finite=True), "counts": _optional(_array((-1,))),
-          "frame": _text}
+          "frame": _text, "cov": _optional(_array((-1, 3, 3)))}
 
 
 def _fields(data, spec: dict, extra: bool = True) -> dict:
@@ -181,8 +183,9 @@ def _registration(data) -> dict:
 def _preop(data) -> dict:
     data = _fields(data, _PREOP)
     data.setdefault("counts", None)                  # not given: no counts (the readers expect the key)
+    data.setdefault("cov", None)                     # not given (older files): no covariances
     try:
-        NodeSet(data["ids"], data["labels"], data["xyz"], data["counts"], frame=data["frame"])
+        NodeSet(data["ids"], data["labels"], data["xyz"], data["counts"], frame=data["frame"], cov=data["cov"])
     except ValueError as err:
         raise EntryError(f"does not make a node set ({_short(err)})") from None
     return data

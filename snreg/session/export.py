@@ -15,12 +15,13 @@ from snreg.session import Session
 from snreg.session.integrity import verify
 from snreg.session.journal import journal_path, read_journal
 from snreg.session.pose_streams import tracked_rows
-from snreg.session.schema import STREAM_DTYPES, SessionError
+from snreg.session.schema import STREAM_DTYPES, SessionError, covariance_json
 
 
 def session_info(path: str | Path) -> dict:
     """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, each intraop node's id,
-    label and the insertion it was mapped with (``trocar_camera_mm``, null when untracked), the camera stream's
+    label, the insertion it was mapped with (``trocar_camera_mm``, null when untracked) and its own error's covariance
+    (``cov_trocar_mm2``, 3x3 mm^2 in the trocar frame, null when unknown), the camera stream's
     tracked and lost pairs, calibration, registrations, events by kind (e.g. ``store_refused``), the recorded videos;
     ``damaged`` also when a dataset fails its checksum or digest (``damage`` names them; the videos' SHA-256 is left
     to ``snreg session verify``)."""
@@ -35,7 +36,8 @@ def session_info(path: str | Path) -> dict:
                 "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
                 "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
                 "nodes": [{"id": node.id, "label": node.label, "trocar_camera_mm":
-                           float(node.trocar_camera_mm) if np.isfinite(node.trocar_camera_mm) else None}
+                           float(node.trocar_camera_mm) if np.isfinite(node.trocar_camera_mm) else None,
+                           "cov_trocar_mm2": covariance_json(node.cov_trocar_mm2)}
                           for node in session.intraop_records()],
                 "camera": {"tracked": tracked, "lost": int(len(camera)) - tracked},
                 "calibration": sorted(session.calibration()),

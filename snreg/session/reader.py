@@ -19,7 +19,8 @@ def read_nodes(h5: h5py.File) -> list[IntraopNode]:
     cols = {name: group[name][()] for name in group}
     n = min(len(v) for v in cols.values())
     unknown = np.full((3, 3), np.nan)          # format 1: no orientation or calibration versions stored
-    # format 3 and before: no insertion stored (NaN: the chain's own distance mapped the node)
+    # format 3 and before: no insertion stored (NaN: the chain's own distance mapped the node); files written before
+    # the nodes' covariances were stored: NaN (unknown)
     return [IntraopNode(_plain(cols["id"][k]), _plain(cols["label"][k]), int(cols["time_ns"][k]),
                         cols["xyz_trocar"][k], cols["xyz_camera"][k], float(cols["spread_mm"][k]),
                         int(cols["n_frames"][k]), float(cols["counts"][k]), bytes(cols["left_jpeg"][k]),
@@ -27,7 +28,8 @@ def read_nodes(h5: h5py.File) -> list[IntraopNode]:
                         cols["earth_from_imu"][k] if "earth_from_imu" in cols else unknown.copy(),
                         _plain(cols["stereo_version"][k]) if "stereo_version" in cols else "",
                         _plain(cols["chain_version"][k]) if "chain_version" in cols else "",
-                        float(cols["trocar_camera_mm"][k]) if "trocar_camera_mm" in cols else float("nan"))
+                        float(cols["trocar_camera_mm"][k]) if "trocar_camera_mm" in cols else float("nan"),
+                        cols["cov_trocar_mm2"][k] if "cov_trocar_mm2" in cols else unknown.copy())
             for k in range(n)]
 
 
@@ -69,7 +71,8 @@ def read_preop(h5: h5py.File) -> dict | None:
         return None
     return {"ids": [_plain(v) for v in group["id"][()]], "labels": [_plain(v) for v in group["label"][()]],
             "xyz": group["xyz"][()].tolist(), "counts": group["counts"][()].tolist() if "counts" in group else None,
-            "frame": _plain(group.attrs.get("frame", ""))}
+            "frame": _plain(group.attrs.get("frame", "")),
+            "cov": group["cov_mm2"][()].tolist() if "cov_mm2" in group else None}     # absent: none stored
 
 
 def read_registration(group: h5py.Group, n: int) -> dict:

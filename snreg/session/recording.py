@@ -12,8 +12,8 @@ import numpy as np
 
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
 from snreg.session import writer
-from snreg.session.schema import (CAMERA_STATES, STREAM_DTYPES, IntraopNode, SessionError, jpeg_bytes, position_mm,
-                                  stereo_to_dict)
+from snreg.session.schema import (CAMERA_STATES, STREAM_DTYPES, IntraopNode, SessionError, covariance_json,
+                                  covariance_mm2, jpeg_bytes, position_mm, stereo_to_dict)
 from snreg.session.video import MIN_FREE_BYTES, RecorderState, StereoRecorder, VideoSegment, free_bytes, segment_files
 
 
@@ -35,12 +35,14 @@ class Recording:
     def add_intraop_node(self, node_id: str, label: str, xyz_trocar, *, xyz_camera=None, spread_mm: float = float("nan"),
                          n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
                          left_jpeg=b"", right_jpeg=b"", earth_from_imu=None, stereo_version: str = "",
-                         chain_version: str = "", trocar_camera_mm: float = float("nan")) -> IntraopNode:
+                         chain_version: str = "", trocar_camera_mm: float = float("nan"),
+                         cov_trocar_mm2=None) -> IntraopNode:
         """Store a node (positions mm; time ns on the host clock, perf_counter_ns like the streams); on disk when this returns.
 
         Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here. ``earth_from_imu`` (3, 3), the
         calibration versions and ``trocar_camera_mm`` (the tracked insertion it was mapped with, NaN when untracked)
-        say what the node was measured with (see :class:`IntraopNode`).
+        say what the node was measured with; ``cov_trocar_mm2`` (3, 3) its own error's covariance, mm^2, trocar
+        frame (None: unknown) (see :class:`IntraopNode`).
         """
         self._writable()
         node_id = str(node_id)
@@ -52,7 +54,8 @@ class Recording:
                            int(n_frames), float(counts), jpeg_bytes(left_jpeg), jpeg_bytes(right_jpeg),
                            np.full((3, 3), np.nan) if earth_from_imu is None
                            else np.asarray(earth_from_imu, dtype=float).reshape(3, 3),
-                           str(stereo_version), str(chain_version), float(trocar_camera_mm))
+                           str(stereo_version), str(chain_version), float(trocar_camera_mm),
+                           covariance_mm2(cov_trocar_mm2))
         self._journal.append("node", node.to_json())
         writer.write_node(self._h5, node)
         self._h5.flush()
@@ -74,14 +77,14 @@ class Recording:
 
     @serialised
     def reexpress_nodes(self, nodes: list[IntraopNode], reason: str) -> dict:
-        """Replace stored nodes by the same nodes re-expressed (new positions, calibration versions and insertion,
-        same ids), all or none: one journal line holds them with their old values, which stay on record in the
-        ``events`` log (kind ``nodes_reexpressed``). Returns that event."""
+        """Replace stored nodes by the same nodes re-expressed (new positions, calibration versions, insertion and
+        covariance, same ids), all or none: one journal line holds them with their old values, which stay on record
+        in the ``events`` log (kind ``nodes_reexpressed``). Returns that event."""
         self._writable()
         missing = [node.id for node in nodes if node.id not in self._nodes]
         if missing:
             raise SessionError(f"{self.path}: there is no stored node {missing[0]!r} to re-express")
-        keys = ("xyz_trocar", "xyz_camera", "stereo_version", "chain_version", "trocar_camera_mm")
+        keys = ("xyz_trocar", "xyz_camera", "stereo_version", "chain_version", "trocar_camera_mm", "cov_trocar_mm2")
         changes = []
         for node in nodes:
             old = self._nodes[node.id]
@@ -105,7 +108,8 @@ class Recording:
                     node, xyz_trocar=np.asarray(change["xyz_trocar"], dtype=float),
                     xyz_camera=np.asarray(change["xyz_camera"], dtype=float),
                     stereo_version=str(change["stereo_version"]), chain_version=str(change["chain_version"]),
-                    trocar_camera_mm=float(change.get("trocar_camera_mm", node.trocar_camera_mm)))
+                    trocar_camera_mm=float(change.get("trocar_camera_mm", node.trocar_camera_mm)),
+                    cov_trocar_mm2=covariance_mm2(change.get("cov_trocar_mm2")))   # not stated: unknown
 
     @serialised
     def log_event(self, kind: str, **data) -> dict:
@@ -144,9 +148,11 @@ class Recording:
 
     @serialised
     def set_preop_nodes(self, nodes: NodeSet) -> None:
+        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known)."""
         self._writable()
         data = {"ids": nodes.ids, "labels": nodes.labels, "xyz": nodes.xyz.tolist(),
-                "counts": None if nodes.counts is None else nodes.counts.tolist(), "frame": nodes.frame}
+                "counts": None if nodes.counts is None else nodes.counts.tolist(), "frame": nodes.frame,
+                "cov": None if nodes.cov is None else nodes.cov.tolist()}
         self._journal.append("preop", data)
         writer.write_preop(self._h5, data)
         self._h5.flush()
@@ -310,6 +316,8 @@ def _plain_values(node: IntraopNode, keys) -> dict:
         value = getattr(node, key)
         if key.startswith("xyz"):
             return np.asarray(value, dtype=float).tolist()
+        if key == "cov_trocar_mm2":
+            return covariance_json(value)
         return float(value) if key == "trocar_camera_mm" else str(value)
     return {key: plain(key) for key in keys}
 

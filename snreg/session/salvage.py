@@ -27,7 +27,7 @@ __all__ = ["FileParts", "read_parts", "stream_rows", "stream_problem"]
 _ESSENTIAL = ("id", "label", "xyz_trocar")          # a node row is kept when these survive
 _DEFAULTS = {"time_ns": 0, "xyz_camera": [float("nan")] * 3, "spread_mm": float("nan"), "n_frames": 0,
              "counts": float("nan"), "left_jpeg": "", "right_jpeg": "", "earth_from_imu": None,
-             "stereo_version": "", "chain_version": "", "trocar_camera_mm": float("nan")}
+             "stereo_version": "", "chain_version": "", "trocar_camera_mm": float("nan"), "cov_trocar_mm2": None}
 
 
 @dataclass

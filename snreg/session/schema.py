@@ -25,6 +25,7 @@ FORMAT_VERSION = 4      # 2: nodes carry earth_from_imu and the calibration vers
                         # because a format-3 reader would ignore both: its retrack or re-expression would map nodes
                         # stored with a tracked insertion through the chain's constant distance, and resuming the
                         # file would leave the node column short; a format-3 reader refuses a format-4 file instead.
+                        # Still 4 (unreleased when it came): each node's ``cov_trocar_mm2``, NaN when not stored.
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
@@ -76,7 +77,9 @@ class IntraopNode:
     its fixes (NaN when unknown: files of format 1), ``stereo_version`` and ``chain_version`` the
     :func:`calibration_version` of the stereo calibration and chain that mapped it ("" when unknown);
     ``trocar_camera_mm`` the camera's insertion it was mapped with, the median over its fixes while the insertion was
-    tracked (NaN when unknown: tracking off, or files before format 4; the chain's own distance then mapped it).
+    tracked (NaN when unknown: tracking off, or files before format 4; the chain's own distance then mapped it);
+    ``cov_trocar_mm2`` (3, 3) its own error's covariance in the trocar frame (:mod:`snreg.tracking.uncertainty`; NaN
+    when unknown: files written before it was stored, or nodes stored without the acquisition).
     """
 
     id: str
@@ -93,6 +96,7 @@ class IntraopNode:
     stereo_version: str = ""
     chain_version: str = ""
     trocar_camera_mm: float = float("nan")
+    cov_trocar_mm2: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
 
     def to_json(self) -> dict:
         """JSON-ready, the snapshots as hex (the journal's form)."""
@@ -102,7 +106,8 @@ class IntraopNode:
                 "left_jpeg": self.left_jpeg.hex(), "right_jpeg": self.right_jpeg.hex(),
                 "earth_from_imu": np.asarray(self.earth_from_imu, dtype=float).tolist(),
                 "stereo_version": self.stereo_version, "chain_version": self.chain_version,
-                "trocar_camera_mm": float(self.trocar_camera_mm)}
+                "trocar_camera_mm": float(self.trocar_camera_mm),
+                "cov_trocar_mm2": covariance_json(self.cov_trocar_mm2)}
 
     @classmethod
     def from_json(cls, data: dict) -> "IntraopNode":
@@ -112,7 +117,7 @@ class IntraopNode:
                    bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]),
                    np.asarray(data.get("earth_from_imu", np.full((3, 3), np.nan)), dtype=float).reshape(3, 3),
                    str(data.get("stereo_version", "")), str(data.get("chain_version", "")),
-                   float(data.get("trocar_camera_mm", float("nan"))))
+                   float(data.get("trocar_camera_mm", float("nan"))), covariance_mm2(data.get("cov_trocar_mm2")))
 
     @property
     def measured_under(self) -> tuple[str, str]:
@@ -143,6 +148,17 @@ class StoredRegistration:
                                     target_error_mm=optional("target_error_mm"), missing=optional("missing", bool),
                                     leave_one_out_mm=optional("leave_one_out_mm"))
         return cls(int(data["n"]), result, data.get("preop_ids"), data.get("intraop_ids"), final)
+
+
+def covariance_mm2(value) -> np.ndarray:
+    """A node's (3, 3) covariance in mm^2 from its JSON form; NaN (unknown) for None."""
+    return np.full((3, 3), np.nan) if value is None else np.asarray(value, dtype=float).reshape(3, 3)
+
+
+def covariance_json(covariance) -> list | None:
+    """A node's covariance in JSON form: nested lists (mm^2), None when unknown (not finite)."""
+    matrix = np.asarray(covariance, dtype=float).reshape(3, 3)
+    return matrix.tolist() if np.all(np.isfinite(matrix)) else None
 
 
 def position_mm(value) -> np.ndarray:

@@ -180,16 +180,20 @@ class Session(Recording):
         return list(self._nodes.values())
 
     def intraop_nodes(self) -> NodeSet:
-        """The stored nodes in the trocar frame (mm); counts None when no node has any."""
+        """The stored nodes in the trocar frame (mm); counts None when no node has any, cov (mm^2) None when no node
+        has one (a node's NaN when its own is unknown)."""
         records = self.intraop_records()
         counts = np.array([r.counts for r in records], dtype=float)
+        cov = np.array([r.cov_trocar_mm2 for r in records], dtype=float).reshape(-1, 3, 3)
         return NodeSet([r.id for r in records], [r.label for r in records],
                        np.array([r.xyz_trocar for r in records], dtype=float).reshape(-1, 3),
-                       counts if np.any(np.isfinite(counts)) else None, frame="trocar")
+                       counts if np.any(np.isfinite(counts)) else None, frame="trocar",
+                       cov=cov if np.any(np.isfinite(cov)) else None)
 
     def preop_nodes(self) -> NodeSet | None:
         p = self._preop
-        return None if p is None else NodeSet(p["ids"], p["labels"], p["xyz"], p["counts"], frame=p["frame"])
+        return None if p is None else NodeSet(p["ids"], p["labels"], p["xyz"], p["counts"], frame=p["frame"],
+                                              cov=p.get("cov"))
 
     def calibration(self) -> dict:
         """``{"stereo": StereoCalibration, "chain": ChainCalibration}`` for those stored."""

@@ -30,9 +30,11 @@ _NODE_FIELDS = {"id": _STR, "label": _STR, "time_ns": "<i8", "xyz_trocar": ("<f8
                 # format 3: SHA-256 (hex) of each of the row's variable-length fields (DIGESTED), which Fletcher-32
                 # cannot cover
                 "digest": ("S64", (6,)),
-                # format 4: the insertion the node was mapped with (NaN: untracked)
-                "trocar_camera_mm": "<f8"}
-_FILL = {"earth_from_imu": np.nan, "stereo_version": "", "chain_version": "", "digest": b"", "trocar_camera_mm": np.nan}
+                # format 4: the insertion the node was mapped with (NaN: untracked) and the node's own error's
+                # covariance, mm^2, trocar frame (NaN: unknown)
+                "trocar_camera_mm": "<f8", "cov_trocar_mm2": ("<f8", (3, 3))}
+_FILL = {"earth_from_imu": np.nan, "stereo_version": "", "chain_version": "", "digest": b"", "trocar_camera_mm": np.nan,
+         "cov_trocar_mm2": np.nan}
 DIGESTED = ("id", "label", "left_jpeg", "right_jpeg", "stereo_version", "chain_version")   # the digest's columns
 CHECKED = {"fletcher32": True}        # every fixed-size dataset: HDF5 verifies its chunks on every read
 
@@ -120,7 +122,7 @@ def write_node(h5: h5py.File, node: IntraopNode) -> None:
               "counts": node.counts, "left_jpeg": np.frombuffer(node.left_jpeg, np.uint8),
               "right_jpeg": np.frombuffer(node.right_jpeg, np.uint8), "earth_from_imu": node.earth_from_imu,
               "stereo_version": node.stereo_version, "chain_version": node.chain_version,
-              "trocar_camera_mm": node.trocar_camera_mm}
+              "trocar_camera_mm": node.trocar_camera_mm, "cov_trocar_mm2": node.cov_trocar_mm2}
     values["digest"] = [row_digest([values[name]]) for name in DIGESTED]
     for name, value in values.items():
         intraop[name].resize(n + 1, axis=0)
@@ -148,7 +150,8 @@ def write_calibration(h5: h5py.File, kind: str, data: dict) -> None:
 
 
 def write_preop(h5: h5py.File, data: dict) -> None:
-    """``nodes/preop``: ids, labels, xyz (N, 3) mm, counts (N,) when known; the frame as an attribute."""
+    """``nodes/preop``: ids, labels, xyz (N, 3) mm, counts (N,) and ``cov_mm2`` (N, 3, 3, each hot spot's own error
+    in the set's frame) when known; the frame as an attribute."""
     del h5["nodes/preop"]
     group = h5.create_group("nodes/preop")
     _variable(group, "id", [str(v) for v in data["ids"]])
@@ -156,6 +159,8 @@ def write_preop(h5: h5py.File, data: dict) -> None:
     group.create_dataset("xyz", data=np.asarray(data["xyz"], dtype=float).reshape(-1, 3), **CHECKED)
     if data["counts"] is not None:
         group.create_dataset("counts", data=np.asarray(data["counts"], dtype=float), **CHECKED)
+    if data.get("cov") is not None:
+        group.create_dataset("cov_mm2", data=np.asarray(data["cov"], dtype=float).reshape(-1, 3, 3), **CHECKED)
     group.attrs["frame"] = data["frame"]
 
 

@@ -12,6 +12,10 @@ tracking, the fused IMU session) come from seeded pools that the repetitions sha
 
 Beside the simulation, Fitzpatrick and West's prediction: from the node error (FLE) and the node layout, the
 target registration error (TRE) and the RMS (FRE) a least-squares rigid fit should give.
+
+Each node also gets the covariance the rig would give it (:mod:`snreg.demo.error_covariance`, issue 28), and each hot
+spot the segmentation's; ``coverage_90`` is the share of nodes whose actual intraop error (measured minus true, trocar
+frame) lies inside their own 90 % ellipsoid. With ``covariances`` the registration is given both.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from snreg.camera import thesis_calibration
+from snreg.demo.error_covariance import intraop_covariances
 from snreg.demo.error_draws import cohort_geometry, compose, draw_errors, fused_imu_errors, phantom_geometry
 from snreg.demo.error_stages import spect_errors
 from snreg.demo.errors import SOURCES, ErrorModel
@@ -34,6 +39,7 @@ from snreg.registration import register
 from snreg.registration.target import rigid_fit_covariance
 from snreg.simulation.budget_tracking import TrackingBench, TrackingDraw
 from snreg.simulation.workers import end_with_parent, worker_count
+from snreg.tracking.uncertainty import inside_ellipsoid
 
 __all__ = ["BudgetConfig", "BudgetResult", "Figure", "run_budget", "configurations", "DEFAULT_REPS"]
 
@@ -52,7 +58,8 @@ class BudgetConfig:
     """Repetitions, registration method, seed; ``draws``/``imu_draws``: the pools of tracked and fused draws the
     repetitions share; ``workers``: processes (0: one per core); ``cohort``: patient-like node sets, repetition r
     meeting patient r mod P (their tracking and IMU errors are the phantom's draws, node k taking phantom node k mod
-    4's of its side)."""
+    4's of its side); ``covariances``: register with each node's covariance and each hot spot's (as the rig and the
+    segmentation would give them) instead of without."""
 
     reps: int = DEFAULT_REPS
     method: str = "chamfer"
@@ -61,18 +68,22 @@ class BudgetConfig:
     imu_draws: int = 12
     workers: int = 0
     cohort: tuple = ()          # patients as (nodes (N, 3) LPS mm, labels); empty: the phantom
+    covariances: bool = False
 
 
 @dataclass(frozen=True)
 class Figure:
     """One configuration over the repetitions: registration RMS (R,), node errors (R * N,), TRE (R * N,) mm, pairing
-    right (R,), the length of the error all nodes share (R,: a shift the registration cannot see), refusals."""
+    right (R,), the length of the error all nodes share (R,: a shift the registration cannot see), whether each
+    node's intraop error lies inside its own 90 % ellipsoid (R * N,: 1, 0, NaN where the configuration gives the node
+    no intraop error and no covariance), refusals."""
 
     rms_mm: np.ndarray
     node_error_mm: np.ndarray
     tre_mm: np.ndarray
     paired: np.ndarray
     common_mm: np.ndarray
+    covered: np.ndarray
     failed: int = 0
 
     def to_json(self) -> dict:
@@ -83,7 +94,13 @@ class Figure:
             return {"median": round(float(np.median(values)), 3), "p90": round(float(np.percentile(values, 90)), 3)}
 
         return {"rms_mm": q(self.rms_mm), "node_error_mm": q(self.node_error_mm),
-                "pairing_success": round(float(np.mean(self.paired)), 4)}
+                "pairing_success": round(float(np.mean(self.paired)), 4), "coverage_90": _rounded(self.coverage_90)}
+
+    @property
+    def coverage_90(self) -> float:
+        """Share of nodes whose intraop error lies inside their own 90 % ellipsoid; NaN when no node has one."""
+        known = self.covered[np.isfinite(self.covered)]
+        return float(np.mean(known)) if len(known) else float("nan")
 
     @property
     def rms_median(self) -> float:
@@ -213,15 +230,25 @@ def _repetition(job) -> dict:
                        imu=imu_pool[r % len(imu_pool)][like] if imu_pool else None)
     full = compose(model, geometry, draw)
     spect = model.values["spect"]
-    spect_error = spect_errors(full.sources_lps, voxel_mm=spect["voxel_mm"], fwhm_mm=spect["fwhm_mm"],
-                               peak_counts=spect["peak_counts"], seed=int(rng.integers(1 << 31)))
-    draw = replace(draw, spect=spect_error)
+    segmented = spect_errors(full.sources_lps, voxel_mm=spect["voxel_mm"], fwhm_mm=spect["fwhm_mm"],
+                             peak_counts=spect["peak_counts"], seed=int(rng.integers(1 << 31)))
+    draw = replace(draw, spect=segmented.offsets)
+    cameras, probe = _rig()
     out = {}
     for name, variant in configurations(model).items():
         scenario = compose(variant, geometry, draw)
-        out[name] = _outcome(scenario, config, r)
+        covariances = (intraop_covariances(variant, scenario, cameras, probe, geometry.axis_camera),
+                       variant.on("spect") ** 2 * segmented.covariances)
+        out[name] = _outcome(scenario, covariances, config, r)
     out["layout"] = full.nodes_trocar
     return out
+
+
+def _rig():
+    """The calibration and probe the rig computes its nodes' covariances with (one per process)."""
+    if "rig" not in _BENCH:
+        _BENCH["rig"] = (thesis_calibration(), default_probe_model())
+    return _BENCH["rig"]
 
 
 def _phantom_node_like(geometry, phantom) -> np.ndarray:
@@ -234,27 +261,43 @@ def _phantom_node_like(geometry, phantom) -> np.ndarray:
     return out
 
 
-def _outcome(scenario, config: BudgetConfig, r: int) -> tuple:
-    """(rms, node errors (N,), TRE at the nodes (N,), pairing right?, common error) of one registration; NaNs when it
-    refused."""
+def _outcome(scenario, covariances: tuple, config: BudgetConfig, r: int) -> tuple:
+    """(rms, node errors (N,), TRE at the nodes (N,), pairing right?, common error, covered (N,)) of one registration,
+    given the intraop and preop covariances (N, 3, 3) (used when ``config.covariances``); NaNs when it refused."""
     vectors = scenario.node_errors
     errors, common = np.linalg.norm(vectors, axis=1), float(np.linalg.norm(vectors.mean(axis=0)))
+    covered = _covered(scenario.intraop - scenario.nodes_trocar, covariances[0])
+    given = dict(intraop_cov=covariances[0], preop_cov=covariances[1]) if config.covariances else {}
     try:
         result = register(scenario.preop, scenario.intraop, method=config.method,
                           preop_labels=scenario.preop_labels, intraop_labels=scenario.intraop_labels,
-                          initial=rough_alignment(scenario.preop, scenario.intraop), seed=config.seed + r)
+                          initial=rough_alignment(scenario.preop, scenario.intraop), seed=config.seed + r, **given)
     except (NoFitError, ValueError):
-        return float("nan"), errors, np.full(len(errors), np.nan), False, common
+        return float("nan"), errors, np.full(len(errors), np.nan), False, common, covered
     truth = apply(scenario.trocar_from_patient, scenario.sources_lps)
     tre = np.linalg.norm(apply(result.transform, scenario.sources_lps) - truth, axis=1)
     paired = bool(np.array_equal(result.pairing, np.arange(len(scenario.intraop))))
-    return float(result.rms_mm), errors, tre, paired, common
+    return float(result.rms_mm), errors, tre, paired, common, covered
+
+
+def _covered(offsets: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """(N,) 1.0 where a node's intraop error (N, 3) lies inside its 90 % ellipsoid, 0.0 where not, NaN where the
+    covariance is singular (a configuration without any intraop error source)."""
+    out = np.full(len(offsets), np.nan)
+    regular = np.linalg.eigvalsh(covariances)[:, 0] > 1e-9
+    out[regular] = inside_ellipsoid(offsets[regular], covariances[regular])
+    return out
+
+
+def _rounded(value: float):
+    return round(value, 4) if np.isfinite(value) else None
 
 
 def _figure(outcomes: list) -> Figure:
     rms = np.array([o[0] for o in outcomes])
     return Figure(rms, np.concatenate([o[1] for o in outcomes]), np.concatenate([o[2] for o in outcomes]),
-                  np.array([o[3] for o in outcomes]), np.array([o[4] for o in outcomes]), int(np.isnan(rms).sum()))
+                  np.array([o[3] for o in outcomes]), np.array([o[4] for o in outcomes]),
+                  np.concatenate([o[5] for o in outcomes]), int(np.isnan(rms).sum()))
 
 
 def _prediction(figure: Figure, layouts: list[np.ndarray]) -> tuple[float, float, float]:

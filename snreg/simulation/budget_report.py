@@ -15,8 +15,8 @@ from snreg.demo.errors import PARAMETERS
 from snreg.files import atomic_write
 from snreg.simulation.budget import BudgetResult
 
-__all__ = ["format_table", "markdown_report", "write_budget_report", "plot_tornado", "phantom_gap", "PHANTOM_RMS_MM",
-           "PHANTOM_RANGE_MM"]
+__all__ = ["format_table", "markdown_report", "write_budget_report", "plot_tornado", "phantom_gap", "coverage_line",
+           "PHANTOM_RMS_MM", "PHANTOM_RANGE_MM"]
 
 PHANTOM_RMS_MM = (8.9, 11.4)            # thesis §5.1, Fig. 16: the two tries' RMS
 PHANTOM_RANGE_MM = (8.9 - 3.3, 11.4 + 1.6)   # both tries' mean -+ sd
@@ -27,14 +27,17 @@ def _row(name: str, figure) -> str:
         values = values[np.isfinite(values)]
         return f"{np.percentile(values, percent):5.2f}" if len(values) else "  -  "
 
+    coverage = figure.coverage_90
+    covered = f"{100 * coverage:5.1f}%" if np.isfinite(coverage) else "   -  "
     return (f"| {name:<22} | {q(figure.rms_mm, 50)} | {q(figure.rms_mm, 90)} | {q(figure.node_error_mm, 50)} "
-            f"| {q(figure.node_error_mm, 90)} | {100 * np.mean(figure.paired):5.1f}% |")
+            f"| {q(figure.node_error_mm, 90)} | {100 * np.mean(figure.paired):5.1f}% | {covered} |")
 
 
 def format_table(result: BudgetResult) -> str:
-    """Markdown table: all sources, each alone, all but each, none (the registration's own floor)."""
-    lines = ["| configuration          | RMS median (mm) | RMS p90 | node error median (mm) | node p90 | pairing |",
-             "|---|---|---|---|---|---|", _row("all sources", result.figures["all"])]
+    """Markdown table: all sources, each alone, all but each, none (the registration's own floor); coverage: the
+    share of nodes inside their own 90 % ellipsoid ("-" where no source gives the nodes a full ellipsoid)."""
+    lines = ["| configuration          | RMS median (mm) | RMS p90 | node error median (mm) | node p90 | pairing "
+             "| coverage 90% |", "|---|---|---|---|---|---|---|", _row("all sources", result.figures["all"])]
     order = sorted(result.sources, key=lambda s: result.figures[f"all_but:{s}"].rms_median)
     for source in order:
         lines.append(_row(f"{source} alone", result.figures[f"alone:{source}"]))
@@ -42,6 +45,16 @@ def format_table(result: BudgetResult) -> str:
         lines.append(_row(f"all but {source}", result.figures[f"all_but:{source}"]))
     lines.append(_row("none (registration)", result.figures["none"]))
     return "\n".join(lines)
+
+
+def coverage_line(result: BudgetResult) -> str:
+    """One sentence: how often the nodes' own 90 % ellipsoids held their intraop error (all sources), and whether the
+    registration was given the covariances."""
+    coverage = result.figures["all"].coverage_90
+    held = "no node has an ellipsoid (no intraop error source)" if not np.isfinite(coverage) else \
+        f"the nodes' own 90 % ellipsoids held their intraop error for {100 * coverage:.1f}% of nodes"
+    given = "registered with" if result.config.covariances else "registered without"
+    return f"Each node's covariance (all sources): {held}; {given} the covariances."
 
 
 def phantom_gap(result: BudgetResult) -> list[str]:
@@ -81,8 +94,10 @@ def markdown_report(result: BudgetResult, command: str = "", seconds: float = fl
     lines = [f"# Error budget: {model.name}", ""]
     if command:
         lines += [f"`{command}`", ""]
+    with_cov = " with each node's covariance" if result.config.covariances else ""
     lines += [f"Error model {model.path or model.name}; {result.config.reps} repetitions, seed {result.config.seed}, "
-              f"registration {result.config.method} from the operator's rough alignment; {result.config.draws} "
+              f"registration {result.config.method}{with_cov} from the operator's rough alignment; "
+              f"{result.config.draws} "
               f"rendered-tracking draws and {result.config.imu_draws} fused IMU sessions shared by the repetitions"
               + (f"; {seconds:.0f} s." if np.isfinite(seconds) else "."), "", format_table(result), ""]
     if dominant:
@@ -93,7 +108,7 @@ def markdown_report(result: BudgetResult, command: str = "", seconds: float = fl
               f"{total:.2f} mm for all together ({100 * (squares / total**2 - 1):+.0f}% in squares). Sources "
               "interact where one only shows through another: an IMU turn error or a chain distance moves nodes only "
               "when the camera turned, a camera turn costs nothing by itself.", "",
-              "## Prediction beside the simulation", "",
+              coverage_line(result), "", "## Prediction beside the simulation", "",
               f"Node error (FLE, RMS over nodes and repetitions, all sources): {result.fle_mm:.2f} mm. Fitzpatrick and "
               f"West, for a least-squares rigid fit of {_nodes(result)}: TRE at the nodes "
               f"{result.tre_predicted_mm:.2f} mm RMS, RMS after registration (FRE) {result.fre_predicted_mm:.2f} mm. "

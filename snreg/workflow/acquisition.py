@@ -4,7 +4,10 @@ session, and Store SN, undo and auto-store over the last valid fixes, guarded.
 Why here and not in the GUI: the app's worker thread and ``snreg demo --headless`` must run the very same
 steps (DESIGN.md §5: real and simulated devices share the code after the sources). A node is the median
 of the last N valid tip fixes (thesis §5.2: N = 60) in both frames, with their spread; each fix is mapped with
-the IMU orientation at its own frame's grab time (:class:`ImuReading`).
+the IMU orientation at its own frame's grab time (:class:`ImuReading`). Each node also carries its own error's
+covariance (trocar frame, :func:`~snreg.tracking.uncertainty.node_covariance`: the stereo geometry at its depth, the
+tracker's residual and the window's spread, the probe's pointing, the IMU at its lever and the insertion), computed at
+the store from the window's fixes and the node's orientation and insertion.
 
 A store is refused, with the reason in words and on record in the session's events (``store_refused``), when the
 window is not full, its newest fix is stale (the probe is out of view), the IMU is absent or stale (unless the
@@ -41,6 +44,7 @@ from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
+from snreg.tracking.uncertainty import NodeUncertainty, node_covariance
 from snreg.workflow.insertion import CameraInsertion, InsertionStep, insertion_text
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
@@ -138,6 +142,7 @@ class ImuReading:
 @dataclass(frozen=True, eq=False)
 class _Fix:
     camera: np.ndarray
+    axis: np.ndarray       # the probe's axis, camera frame
     trocar: np.ndarray
     quat_xyzw: np.ndarray
     imu_gap_s: float
@@ -145,6 +150,7 @@ class _Fix:
     grabbed_ns: int        # its frame's (left) grab time: the stream rows' clock
     seen_ns: int           # host time it was computed
     insertion_mm: float    # the camera's insertion it was mapped with (NaN: the chain's own, tracking off)
+    insertion_sd_mm: float  # that insertion's sd (the tracker's; a held one's unseen change; NaN: tracking off)
 
 
 class Acquisition:
@@ -157,14 +163,17 @@ class Acquisition:
     None keeps the chain's constant distance. A :class:`~snreg.workflow.insertion.CameraInsertion` an earlier
     acquisition followed on the same calibration and chain (the app restarting its worker) goes on from where it
     stopped: its keyframes, the last insertion tracked and when, so a camera that slid meanwhile is not taken to be
-    back at the start.
+    back at the start. ``uncertainty``: the magnitudes each stored node's covariance is made of (their cited
+    defaults unless given).
     """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
                  *, fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
                  imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns,
-                 video_fps: float | None = None, insertion: InsertionTracker | CameraInsertion | None = None):
+                 video_fps: float | None = None, insertion: InsertionTracker | CameraInsertion | None = None,
+                 uncertainty: NodeUncertainty = NodeUncertainty()):
         self.tracker = StereoTracker(calibration, probe)
+        self.uncertainty = uncertainty
         self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
         self.insertion = CameraInsertion(insertion, chain) if isinstance(insertion, InsertionTracker) else insertion
         self.stereo_version = calibration_version(stereo_to_dict(calibration))
@@ -211,8 +220,11 @@ class Acquisition:
             tip_trocar = camera_to_trocar(chain, imu.earth_from_imu, fix.tip)
             pose = trocar_from_probe(chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
             quat = Rotation.from_matrix(imu.earth_from_imu).as_quat()
-            self._fixes.append(_Fix(fix.tip, tip_trocar, quat, float(imu.gap_s), imu.state, frame.t_left_ns,
-                                    self._clock(), float("nan") if step is None else step.used_mm))
+            # the insertion's sd: the tracker's when tracked, the unseen change's when held from an earlier pair
+            slide = float("nan") if step is None else float(step.estimate.sd_mm if step.estimate.tracked
+                                                            else self.uncertainty.insertion_sd_mm)
+            self._fixes.append(_Fix(fix.tip, fix.axis, tip_trocar, quat, float(imu.gap_s), imu.state, frame.t_left_ns,
+                                    self._clock(), float("nan") if step is None else step.used_mm, slide))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)
         window = self._window_trocar()
         spread = window.spread_mm if window is not None else float("nan")
@@ -299,7 +311,8 @@ class Acquisition:
                                              time_ns=self._fixes[-1].grabbed_ns, left_jpeg=left_jpeg,
                                              right_jpeg=right_jpeg, earth_from_imu=orientation,
                                              stereo_version=self.stereo_version, chain_version=self.chain_version,
-                                             trocar_camera_mm=insertion)
+                                             trocar_camera_mm=insertion,
+                                             cov_trocar_mm2=self._covariance(camera.xyz, orientation, insertion))
         if overriding:
             self.session.log_event("store_override", node_id=node.id, reason=check.refusal, trigger=str(trigger))
         if check.near is not None:
@@ -307,6 +320,15 @@ class Acquisition:
                                    distance_mm=round(check.near_mm, 2), trigger=str(trigger))
         self._stored_here.append(node.id)
         return node
+
+    def _covariance(self, tip_camera: np.ndarray, earth_from_imu: np.ndarray, insertion_mm: float) -> np.ndarray:
+        """The store window's node covariance (3, 3) mm^2, trocar frame, at the chain of its insertion."""
+        axes = np.array([f.axis for f in self._fixes])
+        chain = self.chain if not np.isfinite(insertion_mm) else self.chain.with_insertion(insertion_mm)
+        slide = np.array([f.insertion_sd_mm for f in self._fixes])
+        return node_covariance(self.uncertainty, self.tracker.calibration, self.tracker.probe, chain, earth_from_imu,
+                               tip_camera, axes.mean(axis=0), window_camera=np.array([f.camera for f in self._fixes]),
+                               insertion_sd_mm=float(np.median(slide)) if np.isfinite(slide).all() else None)
 
     def undo(self) -> IntraopNode:
         """Take back the node stored last (in this run, else the session's last); :class:`StoreError` if none."""

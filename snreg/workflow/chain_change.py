@@ -17,6 +17,12 @@ old start is the distance of the chain the node was measured under: ``previous_c
 or the session's stored chain when it is that one; a tracked node whose chain is neither cannot be re-expressed.
 A node stored without tracking (NaN) is mapped at the new chain's own distance, as before.
 
+A node's covariance (``cov_trocar_mm2``) goes along: its error was measured in the camera frame (and turned about the
+pivot), so under a new chain it turns with the node's own change of frame, ``A C A^T`` with ``A`` the new
+``trocar_from_camera`` rotation at the node's orientation times the old one's inverse; it becomes unknown (NaN) when
+the chain it was measured under is no longer known. A new stereo calibration re-triangulates the tip; the change of
+the stereo shape that brings is second order and left out (``snreg session retrack`` computes the covariance anew).
+
 >>> change = calibration_change(session, stereo, chain, previous_stereo=old_stereo)
 >>> if change is not None:                # ask: change.message, change.question
 ...     reexpress(session, stereo, chain, previous_stereo=old_stereo)
@@ -32,7 +38,7 @@ import cv2
 import numpy as np
 
 from snreg.camera import StereoCalibration
-from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.chain import ChainCalibration, camera_to_trocar, trocar_from_camera
 from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 
@@ -90,7 +96,7 @@ def calibration_change(session: Session, stereo: StereoCalibration, chain: Chain
     ``previous_chain``: the calibrations just replaced (module docstring)."""
     stereo_version, chain_version = calibration_version(stereo_to_dict(stereo)), calibration_version(chain.to_dict())
     previous = calibration_version(stereo_to_dict(previous_stereo)) if previous_stereo is not None else None
-    distances = _chain_distances(session, chain, previous_chain)
+    distances = {version: known.trocar_camera_mm for version, known in _chains(session, chain, previous_chain).items()}
     movable, stuck, starts = [], [], {}
     for node in session.intraop_records():
         if node.measured_under == (stereo_version, chain_version):
@@ -109,12 +115,11 @@ def calibration_change(session: Session, stereo: StereoCalibration, chain: Chain
                              starts)
 
 
-def _chain_distances(session: Session, chain: ChainCalibration, previous_chain: ChainCalibration | None) -> dict:
-    """{chain version: trocar-camera distance mm} of the chains a node may have been measured under: the new one, the
-    one just replaced, the session's stored one."""
+def _chains(session: Session, chain: ChainCalibration, previous_chain: ChainCalibration | None) -> dict:
+    """{chain version: chain} of the chains a node may have been measured under: the new one, the one just replaced,
+    the session's stored one."""
     stored = session.calibration().get("chain")
-    return {calibration_version(c.to_dict()): c.trocar_camera_mm for c in (stored, previous_chain, chain)
-            if c is not None}
+    return {calibration_version(c.to_dict()): c for c in (stored, previous_chain, chain) if c is not None}
 
 
 def reexpress(session: Session, stereo: StereoCalibration, chain: ChainCalibration, *,
@@ -126,6 +131,7 @@ def reexpress(session: Session, stereo: StereoCalibration, chain: ChainCalibrati
     change = calibration_change(session, stereo, chain, previous_stereo=previous_stereo, previous_chain=previous_chain)
     if change is None or not change.movable:
         return []
+    chains = _chains(session, chain, previous_chain)
     updated = []
     for node in change.movable:
         camera = np.asarray(node.xyz_camera, dtype=float)
@@ -138,10 +144,20 @@ def reexpress(session: Session, stereo: StereoCalibration, chain: ChainCalibrati
         updated.append(dataclasses.replace(node, xyz_camera=camera,
                                            xyz_trocar=camera_to_trocar(mapping, node.earth_from_imu, camera),
                                            stereo_version=change.stereo_version, chain_version=change.chain_version,
-                                           trocar_camera_mm=insertion))
+                                           trocar_camera_mm=insertion,
+                                           cov_trocar_mm2=_carried(node, chains.get(node.chain_version), mapping)))
     session.reexpress_nodes(updated, reason=change.message)
     stored = {node.id: node for node in session.intraop_records()}
     return [stored[node.id] for node in updated]
+
+
+def _carried(node: IntraopNode, old: ChainCalibration | None, new: ChainCalibration) -> np.ndarray:
+    """The node's covariance (3, 3) mm^2 in the frame of ``new``: turned by the change of its trocar frame at its own
+    orientation; NaN when the chain it was measured under (``old``) is not known."""
+    if old is None:
+        return np.full((3, 3), np.nan)
+    turn = trocar_from_camera(new, node.earth_from_imu)[:3, :3] @ trocar_from_camera(old, node.earth_from_imu)[:3, :3].T
+    return turn @ np.asarray(node.cov_trocar_mm2, dtype=float) @ turn.T
 
 
 def retriangulate(point_camera, old: StereoCalibration, new: StereoCalibration) -> np.ndarray:

@@ -18,8 +18,10 @@ it was stored (its probe rows, which carry their frame's grab time, up to the no
 the calibration, probe model and method given, are mapped through the session's chain at each pair's insertion and
 the node's own mean IMU orientation (as the live store did). The node's new position is the median of the new
 fixes, its insertion the median over them (NaN while no pair up to it was tracked: the chain's own distance maps it
-then); :func:`store_retracked` keeps both as a new version of the node (the old values stay on record in the
-session's events, as any re-expression). The session's ``streams/camera`` keeps what was tracked live.
+then), its covariance computed anew from the new fixes (:func:`~snreg.tracking.uncertainty.node_covariance` with its
+default magnitudes, the insertion's sd as tracked); :func:`store_retracked` keeps them as a new version of the node
+(the old values stay on record in the session's events, as any re-expression). The session's ``streams/camera``
+keeps what was tracked live.
 
 >>> result = retrack("s.h5", calibration=load_calibration("corrected.yaml"))
 >>> [(node.id, node.moved_mm) for node in result.nodes]
@@ -41,7 +43,8 @@ from snreg.session.pose_streams import orientations_at
 from snreg.session.reader import readable_rows
 from snreg.session.schema import stereo_to_dict
 from snreg.session.video import RecordedPairs, rows_with_video
-from snreg.tracking import StereoTracker, TrackingError, summarise
+from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
+from snreg.tracking.uncertainty import NodeUncertainty, node_covariance
 
 __all__ = ["RetrackedNode", "RetrackResult", "VideoInsertion", "retrack", "store_retracked", "window_rows",
            "INSERTION_SOURCES"]
@@ -52,7 +55,8 @@ INSERTION_SOURCES = ("auto", "video", "chain")
 @dataclass(frozen=True, eq=False)
 class RetrackedNode:
     """One node before and after (mm, trocar and left-camera frames; the insertion it is mapped with, NaN when
-    untracked), the frames of its window, the fixes found and how many of them had the insertion lost (held)."""
+    untracked; the covariance after, mm^2, trocar frame), the frames of its window, the fixes found and how many of
+    them had the insertion lost (held)."""
 
     node: IntraopNode
     after_trocar: np.ndarray | None
@@ -62,6 +66,7 @@ class RetrackedNode:
     problem: str = ""
     after_insertion_mm: float = float("nan")
     insertion_lost: int = 0
+    after_cov: np.ndarray | None = None
 
     @property
     def moved_mm(self) -> float:
@@ -78,20 +83,22 @@ class RetrackedNode:
                 round(self.moved_mm, 4), "before_camera_mm": xyz(self.node.xyz_camera),
                 "after_camera_mm": xyz(self.after_camera), "before_trocar_camera_mm": mm(self.node.trocar_camera_mm),
                 "after_trocar_camera_mm": mm(self.after_insertion_mm), "insertion_lost": self.insertion_lost,
+                "after_cov_trocar_mm2": None if self.after_cov is None else np.round(self.after_cov, 4).tolist(),
                 "frames": self.frames, "fixes": self.fixes, "problem": self.problem}
 
 
 @dataclass(frozen=True, eq=False)
 class VideoInsertion:
     """The insertion over the recorded video: per ``streams/frames`` row the insertion it is mapped with (``used_mm``,
-    the start before any pair was tracked), whether that row's own pair was tracked, and whether any pair up to it
-    was (``known``); how the orientations were got, in words."""
+    the start before any pair was tracked) and its sd (the tracker's; a held one's unseen change), whether that row's
+    own pair was tracked, and whether any pair up to it was (``known``); how the orientations were got, in words."""
 
     used_mm: np.ndarray
     tracked: np.ndarray
     known: np.ndarray
     pairs: int
     orientation: str
+    sd_mm: np.ndarray
 
     def to_json(self) -> dict:
         tracked = int(self.tracked.sum())
@@ -148,20 +155,21 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
     try:
         tracker = StereoTracker(calibration, probe, method=method)
         if insertion == "video" or (insertion == "auto" and len(camera) > 0):
-            followed, tips, read = _follow(readers, path, segments, frame_times, imu, calibration, stored["chain"],
+            followed, fixes, read = _follow(readers, path, segments, frame_times, imu, calibration, stored["chain"],
                                            probe, tracker, wanted)
         else:
-            followed, (tips, read) = None, _window_tips(readers, sorted(wanted), tracker)
+            followed, (fixes, read) = None, _window_fixes(readers, sorted(wanted), tracker)
     finally:
         readers.close()
-    out = [_retrack_node(node, windows[node.id], tips, read, followed, stored["chain"]) for node in nodes]
+    out = [_retrack_node(node, windows[node.id], fixes, read, followed, stored["chain"], tracker) for node in nodes]
     return RetrackResult(out, calibration_version(stereo_to_dict(calibration)), method, followed)
 
 
 def store_retracked(path: str | Path, result: RetrackResult, reason: str) -> int:
     """Keep the re-tracked positions as new versions of their nodes (the old ones stay on record); returns how many."""
     changed = [replace(r.node, xyz_trocar=r.after_trocar, xyz_camera=r.after_camera,
-                       stereo_version=result.stereo_version, trocar_camera_mm=r.after_insertion_mm)
+                       stereo_version=result.stereo_version, trocar_camera_mm=r.after_insertion_mm,
+                       cov_trocar_mm2=r.after_cov)
                for r in result.nodes if r.after_trocar is not None]
     if changed:
         with Session.resume(path) as session:
@@ -169,9 +177,9 @@ def store_retracked(path: str | Path, result: RetrackResult, reason: str) -> int
     return len(changed)
 
 
-def _window_tips(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[dict[int, np.ndarray], set[int]]:
-    """The probe tip (3,) mm tracked in each of ``rows`` by row, and the rows whose pair was read."""
-    tips, read = {}, set()
+def _window_fixes(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[dict[int, ProbeFix], set[int]]:
+    """The probe fix tracked in each of ``rows`` by row, and the rows whose pair was read."""
+    fixes, read = {}, set()
     for row in rows:
         pair = _pair(readers, row)
         if pair is None:
@@ -179,24 +187,24 @@ def _window_tips(readers: RecordedPairs, rows, tracker: StereoTracker) -> tuple[
         read.add(int(row))
         fix = _track(tracker, pair)
         if fix is not None:
-            tips[int(row)] = fix.tip
-    return tips, read
+            fixes[int(row)] = fix
+    return fixes, read
 
 
 def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu: np.ndarray,
             calibration: StereoCalibration, chain: ChainCalibration, probe: ProbeModel | None,
-            tracker: StereoTracker, wanted: set[int]) -> tuple[VideoInsertion, dict[int, np.ndarray], set[int]]:
+            tracker: StereoTracker, wanted: set[int]) -> tuple[VideoInsertion, dict[int, ProbeFix], set[int]]:
     """Every recorded pair once, in order: the probe tracked (left out of the tissue; ``tracker``'s tip kept in the
-    ``wanted`` rows) and the insertion tracked. Returns the insertion, the tips (3,) mm by row and the wanted rows
+    ``wanted`` rows) and the insertion tracked. Returns the insertion, the probe fixes by row and the wanted rows
     that were read."""
     n_rows = len(frame_times)
     recorded = np.flatnonzero(rows_with_video(path, segments, n_rows))
     orientations, source = orientations_at(imu, frame_times[recorded])
     masker = tracker if tracker.method == "triangulation" else StereoTracker(calibration, probe)
     follower = InsertionTracker(calibration, chain, probe=probe)
-    used = np.full(n_rows, follower.start_mm)
+    used, sd = np.full(n_rows, follower.start_mm), np.full(n_rows, NodeUncertainty.insertion_sd_mm)
     tracked, known = np.zeros(n_rows, bool), np.zeros(n_rows, bool)
-    tips, read, last, seen = {}, set(), follower.start_mm, False
+    fixes, read, last, seen = {}, set(), follower.start_mm, False
     for k, row in enumerate(recorded):
         pair = _pair(readers, row)
         if pair is None:
@@ -206,12 +214,12 @@ def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu
             read.add(int(row))
             own = fix if tracker is masker else _track(tracker, pair)
             if own is not None:
-                tips[int(row)] = own.tip
+                fixes[int(row)] = own
         estimate = follower.update(*pair, orientations[k], probe_fix=fix)
         if estimate.tracked:
-            last, seen, tracked[row] = estimate.trocar_camera_mm, True, True
+            last, seen, tracked[row], sd[row] = estimate.trocar_camera_mm, True, True, estimate.sd_mm
         used[row], known[row] = last, seen
-    return VideoInsertion(used, tracked, known, len(recorded), source), tips, read
+    return VideoInsertion(used, tracked, known, len(recorded), source, sd), fixes, read
 
 
 def _pair(readers: RecordedPairs, row):
@@ -232,24 +240,26 @@ def _rows(stream) -> np.ndarray:
     return readable_rows(stream) if hasattr(stream, "id") else np.asarray(stream)
 
 
-def _retrack_node(node: IntraopNode, rows: np.ndarray, tips: dict[int, np.ndarray], read: set[int],
-                  insertion: VideoInsertion | None, chain: ChainCalibration) -> RetrackedNode:
+def _retrack_node(node: IntraopNode, rows: np.ndarray, fixes: dict[int, ProbeFix], read: set[int],
+                  insertion: VideoInsertion | None, chain: ChainCalibration, tracker: StereoTracker) -> RetrackedNode:
     frames = sum(int(row) in read for row in rows)
     if not np.all(np.isfinite(node.earth_from_imu)):
         return RetrackedNode(node, None, None, 0, 0, "the node has no IMU orientation on record (format 1)")
-    found = [int(row) for row in rows if int(row) in tips]
+    found = [int(row) for row in rows if int(row) in fixes]
     if not found:
         problem = "none of its window's frames is in the video" if not frames else "no fix in its window's frames"
         return RetrackedNode(node, None, None, frames, 0, problem)
-    camera_tips = np.array([tips[row] for row in found])
-    if insertion is None:                   # the chain's constant distance
-        trocar = camera_to_trocar(chain, node.earth_from_imu, camera_tips)
-        return RetrackedNode(node, summarise(trocar).xyz, summarise(camera_tips).xyz, frames, len(found))
-    known = insertion.known[found].all()
-    used = insertion.used_mm[found]
+    camera_tips = np.array([fixes[row].tip for row in found])
+    camera = summarise(camera_tips).xyz
+    known = insertion is not None and insertion.known[found].all()
+    used = insertion.used_mm[found] if known else np.full(len(found), np.nan)
     chains = {d: chain.with_insertion(d) for d in np.unique(used)} if known else {}
     trocar = np.array([camera_to_trocar(chains[d] if known else chain, node.earth_from_imu, tip)
                        for d, tip in zip(used, camera_tips)])
-    lost = int(np.sum(~insertion.tracked[found]))
-    return RetrackedNode(node, summarise(trocar).xyz, summarise(camera_tips).xyz, frames, len(found), "",
-                         float(np.median(used)) if known else float("nan"), lost)
+    mapped = chain.with_insertion(float(np.median(used))) if known else chain
+    cov = node_covariance(NodeUncertainty(), tracker.calibration, tracker.probe, mapped, node.earth_from_imu, camera,
+                          np.mean([fixes[row].axis for row in found], axis=0), window_camera=camera_tips,
+                          insertion_sd_mm=float(np.median(insertion.sd_mm[found])) if known else None)
+    lost = 0 if insertion is None else int(np.sum(~insertion.tracked[found]))
+    return RetrackedNode(node, summarise(trocar).xyz, camera, frames, len(found), "",
+                         float(np.median(used)) if known else float("nan"), lost, cov)

@@ -43,6 +43,11 @@ class PivotSample:
     earth_from_imu: np.ndarray
     euler_deg: tuple[float, float, float]
 
+    @property
+    def pose(self) -> np.ndarray:
+        """The camera pose (4, 4) the pivot is fitted to."""
+        return self.board_from_camera
+
 
 @dataclass(frozen=True, eq=False)
 class BoardFrame:

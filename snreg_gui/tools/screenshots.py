@@ -34,8 +34,8 @@ UNIFORM_FEED = 0.985             # a feed's area this uniform shows no frame (a 
 PHASES = {"tabs": ("tab-1-acquisition", "tab-2-registration", "tab-3-review"),
           "stereo": ("stereo-1-setup", "stereo-2-capture", "paused-for-calibration", "stereo-3-calibrate",
                      "stereo-4-save", "stereo-5-applied"),
-          "trocar": ("trocar-1-method", "trocar-2-pivot", "trocar-3-arc", "trocar-4-manual", "trocar-5-summary",
-                     "trocar-6-applied"),
+          "trocar": ("trocar-1-method", "trocar-2-pivot", "trocar-2-tissue", "trocar-3-arc", "trocar-4-manual",
+                     "trocar-5-summary", "trocar-6-applied"),
           "refusal": ("refused-store", "close-question"),
           "replay": ("replay-acquisition",)}
 
@@ -207,6 +207,12 @@ def _trocar_wizard(shots: Shooter, window) -> None:
     shots.shoot("trocar-2-pivot", wizard)
     if not shots.wanted(*PHASES["trocar"][2:]):
         return wizard.reject()
+    wizard.back()
+    wizard.method_page.tissue_button.setChecked(True)
+    wizard.next()
+    page = wizard.tissue_page
+    wait_until(lambda: len(page.samples) >= 3, FEED_TIMEOUT_S, "the tissue page's first samples")
+    shots.shoot("trocar-2-tissue", wizard)
     wizard.back()
     wizard.method_page.arc_button.setChecked(True)
     wizard.next()

@@ -2,8 +2,8 @@
 
 Why: a wizard needs the cameras to itself, so acquisition pauses while it runs and starts again after, with
 the new calibration or chain. The rig gives each wizard its feed (:meth:`~snreg.rig.protocols.Rig.board_source`,
-:meth:`~snreg.rig.protocols.Rig.pivot_source`): rendered scenes on the demo rig, the cameras and IMU on the
-hardware one. The code after the sources is the same.
+:meth:`~snreg.rig.protocols.Rig.pivot_source`, :meth:`~snreg.rig.protocols.Rig.tissue_source`): rendered scenes on
+the demo rig, the cameras and IMU on the hardware one. The code after the sources is the same.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ class WizardLauncher:
             return
         make_source, imu = window.rig.pivot_source()
         wizard = TrocarWizard(make_source, imu, window.rig.calibration, THESIS_BOARD, session=window.session,
-                              parent=window)
+                              tissue_source=window.rig.tissue_source(), probe=window.rig.probe, parent=window)
         wizard.chain_calibrated.connect(window.apply_chain)
         self._open(wizard)
 

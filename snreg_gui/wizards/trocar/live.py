@@ -1,10 +1,11 @@
-"""The trocar wizard's live pages: the left feed with the board, the IMU angles, the samples and a running fit.
+"""The trocar wizard's live pages: the left feed, the IMU angles, the samples and a running fit.
 
-Why: the technician pivots the endoscope in the trocar and must see, while doing it, whether the board is
-found, how many samples there are and what they give, and accept once it is good enough. Capture and fits
-run in :class:`~snreg_gui.common.workers.Worker` threads (:mod:`snreg.workflow.trocar_capture`, :mod:`snreg.calibration.trocar_fit`); the pages only
-show what comes back. :class:`PivotPage` runs the pivot method (recommended), :class:`ArcPage` the
-thesis's arc method (eq. 14) on the same samples.
+Why: the technician pivots the endoscope in the trocar and must see, while doing it, whether the board (or the
+tissue) is followed, how many samples there are and what they give, and accept once it is good enough. Capture and
+fits run in :class:`~snreg_gui.common.workers.Worker` threads (:mod:`snreg.workflow.trocar_capture`,
+:mod:`snreg.workflow.tissue_capture`, :mod:`snreg.calibration.trocar_fit`); the pages only show what comes back.
+:class:`PivotPage` runs the pivot method over a board (recommended), :class:`ArcPage` the thesis's arc method
+(eq. 14) on the same samples, :class:`TissuePage` the pivot method over tissue, with no board.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from PySide6.QtWidgets import (QGridLayout, QHBoxLayout, QLabel, QPushButton, QT
                                QVBoxLayout, QWizardPage)
 
 from snreg.calibration.pivot import GOOD_TILT_DEG
-from snreg.calibration.trocar_fit import MIN_ARC_PAIRS, ArcFit, PivotFit, fit_arc, fit_pivot
+from snreg.calibration.tissue_pivot import GOOD_TURN_DEG
+from snreg.calibration.trocar_fit import MIN_ARC_PAIRS, ArcFit, PivotFit, fit_arc, fit_pivot, fit_tissue_pivot
 from snreg.geometry import euler_from_rotation
+from snreg.workflow.tissue_capture import Restarts, TissueSample
 from snreg.workflow.trocar_capture import MIN_SAMPLE_TURN_DEG, BoardFrame, PivotSample
 from snreg_gui.common.feed_view import FeedView
 from snreg_gui.common.workers import FitRunner, LiveLoop
@@ -31,7 +34,8 @@ class LivePage(QWizardPage):
     """Feed, IMU angles, samples table, Reset and Accept; subclasses show their fit in :attr:`estimate`.
 
     The page is complete (Next and Accept enabled) once its fit is acceptable; leaving it by Next or Accept
-    hands :meth:`choice` to the wizard. Entering it from the method page starts with no samples.
+    hands :meth:`choice` to the wizard. Entering it from the method page starts with no samples. :attr:`capture`
+    is the live loop that feeds it (the wizard runs it while the page is shown).
     """
 
     def __init__(self, capture: LiveLoop, fit: Callable, title: str, subtitle: str,
@@ -39,7 +43,8 @@ class LivePage(QWizardPage):
         super().__init__()
         self.setTitle(title)
         self.setSubTitle(subtitle)
-        self.samples: list[PivotSample] = []
+        self.capture = capture
+        self.samples: list[PivotSample | TissueSample] = []
         self.fit: PivotFit | ArcFit | None = None
         self._fits = FitRunner(fit, self)
         self.feed = FeedView("left")
@@ -135,19 +140,18 @@ class LivePage(QWizardPage):
         if frame.sample is not None:
             self._add_sample(frame.sample)
 
-    def _add_sample(self, sample: PivotSample) -> None:
+    def _add_sample(self, sample: PivotSample | TissueSample) -> None:
         self.samples.append(sample)
         row = self.table.rowCount()
         self.table.insertRow(row)
         seconds = (sample.t_host_ns - self.samples[0].t_host_ns) / 1e9
         cells = (str(sample.frame_index), f"{seconds:.2f}", *(f"{a:.2f}" for a in sample.euler_deg),
-                 *(f"{v:.1f}" for v in sample.board_from_camera[:3, 3]))
+                 *(f"{v:.1f}" for v in sample.pose[:3, 3]))
         for column, text in enumerate(cells):
             self.table.setItem(row, column, QTableWidgetItem(text))
         self.table.scrollToBottom()
         self.sample_count.setText(f"samples: {len(self.samples)}")
-        self._fits.request(np.array([s.board_from_camera for s in self.samples]),
-                           np.array([s.earth_from_imu for s in self.samples]))
+        self._fits.request(np.array([s.pose for s in self.samples]), np.array([s.earth_from_imu for s in self.samples]))
 
     def _show_stop(self, message: str) -> None:
         if self._is_current():
@@ -170,12 +174,14 @@ class LivePage(QWizardPage):
 class PivotPage(LivePage):
     """The pivot method: trocar-camera distance, uncertainty, residual, verdict, and the IMU-camera rotation."""
 
-    def __init__(self, capture: LiveLoop):
+    method = "pivot"          # the chain's method, as the summary and the session record it
+
+    def __init__(self, capture: LiveLoop, fit: Callable = fit_pivot, title: str = "Pivot calibration",
+                 subtitle: str = ("Keep the checkerboard still in view and pivot the endoscope about the trocar, "
+                                  f"left-right and up-down, by {GOOD_TILT_DEG:g} degrees or more. Accept once the "
+                                  "verdict is not bad.")):
         verdict, rotation = QLabel(""), QLabel("")
-        super().__init__(capture, fit_pivot, "Pivot calibration",
-                         "Keep the checkerboard still in view and pivot the endoscope about the trocar, left-right "
-                         f"and up-down, by {GOOD_TILT_DEG:g} degrees or more. Accept once the verdict is not bad.",
-                         (verdict, rotation))
+        super().__init__(capture, fit, title, subtitle, (verdict, rotation))
         self.verdict, self.rotation = verdict, rotation
 
     def reset(self) -> None:
@@ -208,10 +214,33 @@ class PivotPage(LivePage):
         pivot = self.fit.pivot
         rotation = ("measured from the IMU and camera turns" if self.fit.hand_eye is not None
                     else "identity assumed (not determined)")
-        return ChainChoice(self.fit.chain, "pivot",
+        return ChainChoice(self.fit.chain, self.method,
                            f"verdict {pivot.verdict}: RMS residual {pivot.rms_mm:.2f} mm, standard error "
                            f"{pivot.distance_sd_mm:.2f} mm over {pivot.n_used} samples; "
                            f"IMU-camera rotation {rotation}")
+
+
+class TissuePage(PivotPage):
+    """The pivot method over tissue: the camera's own poses from the stereo video instead of a board's. Reset also
+    starts the follower afresh from the view in sight (``restarts``, read by the capture thread); samples of an
+    earlier start are in another tissue frame and are not taken."""
+
+    method = "tissue"
+
+    def __init__(self, capture: LiveLoop, restarts: Restarts):
+        self._restarts, self._start = restarts, restarts.count
+        super().__init__(capture, fit_tissue_pivot, "Turn the camera over tissue",
+                         "Hold the endoscope's insertion and turn it about the trocar over still, textured tissue, "
+                         f"left-right and up-down, by {GOOD_TURN_DEG:g} degrees or more, not faster than the feed "
+                         "follows. Accept once the verdict is not bad.")
+
+    def reset(self) -> None:
+        self._start = self._restarts.restart()
+        super().reset()
+
+    def _add_sample(self, sample: TissueSample) -> None:
+        if sample.start == self._start:
+            super()._add_sample(sample)
 
 
 class ArcPage(LivePage):

@@ -19,16 +19,20 @@ from snreg_gui.common.workers import Worker, release_finished
 
 
 class PageId(enum.IntEnum):
+    """The pages; the summary is the last (a page with none after it is the wizard's final one)."""
+
     METHOD = 0
     PIVOT = 1
-    ARC = 2
-    MANUAL = 3
-    SUMMARY = 4
+    TISSUE = 2
+    ARC = 3
+    MANUAL = 4
+    SUMMARY = 5
 
 
 @dataclass(frozen=True, eq=False)
 class ChainChoice:
-    """The chain a page settled on, its ``method`` ("pivot", "arc" or "manual") and one line on its quality."""
+    """The chain a page settled on, its ``method`` ("pivot", "tissue", "arc" or "manual") and one line on its
+    quality."""
 
     chain: ChainCalibration
     method: str
@@ -36,7 +40,8 @@ class ChainChoice:
 
 
 class MethodPage(QWizardPage):
-    """Pivot calibration (recommended), the thesis's arc method, or distances measured by hand."""
+    """Pivot calibration over a board (recommended) or over tissue, the thesis's arc method, or distances measured
+    by hand."""
 
     def __init__(self):
         super().__init__()
@@ -44,13 +49,15 @@ class MethodPage(QWizardPage):
         self.setSubTitle("How to find the trocar-camera distance and the IMU-camera axes of the chain.")
         self.pivot_button = QRadioButton("Pivot calibration (recommended): pivot the endoscope in the trocar in front "
                                          "of a still checkerboard; gives the distance and the IMU-camera rotation")
+        self.tissue_button = QRadioButton("Turn the camera over tissue (no board): the distance and the IMU-camera "
+                                          "rotation from the camera's own motion in the stereo video")
         self.arc_button = QRadioButton("Arc method (thesis eq. 14): the distance from the swings of the camera; "
                                        "IMU axes aligned by eye")
         self.manual_button = QRadioButton("Manual entry: distances measured by hand (thesis: 460 mm and 158 mm)")
         self._group = QButtonGroup(self)
         layout = QVBoxLayout(self)
-        for page_id, button in ((PageId.PIVOT, self.pivot_button), (PageId.ARC, self.arc_button),
-                                (PageId.MANUAL, self.manual_button)):
+        for page_id, button in ((PageId.PIVOT, self.pivot_button), (PageId.TISSUE, self.tissue_button),
+                                (PageId.ARC, self.arc_button), (PageId.MANUAL, self.manual_button)):
             self._group.addButton(button, page_id)
             layout.addWidget(button)
         self.pivot_button.setChecked(True)
