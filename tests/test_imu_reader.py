@@ -241,6 +241,21 @@ def test_a_stream_started_before_the_motion_holds_still_until_it_starts():
     assert np.all(gyro[:200] == 0.0) and gyro[200:300, 2].max() > 50.0 and np.all(gyro[300:] == 0.0)
 
 
+def test_a_port_holds_the_motion_and_says_on_the_host_clock_when_it_starts():
+    """Another program shows the motion in step (the surgery demo's frames): the port holds the first pose for
+    ``hold_s`` after its stream starts and reports the motion's start on the host clock."""
+    sim = ImuSimulator(MotionProfile([rotate((0, 0, 1), 20.0, 40.0)]), rate_hz=500, sensor=EXACT, n_samples=600)
+    starts, got = [], []
+    with SimulatedPort(sim, hold_s=0.5, on_start=starts.append) as port:
+        with SerialImuReader(port.port, on_sample=got.append):
+            port.start()
+            assert wait_until(lambda: port.finished.is_set() and len(got) == 600)
+    assert starts == [port.started_ns + 500_000_000]
+    moving = [s for s in got if abs(s.gyro_dps[2]) > 0]
+    assert 500_000 <= moving[0].t_device_us < 504_000 and moving[-1].t_device_us < 1_000_000
+    assert 0 <= moving[0].t_host_ns - starts[0] < 200_000_000        # received when due (latency under load)
+
+
 def test_the_range_clips_and_quantises_like_the_sensor():
     fast = MotionProfile([rotate((0, 0, 1), 200, 200, smooth=False)])
     for range_dps, expected in ((125, 32767 * 4.375e-3), (250, 200.0)):
@@ -325,8 +340,9 @@ def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, c
     (["imu", "simulate", "--port-link", "/nonexistent/dir/imu"], "cannot create the link"),
     (["imu", "simulate", "--still", "--motion", "m.json"], "--still and --motion each choose"),
     (["imu", "simulate", "--motion", "/nonexistent.json"], "no such motion file"),
-    (["imu", "simulate", "--replay", "x.csv", "--start-ns", "5"], "--start-ns does not apply"),
-    (["imu", "simulate", "--start-ns", "-5"], "--start-ns"),
+    (["imu", "simulate", "--replay", "x.csv", "--hold", "3"], "do not apply to --replay"),
+    (["imu", "simulate", "--hold", "-5"], "--hold"),
+    (["imu", "simulate", "--epoch-file", "/nonexistent/dir/epoch"], "does not exist"),
 ])
 def test_bad_input_is_one_line_and_exit_2(argv, message, capsys):
     try:

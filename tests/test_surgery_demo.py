@@ -88,10 +88,10 @@ def test_the_imu_profile_is_the_rendered_camera_orientation_at_every_frame(scene
 
 
 def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame():
-    """The real path: the simulator process plays the tour's motion on a pty from the feed's epoch, the reader and
-    the fusion run as with hardware, and the orientation the acquisition takes at a frame's grab time is the one the
-    frame was rendered at, within the AHRS's own error (measured once it has settled: median 0.03 deg, p95 0.1 deg;
-    0.2 deg in its first seconds)."""
+    """The real path: the simulator process plays the tour's motion on a pty and says when it starts, the feed counts
+    its frames from then, the reader and the fusion run as with hardware, and the orientation the acquisition takes
+    at a frame's grab time is the one the frame was rendered at, within the AHRS's own error (measured once it has
+    settled: median 0.03 deg, p95 0.1 deg; 0.2 deg in its first seconds)."""
     rig = DemoRig(scale=0.125, schedule=Schedule(rest_frames=60), camera="surgery", seed=4)
     errors, truth, moving = [], [], []
     try:
@@ -125,7 +125,7 @@ def test_the_headless_surgery_demo_stores_every_node_where_it_is(tmp_path):
         insertion = {node.id: node.trocar_camera_mm for node in session.intraop_records()}
         frames = len(session.stream("frames"))
     tracked = camera["state"] == CAMERA_STATES.index("tracked")
-    assert len(camera) == frames and tracked.mean() > 0.95
+    assert len(camera) >= 0.95 * frames and tracked.mean() > 0.95            # a row per pair, nearly all tracked
     start = ChainCalibration.manual().trocar_camera_mm
     slides = [REST_KEYS[["EXT L", "EXT R", "OBT R", "OBT L"].index(node["label"])].slide_mm for node in out["nodes"]]
     np.testing.assert_allclose([insertion[node["id"]] for node in out["nodes"]], start + np.array(slides), atol=0.5)

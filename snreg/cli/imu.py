@@ -50,9 +50,12 @@ def add_imu_parser(subparsers) -> None:
                    "moves (the demo rig's still endoscope)")
     s.add_argument("--motion", metavar="FILE", help="play the motion profile in this JSON file (segments, initial "
                    "orientation, repeat; as snreg.demo.imu_motion.MotionProfile.to_dict writes it) instead")
-    s.add_argument("--start-ns", type=positive_int, metavar="NS", help="the motion's time 0 on the host clock "
-                   "(time.perf_counter_ns(), shared by the processes of this computer), so another program shows the "
-                   "same motion in step; the sensor holds the motion's first pose until then")
+    s.add_argument("--hold", type=float_range(0, MAX_SECONDS, "s", low_open=False), default=0.0, metavar="S",
+                   help="hold the motion's first pose this long after the stream starts (a reader opened the port), "
+                        "so the fusion starts still")
+    s.add_argument("--epoch-file", metavar="PATH", help="when the stream starts, write there the host time at which "
+                   "the motion starts (time.perf_counter_ns(), shared by the processes of this computer), so another "
+                   "program shows the same motion in step; the lines then keep to that schedule")
     s.add_argument("--parent", type=positive_int, metavar="PID",
                    help="stop when process PID, the program that started this simulator, ends")
     s.set_defaults(func=cmd_imu_simulate)
@@ -155,8 +158,10 @@ def cmd_imu_simulate(args) -> int:
               if given]
     if len(chosen) > 1:
         raise UserError(f"{' and '.join(chosen)} each choose what the sensor does; give one of them")
-    if args.replay and args.start_ns is not None:
-        raise UserError("--start-ns does not apply to --replay, which keeps the recording's times; drop one")
+    if args.replay and (args.hold or args.epoch_file):
+        raise UserError("--hold and --epoch-file do not apply to --replay, which keeps the recording's times; "
+                        "drop them")
+    epoch_file = check_output_file(args.epoch_file, "epoch") if args.epoch_file else None
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
         if args.replay:
@@ -174,7 +179,8 @@ def cmd_imu_simulate(args) -> int:
                 motion, what = protractor_profile(repeat=True), "protractor moves (1, 5, 10 deg about y and z)"
             source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed)
             what += f" at {rate:g} Hz"
-        port = SimulatedPort(source, port_link=args.port_link, start_ns=args.start_ns)
+        port = SimulatedPort(source, port_link=args.port_link, hold_s=args.hold,
+                             on_start=None if epoch_file is None else lambda ns: _write_epoch(epoch_file, ns))
     except (ValueError, OSError) as err:
         raise UserError(str(err)) from None
     previous = signal.signal(signal.SIGTERM, _interrupt)      # `kill` cleans up like Ctrl-C
@@ -191,6 +197,18 @@ def cmd_imu_simulate(args) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _write_epoch(path, motion_start_ns: int) -> None:
+    """The motion's start on the host clock, in ns, as one line (written whole: a reader never sees half of it)."""
+    from snreg.files import atomic_write
+
+    try:
+        with atomic_write(path) as temporary:
+            temporary.write_text(f"{motion_start_ns}\n")
+    except OSError as err:
+        raise UserError(f"cannot write the epoch file {path} ({err.strerror or err}); "
+                        "choose a writable place") from None
 
 
 def _interrupt(signum, frame):

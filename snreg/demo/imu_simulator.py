@@ -20,7 +20,7 @@ import os
 import select
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -253,23 +253,28 @@ class SimulatedPort:
     pty buffer is full and resumes without a burst. ``finished`` is set when the source has run
     out; the port stays open (silent) until stopped.
 
-    ``start_ns``: the motion's time 0 on the host clock (``time.perf_counter_ns()``, the monotonic clock every
-    process on this computer shares), so another process can show the same motion in step (the demo's rendered
-    frames). The stream still starts when a reader opens the port, holding the motion's first pose until then; lines
-    stay on that schedule (sent late in a burst rather than shifted, should the writer fall behind).
+    ``hold_s``: the motion starts this long after the stream, the sensor holding its first pose until then (a
+    fusion's still start). ``on_start(motion_start_ns)`` is called when the stream starts with the motion's start on
+    the host clock (``time.perf_counter_ns()``, the monotonic clock every process on this computer shares), so
+    another process can show the same motion in step (the demo's rendered frames); the lines then stay on that
+    schedule (sent late in a burst rather than shifted, should the writer fall behind).
     """
 
     def __init__(self, source: _LineSource, *, port_link: str | None = None, speed: float = 1.0,
-                 start_ns: int | None = None):
+                 hold_s: float = 0.0, on_start: Callable[[int], None] | None = None):
         if not speed > 0:
             raise ValueError(f"replay speed must be positive, got {speed}")
-        if start_ns is not None and speed != 1.0:
-            raise ValueError("a motion started at a host time runs at the host clock's pace; leave out the speed")
+        if not hold_s >= 0:
+            raise ValueError(f"the hold before the motion must be a positive number of seconds, got {hold_s}")
+        if on_start is not None and speed != 1.0:
+            raise ValueError("a motion shown in step with another program runs at the host clock's pace; "
+                             "leave out the speed")
         if not hasattr(os, "openpty"):
             raise ValueError("the IMU simulator needs a POSIX pseudo-terminal (Linux or macOS)")
         import tty  # POSIX only, like the pty itself
 
-        self.source, self.speed, self.link, self.start_ns = source, float(speed), port_link, start_ns
+        self.source, self.speed, self.link = source, float(speed), port_link
+        self.hold_s, self.on_start = float(hold_s), on_start
         self.finished, self._stop = threading.Event(), threading.Event()
         self.started_ns: int | None = None          # set when the stream starts (a replay aligns its frames to it)
         self._thread: threading.Thread | None = None
@@ -339,16 +344,16 @@ class SimulatedPort:
         out, then idle until :meth:`stop`."""
         if not self._wait_for_reader():
             return
-        t0 = time.perf_counter()
-        offset_s = 0.0 if self.start_ns is None else t0 - self.start_ns / 1e9
-        lines = self.source.lines(offset_s)
-        item, pending = next(lines, None), b""
+        lines = self.source.lines(-self.hold_s)
+        item, pending, t0 = next(lines, None), b"", time.perf_counter()
         self.started_ns = round(t0 * 1e9)           # the host time (perf_counter_ns) of the source's time 0
+        if self.on_start is not None:
+            self.on_start(self.started_ns + round(self.hold_s * 1e9))
         while not self._stop.is_set():
             now = time.perf_counter() - t0
             if item is not None and not pending:
                 late = now - item[0] / self.speed
-                if late > _MAX_LAG_S and self.start_ns is None:
+                if late > _MAX_LAG_S and self.on_start is None:
                     t0, now = t0 + late, now - late
                 batch = []
                 while item is not None and item[0] / self.speed <= now:

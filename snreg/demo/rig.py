@@ -10,9 +10,10 @@ it (the app, the headless demo) creates it.
 ``camera="still"``: the phantom of :mod:`snreg.demo.scene`; the IMU is held still and level (``--still``), so the
 trocar frame is the camera frame shifted by the trocar-camera distance along the shaft, which the tests use as
 ground truth. ``camera="surgery"``: :mod:`snreg.demo.surgery_scene`, the camera sliding and turning between rests;
-the simulator plays the same motion (``--motion``) counted from the same instant on the host clock as the rendered
-feed (``--start-ns`` and the feed's ``epoch_ns``), so each frame meets the orientation it was rendered at. That
-instant is only known once the tour is rendered, so this simulator starts then, ``IMU_LEAD_S`` before the tour.
+the simulator plays the same motion (``--motion``), holding its start ``IMU_HOLD_S`` after its stream starts (its
+fusion's still start) and writing the host-clock instant the motion starts (``--epoch-file``); the rendered feed
+counts its frames from that instant (``epoch_ns``), so each frame meets the orientation it was rendered at, however
+long the simulator process took to start.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import true_sources_lps, write_phantom_spect
 from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
-from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain
+from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain, surgery_tour
 from snreg.demo.tissue_pivot import TissuePivotScene
 from snreg.files import atomic_write
 from snreg.imu.monitor import ImuMonitor
@@ -48,9 +49,8 @@ DEMO_FPS = 30.0
 CAMERAS = ("still", "surgery")
 SURGERY_REST_FRAMES = 180      # the surgery demo's rests by default: 6 s
 IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
-IMU_LEAD_S = 3.0               # the surgery tour starts this long after its IMU simulator is launched: the process
-                               # starts (1-2 s) and its fusion gets a still start (3 s, with the first rest) before
-                               # the camera first moves
+IMU_HOLD_S = 3.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (3 s
+                               # and the first rest) before the camera first moves
 
 
 class DemoRig:
@@ -90,9 +90,15 @@ class DemoRig:
         self.scene: PhantomScene | SurgeryScene | None = None
         self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")
         self._link = Path(self._folder.name) / "imu"
-        self._simulator: subprocess.Popen | None = None
         self._epoch_ns: int | None = None
-        if not self.moving_camera:
+        self._epoch_file = Path(self._folder.name) / "epoch"
+        if self.moving_camera:                  # its process starts while the tour renders
+            motion = Path(self._folder.name) / "motion.json"
+            with atomic_write(motion) as temporary:
+                profile = surgery_tour(self.schedule, self.true_chain).motion_profile(self.true_chain, self.fps)
+                temporary.write_text(json.dumps(profile.to_dict()))
+            self._launch_imu("--motion", str(motion), "--hold", str(IMU_HOLD_S), "--epoch-file", str(self._epoch_file))
+        else:
             self._launch_imu("--still")
         self.imu = ImuMonitor(str(self._link))
 
@@ -110,7 +116,7 @@ class DemoRig:
     def frame_source(self) -> FrameSource:
         """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
         pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
-        if self._simulator is not None:         # the still IMU streams while the tour renders
+        if not self.moving_camera:              # the still IMU streams while the tour renders
             self._start_imu()
         if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
             options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
@@ -123,13 +129,9 @@ class DemoRig:
                 scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
             scene.prerender()
             self.scene = scene
-        if self.moving_camera and self._simulator is None:
-            motion = Path(self._folder.name) / "motion.json"
-            with atomic_write(motion) as temporary:
-                temporary.write_text(json.dumps(self.scene.tour.motion_profile(self.true_chain, self.fps).to_dict()))
-            self._epoch_ns = time.perf_counter_ns() + round(IMU_LEAD_S * 1e9)
-            self._launch_imu("--motion", str(motion), "--start-ns", str(self._epoch_ns))
         self._start_imu()
+        if self.moving_camera and self._epoch_ns is None:
+            self._epoch_ns = self._wait_for_epoch()
         # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
         # skipped when tracking falls behind, while the scene goes on at its own pace (the surgery tour's counted
         # from the IMU motion's start, so a restart goes on where the tour is)
@@ -183,6 +185,16 @@ class DemoRig:
              "--port-link", str(self._link), "--parent", str(os.getpid())],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
+    def _wait_for_epoch(self) -> int:
+        """The instant (host clock, ns) the simulator's motion starts: it writes it once the reader opened its port."""
+        deadline = time.monotonic() + IMU_START_TIMEOUT_S
+        while not self._epoch_file.exists():
+            if self._simulator.poll() is not None or time.monotonic() > deadline:
+                raise OSError(f"the IMU simulator did not start its motion (exit status {self._simulator.poll()}); "
+                              "try 'snreg imu simulate --motion FILE' to see why")
+            time.sleep(0.01)
+        return int(self._epoch_file.read_text())
+
     def _start_imu(self) -> None:
         if self.imu.started:
             return
@@ -197,11 +209,10 @@ class DemoRig:
     def close(self) -> None:
         """Stop the IMU reader and its simulator process; call after the worker has stopped."""
         self.imu.stop()
-        if self._simulator is not None:
-            self._simulator.terminate()
-            try:
-                self._simulator.wait(5.0)
-            except subprocess.TimeoutExpired:
-                self._simulator.kill()
-                self._simulator.wait()
+        self._simulator.terminate()
+        try:
+            self._simulator.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._simulator.kill()
+            self._simulator.wait()
         self._folder.cleanup()

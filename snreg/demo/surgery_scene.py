@@ -34,7 +34,7 @@ from snreg.demo.tissue import TissueScene, TissueSurface
 from snreg.geometry import apply, invert, make_transform
 from snreg.probe import ProbeModel
 
-__all__ = ["SurgeryScene", "REST_KEYS", "VIA_KEYS", "surgery_demo_chain"]
+__all__ = ["SurgeryScene", "REST_KEYS", "VIA_KEYS", "surgery_demo_chain", "surgery_tour"]
 
 # where the camera rests while the probe rests on node n (the first: the start pose), and the keys it passes on the
 # way to the next rest: every move slides 20 mm or more and turns 6 degrees or more, one by way of the camera drawn
@@ -59,6 +59,13 @@ def surgery_demo_chain() -> ChainCalibration:
                             make_transform(earth_from_trocar.T, np.zeros(3)))
 
 
+def surgery_tour(schedule: Schedule, chain: ChainCalibration) -> CameraTour:
+    """The camera's tour of :data:`REST_KEYS` and :data:`VIA_KEYS` with ``schedule``'s rests, from ``chain``'s distance
+    (cheap: what the IMU simulator plays is known before anything is rendered)."""
+    return CameraTour(REST_KEYS, VIA_KEYS, rest_frames=schedule.rest_frames, start_mm=chain.trocar_camera_mm,
+                      min_move_frames=schedule.move_frames)
+
+
 class SurgeryScene:
     """Rendered stereo frames of the node tour seen by the moving camera, with its truth: ``resting_node``,
     ``trocar_from_camera``, ``earth_from_imu``, ``truth_trocar``; ``fps`` sets the tour's pace in seconds (the IMU's).
@@ -73,8 +80,7 @@ class SurgeryScene:
         self.schedule, self.fps, self.seed = schedule, float(fps), seed
         self.noise_sigma, self.blur_sigma_px = noise_sigma, blur_sigma_px
         self.chain = chain if chain is not None else surgery_demo_chain()
-        self.tour = CameraTour(REST_KEYS, VIA_KEYS, rest_frames=schedule.rest_frames,
-                               start_mm=self.chain.trocar_camera_mm, min_move_frames=schedule.move_frames)
+        self.tour = surgery_tour(schedule, self.chain)
         self.path = self.tour.path()
         start = self.path.trocar_from_camera(0, self.chain)
         tips = phantom_tips(probe)
