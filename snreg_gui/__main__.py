@@ -20,6 +20,8 @@ def main(argv=None) -> int:
     parser.add_argument("--demo", action="store_true", help="simulated devices, no hardware")
     parser.add_argument("--errors", metavar="ideal|thesis|FILE", help="with --demo: the error model the simulated rig "
                         "runs with (default ideal: nothing errs but the render's noise; thesis: the thesis' phantom)")
+    parser.add_argument("--camera", choices=("still", "surgery"), help="with --demo: still (default), the camera never "
+                        "moves; surgery, it slides through the trocar and turns about the pivot between nodes")
     parser.add_argument("session", nargs="?", help="session file: an existing one opens for review, a new name is "
                         "created for recording (demo default: a new file in the temp folder)")
     parser.add_argument("--replay", action="store_true", help="acquire from SESSION's recorded video and IMU at their "
@@ -30,10 +32,12 @@ def main(argv=None) -> int:
         parser.error("--replay needs the recorded SESSION.h5 to replay (and no --demo)")
     if not args.speed > 0:
         parser.error(f"--speed must be a positive number, not {args.speed}")
+    if args.camera is not None and not args.demo:
+        parser.error("--camera applies to the demo only; add --demo")
     errors = _error_model(parser, args)
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    window = MainWindow(args.session, demo=args.demo, rig=DemoRig(errors=errors) if errors is not None else None,
-                        replay=args.replay, speed=args.speed)
+    rig = DemoRig(errors=errors, camera=args.camera or "still") if args.demo else None
+    window = MainWindow(args.session, demo=args.demo, rig=rig, replay=args.replay, speed=args.speed)
     for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
         signal.signal(signum, lambda *_: window.quit_without_asking())
     wake = QTimer(interval=200, timeout=lambda: None)      # lets Python run those handlers while Qt waits

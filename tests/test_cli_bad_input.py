@@ -192,6 +192,8 @@ CASES = [
     (["budget", "--errors", "{fifo.csv}"], "not a regular file"),
     (["budget", "--errors", "{header_only.yaml}"], "not an OpenCV error model file"),
     (["demo", "--headless", "--errors", "{deep.json}", "-o", "{demo.h5}"], "nested 100000 levels deep"),
+    (["demo", "--headless", "--camera", "moving", "-o", "{demo.h5}"], "--camera"),
+    (["demo", "--headless", "--no-camera-tracking", "-o", "{demo.h5}"], "applies to --camera surgery"),
     (["session", "verify", "{fifo.h5}"], "not a regular file"),
     (["session", "retrack", "{fifo.h5}"], "not a regular file"),
     (["simulate", "--extras", "-1"], "--extras"),

@@ -19,6 +19,8 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     assert out["pairing_correct"] is True
     assert len(out["nodes"]) == 4 and sorted(out["pairing"]) == [0, 1, 2, 3]
     assert all(node["confidence"] > 0.9 for node in out["nodes"])
+    assert out["camera"] == "still" and out["camera_tracking"] is False
+    assert all(np.linalg.norm(np.subtract(node["xyz_trocar"], node["truth_trocar"])) < 1.5 for node in out["nodes"])
     assert all(np.linalg.eigvalsh(node["cov_trocar_mm2"]).min() > 0 for node in out["nodes"])
     with Session.open(path) as session:
         assert session.preop_nodes().cov.shape == (4, 3, 3)          # each hot spot's own, from the segmentation

@@ -143,3 +143,24 @@ def test_store_disabled_with_the_tracking_reason_and_stale_feed_flagged(qtbot):
     qtbot.waitUntil(lambda: "no fix (no probe stripe found in the left image)" in screen.tip_trocar.text(), timeout=1_000)
     qtbot.waitUntil(lambda: "STALE" in screen.video_health.text(), timeout=3_000)     # no frame for over 1 s
     assert screen.store_reason.text().startswith("no frames for") and not screen.store_button.isEnabled()
+
+
+def test_the_surgery_demo_follows_the_camera_insertion_in_the_app(qtbot, tmp_path):
+    """``snreg-gui --demo --camera surgery``: the rig's camera moves, so the worker tracks its insertion; the
+    frames of a move are mapped at the insertion the camera slid to (a quarter of the thesis resolution)."""
+    rig = DemoRig(scale=0.25, schedule=Schedule(rest_frames=45), camera="surgery")
+    window = MainWindow(str(tmp_path / "surgery.h5"), demo=True, rig=rig, fixes_per_node=FIXES)
+    qtbot.addWidget(window)
+    results = []
+    try:
+        window.worker.frame_processed.connect(results.append)
+        qtbot.waitUntil(lambda: bool(results) and results[-1].outcome.index > rig.scene.tour.rest_starts[1] + 10,
+                        timeout=90_000)                    # through the first move, into the next rest
+    finally:
+        window.shutdown()
+    steps = [r.outcome.insertion for r in results]
+    assert all(step is not None for step in steps)
+    last = results[-1].outcome
+    truth = rig.scene.path.insertion_mm[last.index % rig.scene.cycle]
+    assert last.insertion.estimate.tracked and abs(last.insertion.used_mm - truth) < 1.0
+    assert abs(truth - rig.chain.trocar_camera_mm) > 10.0                 # the camera did slide

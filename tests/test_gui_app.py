@@ -205,7 +205,9 @@ def test_foot_pedal_and_undo_keys(qtbot):
 
 @pytest.mark.parametrize("argv, fragment", [(["--errors", "thesis"], "add --demo"), (["--replay"], "--replay needs"),
                                             (["s.h5", "--replay", "--speed", "0"], "--speed"),
-                                            (["--demo", "--errors", "/dev/zero"], "not a regular file")])
+                                            (["--demo", "--errors", "/dev/zero"], "not a regular file"),
+                                            (["--camera", "surgery"], "add --demo"),
+                                            (["--demo", "--camera", "moving"], "invalid choice")])
 def test_the_command_line_refuses_a_bad_start_before_any_window(argv, fragment, capsys):
     from snreg_gui.__main__ import main
 

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from snreg.cli import main
 from snreg.cli.imu import add_imu_parser
-from snreg.demo.imu_motion import MotionProfile, protractor_profile, rotate, still
+from snreg.demo.imu_motion import MotionProfile, protractor_profile, read_motion_file, rotate, still
 from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SensorModel, SimulatedPort
 from snreg.errors import UserError
 from snreg.imu import reader as imu_reader_module
@@ -208,6 +208,54 @@ def test_profiles_hold_at_the_end_or_repeat():
     assert np.degrees(protractor.orientation(4 + 0.2 + 1.0)[0].magnitude()) == pytest.approx(1.0)
 
 
+def test_a_profile_holds_its_first_pose_before_time_0_and_round_trips_through_its_file(tmp_path):
+    """A program hands its motion to the simulator process as a file; before the motion's time 0 (the stream started
+    early, its start set on the host clock) the sensor holds the first pose, also when the profile repeats."""
+    start = Rotation.from_euler("ZYX", [0.0, 30.0, 120.0], degrees=True)
+    axis = (0.3, 0.4, 0.5)
+    profile = MotionProfile([still(0.5), rotate(axis, 12.0, 8.0), still(0.2), rotate(axis, -12.0, 8.0)], start,
+                            repeat=True)
+    assert profile.orientation([-3.0])[0].approx_equal(start)
+    np.testing.assert_array_equal(profile.angular_velocity_dps([-3.0]), np.zeros((1, 3)))
+    path = tmp_path / "motion.json"
+    path.write_text(json.dumps(profile.to_dict()))
+    again = read_motion_file(path)
+    times = np.linspace(-1.0, 2 * profile.duration_s, 97)
+    assert np.all(np.degrees((again.orientation(times) * profile.orientation(times).inv()).magnitude()) < 1e-9)
+    np.testing.assert_allclose(again.angular_velocity_dps(times), profile.angular_velocity_dps(times), atol=1e-9)
+    backwards = {**profile.to_dict(), "segments": [{"duration_s": -1, "axis": [0, 0, 1], "angle_deg": 0,
+                                                    "smooth": True}]}
+    for bad, words in (("[1, 2]", "not a motion profile"), ('{"segments": []', "not a motion file"),
+                       (json.dumps(backwards), "positive duration")):
+        path.write_text(bad)
+        with pytest.raises(ValueError, match=words):
+            read_motion_file(path)
+
+
+def test_a_stream_started_before_the_motion_holds_still_until_it_starts():
+    """``lines(motion_offset_s)``: the stream's time 0 lies that far into the motion (negative: before it)."""
+    profile = MotionProfile([rotate((0, 0, 1), 30.0, 30.0)])
+    sim = ImuSimulator(profile, rate_hz=100, sensor=EXACT, n_samples=400)
+    samples = [parse_line(line) for _, line in sim.lines(-2.0)]
+    gyro = np.array([s.gyro_dps for s in samples if isinstance(s, ImuSample)])
+    assert np.all(gyro[:200] == 0.0) and gyro[200:300, 2].max() > 50.0 and np.all(gyro[300:] == 0.0)
+
+
+def test_a_port_holds_the_motion_and_says_on_the_host_clock_when_it_starts():
+    """Another program shows the motion in step (the surgery demo's frames): the port holds the first pose for
+    ``hold_s`` after its stream starts and reports the motion's start on the host clock."""
+    sim = ImuSimulator(MotionProfile([rotate((0, 0, 1), 20.0, 40.0)]), rate_hz=500, sensor=EXACT, n_samples=600)
+    starts, got = [], []
+    with SimulatedPort(sim, hold_s=0.5, on_start=starts.append) as port:
+        with SerialImuReader(port.port, on_sample=got.append):
+            port.start()
+            assert wait_until(lambda: port.finished.is_set() and len(got) == 600)
+    assert starts == [port.started_ns + 500_000_000]
+    moving = [s for s in got if abs(s.gyro_dps[2]) > 0]
+    assert 500_000 <= moving[0].t_device_us < 504_000 and moving[-1].t_device_us < 1_000_000
+    assert 0 <= moving[0].t_host_ns - starts[0] < 200_000_000        # received when due (latency under load)
+
+
 def test_the_range_clips_and_quantises_like_the_sensor():
     fast = MotionProfile([rotate((0, 0, 1), 200, 200, smooth=False)])
     for range_dps, expected in ((125, 32767 * 4.375e-3), (250, 200.0)):
@@ -290,6 +338,11 @@ def test_monitor_writes_angles_per_sample_and_a_summary(tmp_path, monkeypatch, c
     (["imu", "simulate", "--replay", "/nonexistent.csv"], "no such IMU CSV file"),
     (["imu", "simulate", "--replay", "x.csv", "--rate", "100"], "--rate does not apply"),
     (["imu", "simulate", "--port-link", "/nonexistent/dir/imu"], "cannot create the link"),
+    (["imu", "simulate", "--still", "--motion", "m.json"], "--still and --motion each choose"),
+    (["imu", "simulate", "--motion", "/nonexistent.json"], "no such motion file"),
+    (["imu", "simulate", "--replay", "x.csv", "--hold", "3"], "do not apply to --replay"),
+    (["imu", "simulate", "--hold", "-5"], "--hold"),
+    (["imu", "simulate", "--epoch-file", "/nonexistent/dir/epoch"], "does not exist"),
 ])
 def test_bad_input_is_one_line_and_exit_2(argv, message, capsys):
     try:

@@ -273,7 +273,8 @@ def test_endless_callable_source_stays_open_until_closed():
 
 def test_a_live_callable_source_stamps_at_grab_and_skips_what_a_slow_consumer_missed():
     """As a camera (DESIGN.md §3): frame k is due k / fps after the first read; a consumer 95 ms late at 100 Hz
-    gets the newest due frame (9 skipped), stamped with the host time it was taken, not a nominal one."""
+    gets the newest due frame (9 skipped), stamped with the host time it was grabbed: when it was due, the instant
+    the scene shows, not when the late consumer took it."""
     clock = {"ns": 7_000_000_000}
     calls = []
 
@@ -286,11 +287,23 @@ def test_a_live_callable_source_stamps_at_grab_and_skips_what_a_slow_consumer_mi
     assert (first.index, first.t_left_ns, first.t_right_ns) == (0, 7_000_000_000, 7_000_000_000)
     clock["ns"] += 95_000_000 + 10_000_000          # the consumer took 105 ms: frames 1..9 are gone
     late = source.read()
-    assert (late.index, late.t_left_ns) == (10, 7_105_000_000) and calls == [0, 10]
+    assert (late.index, late.t_left_ns) == (10, 7_100_000_000) and calls == [0, 10]
     clock["ns"] += 10_000_000
     assert source.read().index == 11                 # keeping up: no skip
     clock["ns"] += 1_000_000_000
     assert source.read() is None and source.state is SourceState.ENDED      # frame 111 is past the 30 it has
+
+
+def test_a_live_callable_source_counts_its_frames_from_a_given_epoch():
+    """Another process shows the same scene from the same instant (the demo's IMU): frame k is due k / fps after
+    ``epoch_ns``, whenever the first read comes."""
+    clock = {"ns": 5_000_000_000}
+    source = CallableSource(lambda i: (coded(i % 10, "left"), coded(i % 10, "right")), fps=50.0, live=True,
+                            clock=lambda: clock["ns"], epoch_ns=4_000_000_000)
+    first = source.read()                            # 1 s after the epoch: frame 50 is due
+    assert (first.index, first.t_left_ns) == (50, 5_000_000_000)
+    clock["ns"] += 30_000_000
+    assert (source.read().index, source.read().index) == (51, 52)
 
 
 def test_stereo_frames_must_be_bgr_uint8_images():

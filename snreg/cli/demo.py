@@ -1,4 +1,5 @@
-"""``snreg demo --headless -o SESSION.h5 [--json] [--igtl PORT] [--errors ideal|thesis|FILE]``: wired into ``snreg.cli`` by :func:`add_demo_parser`.
+"""``snreg demo --headless -o SESSION.h5 [--json] [--igtl PORT] [--errors ideal|thesis|FILE] [--camera still|surgery]
+[--no-camera-tracking]``: wired into ``snreg.cli`` by :func:`add_demo_parser`.
 
 With ``--igtl`` the run serves the live link to 3D Slicer (DESIGN.md §4) and waits up to 30 s for the first
 client before it starts. DESIGN says "waiting up to 30 s ... before starting", so the run starts anyway after
@@ -8,6 +9,7 @@ that (one line on stderr says no client came); a client that connects later stil
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -33,6 +35,12 @@ def add_demo_parser(subparsers) -> None:
     p.add_argument("--errors", default="ideal", metavar="ideal|thesis|FILE",
                    help="the error model the rig runs with (default ideal: nothing errs but the render's noise; thesis: "
                         "the thesis' phantom set-up, resources/errors/thesis.yaml; or a YAML file like it)")
+    p.add_argument("--camera", choices=("still", "surgery"), default="still",
+                   help="still: the thesis' phantom, the camera never moves (default); surgery: the camera slides "
+                        "through the trocar (+-30 mm) and turns about the pivot (up to 18 deg) between nodes")
+    p.add_argument("--no-camera-tracking", action="store_true",
+                   help="with --camera surgery: do not follow the camera's insertion; every node is mapped at the "
+                        "trocar calibration's distance (to compare)")
     p.set_defaults(func=cmd_demo)
 
 
@@ -42,13 +50,16 @@ def cmd_demo(args) -> int:
 
     if not args.headless:
         raise UserError("the demo with a window is 'snreg-gui --demo'; add --headless to run it here without one")
+    if args.no_camera_tracking and args.camera != "surgery":
+        raise UserError("--no-camera-tracking applies to --camera surgery: a still camera's insertion is not tracked")
     errors = _error_model(args.errors)
     check_output_file(args.output, "session", new=True)
     check_output_file(Path(f"{args.output}.journal"), "session journal", new=True)
     check_output_file(spect_path_for(args.output), "phantom SPECT")
     link = _serve(args.igtl) if args.igtl is not None else None
     try:
-        run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes, link=link, errors=errors)
+        run = run_headless(args.output, seed=args.seed, fixes_per_node=args.fixes, link=link, errors=errors,
+                           camera=args.camera, camera_tracking=not args.no_camera_tracking)
     except (SessionError, DemoError, OSError) as err:
         raise UserError(str(err)) from None
     finally:
@@ -64,8 +75,12 @@ def cmd_demo(args) -> int:
         return 0
     print(f"stored {len(out['nodes'])} nodes in {out['frames']} frames into {out['session']}; SPECT {out['spect']}")
     for node in out["nodes"]:
+        off = math.dist(node["xyz_trocar"], node["truth_trocar"])
         print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'none':<4} "
-              f"{node['distance_mm']:6.2f} mm  confidence {node['confidence']:.3f}")
+              f"{node['distance_mm']:6.2f} mm  confidence {node['confidence']:.3f}  ({off:.2f} mm from the truth)")
+    if out["camera"] == "surgery":
+        print(f"the camera slid and turned between nodes; its insertion was "
+              f"{'tracked' if out['camera_tracking'] else 'NOT tracked (each node mapped at the calibrated distance)'}")
     print(f"{out['method']}: RMS after registration {out['rms_mm']:.2f} mm; "
           f"pairing {'matches' if out['pairing_correct'] else 'DOES NOT match'} the phantom's truth")
     return 0

@@ -47,7 +47,15 @@ def add_imu_parser(subparsers) -> None:
     s.add_argument("--garbage", type=fraction, default=0.0, help="fraction of samples that come with a corrupt line")
     s.add_argument("--dropout", type=fraction, default=0.0, help="fraction of samples skipped")
     s.add_argument("--still", action="store_true", help="hold the sensor still and level instead of the protractor "
-                   "moves (the demo rig's endoscope)")
+                   "moves (the demo rig's still endoscope)")
+    s.add_argument("--motion", metavar="FILE", help="play the motion profile in this JSON file (segments, initial "
+                   "orientation, repeat; as snreg.demo.imu_motion.MotionProfile.to_dict writes it) instead")
+    s.add_argument("--hold", type=float_range(0, MAX_SECONDS, "s", low_open=False), default=0.0, metavar="S",
+                   help="hold the motion's first pose this long after the stream starts (a reader opened the port), "
+                        "so the fusion starts still")
+    s.add_argument("--epoch-file", metavar="PATH", help="when the stream starts, write there the host time at which "
+                   "the motion starts (time.perf_counter_ns(), shared by the processes of this computer), so another "
+                   "program shows the same motion in step; the lines then keep to that schedule")
     s.add_argument("--parent", type=positive_int, metavar="PID",
                    help="stop when process PID, the program that started this simulator, ends")
     s.set_defaults(func=cmd_imu_simulate)
@@ -140,12 +148,20 @@ def _monitor(reader, log: _AngleLog, seconds: float | None):
 
 
 def cmd_imu_simulate(args) -> int:
-    from snreg.demo.imu_motion import MotionProfile, protractor_profile, still
+    from snreg.demo.imu_motion import MotionProfile, protractor_profile, read_motion_file, still
     from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 
     if args.parent is not None and args.parent != os.getppid():
         raise UserError(f"--parent {args.parent}: not the process that started this simulator (its parent is "
                         f"{os.getppid()}); give the PID of the program that starts it, or leave --parent out")
+    chosen = [flag for flag, given in (("--replay", args.replay), ("--still", args.still), ("--motion", args.motion))
+              if given]
+    if len(chosen) > 1:
+        raise UserError(f"{' and '.join(chosen)} each choose what the sensor does; give one of them")
+    if args.replay and (args.hold or args.epoch_file):
+        raise UserError("--hold and --epoch-file do not apply to --replay, which keeps the recording's times; "
+                        "drop them")
+    epoch_file = check_output_file(args.epoch_file, "epoch") if args.epoch_file else None
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
         if args.replay:
@@ -155,11 +171,16 @@ def cmd_imu_simulate(args) -> int:
             what = f"replaying {args.replay} ({len(source.readings.t_s)} samples at {source.rate_hz:.1f} Hz)"
         else:
             rate = 208.0 if args.rate is None else args.rate
-            motion = MotionProfile([still(1.0)]) if args.still else protractor_profile(repeat=True)
+            if args.motion:
+                motion, what = read_motion_file(args.motion), f"the motion of {args.motion}"
+            elif args.still:
+                motion, what = MotionProfile([still(1.0)]), "held still and level"
+            else:
+                motion, what = protractor_profile(repeat=True), "protractor moves (1, 5, 10 deg about y and z)"
             source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed)
-            what = ("held still and level" if args.still else "protractor moves (1, 5, 10 deg about y and z)") + \
-                f" at {rate:g} Hz"
-        port = SimulatedPort(source, port_link=args.port_link)
+            what += f" at {rate:g} Hz"
+        port = SimulatedPort(source, port_link=args.port_link, hold_s=args.hold,
+                             on_start=None if epoch_file is None else lambda ns: _write_epoch(epoch_file, ns))
     except (ValueError, OSError) as err:
         raise UserError(str(err)) from None
     previous = signal.signal(signal.SIGTERM, _interrupt)      # `kill` cleans up like Ctrl-C
@@ -176,6 +197,18 @@ def cmd_imu_simulate(args) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _write_epoch(path, motion_start_ns: int) -> None:
+    """The motion's start on the host clock, in ns, as one line (written whole: a reader never sees half of it)."""
+    from snreg.files import atomic_write
+
+    try:
+        with atomic_write(path) as temporary:
+            temporary.write_text(f"{motion_start_ns}\n")
+    except OSError as err:
+        raise UserError(f"cannot write the epoch file {path} ({err.strerror or err}); "
+                        "choose a writable place") from None
 
 
 def _interrupt(signum, frame):

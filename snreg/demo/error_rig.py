@@ -7,7 +7,9 @@ blur and are tracked live, tracking uses a calibration solved from noisy board c
 model's voxel size, resolution and counts at the sources' positions before the tissue shifted, then segmented. The
 rest (pointing, the tracker's residual, the IMU's error at a camera turn the demo's still endoscope never makes, the
 chain's distances, the camera's insertion) moves the rendered probe by what the same draw of
-:func:`~snreg.demo.error_draws.compose` makes it cost in the budget, so the demo and ``snreg budget`` err alike.
+:func:`~snreg.demo.error_draws.compose` makes it cost in the budget, so the demo and ``snreg budget`` err alike. The
+surgery demo's camera really turns and slides and its IMU really turns, so there the IMU's and the camera's errors
+are what the simulated IMU, its fusion and the insertion tracker make, not drawn.
 """
 
 from __future__ import annotations
@@ -21,9 +23,10 @@ from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import NOMINAL_TILT_DEG
 from snreg.probe import ProbeModel
 
-__all__ = ["DemoErrors", "INJECTED"]
+__all__ = ["DemoErrors", "INJECTED", "INJECTED_MOVING"]
 
 INJECTED = ("pointing", "tracking", "imu", "chain", "camera")   # moved into the rendered pose (tracking: residual only)
+INJECTED_MOVING = ("pointing", "tracking", "chain")             # the surgery demo: its camera and IMU turn for real
 
 
 class DemoErrors:
@@ -31,12 +34,14 @@ class DemoErrors:
     render noise, the SPECT's settings and the nodes' shift between scan and surgery."""
 
     def __init__(self, model: ErrorModel, probe: ProbeModel, cameras_full: StereoCalibration, *, scale: float,
-                 seed: int):
+                 seed: int, injected: tuple[str, ...] = INJECTED):
+        """``injected``: the sources moved into the rendered pose (a rig whose camera really turns and slides, with an
+        IMU that really turns, leaves "imu" and "camera" out: :data:`INJECTED_MOVING`)."""
         self.model = model
         geometry = phantom_geometry(probe)
-        rotations = fused_imu_errors(model, geometry, seed)
-        draw = draw_errors(model, geometry, np.random.default_rng([seed, 5]), imu=rotations)
-        self.tip_offsets_mm = camera_displacements(model, geometry, draw, INJECTED)
+        rotations = fused_imu_errors(model, geometry, seed) if "imu" in injected else None   # a simulated session
+        draw = draw_errors(model, geometry, np.random.default_rng([seed, 5]), imu=rotations)     # (the same draws)
+        self.tip_offsets_mm = camera_displacements(model, geometry, draw, injected)
         self.scan_shift_mm = model.on("tissue") * draw.tissue
         calibration = model.values["calibration"]
         self.calibration = None

@@ -22,7 +22,8 @@ import numpy as np
 
 from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment
 from snreg.demo.rig import DemoRig
-from snreg.demo.scene import NODE_CENTRES_MM, Schedule, phantom_tips
+from snreg.demo.scene import NODE_CENTRES_MM, Schedule
+from snreg.odometry import InsertionTracker
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
@@ -33,6 +34,7 @@ from snreg.workflow.acquisition import Acquisition, ImuReading
 
 N_NODES = len(NODE_CENTRES_MM)
 _IMU_WAIT_S = 5.0
+_TOURS = 3                 # of the nodes at most, before giving up (a loaded computer skips frames: rests miss nodes)
 
 
 class DemoError(RuntimeError):
@@ -52,23 +54,29 @@ class HeadlessResult:
     preop_ids: list[str]
     pairing_correct: bool
     frames: int
+    truth_trocar: np.ndarray              # (M, 3) where each stored node's phantom node really is, trocar frame, mm
+    camera: str = "still"
+    camera_tracking: bool = False
     recording_s: float = float("nan")
     link_s: float = 0.0
     link_calls: int = 0
     intraop_cov: np.ndarray | None = None         # (M, 3, 3) each stored node's covariance, mm^2, trocar frame
 
     def to_json(self) -> dict:
-        """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the API."""
+        """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the
+        API; each node with ``truth_trocar``, the simulator's truth."""
         rows = pair_table(self.result, self.preop_ids, self.intraop_ids, intraop_labels=self.intraop_labels)
         nodes = [{"id": row.intraop_id, "label": row.intraop_label,
                   "xyz_trocar": [round(float(v), 3) for v in self.intraop_xyz[k]],
+                  "truth_trocar": [round(float(v), 3) for v in self.truth_trocar[k]],
                   "preop": row.preop_id if row.paired else None, "distance_mm": round(row.distance_mm, 3),
                   "confidence": round(row.confidence, 4),
                   "cov_trocar_mm2": None if self.intraop_cov is None else np.round(self.intraop_cov[k], 4).tolist()}
                  for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
-                "frames": self.frames, "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
+                "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames,
+                "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
                 "spect": str(self.spect_path)}
 
 
@@ -94,23 +102,28 @@ class _TimedLink:
 
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
-                 link=None, errors=None, video: bool = True) -> HeadlessResult:
+                 link=None, errors=None, video: bool = True, camera: str = "still",
+                 camera_tracking: bool = True) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
     ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
     :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
-    beside the session."""
+    beside the session; ``camera``: "still" or "surgery" (:class:`~snreg.demo.rig.DemoRig`); ``camera_tracking``:
+    follow the insertion of a camera that moves (off: every node is mapped at the trocar calibration's distance, to
+    compare)."""
     session_path = Path(session_path)
-    # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs
-    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=2 * fixes_per_node + 30), seed=seed, errors=errors)
+    # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs, three
+    # times with the surgery camera (tracking its insertion costs time too)
+    rest_frames = (3 if camera == "surgery" else 2) * fixes_per_node + 30
+    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=rest_frames), seed=seed, errors=errors, camera=camera)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             started = time.perf_counter()
-            frames = _record(rig, session, fixes_per_node, feed, video)
+            tracking = camera_tracking and rig.moving_camera
+            frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking)
             recording_s = time.perf_counter() - started
-            tips = phantom_tips(rig.probe)
             sources = rig.phantom_sources_lps()
             spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
@@ -124,35 +137,37 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             feed("set_registration", result, pairs_line(preop, intraop, result))
     finally:
         rig.close()
-    truth = _true_pairing(preop.xyz, sources, tips, session.intraop_records())
+    truth = _true_pairing(preop.xyz, sources, stored_at)
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
-                          bool(np.array_equal(result.pairing, truth)), frames, recording_s, feed.seconds, feed.calls,
-                          intraop.cov)
+                          bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
+                          tracking, recording_s, feed.seconds, feed.calls, intraop.cov)
 
 
-def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True) -> int:
+def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,
+            tracking: bool = False) -> tuple[int, list[int]]:
     """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
-    skips some)."""
+    skips some) and, per stored node, the phantom node the probe rested on. ``tracking``: follow the insertion."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
+    insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if tracking else None
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
-                              video_fps=rig.fps if video else None)
-    limit, read, tail = 2 * rig.schedule.cycle, 0, 0
+                              video_fps=rig.fps if video else None, insertion=insertion)
+    limit, read, tail, stored_at = _TOURS * rig.scene.cycle, 0, 0, []
     with source:
         for frame in source:
             read += 1
             outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))
             feed("show_frame", outcome)
-            if outcome.auto_store_due:
-                node = rig.scene.resting_node(frame.index)
-                label = PHANTOM_LABELS[node] if node is not None else ""
-                feed("add_node", acquisition.store(session.next_node_id(), label, left_jpeg=frame.left,
+            node = rig.scene.resting_node(frame.index)
+            if outcome.auto_store_due and node is not None:
+                feed("add_node", acquisition.store(session.next_node_id(), PHANTOM_LABELS[node], left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
+                stored_at.append(node)
             if len(session.intraop_records()) == N_NODES:
                 tail += 1                            # a second more on record: a replay meets the last rest whole
                 if tail > _tail_frames(rig):
-                    return read
+                    return read, stored_at
             if frame.index >= limit:
                 break
     raise DemoError(f"only {len(session.intraop_records())} of {N_NODES} nodes were stored in {limit} frames "
@@ -173,9 +188,8 @@ def _wait_for_imu(rig: DemoRig) -> bool:
     return False
 
 
-def _true_pairing(preop_xyz, sources, tips, records) -> np.ndarray:
-    """The preop index each stored node should pair with: the segmented node nearest its source, the source being
-    the one whose rendered tip (camera frame) is nearest the node."""
+def _true_pairing(preop_xyz, sources, stored_at: list[int]) -> np.ndarray:
+    """The preop index each stored node should pair with: the segmented node nearest the source the probe rested on
+    when it was stored."""
     preop_of_source = np.argmin(np.linalg.norm(sources[:, None, :] - preop_xyz[None, :, :], axis=2), axis=1)
-    source_of_node = [int(np.argmin(np.linalg.norm(tips - node.xyz_camera, axis=1))) for node in records]
-    return preop_of_source[source_of_node]
+    return preop_of_source[stored_at]

@@ -20,7 +20,7 @@ import os
 import select
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,16 +111,17 @@ class _LineSource:
         self.faults, self.seed = faults, seed
         self.sent = StreamCounts()
 
-    def _blocks(self) -> Iterator[Readings]:
+    def _blocks(self, motion_offset_s: float = 0.0) -> Iterator[Readings]:
         raise NotImplementedError
 
-    def lines(self) -> Iterator[tuple[float, bytes]]:
-        """(seconds from the start when due, line) pairs; restarts the stream and ``sent``."""
+    def lines(self, motion_offset_s: float = 0.0) -> Iterator[tuple[float, bytes]]:
+        """(seconds from the start when due, line) pairs; restarts the stream and ``sent``. ``motion_offset_s``: the
+        motion's time at the stream's start (negative: the motion starts that much later); a recording ignores it."""
         rng = np.random.default_rng([self.seed, 2])
         info = format_info(self.rate_hz, self.sensor_name)
         info_every = max(1, round(_INFO_EVERY_S * self.rate_hz))
         self.sent, lost, index = StreamCounts(), 0, 0
-        for block in self._blocks():
+        for block in self._blocks(motion_offset_s):
             for t_s, t_us, accel, gyro in zip(block.t_s, block.t_device_us, block.accel_g, block.gyro_dps):
                 if index % info_every == 0:
                     yield t_s, info
@@ -191,15 +192,15 @@ class ImuSimulator(_LineSource):
         return Readings(*(np.concatenate([getattr(b, f) for b in blocks])[:n]
                           for f in ("t_s", "t_device_us", "accel_g", "gyro_dps")))
 
-    def _blocks(self) -> Iterator[Readings]:
+    def _blocks(self, motion_offset_s: float = 0.0) -> Iterator[Readings]:
         rng_accel, rng_gyro = np.random.default_rng([self.seed, 1, 0]), np.random.default_rng([self.seed, 1, 1])
         start = 0
         while self.n_samples is None or start < self.n_samples:
             count = _CHUNK if self.n_samples is None else min(_CHUNK, self.n_samples - start)
             t = (start + np.arange(count)) / self.rate_hz
-            sensor_from_world = self.profile.orientation(t).inv()
+            sensor_from_world = self.profile.orientation(t + motion_offset_s).inv()
             accel = sensor_from_world.apply([0.0, 0.0, 1.0])
-            gyro = sensor_from_world.apply(self.profile.angular_velocity_dps(t)) + self.gyro_bias_dps
+            gyro = sensor_from_world.apply(self.profile.angular_velocity_dps(t + motion_offset_s)) + self.gyro_bias_dps
             accel, gyro = self.sensor.measure(accel, gyro, self.rate_hz, rng_accel, rng_gyro)
             t_us = (self.start_us + np.round(t * 1e6).astype(np.int64)) % DEVICE_CLOCK_WRAP_US
             yield Readings(t, t_us, accel, gyro)
@@ -231,7 +232,7 @@ class CsvReplay(_LineSource):
         t_us = np.round(values[:, 0] * 1e6).astype(np.int64) % DEVICE_CLOCK_WRAP_US
         self.readings = Readings(values[:, 0] - values[0, 0], t_us, values[:, 4:7], values[:, 1:4])
 
-    def _blocks(self) -> Iterator[Readings]:
+    def _blocks(self, motion_offset_s: float = 0.0) -> Iterator[Readings]:
         yield self.readings
 
 
@@ -251,16 +252,29 @@ class SimulatedPort:
     period the fusion's bias estimate needs). If the reader stops reading, writing pauses once the
     pty buffer is full and resumes without a burst. ``finished`` is set when the source has run
     out; the port stays open (silent) until stopped.
+
+    ``hold_s``: the motion starts this long after the stream, the sensor holding its first pose until then (a
+    fusion's still start). ``on_start(motion_start_ns)`` is called when the stream starts with the motion's start on
+    the host clock (``time.perf_counter_ns()``, the monotonic clock every process on this computer shares), so
+    another process can show the same motion in step (the demo's rendered frames); the lines then stay on that
+    schedule (sent late in a burst rather than shifted, should the writer fall behind).
     """
 
-    def __init__(self, source: _LineSource, *, port_link: str | None = None, speed: float = 1.0):
+    def __init__(self, source: _LineSource, *, port_link: str | None = None, speed: float = 1.0,
+                 hold_s: float = 0.0, on_start: Callable[[int], None] | None = None):
         if not speed > 0:
             raise ValueError(f"replay speed must be positive, got {speed}")
+        if not hold_s >= 0:
+            raise ValueError(f"the hold before the motion must be a positive number of seconds, got {hold_s}")
+        if on_start is not None and speed != 1.0:
+            raise ValueError("a motion shown in step with another program runs at the host clock's pace; "
+                             "leave out the speed")
         if not hasattr(os, "openpty"):
             raise ValueError("the IMU simulator needs a POSIX pseudo-terminal (Linux or macOS)")
         import tty  # POSIX only, like the pty itself
 
         self.source, self.speed, self.link = source, float(speed), port_link
+        self.hold_s, self.on_start = float(hold_s), on_start
         self.finished, self._stop = threading.Event(), threading.Event()
         self.started_ns: int | None = None          # set when the stream starts (a replay aligns its frames to it)
         self._thread: threading.Thread | None = None
@@ -330,14 +344,16 @@ class SimulatedPort:
         out, then idle until :meth:`stop`."""
         if not self._wait_for_reader():
             return
-        lines = self.source.lines()
+        lines = self.source.lines(-self.hold_s)
         item, pending, t0 = next(lines, None), b"", time.perf_counter()
         self.started_ns = round(t0 * 1e9)           # the host time (perf_counter_ns) of the source's time 0
+        if self.on_start is not None:
+            self.on_start(self.started_ns + round(self.hold_s * 1e9))
         while not self._stop.is_set():
             now = time.perf_counter() - t0
             if item is not None and not pending:
                 late = now - item[0] / self.speed
-                if late > _MAX_LAG_S:
+                if late > _MAX_LAG_S and self.on_start is None:
                     t0, now = t0 + late, now - late
                 batch = []
                 while item is not None and item[0] / self.speed <= now:

@@ -41,10 +41,13 @@ def setup_patient_from_trocar(tilt_deg: float, turn_deg: float = 0.0, trocar_lps
 
 
 def true_sources_lps(truth_tips_camera: np.ndarray, chain: ChainCalibration, *,
-                     setup_deg: tuple[float, float] = (TRUE_TILT_DEG, TRUE_TURN_DEG), scan_shift_mm=0.0) -> np.ndarray:
-    """(4, 3) source positions (LPS mm): the rendered tips carried through the chain (IMU level) and the true set-up
-    (tilt, turn); ``scan_shift_mm`` (4, 3, trocar frame): how far each node moved between the scan and the surgery."""
-    trocar = camera_to_trocar(chain, np.eye(3), truth_tips_camera) - scan_shift_mm
+                     setup_deg: tuple[float, float] = (TRUE_TILT_DEG, TRUE_TURN_DEG), scan_shift_mm=0.0,
+                     earth_from_imu=None) -> np.ndarray:
+    """(4, 3) source positions (LPS mm): the rendered tips carried through the chain at the camera's start orientation
+    ``earth_from_imu`` (default: the IMU level) and the true set-up (tilt, turn); ``scan_shift_mm`` (4, 3, trocar
+    frame): how far each node moved between the scan and the surgery."""
+    orientation = np.eye(3) if earth_from_imu is None else earth_from_imu
+    trocar = camera_to_trocar(chain, orientation, truth_tips_camera) - scan_shift_mm
     return apply(setup_patient_from_trocar(*setup_deg), trocar)
 
 

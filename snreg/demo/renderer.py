@@ -129,18 +129,23 @@ class StereoRenderer:
         return images
 
     def radiance_over(self, background, pose: ProbePose | None, options: RenderOptions,
-                      exposure_mm: float) -> tuple[np.ndarray, np.ndarray]:
+                      exposure_mm: float, *, probe_in_front: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free images of the probe at ``pose`` (None: no probe) in front of another scene.
 
         ``background(eye, rays, origin)`` gives, for eye 0 (left) or 1 (right), the distance along each ray (H, W)
         and the unlit colour (H, W, 3) of that scene, rays (H, W, 3) and origin (3,) in the left camera frame; the
-        endoscope light is set for a scene ``exposure_mm`` ahead.
+        endoscope light is set for a scene ``exposure_mm`` ahead. ``probe_in_front``: the scene never hides the probe
+        (drawn over it wherever the probe is, as if the scene gave way under it).
         """
         images = []
         for eye, (rays, origin) in enumerate(self._eyes):
             depth, colour = background(eye, rays, origin)
             depth, colour = depth.astype(np.float32), colour.astype(np.float32)
-            if pose is not None:
+            if pose is not None and probe_in_front:
+                probe_depth = np.full_like(depth, np.inf)
+                self._probe(rays, origin, pose, options, probe_depth, colour)
+                depth = np.where(np.isfinite(probe_depth), probe_depth, depth)
+            elif pose is not None:
                 self._probe(rays, origin, pose, options, depth, colour)
             images.append(colour * self._lighting(rays, depth, exposure_mm)[..., None])
         return images[0], images[1]

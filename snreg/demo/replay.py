@@ -47,7 +47,7 @@ class RecordedImu(_LineSource):
         self.readings = Readings(t_s, (np.asarray(rows["t_device_ns"], dtype=np.int64) // 1000) % DEVICE_CLOCK_WRAP_US,
                                  np.asarray(rows["acc_g"], dtype=float), np.asarray(rows["gyro_dps"], dtype=float))
 
-    def _blocks(self) -> Iterator[Readings]:
+    def _blocks(self, motion_offset_s: float = 0.0) -> Iterator[Readings]:
         yield self.readings
 
 

@@ -3,15 +3,22 @@
 Why: the demo and the GUI tests must exercise what a phantom session runs (a frame source read and
 tracked, an IMU on a serial port read by :class:`SerialImuReader` and fused, the camera-to-trocar
 chain), only with rendered frames and a simulated IMU. The IMU simulator runs as its own process
-(``snreg imu simulate --still``) on a pseudo-terminal, as a real device is outside the app: its work
+(``snreg imu simulate``) on a pseudo-terminal, as a real device is outside the app: its work
 does not compete with the GUI for the interpreter. The session file is not the rig's: whoever runs
 it (the app, the headless demo) creates it.
-The IMU is held still and level, so the trocar frame is the camera frame shifted by the trocar-camera
-distance along the shaft, which the tests use as ground truth.
+
+``camera="still"``: the phantom of :mod:`snreg.demo.scene`; the IMU is held still and level (``--still``), so the
+trocar frame is the camera frame shifted by the trocar-camera distance along the shaft, which the tests use as
+ground truth. ``camera="surgery"``: :mod:`snreg.demo.surgery_scene`, the camera sliding and turning between rests;
+the simulator plays the same motion (``--motion``), holding its start ``IMU_HOLD_S`` after its stream starts (its
+fusion's still start) and writing the host-clock instant the motion starts (``--epoch-file``); the rendered feed
+counts its frames from that instant (``epoch_ns``), so each frame meets the orientation it was rendered at, however
+long the simulator process took to start.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -24,20 +31,26 @@ import numpy as np
 
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
-from snreg.chain import ChainCalibration
+from snreg.chain import ChainCalibration, camera_to_trocar, reference_rotation
 from snreg.demo.board_tour import board_feed
-from snreg.demo.pivot_scene import PivotScene, SceneImu
-from snreg.demo.tissue_pivot import TissuePivotScene
-from snreg.demo.error_rig import DemoErrors
+from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import true_sources_lps, write_phantom_spect
+from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
+from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain, surgery_tour
+from snreg.demo.tissue_pivot import TissuePivotScene
+from snreg.files import atomic_write
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
 
 DEMO_FPS = 30.0
+CAMERAS = ("still", "surgery")
+SURGERY_REST_FRAMES = 180      # the surgery demo's rests by default: 6 s
 IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
+IMU_HOLD_S = 3.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (3 s
+                               # and the first rest) before the camera first moves
 
 
 class DemoRig:
@@ -49,51 +62,102 @@ class DemoRig:
     """
 
     simulated = True
-    moving_camera = False      # the phantom's tissue plane follows the probe's depth: tracking would read it as slides
-    description = "demo: rendered phantom, simulated IMU"
 
-    def __init__(self, *, scale: float = 0.5, schedule: Schedule = Schedule(), fps: float = DEMO_FPS, seed: int = 0,
-                 errors: ErrorModel | None = None):
+    def __init__(self, *, scale: float = 0.5, schedule: Schedule | None = None, fps: float = DEMO_FPS, seed: int = 0,
+                 errors: ErrorModel | None = None, camera: str = "still"):
         """``errors``: an error model (:mod:`snreg.demo.errors`) the rig runs with, drawn under ``seed``
-        (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model)."""
+        (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model).
+        ``camera``: "still" (the thesis' phantom) or "surgery" (the camera slides and turns between nodes).
+        ``schedule``: the probe's rests and moves (default: 3 s rests; 6 s with the surgery camera, whose insertion
+        tracking takes its share of each frame, so the live feed skips more)."""
+        if camera not in CAMERAS:
+            raise ValueError(f"the demo camera is 'still' or 'surgery', not {camera!r}")
+        self.camera = camera
         full = thesis_calibration()
         self.cameras = full.scaled(scale)                      # the simulated cameras as they truly are
         self.probe = default_probe_model()
-        self.errors = DemoErrors(errors, self.probe, full, scale=scale, seed=seed) if errors is not None else None
+        injected = INJECTED_MOVING if self.moving_camera else INJECTED
+        self.errors = (DemoErrors(errors, self.probe, full, scale=scale, seed=seed, injected=injected)
+                       if errors is not None else None)
         # what tracking uses (a calibration wizard replaces it): under an error model, one solved from noisy corners
         self.calibration = self.cameras if self.errors is None or self.errors.calibration is None else self.errors.calibration
-        self.chain = ChainCalibration.manual()
+        # the chain as it truly is, and what tracking uses (the trocar wizard replaces it)
+        self.true_chain = surgery_demo_chain() if self.moving_camera else ChainCalibration.manual()
+        self.chain = self.true_chain
+        if schedule is None:
+            schedule = Schedule(rest_frames=SURGERY_REST_FRAMES) if self.moving_camera else Schedule()
         self.schedule, self.fps, self.seed = schedule, fps, seed
-        self.scene: PhantomScene | None = None
+        self.scene: PhantomScene | SurgeryScene | None = None
         self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")
         self._link = Path(self._folder.name) / "imu"
-        self._simulator = subprocess.Popen(
-            [sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--seed", str(seed),
-             "--port-link", str(self._link), "--parent", str(os.getpid())],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self._epoch_ns: int | None = None
+        self._epoch_file = Path(self._folder.name) / "epoch"
+        if self.moving_camera:                  # its process starts while the tour renders
+            motion = Path(self._folder.name) / "motion.json"
+            with atomic_write(motion) as temporary:
+                profile = surgery_tour(self.schedule, self.true_chain).motion_profile(self.true_chain, self.fps)
+                temporary.write_text(json.dumps(profile.to_dict()))
+            self._launch_imu("--motion", str(motion), "--hold", str(IMU_HOLD_S), "--epoch-file", str(self._epoch_file))
+        else:
+            self._launch_imu("--still")
         self.imu = ImuMonitor(str(self._link))
+
+    @property
+    def moving_camera(self) -> bool:
+        """Whether the camera slides and turns, so acquisition follows its insertion: the surgery camera's. Not the
+        still phantom's, whose tissue plane follows the probe's depth (tracking would read that as slides)."""
+        return self.camera == "surgery"
+
+    @property
+    def description(self) -> str:
+        scene = "rendered surgery, the camera sliding and turning" if self.moving_camera else "rendered phantom"
+        return f"demo: {scene}, simulated IMU"
 
     def frame_source(self) -> FrameSource:
         """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
         pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
-        self._start_imu()
+        if not self.moving_camera:              # the still IMU streams while the tour renders
+            self._start_imu()
         if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
             options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
                                                        "blur_sigma_px": self.errors.blur_px,
                                                        "tip_offsets_mm": self.errors.tip_offsets_mm}
-            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
+            if self.moving_camera:
+                scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain, fps=self.fps,
+                                     seed=self.seed, **options)
+            else:
+                scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
             scene.prerender()
             self.scene = scene
+        self._start_imu()
+        if self.moving_camera and self._epoch_ns is None:
+            self._epoch_ns = self._wait_for_epoch()
         # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
-        # skipped when tracking falls behind, while the scene goes on at its own pace
-        return CallableSource(self.scene.render, self.fps, live=True, name="Demo phantom")
+        # skipped when tracking falls behind, while the scene goes on at its own pace (the surgery tour's counted
+        # from the IMU motion's start, so a restart goes on where the tour is)
+        name = "Demo surgery" if self.moving_camera else "Demo phantom"
+        return CallableSource(self.scene.render, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
+
+    def nodes_trocar(self) -> np.ndarray:
+        """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured by)."""
+        return camera_to_trocar(self.true_chain, self._start_orientation(), phantom_tips(self.probe))
 
     def phantom_sources_lps(self) -> np.ndarray:
         """(4, 3) LPS mm: where the phantom's sources were when the SPECT was made (the truth the demo's SPECT images)."""
-        tips = phantom_tips(self.probe)
+        tips, start = phantom_tips(self.probe), self._start_orientation()
         if self.errors is None:
-            return true_sources_lps(tips, self.chain)
-        return true_sources_lps(tips, self.chain, setup_deg=self.errors.setup_deg, scan_shift_mm=self.errors.scan_shift_mm)
+            return true_sources_lps(tips, self.true_chain, earth_from_imu=start)
+        return true_sources_lps(tips, self.true_chain, setup_deg=self.errors.setup_deg,
+                                scan_shift_mm=self.errors.scan_shift_mm, earth_from_imu=start)
+
+    def _start_orientation(self) -> np.ndarray:
+        """(3, 3) the IMU's true orientation where the nodes are defined from: level for the still camera; for the
+        surgery tour its start, the chain's reference pose (the camera along the trocar axis)."""
+        if not self.moving_camera:
+            return np.eye(3)
+        chain = self.true_chain
+        return (chain.trocar_from_earth[:3, :3].T @ reference_rotation(chain.shaft_camera)
+                @ chain.imu_from_camera[:3, :3].T)
 
     def write_phantom_spect(self, path) -> Path:
         """Write the phantom's SPECT (NM DICOM) at ``path`` with the error model's voxels, resolution and counts."""
@@ -113,6 +177,23 @@ class DemoRig:
         """A rendered turn about the trocar over tissue and the IMU that moves with it (0.2 degrees of noise)."""
         scene = TissuePivotScene(self.cameras, seed=self.seed)
         return scene.frame_source, scene.imu
+
+    def _launch_imu(self, *motion: str) -> None:
+        """Start the IMU simulator process (``motion``: its options saying what the sensor does) on the rig's link."""
+        self._simulator = subprocess.Popen(
+            [sys.executable, "-m", "snreg.cli", "imu", "simulate", *motion, "--seed", str(self.seed),
+             "--port-link", str(self._link), "--parent", str(os.getpid())],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def _wait_for_epoch(self) -> int:
+        """The instant (host clock, ns) the simulator's motion starts: it writes it once the reader opened its port."""
+        deadline = time.monotonic() + IMU_START_TIMEOUT_S
+        while not self._epoch_file.exists():
+            if self._simulator.poll() is not None or time.monotonic() > deadline:
+                raise OSError(f"the IMU simulator did not start its motion (exit status {self._simulator.poll()}); "
+                              "try 'snreg imu simulate --motion FILE' to see why")
+            time.sleep(0.01)
+        return int(self._epoch_file.read_text())
 
     def _start_imu(self) -> None:
         if self.imu.started:

@@ -56,6 +56,11 @@ class PhantomScene:
         self.node_poses = [ProbePose.make(tip, PROBE_AXIS) for tip in tips]
         self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
+    @property
+    def cycle(self) -> int:
+        """Frames in one tour of the nodes (the frame index repeats after it)."""
+        return self.schedule.cycle
+
     def resting_node(self, index: int) -> int | None:
         """The node the probe rests on at frame ``index``, None while it moves."""
         node, step = divmod(index % self.schedule.cycle, self.schedule.rest_frames + self.schedule.move_frames)

@@ -31,7 +31,9 @@ _NEWTON_STEPS = 6
 class TissueSurface:
     """The tissue in the trocar frame, mm and degrees: ``depth_mm`` from the pivot along z where the axis meets it,
     a bowl of ``bowl_radius_mm`` (its rim nearer the camera), tilted ``tilt_deg`` (about y, about x), with bumps of
-    sd ``relief_mm`` and size ``relief_scale_mm``; ``seed`` places the bumps, ``texture_seed`` draws the texture."""
+    sd ``relief_mm`` and size ``relief_scale_mm``; ``seed`` places the bumps, ``texture_seed`` draws the texture.
+    ``anchors`` ((x, y, z) points, mm): the surface passes through each, raised to it (or lowered) by a round mound of
+    sd ``anchor_radius_mm`` (the demo's sentinel nodes: the probe rests on their tops)."""
 
     depth_mm: float = 240.0
     bowl_radius_mm: float = 260.0
@@ -40,6 +42,8 @@ class TissueSurface:
     relief_scale_mm: float = 8.0
     seed: int = 0
     texture_seed: int = 7
+    anchors: tuple[tuple[float, float, float], ...] = ()
+    anchor_radius_mm: float = 10.0
 
     def heights(self) -> np.ndarray:
         """(n, n, 3) float32 grid over +-``_GRID_HALF_MM`` in x and y: the surface's z and its slopes dz/dx, dz/dy."""
@@ -54,18 +58,36 @@ class TissueSurface:
         relief *= self.relief_mm / relief.std()
         slope_x, slope_y = np.tan(np.radians(self.tilt_deg))
         z = self.depth_mm + slope_x * x + slope_y * y - (x**2 + y**2) / (2.0 * self.bowl_radius_mm) + relief
+        if self.anchors:
+            z -= self._mounds(z, x, y)
         dz_dy, dz_dx = np.gradient(z, _GRID_MM)
         return np.dstack([z, dz_dx, dz_dy]).astype(np.float32)
+
+    def _mounds(self, z: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(n, n) the mounds that bring the surface ``z`` (on the grid ``x``, ``y``) to every anchor: Gaussians of
+        ``anchor_radius_mm`` whose heights solve for all anchors at once (they overlap)."""
+        anchors = np.asarray(self.anchors, dtype=float).reshape(-1, 3)
+        columns = (anchors[:, :2] + _GRID_HALF_MM) / _GRID_MM
+        under = cv2.remap(z.astype(np.float32), columns[:, 0].astype(np.float32)[None],
+                          columns[:, 1].astype(np.float32)[None], cv2.INTER_LINEAR)[0]
+        apart = np.linalg.norm(anchors[:, None, :2] - anchors[None, :, :2], axis=-1)
+        heights = np.linalg.solve(np.exp(-0.5 * (apart / self.anchor_radius_mm) ** 2), under - anchors[:, 2])
+        mounds = np.zeros_like(z)
+        for (ax, ay, _), height in zip(anchors, heights):
+            mounds += height * np.exp(-0.5 * ((x - ax) ** 2 + (y - ay) ** 2) / self.anchor_radius_mm**2)
+        return mounds
 
 
 class TissueScene:
     """Render left/right BGR frames of the tissue from a camera pose in the trocar frame, with the probe in view.
 
-    ``calibration``: the stereo cameras (the resolution to render); ``probe``: the probe model drawn.
+    ``calibration``: the stereo cameras (the resolution to render); ``probe``: the probe model drawn;
+    ``probe_in_front``: the tissue never hides the probe (a probe resting on a steep surface would dip into it).
     """
 
-    def __init__(self, calibration: StereoCalibration, probe: ProbeModel, surface: TissueSurface = TissueSurface()):
-        self.surface = surface
+    def __init__(self, calibration: StereoCalibration, probe: ProbeModel, surface: TissueSurface = TissueSurface(),
+                 *, probe_in_front: bool = False):
+        self.surface, self.probe_in_front = surface, probe_in_front
         self.renderer = StereoRenderer(calibration, probe, texture_seed=surface.texture_seed)
         self._grid = surface.heights()
         self._texture = self.renderer.texture
@@ -86,7 +108,8 @@ class TissueScene:
         def background(eye, rays, origin):
             return self._cast(rays @ rotation.T, (rotation @ origin + centre).astype(np.float32))
 
-        return self.renderer.radiance_over(background, probe, options, exposure_mm=max(ahead, 20.0))
+        return self.renderer.radiance_over(background, probe, options, exposure_mm=max(ahead, 20.0),
+                                           probe_in_front=self.probe_in_front)
 
     def distance_ahead(self, trocar_from_camera: np.ndarray) -> np.ndarray:
         """(H, W) distance (mm) along each left-eye ray from the camera to the tissue: the depth truth."""
@@ -97,17 +120,18 @@ class TissueScene:
 
     def _cast(self, rays: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance along each ray (trocar frame) to the surface, and the lit texture colour there."""
-        r_z = np.where(np.abs(rays[..., 2]) < 1e-3, 1e-3, rays[..., 2])
+        r_x, r_y, ray_z = (np.ascontiguousarray(rays[..., axis]) for axis in range(3))
+        r_z = np.where(np.abs(ray_z) < 1e-3, 1e-3, ray_z)
         t = (self.surface.depth_mm - origin[2]) / r_z
         for _ in range(_NEWTON_STEPS):
-            h = self._heights_at(origin[0] + t * rays[..., 0], origin[1] + t * rays[..., 1])
-            along = r_z - h[..., 1] * rays[..., 0] - h[..., 2] * rays[..., 1]
+            h = self._heights_at(origin[0] + t * r_x, origin[1] + t * r_y)
+            along = r_z - h[..., 1] * r_x - h[..., 2] * r_y
             t = t - (origin[2] + t * r_z - h[..., 0]) / np.where(np.abs(along) < 0.05, 0.05, along)
-        x, y = origin[0] + t * rays[..., 0], origin[1] + t * rays[..., 1]
+        x, y = origin[0] + t * r_x, origin[1] + t * r_y
         h = self._heights_at(x, y)
         t = np.where(t > 1.0, t, np.inf).astype(np.float32)
-        normal = np.dstack([-h[..., 1], -h[..., 2], np.ones_like(t)])
-        lambert = np.abs((normal * rays).sum(-1)) / np.linalg.norm(normal, axis=-1)
+        slope_x, slope_y = h[..., 1], h[..., 2]        # the normal is (-slope_x, -slope_y, 1)
+        lambert = np.abs(ray_z - slope_x * r_x - slope_y * r_y) / np.sqrt(1.0 + slope_x**2 + slope_y**2)
         texels = TEXTURE_PX / TEXTURE_MM
         colour = cv2.remap(self._texture, (x * texels + TEXTURE_PX / 2).astype(np.float32),
                            (y * texels + TEXTURE_PX / 2).astype(np.float32), cv2.INTER_LINEAR,

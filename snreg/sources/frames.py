@@ -143,19 +143,21 @@ class CallableSource(FrameSource):
     same timestamp. This is where the synthetic renderer plugs in.
 
     Offline (the default) every frame is delivered, stamped at its nominal time from ``start_ns``. ``live``: the
-    source behaves as a camera does (DESIGN.md §3): frame k is due ``k / fps`` after the first read, :meth:`read`
-    waits for the next due frame and, when the consumer has fallen behind, skips to the newest one (``index`` jumps
-    over the frames skipped, as the scene went on without it), stamped on the host clock
-    (``clock``: ``time.perf_counter_ns``) when it is taken.
+    source behaves as a camera does (DESIGN.md §3): frame k is due ``k / fps`` after the first read (or after
+    ``epoch_ns`` on the host clock, ``clock``: ``time.perf_counter_ns``, when given: another process showing the same
+    scene, the demo's IMU, counts from it too), :meth:`read` waits for the next due frame and, when the consumer has
+    fallen behind, skips to the newest one (``index`` jumps over the frames skipped, as the scene went on without
+    it). A live frame is stamped with the host time it was grabbed: when it was due, the moment the scene is in the
+    state it shows.
     """
 
     def __init__(self, render: Callable[[int], tuple[np.ndarray, np.ndarray]], fps: float,
                  n_frames: int | None = None, *, start_ns: int = 0, live: bool = False, name: str = "Synthetic source",
-                 clock: Callable[[], int] = time.perf_counter_ns):
+                 clock: Callable[[], int] = time.perf_counter_ns, epoch_ns: int | None = None):
         super().__init__(name)
         self._render, self._fps, self._n, self._start = render, _check_fps(fps), n_frames, int(start_ns)
         self._live, self._clock = bool(live), clock
-        self._first_ns: int | None = None
+        self._first_ns: int | None = None if epoch_ns is None else int(epoch_ns)
         self._next = 0                  # the index the next read delivers at the earliest
 
     def _read(self) -> StereoFrame | None:
@@ -180,8 +182,8 @@ class CallableSource(FrameSource):
         if due < self._next:
             wait_ns = _nominal_ns(self._first_ns, self._next, self._fps) - now
             time.sleep(max(wait_ns, 0) / 1e9)
-            due, now = self._next, self._clock()
-        return due, now
+            due = self._next
+        return due, _nominal_ns(self._first_ns, due, self._fps)
 
 
 def _natural_key(path: str) -> list:

@@ -1,5 +1,5 @@
 """How long the GUI thread is blocked during acquisition, and whether the recording keeps one clock:
-``python -m snreg_gui.bench [--seconds S] [--json] [--keep SESSION.h5]``.
+``python -m snreg_gui.bench [--seconds S] [--json] [--keep SESSION.h5] [--no-video] [--camera still|surgery]``.
 
 Why: the technician's screen must never freeze while frames are tracked and nodes stored (issue 6: no stall
 over 50 ms). A 10 ms heartbeat timer on the GUI thread ticks while the demo acquires (rendered feeds tracked
@@ -54,6 +54,8 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     parser.add_argument("--keep", metavar="SESSION.h5", help="record into this new session file and keep it")
     parser.add_argument("--no-video", action="store_true", help="do not record the feeds (to measure what it costs)")
+    parser.add_argument("--camera", choices=("still", "surgery"), default="still", help="the demo's camera: still "
+                        "(default) or surgery (sliding and turning between nodes, its insertion tracked)")
     args = parser.parse_args(argv)
     if args.keep and Path(args.keep).exists():
         parser.error(f"{args.keep} exists already; choose a new file name for the kept session")
@@ -78,8 +80,8 @@ def _run(args, app, work: Path) -> int:
     settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
     settings.setValue("acquisition/record_video", not args.no_video)
     # 8 s rests: the live feed skips frames when the worker lags, so a loaded machine still gathers 60 fixes per node
-    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240)),
-                        settings=settings)
+    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240),
+                                                                  camera=args.camera), settings=settings)
     window.show()
     frames: list[int] = []
     window.worker.frame_processed.connect(lambda result: frames.append(result.outcome.index))
@@ -94,15 +96,19 @@ def _run(args, app, work: Path) -> int:
         time.sleep(0.01)
     encoder = window.session.video_state()             # updated in place until the session closes
     heartbeat = Heartbeat()
-    QTimer.singleShot(round(args.seconds * 1000), window.quit_without_asking)
+
+    def end() -> None:          # the heartbeat stops first: closing the window (0.5 s) is not acquisition
+        heartbeat.stop()
+        window.quit_without_asking()
+    QTimer.singleShot(round(args.seconds * 1000), end)
     app.exec()                                          # the app's own event loop, as in use
-    heartbeat.stop()
     gaps = heartbeat.gaps_ms()
     stored = window.acquisition.nodes.rowCount()
     window.shutdown()
     settings.sync()              # written now, so nothing rewrites the folder once it is deleted
     video = _video_figures(session_path, encoder)
-    result = {"seconds": args.seconds, "frames": len(frames), "nodes_stored": stored, "ticks": len(gaps) + 1,
+    result = {"seconds": args.seconds, "camera": args.camera, "frames": len(frames), "nodes_stored": stored,
+              "ticks": len(gaps) + 1,
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
               "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),
               "clock": clock_figures(session_path), "video": video,
@@ -110,7 +116,7 @@ def _run(args, app, work: Path) -> int:
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"GUI thread during {args.seconds:.0f} s of demo acquisition ({result['frames']} frames, "
+        print(f"GUI thread during {args.seconds:.0f} s of {args.camera} demo acquisition ({result['frames']} frames, "
               f"{stored} nodes auto-stored, {result['platform']}): longest stall {result['max_gap_ms']} ms, "
               f"p99 {result['p99_gap_ms']} ms, median tick gap {result['median_gap_ms']} ms (timer {TICK_MS} ms)")
         clock = result["clock"]

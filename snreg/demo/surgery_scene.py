@@ -1,0 +1,146 @@
+"""The surgery demo's scene: the phantom's four nodes on tissue fixed in the trocar frame, the probe resting on each in
+turn, seen by a camera that slides through the trocar and turns about the pivot between rests.
+
+Why: ``snreg demo --camera surgery`` (and ``snreg-gui --demo --camera surgery``) must show that nodes stored while the
+camera moves are as good as with the still camera of :mod:`snreg.demo.scene`, so the nodes are where that scene's
+are: the same four probe tips, relative to the camera's start pose, now fixed in the trocar frame. The tissue
+(:class:`~snreg.demo.tissue.TissueSurface`) is a bowl with relief whose surface passes through each tip (a mound or a
+dip of tissue at each node). Those tips lie on a steep wall (they rise 25 mm towards the camera over 12 mm across
+the view) and the probe leans away from the camera as in the still scene, so part of its body would lie inside the
+tissue: it is drawn in front of it (``probe_in_front``), which keeps its view, and so its tracking, the still
+scene's. At each rest the probe lies as in the still scene relative to the camera (its axis
+:data:`~snreg.demo.scene.PROBE_AXIS` in the camera frame, the error model's tip offset in that camera's frame);
+between rests it glides to the next node while the camera moves (:class:`~snreg.demo.camera_tour.CameraTour`).
+
+The chain is the thesis' manual one with the endoscope held as the phantom's set-up holds it (looking caudally
+34 degrees below the horizontal, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`), so a turn left or right is mostly a
+turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
+resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: ``noise_variants``
+exposures per rest, one per moving frame: about 145 pairs, 0.45 GB, 20-40 s) and replayed from memory.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from snreg.camera import StereoCalibration
+from snreg.chain import ChainCalibration
+from snreg.demo.camera_tour import CameraKey, CameraTour
+from snreg.demo.phantom import TRUE_TILT_DEG, TRUE_TURN_DEG, setup_patient_from_trocar
+from snreg.demo.renderer import ProbePose, RenderOptions
+from snreg.demo.scene import PROBE_AXIS, Schedule, phantom_tips
+from snreg.demo.tissue import TissueScene, TissueSurface
+from snreg.geometry import apply, invert, make_transform
+from snreg.probe import ProbeModel
+
+__all__ = ["SurgeryScene", "REST_KEYS", "VIA_KEYS", "surgery_demo_chain", "surgery_tour"]
+
+# where the camera rests while the probe rests on node n (the first: the start pose), and the keys it passes on the
+# way to the next rest: every move slides 20 mm or more and turns 6 degrees or more, one by way of the camera drawn
+# back 30 mm and turned 18 degrees, one by way of it pushed in 30 mm; every node stays in view throughout
+REST_KEYS = (CameraKey(0.0, (0.0, 0.0)), CameraKey(15.0, (-2.0, -6.0)), CameraKey(-10.0, (1.0, 2.0)),
+             CameraKey(20.0, (-3.0, -8.0)))
+VIA_KEYS = ((CameraKey(-30.0, (-2.0, -18.0)),), (), (CameraKey(30.0, (-2.0, -7.0)),), ())
+# the tissue: a bowl 245 mm from the pivot on the axis, tilted to recede down the view, through every node
+_TISSUE = dict(depth_mm=245.0, tilt_deg=(5.7, 26.6), relief_mm=2.0, anchor_radius_mm=12.0)
+_EARTH_FROM_LPS = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])   # supine, head north (NWU earth)
+
+
+def surgery_demo_chain() -> ChainCalibration:
+    """The thesis' manual chain (axes aligned, 460 + 158 mm) with the endoscope held as the phantom's set-up holds it:
+    looking caudally :data:`~snreg.demo.phantom.TRUE_TILT_DEG` below the horizontal, image up anterior, the patient
+    supine; headed so the IMU's yaw starts at 0, as the AHRS's does (it has no compass)."""
+    earth_from_trocar = _EARTH_FROM_LPS @ setup_patient_from_trocar(TRUE_TILT_DEG, TRUE_TURN_DEG)[:3, :3]
+    yaw = Rotation.from_matrix(earth_from_trocar).as_euler("ZYX")[0]
+    earth_from_trocar = Rotation.from_euler("z", -yaw).as_matrix() @ earth_from_trocar
+    manual = ChainCalibration.manual()
+    return ChainCalibration(manual.imu_from_camera, manual.imu_trocar_mm,
+                            make_transform(earth_from_trocar.T, np.zeros(3)))
+
+
+def surgery_tour(schedule: Schedule, chain: ChainCalibration) -> CameraTour:
+    """The camera's tour of :data:`REST_KEYS` and :data:`VIA_KEYS` with ``schedule``'s rests, from ``chain``'s distance
+    (cheap: what the IMU simulator plays is known before anything is rendered)."""
+    return CameraTour(REST_KEYS, VIA_KEYS, rest_frames=schedule.rest_frames, start_mm=chain.trocar_camera_mm,
+                      min_move_frames=schedule.move_frames)
+
+
+class SurgeryScene:
+    """Rendered stereo frames of the node tour seen by the moving camera, with its truth: ``resting_node``,
+    ``trocar_from_camera``, ``earth_from_imu``, ``truth_trocar``; ``fps`` sets the tour's pace in seconds (the IMU's).
+
+    ``tip_offsets_mm`` (4, 3): where the probe rests on each node relative to the node, in the camera frame of its
+    rest (the error model's pointing and what the demo cannot run through code), none by default.
+    """
+
+    def __init__(self, calibration: StereoCalibration, probe: ProbeModel, schedule: Schedule = Schedule(), *,
+                 chain: ChainCalibration | None = None, fps: float = 30.0, noise_sigma: float = 2.0, seed: int = 0,
+                 blur_sigma_px: float = 0.0, tip_offsets_mm=None):
+        self.schedule, self.fps, self.seed = schedule, float(fps), seed
+        self.noise_sigma, self.blur_sigma_px = noise_sigma, blur_sigma_px
+        self.chain = chain if chain is not None else surgery_demo_chain()
+        self.tour = surgery_tour(schedule, self.chain)
+        self.path = self.tour.path()
+        start = self.path.trocar_from_camera(0, self.chain)
+        tips = phantom_tips(probe)
+        self.nodes_trocar = apply(start, tips)
+        offsets = np.zeros_like(tips) if tip_offsets_mm is None else np.asarray(tip_offsets_mm, float)
+        rests = [self.trocar_from_camera(first) for first in self.tour.rest_starts]
+        rotations = np.array([pose[:3, :3] for pose in rests])
+        self._rest_tips = self.nodes_trocar + np.einsum("nij,nj->ni", rotations, offsets)
+        self._rest_axes = np.array([pose[:3, :3] @ PROBE_AXIS for pose in rests])
+        surface = TissueSurface(**_TISSUE, anchors=tuple(tuple(float(v) for v in p) for p in self.nodes_trocar))
+        self.tissue = TissueScene(calibration, probe, surface, probe_in_front=True)
+        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    @property
+    def cycle(self) -> int:
+        """Frames in one tour of the nodes (the frame index repeats after it)."""
+        return self.tour.cycle
+
+    def resting_node(self, index: int) -> int | None:
+        """The node the probe rests on at frame ``index`` (the camera still), None while they move."""
+        return self.tour.resting(index)
+
+    def trocar_from_camera(self, index: int) -> np.ndarray:
+        """(4, 4) the camera's true pose at frame ``index``."""
+        return self.path.trocar_from_camera(index % self.cycle, self.chain)
+
+    def earth_from_imu(self, index: int) -> np.ndarray:
+        """(3, 3) the IMU's true orientation at frame ``index`` (what the simulated IMU plays at that instant)."""
+        return self.path.earth_from_imu(index % self.cycle, self.chain)
+
+    def truth_trocar(self, node: int) -> np.ndarray:
+        """(3,) where node ``node`` is (the trocar frame, mm): the still scene's tip seen from the start pose."""
+        return self.nodes_trocar[node].copy()
+
+    def pose(self, index: int) -> ProbePose:
+        """The probe in the left camera frame at frame ``index``: on a node while resting, gliding to the next (the
+        tip along a straight line in the trocar frame) while the camera moves."""
+        node, u = self.tour.move_progress(index)
+        after = (node + 1) % len(self._rest_tips)
+        tip = self._rest_tips[node] + u * (self._rest_tips[after] - self._rest_tips[node])
+        axis = self._rest_axes[node] + u * (self._rest_axes[after] - self._rest_axes[node])
+        camera_from_trocar = invert(self.trocar_from_camera(index))
+        return ProbePose.make(apply(camera_from_trocar, tip[None])[0], camera_from_trocar[:3, :3] @ axis)
+
+    def prerender(self) -> None:
+        """Render every frame of the tour once, so :meth:`render` only replays."""
+        for index in range(self.cycle):
+            self.render(index)
+
+    def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback)."""
+        key = self._key(index)
+        if key not in self._cache:
+            options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
+                                    seed=self.seed * 10**7 + (key[0] + 1) * 10**6 + key[1])
+            self._cache[key] = self.tissue.render(self.trocar_from_camera(index), self.pose(index), options)
+        return self._cache[key]
+
+    def _key(self, index: int) -> tuple[int, int]:
+        """Frames that look alike share a key: (node, noise exposure) while resting, (-1, frame in the tour) moving."""
+        resting = self.resting_node(index)
+        return (resting, index % self.schedule.noise_variants) if resting is not None else (-1, index % self.cycle)
+
