@@ -3,11 +3,8 @@ of the node views, each pair's expected distance and a confidence's decisive dig
 nodes not found yet with the advice on which error source to improve, and the registration panel's defaults (the
 centroids as the start, the preop set saved when loaded)."""
 
-import time
-
 import numpy as np
 import pytest
-from PySide6.QtCore import Qt
 from PySide6.QtGui import QColor
 from test_gui_registration import TIMEOUT_MS, click_run, load_preop, moved_case
 
@@ -15,12 +12,10 @@ from snreg import geometry
 from snreg.imu.monitor import ImuSnapshot
 from snreg.nodes import NodeSet
 from snreg.registration.report import DOUBT_COLOUR, MissingNode, PairRow
-from snreg.session import Session
+from snreg.session import IntraopNode, Session
 from snreg.session.timeline import ReviewRegistration
 from snreg.tracking.uncertainty import SOURCES
-from snreg.workflow.acquisition import FrameOutcome
 from snreg_gui.acquisition.screen import AcquisitionScreen
-from snreg_gui.acquisition.worker import FrameResult
 from snreg_gui.common.ellipses import ellipse_shadows, ellipsoid_rings
 from snreg_gui.common.node_error import ERROR_CAPTION
 from snreg_gui.common.node_views import NodeScene, ThreeViewPlot
@@ -56,7 +51,7 @@ def test_the_review_node_table_shows_each_nodes_90_percent_radius(qtbot, tmp_pat
         session.add_intraop_node("SN2", "", [4.0, 5.0, 6.0])                    # stored without one
     with qtbot.waitSignal(screen.loaded, timeout=20_000):
         screen.load(tmp_path / "s.h5")
-    column = NODE_COLUMNS.index(ERROR_CAPTION)
+    column = NODE_COLUMNS.index(f"{ERROR_CAPTION} (mm)")
     assert [screen.node_table.item(r, column).text() for r in range(2)] == ["\u00b110.0", ""]
     assert "90 % error ellipsoid" in screen.node_table.horizontalHeaderItem(column).toolTip()
 
@@ -131,7 +126,6 @@ def test_the_acquisition_says_each_missing_nodes_expected_error_and_which_source
     screen.show_missing([MissingNode(3, "P4", "OBT R", np.array([10.0, 0.0, 200.0]), 6.2)])
     assert screen.missing_list.text() == "P4 OBT R: expected within 6 mm (90 %)"
     assert screen.expected.isVisible() and not screen.expected.advice.isVisible()
-    from snreg.session import IntraopNode
     for k in range(2):
         screen.add_node(IntraopNode(f"SN{k + 1}", "", 0, np.zeros(3), np.zeros(3), 0.3, 60, np.nan,
                                     cov_trocar_mm2=np.eye(3) * 40.0))

@@ -39,7 +39,7 @@ class ExpectedErrors(QWidget):
         self.advice.setToolTip("the error source that dominates the stored nodes' own error (their covariances), "
                                "and what lowers it")
         layout = QVBoxLayout(self)
-        layout.setContentsMargins(0, 0, 0, 0)
+        layout.setContentsMargins(8, 0, 8, 0)         # in line with the group boxes' contents above
         layout.setSpacing(0)                  # the lines keep 4 px between them already
         for line in (self.missing_list, self.guidance, self.advice):
             layout.addWidget(line)

@@ -13,9 +13,9 @@ in words (red, with a beep for a foot pedal that cannot see the screen) and goes
 ready line says beforehand what a press would meet (:mod:`snreg_gui.acquisition.store_prompts`). A store near a
 stored node asks first, naming it; a refusal the operator may override (the camera's insertion lost after the camera
 moved) asks whether to store anyway, and the override goes on record. Auto-store never overrides. Beside the IMU
-angles, the camera's insertion (:mod:`snreg_gui.acquisition.insertion_line`). Below the stream health, the SPECT
-nodes not found yet with their expected errors if registered now, and which error source to improve
-(:mod:`snreg_gui.acquisition.expected`).
+angles, the camera's insertion (:mod:`snreg_gui.acquisition.insertion_line`). Below Store SN (so that its buttons
+never move when they come and go), the SPECT nodes not found yet with their expected errors if registered now, and
+which error source to improve (:mod:`snreg_gui.acquisition.expected`).
 While a calibration wizard holds the cameras the screen says "paused for calibration", not that the feed died.
 """
 
@@ -153,9 +153,9 @@ class AcquisitionScreen(QWidget):
         column_widget = QWidget()
         column = QVBoxLayout(column_widget)
         column.setContentsMargins(0, 0, 0, 0)
-        for widget in (self._live_box(), self._store_box(), self.nodes):
+        for widget in (self._live_box(), self._store_box(), self.expected, self.nodes):
             column.addWidget(widget)
-        column.setStretch(2, 1)
+        column.setStretch(3, 1)
         side = QScrollArea()         # on a screen lower than 700 px it scrolls, rather than grow the window off screen
         side.setWidget(column_widget)
         side.setWidgetResizable(True)
@@ -176,7 +176,7 @@ class AcquisitionScreen(QWidget):
         column = QVBoxLayout(box)
         column.setSpacing(2)                   # status lines close together: the side column fits 700 px high
         column.addWidget(self.tip_values, 0, Qt.AlignmentFlag.AlignLeft)
-        for widget in (self.tip_trocar, self.video_health, self.imu_health, self.link_health, self.expected):
+        for widget in (self.tip_trocar, self.video_health, self.imu_health, self.link_health):
             column.addWidget(widget)
         return box
 

@@ -12,7 +12,7 @@ from snreg.tracking.uncertainty import ellipsoid_radius_mm
 
 __all__ = ["ERROR_CAPTION", "ERROR_TIP", "error_text"]
 
-ERROR_CAPTION = "±mm 90 %"
+ERROR_CAPTION = "±90 %"          # the review's table adds "(mm)" as its other captions do
 ERROR_TIP = ("the node's own expected error: the longest semi-axis of its 90 % error ellipsoid, mm (its true position "
              "lies within this of the stored one, 9 times in 10, in its least certain direction; from the stereo "
              "geometry, the tracker, the probe's pointing, the IMU and the chain); empty when not stored")

@@ -25,7 +25,7 @@ from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
 from snreg_gui.common.feed_view import FeedView
 from snreg_gui.common.node_error import ERROR_CAPTION, error_text
 
-NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", ERROR_CAPTION, "camera x, y, z (mm)",
+NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", f"{ERROR_CAPTION} (mm)", "camera x, y, z (mm)",
                 "insertion (mm)", "spread (mm)", "frames", "counts")
 INSERTION_TIP = ("the camera's insertion (pivot to camera) the node was mapped with, tracked from the video; "
                  "empty: not tracked, the chain's distance")

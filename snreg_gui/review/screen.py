@@ -60,7 +60,7 @@ class ReviewScreen(QWidget):
         self.header.setWordWrap(True)                 # a damage line is long: it must not widen the window
         self.node_table = read_only_table(NODE_COLUMNS)
         self.node_table.horizontalHeaderItem(NODE_COLUMNS.index("insertion (mm)")).setToolTip(INSERTION_TIP)
-        self.node_table.horizontalHeaderItem(NODE_COLUMNS.index(ERROR_CAPTION)).setToolTip(ERROR_TIP)
+        self.node_table.horizontalHeaderItem(NODE_COLUMNS.index(f"{ERROR_CAPTION} (mm)")).setToolTip(ERROR_TIP)
         self.snapshots = SnapshotPair()
         self.registrations = StoredRegistrations()
         self.timelines = TimelinePlots()
