@@ -97,6 +97,15 @@ class NodeSet:
     def __len__(self) -> int:
         return len(self.xyz)
 
+    def moved(self, transform, frame: str = "", comments: list[str] | None = None) -> "NodeSet":
+        """These nodes under a rigid ``transform`` (4, 4) into ``frame``: positions mapped, covariances turned with
+        them; ids, labels and counts kept."""
+        matrix = np.asarray(transform, dtype=float)
+        rotation = matrix[:3, :3]
+        return NodeSet(list(self.ids), list(self.labels), self.xyz @ rotation.T + matrix[:3, 3],
+                       None if self.counts is None else self.counts.copy(), frame=frame,
+                       comments=list(comments or []), cov=None if self.cov is None else rotation @ self.cov @ rotation.T)
+
     @classmethod
     def from_xyz(cls, xyz, labels=None, prefix: str = INTRAOP_PREFIX, **kwargs) -> "NodeSet":
         """Nodes named ``<prefix>1..<prefix>n`` (default ``SN1..SNn``) from bare positions."""

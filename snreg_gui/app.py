@@ -72,6 +72,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self.options = AcquisitionOptions(self.settings, self)
         self.rig = self.session = self.worker = self.acquisition = None
         self._kept_insertion = None      # the camera's insertion the last worker tracking it followed
+        self.error_sources: dict = {}    # stored node id -> its covariance by source (the acquisition's advice)
         self._thread = None
         self._waiting_for_frames = False
         self._registration_stale = False
@@ -169,6 +170,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         if self.session is not None:
             self.session.close()
         self.session = session
+        self.error_sources.clear()
         self.recent.add(session.path)
         if self.rig is not None:
             stored = session.calibration()
@@ -214,7 +216,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
             return
         limits = self.options.limits()
         self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm,
-                                             self.options.untracked_text(self.rig))
+                                             self.options.untracked_text(self.rig), self.error_sources)
         self.acquisition.set_nodes(self.session.intraop_records())
         self._show_in_acquisition_tab(self.acquisition)
         kept = self._kept_insertion
@@ -228,6 +230,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self._missing_changed(self.registration.missing_nodes)
         self.worker.frame_processed.connect(self.acquisition.show_result, queued)
         self.worker.node_stored.connect(self.acquisition.add_node, queued)
+        self.worker.node_error_sources.connect(self.acquisition.add_error_sources, queued)
         self.worker.node_removed.connect(self.acquisition.remove_node, queued)
         self.worker.node_stored.connect(self._nodes_changed, queued)
         self.worker.node_removed.connect(self._nodes_changed, queued)

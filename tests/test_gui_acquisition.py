@@ -11,10 +11,13 @@ from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
 from snreg.imu.monitor import ImuSnapshot
 from snreg.session import Session
+from snreg.tracking.uncertainty import SOURCES, ellipsoid_radius_mm
 from snreg.workflow.acquisition import FrameOutcome
+from snreg_gui.acquisition.node_table import NODE_COLUMNS
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import FrameResult
 from snreg_gui.app import MainWindow
+from snreg_gui.common.node_error import ERROR_CAPTION
 from snreg_gui.tools.bench import Heartbeat
 
 FIXES = 20                      # a short store window keeps the test quick (thesis: 60)
@@ -64,11 +67,15 @@ def test_store_nodes_in_demo(qtbot, demo_window):
     heartbeat.stop()
     assert heartbeat.max_gap_ms() < GROSS_STALL_MS
     assert [screen.nodes.item(row, 0).text() for row in range(2)] == ["SN1", "SN2"]
+    qtbot.waitUntil(lambda: set(window.error_sources) == {"SN1", "SN2"}, timeout=5_000)   # each node's error by source
     qtbot.mouseClick(screen.undo_button, Qt.MouseButton.LeftButton)          # take SN2 back, then store it again
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=5_000)
-    assert "undone: SN2" in screen.store_status.text()
+    assert "undone: SN2" in screen.store_status.text() and set(window.error_sources) == {"SN1"}
     second = store_when_settled(qtbot, window, results, other_than=first)
     assert screen.nodes.item(1, 0).text() == "SN2"
+    qtbot.waitUntil(lambda: "SN2" in window.error_sources, timeout=5_000)
+    sources = dict(window.error_sources)
+    radius = screen.nodes.item(0, NODE_COLUMNS.index(ERROR_CAPTION)).text()
     session_path = window.session.path
     window.shutdown()
 
@@ -82,6 +89,9 @@ def test_store_nodes_in_demo(qtbot, demo_window):
         assert np.linalg.norm(node.xyz_trocar - truth_trocar) < 2.0
         assert node.spread_mm < 1.0 and node.n_frames == FIXES
         assert len(node.left_jpeg) > 0 and len(node.right_jpeg) > 0
+        assert set(sources[node.id]) == set(SOURCES)                      # the sources add up to the stored covariance
+        np.testing.assert_allclose(sum(sources[node.id].values()), node.cov_trocar_mm2, atol=1e-9)
+    assert radius == f"\u00b1{ellipsoid_radius_mm(nodes[0].cov_trocar_mm2):.1f}"
 
 
 def test_auto_store_stores_a_node_once_the_probe_is_held_still(qtbot, demo_window):

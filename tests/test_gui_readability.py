@@ -78,7 +78,9 @@ def test_the_spread_is_green_within_the_store_limit_and_red_beyond(qtbot, screen
 
 
 def stored(node_id: str, label: str, counts: float = math.nan) -> IntraopNode:
-    return IntraopNode(node_id, label, 0, np.array([1.0, 2.0, 250.0]), np.array([1.0, 2.0, 2.0]), 0.3, 60, counts)
+    """A stored node whose covariance's longest axis has an sd of 4 mm: a 90 % radius of 4 x 2.50 = 10.0 mm."""
+    return IntraopNode(node_id, label, 0, np.array([1.0, 2.0, 250.0]), np.array([1.0, 2.0, 2.0]), 0.3, 60, counts,
+                       cov_trocar_mm2=np.diag([1.0, 4.0, 16.0]))
 
 
 def test_the_label_typed_for_a_node_does_not_carry_over_to_the_next(qtbot, screen):
@@ -92,7 +94,7 @@ def test_the_label_typed_for_a_node_does_not_carry_over_to_the_next(qtbot, scree
     assert screen.label_edit.text() == "" and screen.counts_edit.text() == ""
     assert "SN3 was 'OBT R'" in screen.label_edit.placeholderText()
     row = [screen.nodes.item(0, column).text() for column in range(len(NODE_COLUMNS))]
-    assert row == ["SN3", "OBT R", "1.0", "2.0", "250.0", "0.30", "1520"]
+    assert row == ["SN3", "OBT R", "1.0", "2.0", "250.0", "\u00b110.0", "0.30", "1520"]
     screen.label_edit.setText("EXT L")                # typed for the next node while SN4 (auto-stored) was stored
     screen.add_node(stored("SN4", ""))
     assert screen.label_edit.text() == "EXT L"

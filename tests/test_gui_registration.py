@@ -143,21 +143,21 @@ def test_manual_alignment_moves_the_preop_view_and_solves_a_far_case(qtbot, pane
     preop, intraop, truth = moved_case(pelvic_nodes, 120.0)
     load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
     panel.set_intraop_nodes(intraop)
-    click_run_refused(qtbot, panel)
+    assert np.allclose(panel.view.scene_shown.preop.xyz.mean(axis=0), intraop.xyz.mean(axis=0))  # centroids matched
+    click_run_refused(qtbot, panel)                                        # 120 deg is beyond +-60 deg
     align = panel.alignment
     align.angle_spins["yaw"].setValue(120.0)
     shown = panel.view.scene_shown
     assert shown.pairing is None                                           # inputs changed: result no longer drawn
-    assert np.allclose(shown.preop.xyz.mean(axis=0), preop.xyz.mean(axis=0))   # turned about its own centroid
+    assert np.allclose(shown.preop.xyz.mean(axis=0), intraop.xyz.mean(axis=0))   # turned about its own centroid
     assert np.allclose(shown.preop.xyz - shown.preop.xyz.mean(axis=0),
                        (preop.xyz - preop.xyz.mean(axis=0)) @ geometry.rotation_from_euler(120, 0, 0).T)
-    qtbot.mouseClick(align.centre_button, Qt.MouseButton.LeftButton)
-    assert np.allclose(panel.view.scene_shown.preop.xyz.mean(axis=0), intraop.xyz.mean(axis=0), atol=0.05)  # 0.1 mm steps
-    assert align.angles_deg == (120.0, 0.0, 0.0)
     result = click_run(qtbot, panel)
     assert np.array_equal(result.pairing, truth) and result.rms_mm < 3.0
+    align.shift_spins["x"].setValue(10.0)                                  # the shift is from the intraop centroid
+    assert np.allclose(panel.view.scene_shown.preop.xyz.mean(axis=0), intraop.xyz.mean(axis=0) + [10.0, 0.0, 0.0])
     qtbot.mouseClick(align.reset_button, Qt.MouseButton.LeftButton)
-    assert np.allclose(panel.view.scene_shown.preop.xyz, preop.xyz)
+    assert np.allclose(panel.view.scene_shown.preop.xyz, preop.xyz - preop.xyz.mean(axis=0) + intraop.xyz.mean(axis=0))
 
 
 def test_initial_transform_turns_about_the_centre_then_shifts():
@@ -210,10 +210,29 @@ def test_missing_or_too_few_nodes_give_a_sentence_not_a_crash(qtbot, panel, pelv
     panel.set_intraop_nodes(NodeSet.from_xyz(xyz, labels))
     qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
-    assert panel.message.text() == ("Registration needs at least 3 preop nodes (or landmarks named on both sides to make "
-                                    "3 points with them); got 2.")
+    assert panel.message.text() == ("Only 2 preop nodes; registration needs at least 3: lower the SPECT threshold or "
+                                    "open another node file.")
     assert panel.last_result is None and panel.run_button.isEnabled()
     assert not any(button.isEnabled() for button in panel.export_buttons.values())
+
+
+def test_too_few_intraop_nodes_say_what_is_true(qtbot, panel, pelvic_nodes, tmp_path):
+    """Issue 28: one node stored and none excluded was "Fewer than 3 intraop nodes are left once the excluded ones are
+    taken out"; it says how many there are and what to do, and names the excluded nodes only when there are some."""
+    preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(NodeSet(intraop.ids[:1], intraop.labels[:1], intraop.xyz[:1]))
+    qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    assert panel.message.text() == ("Only 1 intraop node so far; registration needs at least 3: store 2 more (or open "
+                                    "a node file with more).")
+    panel.set_intraop_nodes(NodeSet(intraop.ids[:4], intraop.labels[:4], intraop.xyz[:4]))
+    click_run(qtbot, panel)
+    for excluded in range(2):                                      # leave out the first row, then the next first
+        panel.pairing_table.selectRow(0)
+        qtbot.mouseClick(panel.exclude_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+    assert panel.message.text() == (f"Only 2 intraop nodes left once {intraop.ids[0]}, {intraop.ids[1]} are left out; "
+                                    "registration needs at least 3: include some (Include all) or store more.")
 
 
 def test_exports_are_written_and_read_back(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):

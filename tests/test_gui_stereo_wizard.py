@@ -143,6 +143,19 @@ def test_setup_defaults_from_the_board_and_a_bad_board_blocks_next(qtbot, open_w
     assert not wizard.has_running_workers()                  # the feed starts only on the capture page
 
 
+def test_the_setup_numbers_stay_number_sized_in_the_wide_dialog(qtbot, open_wizard):
+    """Issue 28: the board's number fields stretched about 730 px across the 1200 px dialog."""
+    wizard = open_wizard(lambda: BoardTour(board=Board(9, 6, 25.0)).source(), Board(9, 6, 25.0))
+    wizard.resize(1200, 800)
+    with qtbot.waitExposed(wizard):
+        wizard.show()
+    page = wizard.setup_page
+    for field in (page.cols, page.rows, page.square_mm, page.target_views):
+        qtbot.waitUntil(lambda f=field: f.width() > 0, timeout=2_000)
+        assert field.width() <= max(field.sizeHint().width(), 200)
+        assert field.width() < 0.25 * wizard.width()
+
+
 # -- capture, calibrate, drop, save ------------------------------------------------------
 
 def test_capture_calibrate_drop_and_save(qtbot, open_wizard, tour, tmp_path):

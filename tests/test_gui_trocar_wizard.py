@@ -145,6 +145,8 @@ def test_manual_entry_names_a_bad_value_and_blocks_next(qtbot, open_wizard):
     click(qtbot, next_button(wizard))
     page = wizard.manual_page
     assert next_button(wizard).isEnabled() and page.problem.text() == ""
+    for field in (page.imu_trocar_edit, page.trocar_camera_edit):      # number-sized, not stretched across the page
+        assert field.width() <= max(field.sizeHint().width(), 200) < 0.25 * wizard.width()
     for text, reason in (("-5", "positive"), ("abc", "as a number of millimetres")):
         page.trocar_camera_edit.clear()
         qtbot.keyClicks(page.trocar_camera_edit, text)

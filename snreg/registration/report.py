@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import json
 from dataclasses import dataclass
+from decimal import ROUND_FLOOR, Decimal
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +26,10 @@ from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, RegistrationResult
 from snreg.registration.report_meta import ReportContext, header_lines, png_text_chunks, report_metadata, sidecar_path
+from snreg.tracking.uncertainty import ELLIPSOID_SCALE
 
 __all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line",
-           "node_warnings", "write_pairs_csv", "registration_figure", "save_report_png", "NO_HOT_SPOT", "FAR_NODE_MM",
+           "node_warnings", "confidence_text", "pair_expected_mm", "write_pairs_csv", "registration_figure", "save_report_png", "NO_HOT_SPOT", "FAR_NODE_MM",
            "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
 
 NO_HOT_SPOT = "none"            # shown instead of a preop id for a node from no imaged hot spot (pairing -1)
@@ -39,6 +41,7 @@ VIEWS = (("along z", 0, 1), ("along y", 0, 2), ("along x", 1, 2))
 REPORT_SIZE_IN = (12.0, 8.0)    # width; the height follows the content (about 8 in for a handful of nodes)
 _HEADER_LINE_IN, _VIEWS_IN, _ROW_IN = 0.24, 3.4, 0.24
 REPORT_DPI = 100
+_UNIT_DRAWS = np.random.default_rng(0).standard_normal((20000, 3))   # for quantiles of an error's length
 PREOP_COLOUR, INTRAOP_COLOUR, PAIR_COLOUR, DOUBT_COLOUR = "#1f77b4", "#d62728", "#7f7f7f", "#fdd0a2"
 _CSV_COLUMNS = ("intraop_id", "intraop_label", "hot_spot", "hot_spot_label", "shared_with", "distance_mm", "confidence",
                 "confident")
@@ -137,10 +140,43 @@ def pair_rows(preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> l
 
 
 def mapped_preop(preop: NodeSet, result: RegistrationResult) -> NodeSet:
-    """The preop nodes moved into the intraop (trocar) frame by ``result.transform``, ids and labels kept."""
-    return NodeSet(list(preop.ids), list(preop.labels), geometry.apply(result.transform, preop.xyz),
-                   None if preop.counts is None else preop.counts.copy(), frame="trocar",
-                   comments=[f"preop nodes mapped by a {result.method} registration (RMS {result.rms_mm:.2f} mm)"])
+    """The preop nodes moved into the intraop (trocar) frame by ``result.transform``, ids and labels kept, each hot
+    spot's covariance turned with them."""
+    return preop.moved(result.transform, "trocar",
+                       [f"preop nodes mapped by a {result.method} registration (RMS {result.rms_mm:.2f} mm)"])
+
+
+def confidence_text(confidence: float) -> str:
+    """A claim's confidence with two decimals rounded down, so that what is printed lies on the same side of
+    ``CONFIDENT`` as the value itself: 0.9496 (not confident) reads 0.94, never a 0.95 shaded as doubtful."""
+    return str(Decimal(repr(float(confidence))).quantize(Decimal("0.01"), rounding=ROUND_FLOOR))
+
+
+def pair_expected_mm(intraop: NodeSet, result: RegistrationResult) -> np.ndarray:
+    """(M,) mm per intraop node: the 90 % bound on its distance from its hot spot's mapped position, were its claim
+    right and the node left out of the fit (its leave-one-out distance is the figure to compare; its distance within
+    the fit is smaller, the fit leaning towards it). The pair's error is modelled as the node's own covariance (when
+    every stored node has one: the registration then weighed them by it) plus the hot spot's expected error, taken as
+    isotropic with the 90 % radius T of ``result.target_error_mm`` (the fit's error there, the hot spot's own and the
+    unmodelled error: T / 2.50 per axis); the bound is the 90th percentile of that error's length. Without the nodes'
+    covariances it is T itself (T then holds the one error all nodes share). NaN for a node from no hot spot, or
+    without target errors."""
+    expected = np.full(len(intraop), np.nan)
+    if result.target_error_mm is None:
+        return expected
+    covariances = intraop.known_cov
+    for m, n in enumerate(np.asarray(result.pairing, dtype=int)[: len(intraop)]):
+        if n >= 0:
+            spot = (result.target_error_mm[n] / ELLIPSOID_SCALE) ** 2 * np.eye(3)
+            expected[m] = result.target_error_mm[n] if covariances is None else _length_quantile(covariances[m] + spot)
+    return expected
+
+
+def _length_quantile(covariance: np.ndarray, level: float = 0.9) -> float:
+    """The ``level`` quantile (mm) of the length of a zero-mean Gaussian error of ``covariance`` (3, 3) mm^2, from
+    fixed standard normal draws (deterministic; its length depends on the eigenvalues alone)."""
+    variances = np.maximum(np.linalg.eigvalsh(covariance), 0.0)
+    return float(np.quantile(np.sqrt(_UNIT_DRAWS**2 @ variances), level))
 
 
 def write_pairs_csv(path, preop: NodeSet, intraop: NodeSet, result: RegistrationResult) -> Path:
@@ -243,7 +279,7 @@ def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationRe
     table_ax = figure.add_axes((0.07, (notes_in + 0.02) / height, 0.91, table_in / height))
     table_ax.axis("off")
     cells = [[r.intraop_id, r.intraop_label, r.preop_id, r.preop_label, " ".join(r.shared_with) or "-",
-              f"{r.distance_mm:.1f}", f"{r.confidence:.2f}"] for r in rows]
+              f"{r.distance_mm:.1f}", confidence_text(r.confidence)] for r in rows]
     colours = [["white" if r.confident else DOUBT_COLOUR] * 7 for r in rows]
     if cells:
         table = table_ax.table(cellText=cells, cellColours=colours, cellLoc="center", bbox=(0.0, 0.0, 1.0, 1.0),

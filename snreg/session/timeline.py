@@ -87,7 +87,8 @@ class FrameSeries:
 @dataclass(frozen=True, eq=False)
 class ReviewNode:
     """A stored node: positions mm (trocar, left camera), time s from the origin, snapshots RGB (H, W, 3) or None,
-    the insertion it was mapped with (mm, NaN when untracked)."""
+    the insertion it was mapped with (mm, NaN when untracked) and its own error's covariance (3, 3) mm^2, trocar frame
+    (NaN when not stored)."""
 
     id: str
     label: str
@@ -100,6 +101,7 @@ class ReviewNode:
     left_rgb: np.ndarray | None
     right_rgb: np.ndarray | None
     trocar_camera_mm: float = float("nan")
+    cov_trocar_mm2: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,7 +193,8 @@ def load_review(path: str | Path) -> SessionReview:
         frame_series(_seconds(frames["t_host_ns"], t0_ns)),
         [ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
                     np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
-                    _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg), float(r.trocar_camera_mm)) for r in records],
+                    _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg), float(r.trocar_camera_mm),
+                    np.asarray(r.cov_trocar_mm2, dtype=float)) for r in records],
         [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations], problems,
         CameraSeries(_seconds(camera["t_host_ns"], t0_ns), np.asarray(camera["trocar_camera_mm"], dtype=float),
                      np.asarray(camera["state"]) == CAMERA_STATES.index("tracked"),

@@ -43,12 +43,20 @@ from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration, reference_rotation, trocar_from_camera
 from snreg.probe import ProbeModel
 
-__all__ = ["NodeUncertainty", "node_covariance", "node_covariance_parts", "triangulation_covariance",
+__all__ = ["NodeUncertainty", "node_covariance", "node_covariance_parts", "node_covariance_sources", "summed_covariance",
+           "SOURCES", "PART_OF", "triangulation_covariance",
            "tip_covariance", "pointing_covariance", "orientation_covariance", "inside_ellipsoid", "ellipsoid_radius_mm",
-           "ELLIPSOID_LEVEL", "SMALLEST_TESTED_TURN_DEG"]
+           "ELLIPSOID_LEVEL", "ELLIPSOID_SCALE", "SMALLEST_TESTED_TURN_DEG"]
 
 ELLIPSOID_LEVEL = 0.9              # "within x mm (90 %)": the ellipsoid holding 90 % of a node's error
+ELLIPSOID_SCALE = float(np.sqrt(chi2.ppf(ELLIPSOID_LEVEL, 3)))   # its semi-axes in sds along them (2.50)
 SMALLEST_TESTED_TURN_DEG = 1.0     # thesis Fig. 19B: the IMU's error was measured for turns of 1, 5 and 10 deg
+# Each source of a node's error (:func:`node_covariance_sources`) and the part it belongs to (:func:`node_covariance_parts`):
+# the stereo image noise along the rays, the tracker's residual, the store window's spread; the probe's pointing; the
+# IMU's turn error, the IMU-camera misalignment, the trocar-camera distance and the camera's insertion.
+PART_OF = {"image": "tracking", "residual": "tracking", "window": "tracking", "pointing": "pointing", "imu": "chain",
+           "imu_camera": "chain", "trocar_camera": "chain", "insertion": "chain"}
+SOURCES = tuple(PART_OF)
 
 
 @dataclass(frozen=True)
@@ -138,31 +146,52 @@ def orientation_covariance(node_trocar, sd_deg: float) -> np.ndarray:
     return np.radians(sd_deg) ** 2 * (float(p @ p) * np.eye(3) - np.outer(p, p))
 
 
-def node_covariance_parts(uncertainty: NodeUncertainty, calibration: StereoCalibration, probe: ProbeModel,
-                          chain: ChainCalibration, earth_from_imu, tip_camera, axis_camera, *, window_camera=None,
-                          insertion_sd_mm: float | None = None) -> dict[str, np.ndarray]:
-    """``{"tracking", "pointing", "chain"}``: each (3, 3) mm^2 in the trocar frame, for a node stored at ``tip_camera``
-    (3,) mm with the probe's ``axis_camera`` (3,) (tip to body), the IMU at ``earth_from_imu`` (3, 3) and ``chain``
-    (at the insertion it was mapped with). ``window_camera`` (n, 3): the store window's fixes (camera frame), None
-    when unknown; ``insertion_sd_mm``: the tracked insertion's sd, None while it is not tracked."""
+def node_covariance_sources(uncertainty: NodeUncertainty, calibration: StereoCalibration, probe: ProbeModel,
+                            chain: ChainCalibration, earth_from_imu, tip_camera, axis_camera, *, window_camera=None,
+                            insertion_sd_mm: float | None = None) -> dict[str, np.ndarray]:
+    """Each source's own term, (3, 3) mm^2 in the trocar frame, keyed by :data:`SOURCES`, for a node stored at
+    ``tip_camera`` (3,) mm with the probe's ``axis_camera`` (3,) (tip to body), the IMU at ``earth_from_imu`` (3, 3)
+    and ``chain`` (at the insertion it was mapped with). ``window_camera`` (n, 3): the store window's fixes (camera
+    frame), None when unknown; ``insertion_sd_mm``: the tracked insertion's sd, None while it is not tracked.
+
+    Why one by one: each term is linear in its own magnitude's square, so the terms add up to the node's covariance
+    and say which source to improve (the app's advice); :data:`PART_OF` groups them into
+    :func:`node_covariance_parts`."""
     tip = np.asarray(tip_camera, float).reshape(3)
     u = uncertainty
     camera_to_trocar = trocar_from_camera(chain, earth_from_imu)
     R = camera_to_trocar[:3, :3]
-    tracking = tip_covariance(calibration, probe, tip, axis_camera, u.image_sd_px) + u.residual_mm**2 * np.eye(3)
+    window = np.zeros((3, 3))
     if window_camera is not None:
-        window = np.asarray(window_camera, float).reshape(-1, 3)
-        if len(window) > 1:
-            tracking = tracking + np.pi / 2.0 * np.cov(window, rowvar=False) / len(window)
-    pointing = pointing_covariance(axis_camera, u.pointing_lateral_mm, u.pointing_axial_mm)
+        fixes = np.asarray(window_camera, float).reshape(-1, 3)
+        if len(fixes) > 1:
+            window = np.pi / 2.0 * np.cov(fixes, rowvar=False) / len(fixes)
     turned = np.degrees(Rotation.from_matrix(R @ reference_rotation(chain.shaft_camera).T).magnitude())
     imu_sd = u.imu_deg * min(turned / SMALLEST_TESTED_TURN_DEG, 1.0)
     node = camera_to_trocar[:3, :3] @ tip + camera_to_trocar[:3, 3]
     slide = u.insertion_sd_mm if insertion_sd_mm is None else float(insertion_sd_mm)
     shaft = R @ chain.shaft_camera
-    chain_part = (orientation_covariance(node, np.hypot(imu_sd, u.imu_camera_deg / np.sqrt(3.0)))
-                  + (u.trocar_camera_sd_mm**2 + slide**2) * np.outer(shaft, shaft))
-    return {"tracking": R @ tracking @ R.T, "pointing": R @ pointing @ R.T, "chain": chain_part}
+    along_shaft = np.outer(shaft, shaft)
+    in_camera = {"image": tip_covariance(calibration, probe, tip, axis_camera, u.image_sd_px),
+                 "residual": u.residual_mm**2 * np.eye(3), "window": window,
+                 "pointing": pointing_covariance(axis_camera, u.pointing_lateral_mm, u.pointing_axial_mm)}
+    return {**{name: R @ term @ R.T for name, term in in_camera.items()},
+            "imu": orientation_covariance(node, imu_sd),
+            "imu_camera": orientation_covariance(node, u.imu_camera_deg / np.sqrt(3.0)),
+            "trocar_camera": u.trocar_camera_sd_mm**2 * along_shaft, "insertion": slide**2 * along_shaft}
+
+
+def node_covariance_parts(uncertainty: NodeUncertainty, calibration: StereoCalibration, probe: ProbeModel,
+                          chain: ChainCalibration, earth_from_imu, tip_camera, axis_camera, *, window_camera=None,
+                          insertion_sd_mm: float | None = None) -> dict[str, np.ndarray]:
+    """``{"tracking", "pointing", "chain"}``: each (3, 3) mm^2 in the trocar frame, the sums of
+    :func:`node_covariance_sources` (same arguments) as :data:`PART_OF` groups them."""
+    sources = node_covariance_sources(uncertainty, calibration, probe, chain, earth_from_imu, tip_camera, axis_camera,
+                                      window_camera=window_camera, insertion_sd_mm=insertion_sd_mm)
+    parts = {part: np.zeros((3, 3)) for part in dict.fromkeys(PART_OF.values())}
+    for name, term in sources.items():
+        parts[PART_OF[name]] += term
+    return parts
 
 
 def node_covariance(uncertainty: NodeUncertainty, calibration: StereoCalibration, probe: ProbeModel,
@@ -171,7 +200,13 @@ def node_covariance(uncertainty: NodeUncertainty, calibration: StereoCalibration
     """(3, 3) mm^2, trocar frame: the sum of :func:`node_covariance_parts` (same arguments)."""
     parts = node_covariance_parts(uncertainty, calibration, probe, chain, earth_from_imu, tip_camera, axis_camera,
                                   window_camera=window_camera, insertion_sd_mm=insertion_sd_mm)
-    total = sum(parts.values())
+    return summed_covariance(parts)
+
+
+def summed_covariance(terms: dict[str, np.ndarray]) -> np.ndarray:
+    """(3, 3) mm^2: the terms of :func:`node_covariance_parts` or :func:`node_covariance_sources` added up, made
+    exactly symmetric (the node's covariance)."""
+    total = sum(terms.values())
     return 0.5 * (total + total.T)
 
 

@@ -7,7 +7,8 @@ of the last N valid tip fixes (thesis §5.2: N = 60) in both frames, with their 
 the IMU orientation at its own frame's grab time (:class:`ImuReading`). Each node also carries its own error's
 covariance (trocar frame, :func:`~snreg.tracking.uncertainty.node_covariance`: the stereo geometry at its depth, the
 tracker's residual and the window's spread, the probe's pointing, the IMU at its lever and the insertion), computed at
-the store from the window's fixes and the node's orientation and insertion.
+the store from the window's fixes and the node's orientation and insertion, and kept by source (``error_sources``: what
+the app advises improving).
 
 A store is refused, with the reason in words and on record in the session's events (``store_refused``), when the
 window is not full, its newest fix is stale (the probe is out of view), the IMU is absent or stale (unless the
@@ -48,7 +49,7 @@ from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
-from snreg.tracking.uncertainty import NodeUncertainty, node_covariance
+from snreg.tracking.uncertainty import NodeUncertainty, node_covariance_sources, summed_covariance
 from snreg.workflow.insertion import CameraInsertion, InsertionStep, insertion_text
 from snreg.workflow.store_guard import StoreCheck, StoreLimits, nearest_node, same_landmark
 
@@ -156,6 +157,7 @@ class Acquisition:
         self._last_reason = ""
         self._last_imu: ImuReading | None = None
         self._stored_here: list[str] = []          # ids stored through this object, for undo
+        self.error_sources: dict[str, dict] = {}   # node id -> its covariance by source (nodes stored here)
         self.video_fps, self.video_problem = video_fps, "" if video_fps else "off"
         if not video_fps and session.writable and session.video_state() is not None:
             session.stop_video()                   # recording was turned off: the segment recorded so far is closed
@@ -314,30 +316,32 @@ class Acquisition:
         trocar = summarise(np.array([f.trocar for f in self._fixes]))
         orientation = Rotation.from_quat(np.array([f.quat_xyzw for f in self._fixes])).mean().as_matrix()
         insertion = float(np.median([f.insertion_mm for f in self._fixes]))
+        sources = self._covariance_sources(camera.xyz, orientation, insertion)
         node = self.session.add_intraop_node(node_id, label, trocar.xyz, xyz_camera=camera.xyz,
                                              spread_mm=trocar.spread_mm, n_frames=trocar.n_frames, counts=counts,
                                              time_ns=self._fixes[-1].grabbed_ns, left_jpeg=left_jpeg,
                                              right_jpeg=right_jpeg, earth_from_imu=orientation,
                                              stereo_version=self.stereo_version, chain_version=self.chain_version,
                                              trocar_camera_mm=insertion,
-                                             cov_trocar_mm2=self._covariance(camera.xyz, orientation, insertion),
-                                             kind=kind)
+                                             cov_trocar_mm2=summed_covariance(sources), kind=kind)
         if overriding:
             self.session.log_event("store_override", node_id=node.id, reason=check.refusal, trigger=str(trigger))
         if check.near is not None and kind == NODE:
             self.session.log_event("store_near_confirmed", node_id=node.id, near=check.near.id,
                                    distance_mm=round(check.near_mm, 2), trigger=str(trigger))
         self._stored_here.append(node.id)
+        self.error_sources[node.id] = sources
         return node
 
-    def _covariance(self, tip_camera: np.ndarray, earth_from_imu: np.ndarray, insertion_mm: float) -> np.ndarray:
-        """The store window's node covariance (3, 3) mm^2, trocar frame, at the chain of its insertion."""
+    def _covariance_sources(self, tip_camera: np.ndarray, earth_from_imu: np.ndarray, insertion_mm: float) -> dict:
+        """The store window's node covariance by source ((3, 3) mm^2 each, trocar frame), at its insertion's chain."""
         axes = np.array([f.axis for f in self._fixes])
         chain = self.chain if not np.isfinite(insertion_mm) else self.chain.with_insertion(insertion_mm)
         slide = np.array([f.insertion_sd_mm for f in self._fixes])
-        return node_covariance(self.uncertainty, self.tracker.calibration, self.tracker.probe, chain, earth_from_imu,
-                               tip_camera, axes.mean(axis=0), window_camera=np.array([f.camera for f in self._fixes]),
-                               insertion_sd_mm=float(np.median(slide)) if np.isfinite(slide).all() else None)
+        return node_covariance_sources(self.uncertainty, self.tracker.calibration, self.tracker.probe, chain,
+                                       earth_from_imu, tip_camera, axes.mean(axis=0),
+                                       window_camera=np.array([f.camera for f in self._fixes]),
+                                       insertion_sd_mm=float(np.median(slide)) if np.isfinite(slide).all() else None)
 
     def undo(self) -> IntraopNode:
         """Take back the node or landmark stored last (in this run, else the session's last); :class:`StoreError` if

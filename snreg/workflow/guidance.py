@@ -53,12 +53,15 @@ def point_to_nearest(targets: list[MissingNode], tip_trocar) -> Pointer | None:
     return Pointer(targets[k], float(distances[k]), direction)
 
 
-def targets_text(targets: list[MissingNode]) -> str:
-    """One line per missing node: id, label, expected position and bound."""
+def targets_text(targets: list[MissingNode], where: bool = True) -> str:
+    """One line per missing node: id, label, its expected error (the registration's 90 % bound on how far it really is
+    from where it is mapped) and, with ``where``, that position: "P4 OBT R: expected within 6 mm (90 %) of (12, -30,
+    85) mm"."""
     if not targets:
         return "every SPECT node is paired"
-    return "\n".join(f"{t.preop_id} {t.preop_label or ''}: ({t.mapped_xyz[0]:.0f}, {t.mapped_xyz[1]:.0f}, "
-                     f"{t.mapped_xyz[2]:.0f}) mm \u00b1{t.bound_mm:.0f}" for t in targets)
+    return "\n".join(f"{' '.join(filter(None, (t.preop_id, t.preop_label)))}: expected within {t.bound_mm:.0f} mm (90 %)"
+                     + (f" of ({t.mapped_xyz[0]:.0f}, {t.mapped_xyz[1]:.0f}, {t.mapped_xyz[2]:.0f}) mm" if where else "")
+                     for t in targets)
 
 
 def guidance_line(targets: list[MissingNode], tip_trocar) -> str:

@@ -1,9 +1,11 @@
-"""What the registration panel's workers do: register and store, and write the exports.
+"""What the registration panel's workers do: register and store, keep the preop set in the session, write the exports.
 
 Why: registration, the session's fsynced writes and figure rendering can each take longer than a frame, so
 they run off the GUI thread (DESIGN §5). The inputs travel as one frozen :class:`RunRequest` and come back
 with the result as a :class:`RunRecord`, so a result always stays with the node sets that produced it even
-if the technician changes them while it runs. No widgets here.
+if the technician changes them while it runs. Each side's nodes are weighed by their own covariances when every node
+of that side has one (a stored node's from the tracker and chain, a hot spot's from the segmentation), as
+``snreg register`` does; :func:`weighing_text` says which. No widgets here.
 """
 
 from __future__ import annotations
@@ -44,7 +46,6 @@ class RunRequest:
     max_rotation_deg: float
     max_translation_mm: float
     session: Session | None = None
-    store_preop: bool = False
     preop_landmarks: NodeSet | None = None
     intraop_landmarks: NodeSet | None = None
     landmark_sd_mm: float = 2.0
@@ -53,7 +54,8 @@ class RunRequest:
 @dataclass(frozen=True)
 class RunRecord:
     """A result with the node sets it pairs (and the landmarks it was given, None for none), and what happened to it
-    in the session (one sentence, or "")."""
+    in the session (one sentence, or ""); ``weighing``: how the nodes were weighed (:func:`weighing_text`; "" when not
+    known, e.g. a registration read from a session)."""
 
     preop: NodeSet
     intraop: NodeSet
@@ -63,6 +65,51 @@ class RunRecord:
     final_n: int | None = None          # the session's registration number when this is the one marked final
     preop_landmarks: NodeSet | None = None
     intraop_landmarks: NodeSet | None = None
+    weighing: str = ""
+
+
+def weighing_text(preop: NodeSet, intraop: NodeSet, method: str) -> str:
+    """One sentence: whose own covariances weighed the nodes in a registration of these sets, and why a side's did not
+    (every node of a side needs one); icp, cpd and chamfer fit without them, their confidence and bounds use them."""
+    intraop_used, preop_used = intraop.known_cov is not None, preop.known_cov is not None
+    if intraop_used and preop_used:
+        text = "each stored node and each SPECT hot spot weighed by its own error (covariance)"
+    elif intraop_used:
+        text = ("each stored node weighed by its own error (covariance); the SPECT hot spots alike (the preop nodes "
+                f"{'carry none' if preop.cov is None else 'lack some'})")
+    elif preop_used:
+        text = ("each SPECT hot spot weighed by its own error (covariance); the stored nodes alike ("
+                f"{'none carries one' if intraop.cov is None else 'some lack one'}: stored before they were computed, "
+                "or from a node file)")
+    else:
+        return "Every node weighed alike: neither side's nodes all carry their own error (covariance)."
+    if method != "global" and (intraop_used or preop_used):
+        text += f"; {method} fits without them, its confidence and expected errors use them"
+    return text[0].upper() + text[1:] + "."
+
+
+def save_preop(session: Session, nodes: NodeSet, landmarks: NodeSet | None = None) -> str:
+    """Store ``nodes`` (and the preop ``landmarks`` read with them) as the session's preop set unless it holds exactly
+    them already (worker thread: an fsynced write). Returns "" when stored or already there, else one sentence saying
+    why it was not."""
+    marks = landmarks if landmarks is not None and len(landmarks) else None
+    stored_marks = session.preop_landmarks() if session.preop_nodes() is not None else None
+    same_marks = (marks is None and (stored_marks is None or not len(stored_marks))) or \
+        (marks is not None and _same_set(stored_marks, marks))
+    if not session.writable or (_same_set(session.preop_nodes(), nodes) and same_marks):
+        return ""
+    try:
+        session.set_preop_nodes(nodes, marks)
+    except (SessionError, OSError) as err:
+        return f"The preop nodes could not be saved in the session ({getattr(err, 'strerror', None) or err})."
+    return ""
+
+
+def _same_set(a: NodeSet | None, b: NodeSet) -> bool:
+    """Same ids, labels, positions and covariances (none on both sides, or equal)."""
+    if a is None or a.ids != b.ids or a.labels != b.labels or not np.array_equal(a.xyz, b.xyz):
+        return False
+    return (a.cov is None) == (b.cov is None) and (a.cov is None or np.array_equal(a.cov, b.cov, equal_nan=True))
 
 
 def final_record(session: Session) -> RunRecord | None:
@@ -100,26 +147,29 @@ def run_registration(request: RunRequest) -> RunRecord:
 
 
 def _run(request: RunRequest) -> RunRecord:
-    labels = (request.preop.labels, request.intraop.labels) if request.use_labels else (None, None)
+    preop, intraop = request.preop, request.intraop
+    labels = (preop.labels, intraop.labels) if request.use_labels else (None, None)
     marks = [None if m is None or not len(m) else m for m in (request.preop_landmarks, request.intraop_landmarks)]
-    result = register(request.preop.xyz, request.intraop.xyz, method=request.method, preop_labels=labels[0],
+    result = register(preop.xyz, intraop.xyz, method=request.method, preop_labels=labels[0],
                       intraop_labels=labels[1], initial=request.initial,
                       max_rotation_deg=request.max_rotation_deg, max_translation_mm=request.max_translation_mm,
+                      intraop_cov=intraop.known_cov, preop_cov=preop.known_cov,
                       preop_landmarks=marks[0], intraop_landmarks=marks[1], landmark_sd_mm=request.landmark_sd_mm)
-    record = RunRecord(request.preop, request.intraop, result, preop_landmarks=request.preop_landmarks,
-                       intraop_landmarks=request.intraop_landmarks)
+    record = RunRecord(preop, intraop, result, preop_landmarks=request.preop_landmarks,
+                       intraop_landmarks=request.intraop_landmarks,
+                       weighing=weighing_text(preop, intraop, request.method))
     if request.session is None:
         return record
+    if not request.session.writable:
+        return replace(record, note="Review session: the result is shown but not stored (the file is open for reading).")
     try:
-        if request.store_preop:
-            request.session.set_preop_nodes(request.preop, request.preop_landmarks)
-        n = request.session.add_registration(result, request.preop.ids, request.intraop.ids)
-    except SessionError:
-        return replace(record, note="Review session: the result is shown but not stored (the file is open for "
-                                    "reading).")
-    except OSError as err:
-        return replace(record, note=f"The result could not be stored in the session ({err.strerror or err}); export "
-                                    "it instead.")
+        problem = save_preop(request.session, preop, request.preop_landmarks)   # the registration names its preop ids
+        if problem:
+            return replace(record, note=f"{problem} The result is shown but not stored; export it instead.")
+        n = request.session.add_registration(result, preop.ids, intraop.ids)
+    except (SessionError, OSError) as err:
+        return replace(record, note=f"The result could not be stored in the session "
+                                    f"({getattr(err, 'strerror', None) or err}); export it instead.")
     return replace(record, note=f"Stored in the session as registration {n}.", stored=True)
 
 

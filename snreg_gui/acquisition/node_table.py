@@ -1,4 +1,4 @@
-"""The acquisition screen's table of stored nodes: id, label, trocar x/y/z, spread and gamma counts.
+"""The acquisition screen's table of stored nodes: id, label, trocar x/y/z, own expected error, spread, gamma counts.
 
 Why: the technician checks each node as it is stored, in a side column about 350 px wide at 1024x700; every column
 must stay readable there: the label takes the room left, the numbers fit their contents.
@@ -11,8 +11,10 @@ import math
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem
 
-NODE_COLUMNS = ("id", "label", "x", "y", "z", "spread", "counts")
-NODE_TIPS = ("", "station label", "trocar frame, mm", "trocar frame, mm", "trocar frame, mm",
+from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP, error_text
+
+NODE_COLUMNS = ("id", "label", "x", "y", "z", ERROR_CAPTION, "spread", "counts")
+NODE_TIPS = ("", "station label", "trocar frame, mm", "trocar frame, mm", "trocar frame, mm", ERROR_TIP,
              "spread of the stored fixes about their median, mm", "gamma counts typed at the store")
 
 
@@ -39,7 +41,8 @@ class StoredNodes(QTableWidget):
         row = self.rowCount()
         self.insertRow(row)
         counts = "" if node.counts is None or math.isnan(node.counts) else f"{node.counts:g}"
-        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), f"{node.spread_mm:.2f}", counts)
+        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), error_text(node.cov_trocar_mm2),
+                 f"{node.spread_mm:.2f}", counts)
         for column, text in enumerate(cells):
             item = QTableWidgetItem(text)
             if column >= NODE_COLUMNS.index("x"):

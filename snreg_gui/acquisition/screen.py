@@ -13,7 +13,9 @@ in words (red, with a beep for a foot pedal that cannot see the screen) and goes
 ready line says beforehand what a press would meet (:mod:`snreg_gui.acquisition.store_prompts`). A store near a
 stored node asks first, naming it; a refusal the operator may override (the camera's insertion lost after the camera
 moved) asks whether to store anyway, and the override goes on record. Auto-store never overrides. Beside the IMU
-angles, the camera's insertion (:mod:`snreg_gui.acquisition.insertion_line`).
+angles, the camera's insertion (:mod:`snreg_gui.acquisition.insertion_line`). Below Store SN (so that its buttons
+never move when they come and go), the SPECT nodes not found yet with their expected errors if registered now, and
+which error source to improve (:mod:`snreg_gui.acquisition.expected`).
 While a calibration wizard holds the cameras the screen says "paused for calibration", not that the feed died.
 """
 
@@ -30,7 +32,7 @@ from PySide6.QtWidgets import (QApplication, QBoxLayout, QCheckBox, QDoubleSpinB
 
 from snreg.imu.monitor import ImuMonitor
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
-from snreg.workflow.guidance import guidance_line, targets_text
+from snreg_gui.acquisition.expected import ExpectedErrors
 from snreg_gui.acquisition.health import camera_health, imu_health
 from snreg_gui.acquisition.insertion_line import InsertionLine
 from snreg_gui.acquisition.live_view import LiveView
@@ -73,7 +75,8 @@ class AcquisitionScreen(QWidget):
     max_spread_changed = Signal(float)
 
     def __init__(self, imu: ImuMonitor, fixes_per_node: int = THESIS_FIXES_PER_NODE,
-                 max_spread_mm: float = StoreLimits.max_spread_mm, untracked: str = "camera insertion not tracked"):
+                 max_spread_mm: float = StoreLimits.max_spread_mm, untracked: str = "camera insertion not tracked",
+                 error_sources: dict | None = None):
         super().__init__()
         self._imu = imu
         self._last_result: FrameResult | None = None
@@ -97,13 +100,8 @@ class AcquisitionScreen(QWidget):
         self.video_health, self.imu_health = StatusLine("camera: waiting", 2, 3), StatusLine("", 1, 3)
         self.link_health = StatusLine("", 1)            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
-        self.missing_list = StatusLine("", 1, 3)
-        self.missing_list.setVisible(False)
-        self.missing_list.setToolTip("SPECT nodes the latest registration left unpaired: where they should be (trocar "
-                                     "frame) and the 90% bound on that position")
-        self.guidance = StatusLine("", 1)
-        self.guidance.setVisible(False)
-        self._missing: list = []
+        self.expected = ExpectedErrors(error_sources)
+        self.missing_list, self.guidance = self.expected.missing_list, self.expected.guidance
         self.store_button = QPushButton("Store SN")
         self.store_button.setMinimumHeight(self.store_button.sizeHint().height() * 4 // 3)
         self.store_reason = StatusLine("", 2, 6)      # the insertion's refusal runs long
@@ -155,9 +153,9 @@ class AcquisitionScreen(QWidget):
         column_widget = QWidget()
         column = QVBoxLayout(column_widget)
         column.setContentsMargins(0, 0, 0, 0)
-        for widget in (self._live_box(), self._store_box(), self.nodes):
+        for widget in (self._live_box(), self._store_box(), self.expected, self.nodes):
             column.addWidget(widget)
-        column.setStretch(2, 1)
+        column.setStretch(3, 1)
         side = QScrollArea()         # on a screen lower than 700 px it scrolls, rather than grow the window off screen
         side.setWidget(column_widget)
         side.setWidgetResizable(True)
@@ -178,8 +176,7 @@ class AcquisitionScreen(QWidget):
         column = QVBoxLayout(box)
         column.setSpacing(2)                   # status lines close together: the side column fits 700 px high
         column.addWidget(self.tip_values, 0, Qt.AlignmentFlag.AlignLeft)
-        for widget in (self.tip_trocar, self.video_health, self.imu_health, self.link_health, self.missing_list,
-                       self.guidance):
+        for widget in (self.tip_trocar, self.video_health, self.imu_health, self.link_health):
             column.addWidget(widget)
         return box
 
@@ -228,7 +225,7 @@ class AcquisitionScreen(QWidget):
             self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
         self.angles.show_values(result.imu.euler_deg)
         self.insertion_line.show_outcome(outcome)
-        self.guidance.setText(guidance_line(self._missing, outcome.tip_trocar))
+        self.expected.show_tip(outcome.tip_trocar)
         self.tip_values.show_values(outcome.tip_trocar)
         self.tip_trocar.setText("tracked" if outcome.tip_trocar is not None else f"no fix ({outcome.reason})")
 
@@ -240,13 +237,16 @@ class AcquisitionScreen(QWidget):
         self.spread_value.set_colour(spread_colour(spread, self.spread_spin.value()))
 
     def show_missing(self, missing: list) -> None:
-        """The SPECT nodes the latest registration left unpaired (:class:`~snreg.registration.report.MissingNode`)."""
-        self._missing = list(missing)
-        self.missing_list.setText("" if not missing else "not found yet: " + targets_text(missing))
-        self.missing_list.setVisible(bool(missing))
-        self.guidance.setVisible(bool(missing))
-        if not missing:
-            self.guidance.setText("")
+        """The SPECT nodes the latest registration left unpaired, with their expected errors
+        (:meth:`~snreg_gui.acquisition.expected.ExpectedErrors.show_missing`)."""
+        self.expected.show_missing(missing)
+
+    def add_error_sources(self, node_id: str, sources: dict) -> None:
+        """A stored node's covariance by source, for the advice on which error source to improve."""
+        self.expected.add_error_sources(node_id, sources)
+
+    def _node_ids(self) -> list[str]:
+        return [self.nodes.item(row, 0).text() for row in range(self.nodes.rowCount())]
 
     def set_nodes(self, nodes) -> None:
         """Show the nodes already in the session (a continued session); replaces the table."""
@@ -254,12 +254,14 @@ class AcquisitionScreen(QWidget):
         for node in nodes:
             self.nodes.append(node)
         self.undo_button.setEnabled(self.nodes.rowCount() > 0)
+        self.expected.set_node_ids(self._node_ids())
 
     def add_node(self, node) -> None:
         """Append a stored node (an :class:`~snreg.session.IntraopNode`) to the table; the label and counts typed for
         it are cleared (the next node is another station), and the empty field says what the last one was."""
         self._store_pending = False
         self.nodes.append(node)
+        self.expected.set_node_ids(self._node_ids())
         self.undo_button.setEnabled(True)
         if self.label_edit.text().strip() == node.label:       # not what was typed meanwhile for the next node
             self.label_edit.clear()
@@ -273,8 +275,9 @@ class AcquisitionScreen(QWidget):
         self._update_store_state()
 
     def remove_node(self, node) -> None:
-        """Drop an undone node from the table."""
+        """Drop an undone node from the table (and from the advice)."""
         self.nodes.remove(node.id)
+        self.expected.set_node_ids(self._node_ids())
         self.undo_button.setEnabled(self.nodes.rowCount() > 0)
         self._say(f"undone: {node.id} (kept on record in the session journal)", "")
 

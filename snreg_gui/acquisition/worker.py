@@ -101,6 +101,7 @@ class AcquisitionWorker(QObject):
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
+    node_error_sources = Signal(str, object)   # a stored node's id, its covariance by source (advice on improving)
     node_removed = Signal(object)        # snreg.session.IntraopNode taken back by undo
     store_failed = Signal(str)           # one sentence saying what to do
     store_confirm = Signal(str, object)  # the question naming the near node, the StoreRequest to confirm
@@ -213,6 +214,7 @@ class AcquisitionWorker(QObject):
             self.store_failed.emit(f"The node was not stored: {err}")
             return
         self.node_stored.emit(node)
+        self.node_error_sources.emit(node.id, self.acquisition.error_sources[node.id])
 
     @Slot()
     def undo(self) -> None:

@@ -5,13 +5,15 @@ Why: every registration method searches only within +-60 degrees / +-60 mm of it
 turns and shifts the preop set in the view until it roughly covers the intraop set; that rough
 ``intraop_from_preop`` becomes ``register(..., initial=...)``.
 
-Rotation is about the preop centroid ``c``, not the frame origin, so turning the set never throws it away:
-``p' = R (p - c) + c + t`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (DESIGN §3). The centroid lands at
-``c + t`` whatever the angles, so "Centre on intraop" sets ``t = mean(intraop) - mean(preop)`` and keeps them.
+The preop (SPECT, patient LPS) and intraop (trocar) frames are unrelated in every real case, so the alignment starts
+from the centroids: the preop centroid ``c`` lands on the intraop centroid ``d``, turned about itself and then
+shifted: ``p' = R (p - c) + d + t`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (DESIGN §3). Untouched (all zero), it
+is the centroids matched, so a first Run registers without any manual step; the shift ``t`` is the operator's
+correction from there. Without intraop nodes ``d = c``.
 
 >>> box = AlignmentBox()
 >>> box.changed.connect(redraw)
->>> initial = box.transform(preop.xyz)        # 4x4 intraop_from_preop
+>>> initial = box.transform(preop.xyz, intraop.xyz)        # 4x4 intraop_from_preop
 """
 
 from __future__ import annotations
@@ -26,11 +28,13 @@ ANGLES = (("yaw", "about z", 180.0), ("pitch", "about y", 90.0), ("roll", "about
 MAX_SHIFT_MM = 2000.0
 
 
-def initial_transform(yaw: float, pitch: float, roll: float, translation_mm, centre_mm) -> np.ndarray:
-    """``intraop_from_preop`` that turns by (yaw, pitch, roll) degrees about ``centre_mm``, then shifts by ``translation_mm``."""
+def initial_transform(yaw: float, pitch: float, roll: float, translation_mm, centre_mm, target_mm=None) -> np.ndarray:
+    """``intraop_from_preop`` that turns by (yaw, pitch, roll) degrees about ``centre_mm`` and puts it at ``target_mm``
+    (``centre_mm`` when None) shifted by ``translation_mm``."""
     rotation = geometry.rotation_from_euler(yaw, pitch, roll)
     centre = np.asarray(centre_mm, dtype=float)
-    return geometry.make_transform(rotation, centre + np.asarray(translation_mm, dtype=float) - rotation @ centre)
+    target = centre if target_mm is None else np.asarray(target_mm, dtype=float)
+    return geometry.make_transform(rotation, target + np.asarray(translation_mm, dtype=float) - rotation @ centre)
 
 
 def _spin(limit: float, suffix: str, step: float) -> QDoubleSpinBox:
@@ -44,7 +48,8 @@ def _spin(limit: float, suffix: str, step: float) -> QDoubleSpinBox:
 
 
 class AlignmentBox(QGroupBox):
-    """Yaw, pitch, roll (deg) about the preop centroid and x, y, z shift (mm); emits ``changed`` on every edit."""
+    """Yaw, pitch, roll (deg) about the preop centroid and x, y, z shift (mm) from the intraop centroid; emits
+    ``changed`` on every edit."""
 
     changed = Signal()
 
@@ -56,17 +61,17 @@ class AlignmentBox(QGroupBox):
             spin.setWrapping(limit == 180.0)
             self.angle_spins[name] = spin
         self.shift_spins = {axis: _spin(MAX_SHIFT_MM, " mm", 5.0) for axis in "xyz"}
-        self.centre_button = QPushButton("Centre on intraop")
-        self.centre_button.setToolTip("shift the preop centroid onto the intraop centroid, keeping the angles")
         self.reset_button = QPushButton("Reset")
+        self.reset_button.setToolTip("back to the centroids matched, no turn")
         grid = QGridLayout(self)
         for row, (name, about, _) in enumerate(ANGLES):
             grid.addWidget(QLabel(f"{name} ({about})"), row, 0)
             grid.addWidget(self.angle_spins[name], row, 1)
             grid.addWidget(QLabel(f"shift {'xyz'[row]}"), row, 2)
             grid.addWidget(self.shift_spins["xyz"[row]], row, 3)
-        grid.addWidget(QLabel("rotation is about the preop centroid"), 3, 0, 1, 2)
-        grid.addWidget(self.centre_button, 3, 2)
+        note = QLabel("starts with the preop centroid on the intraop centroid; turns about it, shifts from there")
+        note.setWordWrap(True)
+        grid.addWidget(note, 3, 0, 1, 3)
         grid.addWidget(self.reset_button, 3, 3)
         for spin in self._spins():
             spin.valueChanged.connect(self.changed)
@@ -83,10 +88,13 @@ class AlignmentBox(QGroupBox):
     def translation_mm(self) -> np.ndarray:
         return np.array([self.shift_spins[axis].value() for axis in "xyz"])
 
-    def transform(self, preop_xyz) -> np.ndarray:
-        """The initial ``intraop_from_preop`` for these preop nodes (N, 3) mm (rotation about their centroid)."""
+    def transform(self, preop_xyz, intraop_xyz=None) -> np.ndarray:
+        """The initial ``intraop_from_preop`` for these preop nodes (N, 3) mm and intraop nodes (M, 3) mm (None or
+        none: the preop centroid stays where it is before the shift)."""
         centre = np.asarray(preop_xyz, dtype=float).reshape(-1, 3).mean(axis=0)
-        return initial_transform(*self.angles_deg, self.translation_mm, centre)
+        intraop = None if intraop_xyz is None else np.asarray(intraop_xyz, dtype=float).reshape(-1, 3)
+        target = None if intraop is None or not len(intraop) else intraop.mean(axis=0)
+        return initial_transform(*self.angles_deg, self.translation_mm, centre, target)
 
     def set_values(self, angles_deg=(0.0, 0.0, 0.0), translation_mm=(0.0, 0.0, 0.0)) -> None:
         """Set all six values at once; ``changed`` is emitted once."""
@@ -96,12 +104,6 @@ class AlignmentBox(QGroupBox):
             spin.blockSignals(False)
         self.changed.emit()
 
-    def centre_on(self, preop_xyz, intraop_xyz) -> None:
-        """Shift so the preop centroid lands on the intraop centroid; the angles stay."""
-        shift = np.mean(np.asarray(intraop_xyz, float).reshape(-1, 3), axis=0) - \
-            np.mean(np.asarray(preop_xyz, float).reshape(-1, 3), axis=0)
-        self.set_values(self.angles_deg, shift)
-
     def reset(self) -> None:
-        """Back to no initial alignment (identity)."""
+        """Back to the centroids matched, without a turn or a shift."""
         self.set_values()

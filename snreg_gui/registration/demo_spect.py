@@ -2,7 +2,7 @@
 panel, with the operator's nominal set-up rotation already in the initial alignment.
 
 Why: in ``snreg-gui --demo`` the operator should meet the real preop path (NM DICOM read, segmented with the
-threshold slider) and only have to store the nodes, press "Centre on intraop" and register.
+threshold slider) and only have to store the nodes and register (the alignment starts from the centroids).
 """
 
 from __future__ import annotations

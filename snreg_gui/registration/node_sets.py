@@ -17,12 +17,13 @@ def same_nodes(a: NodeSet | None, b: NodeSet | None) -> bool:
 
 
 def without(nodes: NodeSet, ids: set[str]) -> NodeSet:
-    """The node set without the nodes of these ids."""
+    """The node set without the nodes of these ids (the others keep their counts and covariances)."""
     keep = [k for k, i in enumerate(nodes.ids) if i not in ids]
     if len(keep) == len(nodes):
         return nodes
     return NodeSet([nodes.ids[k] for k in keep], [nodes.labels[k] for k in keep], nodes.xyz[keep],
-                   None if nodes.counts is None else nodes.counts[keep], frame=nodes.frame)
+                   None if nodes.counts is None else nodes.counts[keep], frame=nodes.frame,
+                   cov=None if nodes.cov is None else nodes.cov[keep])
 
 
 def count_text(nodes: NodeSet) -> str:

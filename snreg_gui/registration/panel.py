@@ -6,9 +6,11 @@ and must see whether each pairing can be trusted before telling the surgeon. The
 makes the exports. With a writable session the preop set and each result are stored in it; with a session
 opened for reading (review) the stored preop set and latest registration are shown and nothing is written.
 
-The initial alignment turns the preop set about its own centroid and then shifts it
+The initial alignment puts the preop centroid on the intraop centroid, turns the set about it and shifts it
 (:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
-result exists, then under the result's ``intraop_from_preop``.
+result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error ellipsoid. Runs (Run,
+the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop set loaded into a
+writable session is saved in it at once (in a worker), so the session holds what the technician loaded.
 
 >>> panel = RegistrationPanel()
 >>> panel.set_session(session)                 # intraop (and stored preop) nodes from the session
@@ -26,22 +28,23 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout
                                QLabel, QMessageBox, QProgressBar, QProgressDialog, QPushButton, QScrollArea, QSplitter,
                                QVBoxLayout, QWidget)
 
-from snreg import geometry
 from snreg.nodes import NodeSet, read_nodes
 from snreg.registration import METHOD_HELP, METHODS
 from snreg.registration.naming import marked_missing, marked_rows, pairs_line
-from snreg.registration.report import mapped_preop, missing_nodes, node_warnings, pair_rows, summary_line
+from snreg.registration.report import (mapped_preop, missing_nodes, node_warnings, pair_expected_mm, pair_rows,
+                                       summary_line)
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import EXPORTS, RunRecord, RunRequest, run_registration
+from snreg.workflow.registration_run import EXPORTS, RunRecord, save_preop
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
 from snreg_gui.registration.exports import PanelExports
-from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, same_nodes, without
+from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, without
 from snreg_gui.registration.preop import PreopSourceBox
+from snreg_gui.registration.runs import PanelRuns
 from snreg_gui.registration.stored import StoredList
 from snreg_gui.registration.tables import NodeTable, PairingTable, two_line_headers
 
@@ -55,7 +58,7 @@ def _shown_rows(record: RunRecord) -> list:
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
-class RegistrationPanel(PanelExports, QWidget):
+class RegistrationPanel(PanelRuns, PanelExports, QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
@@ -69,7 +72,6 @@ class RegistrationPanel(PanelExports, QWidget):
         self._intraop: NodeSet | None = None
         self._record: RunRecord | None = None       # the result shown, with its node sets
         self._record_current = False                 # do the inputs still match it?
-        self._preop_stored = False
         self._registering = False
         self._rerun_pending = False                 # Run pressed during a run: run again when it ends
         self._auto_pending = False                  # a node stored during a run: register again when it ends
@@ -125,7 +127,6 @@ class RegistrationPanel(PanelExports, QWidget):
         self.labels_check.toggled.connect(self._inputs_changed)
         self.rotation_bound.valueChanged.connect(self._inputs_changed)
         self.translation_bound.valueChanged.connect(self._inputs_changed)
-        self.alignment.centre_button.clicked.connect(self._centre_preop)
         self.run_button.clicked.connect(self.run)
         self.exclude_button.clicked.connect(self._exclude_selected)
         self.stored.final_requested.connect(self._mark_final)
@@ -230,7 +231,6 @@ class RegistrationPanel(PanelExports, QWidget):
         preop = session.preop_nodes()
         if preop is not None:
             self.preop_box.set_nodes(preop, f"session {session.case_id}")
-            self._preop_stored = True
         self.refresh_intraop()
         stored = session.registrations()
         latest = stored[-1] if stored else None
@@ -255,51 +255,6 @@ class RegistrationPanel(PanelExports, QWidget):
         """Read preop nodes from a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker."""
         self.preop_box.load(path)
 
-    def run(self) -> None:
-        """Register the current preop to the current intraop nodes with the chosen settings, in a worker; the result
-        is stored in a writable session."""
-        self._start(automatic=False)
-
-    def _start(self, automatic: bool) -> None:
-        """Start a run; an automatic one (after a store) is not stored in the session and leaves Run enabled."""
-        preop, intraop = self.preop_box.nodes, self._intraop
-        if self._registering:                       # the latest inputs run as soon as the current run ends
-            self._rerun_pending = self._rerun_pending or not automatic
-            return self._say("A registration is running; it will run again with these settings when it ends.")
-        if not has_nodes(preop):
-            return self._say("Load the preop nodes first: a node file or a SPECT.")
-        if not has_nodes(intraop):
-            return self._say("There are no intraop nodes yet: store nodes or open an intraop node file.")
-        intraop = without(intraop, self._excluded)
-        if len(intraop) < 3:
-            return self._say("Fewer than 3 intraop nodes are left once the excluded ones are taken out; include some.")
-        store = not automatic and self._session is not None and same_nodes(
-            intraop, without(self._session.intraop_nodes(), self._excluded))
-        request = RunRequest(preop, intraop, self.method_combo.currentText(), self.labels_check.isChecked(),
-                             self.alignment.transform(preop.xyz), self.rotation_bound.value(),
-                             self.translation_bound.value(), self._session if store else None,
-                             store and not self._preop_stored)
-        self._registering = True
-        self.run_button.setEnabled(automatic)
-        self.busy_bar.setVisible(True)
-        left_out = f", without {', '.join(sorted(self._excluded))}" if self._excluded else ""
-        self._say(f"Registering {len(preop)} preop to {len(intraop)} intraop nodes ({request.method}{left_out})...")
-        self._tasks.start(run_registration, request,
-                          returned=self._registration_done, errored=self._registration_failed)
-
-    def rerun_after_store(self) -> None:
-        """A node was stored: re-read the session's nodes and, when "register again" is ticked and both node sets
-        are there and no run is under way, register again (not stored in the session: Run stores the one that
-        counts)."""
-        self.refresh_intraop()
-        if not (self.auto_rerun.isChecked() and has_nodes(self.preop_box.nodes) and self._intraop is not None
-                and len(self._intraop) >= 3):
-            return
-        if self._registering:
-            self._auto_pending = True
-        else:
-            self._start(automatic=True)
-
     def shutdown(self) -> None:
         """Wait for every worker of the panel (call when the window closes)."""
         self.preop_box.shutdown()
@@ -319,18 +274,17 @@ class RegistrationPanel(PanelExports, QWidget):
         self._inputs_changed()
 
     def _preop_changed(self, nodes: NodeSet | None) -> None:
-        self._preop_stored = False
+        """New preop nodes: saved in a writable session at once (a worker; nothing is written when the session holds
+        them already, e.g. its own set shown again), and the result shown no longer answers the inputs."""
+        if self._session is not None and self._session.writable and has_nodes(nodes):
+            self._tasks.start(save_preop, self._session, nodes, returned=lambda problem: problem and self._say(problem),
+                              errored=self._say_problem)
         self._inputs_changed()
 
     def _choose_intraop_file(self) -> None:
         path = file_places.choose_file(self, "Intraop node file", self._session, "Node files (*.csv *.mrk.json *.json)")
         if path:
             self._tasks.start(read_nodes, path, returned=self.set_intraop_nodes, errored=self._say_problem)
-
-    def _centre_preop(self) -> None:
-        if not (has_nodes(self.preop_box.nodes) and has_nodes(self._intraop)):
-            return self._say("Centring needs both preop and intraop nodes.")
-        self.alignment.centre_on(self.preop_box.nodes.xyz, self._intraop.xyz)
 
     def _inputs_changed(self, *_) -> None:
         """Preop, intraop, alignment, method, labels or bounds changed: the result shown no longer answers them, so
@@ -355,69 +309,37 @@ class RegistrationPanel(PanelExports, QWidget):
             scene = NodeScene(mapped_preop(record.preop, record.result), record.intraop, record.result.pairing,
                               record.result.missing)
         else:
-            preop = self.preop_box.nodes
-            moved = NodeSet(preop.ids, preop.labels, geometry.apply(self.alignment.transform(preop.xyz), preop.xyz)) \
+            preop, intraop = self.preop_box.nodes, self._intraop
+            kept = without(intraop, self._excluded) if has_nodes(intraop) else None
+            moved = preop.moved(self.alignment.transform(preop.xyz, None if kept is None else kept.xyz)) \
                 if has_nodes(preop) else None
-            scene = NodeScene(moved, self._intraop)
+            scene = NodeScene(moved, intraop)
         self.view.show_scene(scene)
 
     # -- results -----------------------------------------------------------------
-    def _registration_done(self, record: RunRecord) -> None:
-        self._registration_ended()
-        if record.stored and record.preop is self.preop_box.nodes:
-            self._preop_stored = True
-        self._show_record(record)
-        if record.stored:
-            self.refresh_stored()
-        if self._excluded:
-            self._say(f"{record.note} Left out of this registration: {', '.join(sorted(self._excluded))}.".strip())
-        self.registered.emit(record.result)
-
-    def _registration_failed(self, message: str) -> None:
-        self._registration_ended()
-        self._say_problem(message)
-
-    def _registration_ended(self) -> None:
-        self._registering = False
-        self.run_button.setEnabled(True)
-        self.busy_bar.setVisible(False)
-        if self._rerun_pending or self._auto_pending:
-            automatic = not self._rerun_pending
-            self._rerun_pending = self._auto_pending = False
-            self._start(automatic=automatic)
-
-    def _exclude_selected(self) -> None:
-        chosen = self.pairing_table.selected_intraop_ids()
-        if not chosen:
-            return self._say("Select the intraop node(s) to leave out in the pairing table first.")
-        self._excluded |= set(chosen)
-        self.include_button.setEnabled(True)
-        self.run()
-
-    def _include_all(self) -> None:
-        self._excluded.clear()
-        self.include_button.setEnabled(False)
-        self.run()
-
     def pairs_line(self) -> str:
         """The result shown, one line: which hot spot each intraop node came from ("" without a result)."""
         record = self._record
         return "" if record is None else pairs_line(record.preop, record.intraop, record.result)
 
-    def _show_record(self, record: RunRecord | None) -> None:
+    def _show_record(self, record: RunRecord | None, current: bool = True) -> None:
+        """Show ``record`` (None: none); one that no longer answers the inputs (``current`` False: a node stored while
+        it ran) is shown out of date and names no SPECT node missing."""
         self._record, self._record_current = record, record is not None
         self.last_result = None if record is None else record.result
         rows = [] if record is None else _shown_rows(record)
-        self.pairing_table.show_rows(rows)
+        self.pairing_table.show_rows(rows, [] if record is None else pair_expected_mm(record.intraop, record.result))
         self.pairing_table.setEnabled(record is not None)
         self.summary.setText("no registration yet" if record is None else "\n".join(
-            [summary_line(record.result, rows)] + [f"WARNING: {text}" for text in node_warnings(rows)]))
-        missing = [] if record is None else marked_missing(missing_nodes(record.preop, record.result),
-                                                           record.intraop.ids, record.preop.ids)
-        self.missing_label.setText("" if record is None else "Not found yet (expected position, trocar frame, 90% "
-                                   "bound):\n" + targets_text(missing) if missing else "")
+            [summary_line(record.result, rows)] + [record.weighing] * bool(record.weighing)
+            + [f"WARNING: {text}" for text in node_warnings(rows)]))
+        missing = [] if record is None or not current else marked_missing(
+            missing_nodes(record.preop, record.result), record.intraop.ids, record.preop.ids)
+        self.missing_label.setText("Not found yet (trocar frame):\n" + targets_text(missing) if missing else "")
         self.missing_nodes = missing
         self.missing_changed.emit(missing)
         self._say("" if record is None else record.note)
+        if not current:
+            self._inputs_changed()
         self._update_exports()
         self._refresh_view()

@@ -20,11 +20,13 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
                                QTableWidgetItem, QVBoxLayout, QWidget)
 
 from snreg.registration.naming import marked_rows, pair_text
+from snreg.registration.report import confidence_text
 from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
 from snreg_gui.common.feed_view import FeedView
+from snreg_gui.common.node_error import ERROR_CAPTION, error_text
 
-NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", "camera x, y, z (mm)", "insertion (mm)",
-                "spread (mm)", "frames", "counts")
+NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", f"{ERROR_CAPTION} (mm)", "camera x, y, z (mm)",
+                "insertion (mm)", "spread (mm)", "frames", "counts")
 INSERTION_TIP = ("the camera's insertion (pivot to camera) the node was mapped with, tracked from the video; "
                  "empty: not tracked, the chain's distance")
 REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
@@ -82,8 +84,9 @@ def fill_table(table: QTableWidget, rows: Sequence[Sequence[str]]) -> None:
 
 
 def node_rows(nodes: Sequence[ReviewNode]) -> list[list[str]]:
-    return [[n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar), _xyz(n.xyz_camera), _number(n.trocar_camera_mm, 1),
-             _number(n.spread_mm, 2), str(n.n_frames), _number(n.counts, 0)] for n in nodes]
+    return [[n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar), error_text(n.cov_trocar_mm2), _xyz(n.xyz_camera),
+             _number(n.trocar_camera_mm, 1), _number(n.spread_mm, 2), str(n.n_frames), _number(n.counts, 0)]
+            for n in nodes]
 
 
 def _xyz(v: np.ndarray) -> str:
@@ -188,5 +191,5 @@ class StoredRegistrations(QWidget):
             return
         reg = self._registrations[rows[0].row()]
         shown = marked_rows(reg.rows, [row.preop_id for row in reg.rows if row.paired])
-        fill_table(self.pairs, [[pair_text(row), _number(row.distance_mm, 2), _number(row.confidence, 2)]
+        fill_table(self.pairs, [[pair_text(row), _number(row.distance_mm, 2), confidence_text(row.confidence)]
                                 for row in shown])

@@ -24,6 +24,7 @@ from PySide6.QtWidgets import QGroupBox, QHBoxLayout, QLabel, QPushButton, QSpli
 
 from snreg.session import SessionError, set_final_in_file
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
+from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP
 from snreg_gui.common.workers import Worker
 from snreg_gui.review.panels import (INSERTION_TIP, NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table,
                                      header_text, node_rows, read_only_table)
@@ -59,6 +60,7 @@ class ReviewScreen(QWidget):
         self.header.setWordWrap(True)                 # a damage line is long: it must not widen the window
         self.node_table = read_only_table(NODE_COLUMNS)
         self.node_table.horizontalHeaderItem(NODE_COLUMNS.index("insertion (mm)")).setToolTip(INSERTION_TIP)
+        self.node_table.horizontalHeaderItem(NODE_COLUMNS.index(f"{ERROR_CAPTION} (mm)")).setToolTip(ERROR_TIP)
         self.snapshots = SnapshotPair()
         self.registrations = StoredRegistrations()
         self.timelines = TimelinePlots()

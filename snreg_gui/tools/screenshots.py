@@ -153,7 +153,6 @@ def _store_and_register(shots: Shooter, window) -> None:
     window.tabs.setCurrentWidget(panel)
     wait_until(lambda: panel.preop_box.nodes is not None, 60, "the phantom SPECT")
     panel.auto_rerun.setChecked(False)
-    panel.alignment.centre_button.click()
     panel.run_button.click()
     wait_until(lambda: panel.last_result is not None and not panel.busy, 120, "the registration")
     shots.shoot("tab-2-registration", window)

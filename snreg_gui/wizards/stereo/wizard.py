@@ -68,6 +68,7 @@ class SetupPage(QWizardPage):
         self.problem = QLabel("")
         self.problem.setStyleSheet("color: red")
         form = QFormLayout(self)
+        form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.FieldsStayAtSizeHint)   # numbers, not 730 px bars
         form.addRow("inner corners across (cols)", self.cols)
         form.addRow("inner corners down (rows)", self.rows)
         form.addRow("square size", self.square_mm)

@@ -79,6 +79,7 @@ class ManualPage(QWizardPage):
         self.problem = QLabel("")
         self.problem.setWordWrap(True)
         form = QFormLayout(self)
+        form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.FieldsStayAtSizeHint)   # numbers, not screen-wide bars
         form.addRow("IMU-trocar distance (mm)", self.imu_trocar_edit)
         form.addRow("trocar-camera distance (mm)", self.trocar_camera_edit)
         form.addRow(self.problem)

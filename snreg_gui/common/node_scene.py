@@ -1,0 +1,90 @@
+"""What the node views show: the scene (two node sets, their pairs, their error ellipsoids), its legend and label font.
+
+Why apart: the 3D view (:mod:`snreg_gui.common.node_view_3d`) and the three 2D projections
+(:mod:`snreg_gui.common.three_view`) show the same :class:`NodeScene` the same way; this is what they share.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from PySide6.QtGui import QFont
+
+from snreg.nodes import NodeSet
+from snreg.registration.naming import shown_preop_ids
+from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
+
+__all__ = ["NodeScene", "legend_html", "label_font", "xyz_of", "MISSING_COLOUR", "ELLIPSE_ALPHA"]
+
+MISSING_COLOUR = "#ff7f0e"          # a preop node with no intraop partner yet (not found, or not removed yet)
+ELLIPSE_ALPHA = 0.45                # each node's 90 % ellipsoid is drawn in its node's colour, this opaque (0-1)
+
+
+@dataclass(frozen=True)
+class NodeScene:
+    """What a view shows: preop nodes already in the intraop frame, intraop nodes, and the pairing.
+
+    ``pairing`` is one hot spot (preop index) per intraop node (-1: none), as in ``RegistrationResult``; None: no
+    pairs yet.
+    ``missing`` is one flag per preop node: left unpaired by the registration (drawn apart); None: not known.
+    Each set's covariances (``NodeSet.cov``, in the view's frame) are drawn as 90 % error ellipsoids.
+    """
+
+    preop: NodeSet | None = None
+    intraop: NodeSet | None = None
+    pairing: np.ndarray | None = None
+    missing: np.ndarray | None = None
+
+    def pair_segments(self) -> np.ndarray:
+        """(2K, 3) mm: intraop node, then its preop node, for each of the K paired intraop nodes."""
+        if self.pairing is None or self.preop is None or self.intraop is None:
+            return np.zeros((0, 3))
+        pairing = np.asarray(self.pairing, dtype=int)
+        paired = np.flatnonzero((pairing >= 0) & (pairing < len(self.preop)))[: len(self.intraop)]
+        segments = np.empty((2 * len(paired), 3))
+        segments[0::2] = self.intraop.xyz[paired]
+        segments[1::2] = self.preop.xyz[pairing[paired]]
+        return segments
+
+    def missing_mask(self) -> np.ndarray:
+        """(N,) bool per preop node: unpaired by the result shown (all False without one)."""
+        n = 0 if self.preop is None else len(self.preop)
+        if self.missing is None or len(self.missing) != n:
+            return np.zeros(n, dtype=bool)
+        return np.asarray(self.missing, dtype=bool)
+
+    def ellipsoids(self) -> tuple[tuple[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]]:
+        """((preop centres, covariances), (intraop centres, covariances)): mm and mm^2 in the view's frame, the
+        covariances None where the set carries none (:mod:`snreg_gui.common.ellipses` draws them)."""
+        return ((xyz_of(self.preop), None if self.preop is None else self.preop.cov),
+                (xyz_of(self.intraop), None if self.intraop is None else self.intraop.cov))
+
+    def texts(self) -> tuple[list[str], list[str]]:
+        """(preop, intraop) label texts: the ids, preop ids marked "P:" when they repeat intraop ids."""
+        intraop = [] if self.intraop is None else list(self.intraop.ids)
+        preop = [] if self.preop is None else shown_preop_ids(self.preop.ids, intraop)
+        return preop, intraop
+
+
+def xyz_of(nodes: NodeSet | None) -> np.ndarray:
+    """The set's positions (N, 3) mm; none for no set."""
+    return np.zeros((0, 3)) if nodes is None else nodes.xyz
+
+
+def legend_html() -> str:
+    """One line naming what each mark means, in the marks' colours (both views show it above the nodes)."""
+    return (f"<span style='color:{PREOP_COLOUR}'>&#9675; preop (mapped)</span> &nbsp; "
+            f"<span style='color:{MISSING_COLOUR}'>&#9675; preop, not found yet</span> &nbsp; "
+            f"<span style='color:{INTRAOP_COLOUR}'>&#10005; intraop (stored)</span> &nbsp; "
+            f"<span style='color:{PAIR_COLOUR}'>&#8212; paired</span> &nbsp; "
+            f"<span style='color:{PAIR_COLOUR}'>&#9711; 90 % error of each node, in its colour</span>")
+
+
+def label_font() -> QFont:
+    """The node labels' font: the application's, at least 9 pt."""
+    font = QFont()
+    font.setPointSizeF(max(font.pointSizeF(), 9.0))
+    return font
+
+
