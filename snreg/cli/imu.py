@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 
-from snreg.cli.common import check_output_file, float_range, fraction, int_range, positive_int, seed, writing
+from snreg.cli.common import check_output_file, float_range, floats, fraction, int_range, positive_int, seed, writing
 from snreg.errors import UserError
 
 __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
@@ -48,6 +48,9 @@ def add_imu_parser(subparsers) -> None:
     s.add_argument("--dropout", type=fraction, default=0.0, help="fraction of samples skipped")
     s.add_argument("--still", action="store_true", help="hold the sensor still and level instead of the protractor "
                    "moves (the demo rig's endoscope)")
+    s.add_argument("--attitude", type=floats, metavar="YAW,PITCH,ROLL",
+                   help="with --still: hold the sensor at this orientation instead of level (degrees, earth from "
+                        "sensor, z up, R = Rz Ry Rx as the IMU reports it; the demo rig's endoscope in its patient)")
     s.add_argument("--parent", type=positive_int, metavar="PID",
                    help="stop when process PID, the program that started this simulator, ends")
     s.set_defaults(func=cmd_imu_simulate)
@@ -140,12 +143,16 @@ def _monitor(reader, log: _AngleLog, seconds: float | None):
 
 
 def cmd_imu_simulate(args) -> int:
+    from scipy.spatial.transform import Rotation
+
     from snreg.demo.imu_motion import MotionProfile, protractor_profile, still
     from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 
     if args.parent is not None and args.parent != os.getppid():
         raise UserError(f"--parent {args.parent}: not the process that started this simulator (its parent is "
                         f"{os.getppid()}); give the PID of the program that starts it, or leave --parent out")
+    if args.attitude is not None and (not args.still or len(args.attitude) != 3):
+        raise UserError("--attitude holds the still sensor at YAW,PITCH,ROLL degrees: give three numbers, with --still")
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
         if args.replay:
@@ -155,9 +162,11 @@ def cmd_imu_simulate(args) -> int:
             what = f"replaying {args.replay} ({len(source.readings.t_s)} samples at {source.rate_hz:.1f} Hz)"
         else:
             rate = 208.0 if args.rate is None else args.rate
-            motion = MotionProfile([still(1.0)]) if args.still else protractor_profile(repeat=True)
+            attitude = None if args.attitude is None else Rotation.from_euler("ZYX", args.attitude, degrees=True)
+            motion = MotionProfile([still(1.0)], attitude) if args.still else protractor_profile(repeat=True)
             source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed)
-            what = ("held still and level" if args.still else "protractor moves (1, 5, 10 deg about y and z)") + \
+            held = "level" if attitude is None else "at yaw, pitch, roll " + ", ".join(f"{v:g}" for v in args.attitude)
+            what = (f"held still and {held}" if args.still else "protractor moves (1, 5, 10 deg about y and z)") + \
                 f" at {rate:g} Hz"
         port = SimulatedPort(source, port_link=args.port_link)
     except (ValueError, OSError) as err:

@@ -6,8 +6,10 @@ chain), only with rendered frames and a simulated IMU. The IMU simulator runs as
 (``snreg imu simulate --still``) on a pseudo-terminal, as a real device is outside the app: its work
 does not compete with the GUI for the interpreter. The session file is not the rig's: whoever runs
 it (the app, the headless demo) creates it.
-The IMU is held still and level, so the trocar frame is the camera frame shifted by the trocar-camera
-distance along the shaft, which the tests use as ground truth.
+The IMU is held still as the endoscope lies in the patient on the tilted table (``--still --attitude``), and the
+chain's reference is there (:func:`~snreg.demo.phantom.still_demo_chain`), so the trocar frame is the camera frame
+shifted by the trocar-camera distance along the shaft, which the tests use as ground truth, and gravity in it agrees
+with the SPECT's patient position and the table's tilt.
 """
 
 from __future__ import annotations
@@ -24,14 +26,15 @@ import numpy as np
 
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
-from snreg.chain import ChainCalibration
 from snreg.demo.board_tour import board_feed
 from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.tissue_pivot import TissuePivotScene
 from snreg.demo.error_rig import DemoErrors
 from snreg.demo.errors import ErrorModel
-from snreg.demo.phantom import true_sources_lps, write_phantom_spect
+from snreg.demo.phantom import (TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation, still_demo_chain,
+                                 true_sources_lps, write_phantom_spect)
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
+from snreg.geometry import euler_from_rotation
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
@@ -62,14 +65,18 @@ class DemoRig:
         self.errors = DemoErrors(errors, self.probe, full, scale=scale, seed=seed) if errors is not None else None
         # what tracking uses (a calibration wizard replaces it): under an error model, one solved from noisy corners
         self.calibration = self.cameras if self.errors is None or self.errors.calibration is None else self.errors.calibration
-        self.chain = ChainCalibration.manual()
+        # the set-up as it happened, the endoscope's IMU there, and the chain referenced at it
+        self.setup_deg = (TRUE_TILT_DEG, TRUE_TURN_DEG) if self.errors is None else self.errors.setup_deg
+        self.earth_from_imu = endoscope_orientation(self.setup_deg)
+        self.chain = still_demo_chain(self.earth_from_imu)
         self.schedule, self.fps, self.seed = schedule, fps, seed
         self.scene: PhantomScene | None = None
         self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")
         self._link = Path(self._folder.name) / "imu"
+        attitude = ",".join(f"{v:.6f}" for v in euler_from_rotation(self.earth_from_imu))
         self._simulator = subprocess.Popen(
-            [sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--seed", str(seed),
-             "--port-link", str(self._link), "--parent", str(os.getpid())],
+            [sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", f"--attitude={attitude}", "--seed",
+             str(seed), "--port-link", str(self._link), "--parent", str(os.getpid())],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         self.imu = ImuMonitor(str(self._link))
 
@@ -90,10 +97,9 @@ class DemoRig:
 
     def phantom_sources_lps(self) -> np.ndarray:
         """(4, 3) LPS mm: where the phantom's sources were when the SPECT was made (the truth the demo's SPECT images)."""
-        tips = phantom_tips(self.probe)
-        if self.errors is None:
-            return true_sources_lps(tips, self.chain)
-        return true_sources_lps(tips, self.chain, setup_deg=self.errors.setup_deg, scan_shift_mm=self.errors.scan_shift_mm)
+        shift = 0.0 if self.errors is None else self.errors.scan_shift_mm
+        return true_sources_lps(phantom_tips(self.probe), self.chain, setup_deg=self.setup_deg, scan_shift_mm=shift,
+                                earth_from_imu=self.earth_from_imu)
 
     def write_phantom_spect(self, path) -> Path:
         """Write the phantom's SPECT (NM DICOM) at ``path`` with the error model's voxels, resolution and counts."""

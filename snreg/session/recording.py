@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
+from snreg.preop.gravity import PreopDown
 from snreg.session import writer
 from snreg.session.schema import (CAMERA_STATES, STREAM_DTYPES, IntraopNode, SessionError, covariance_json,
                                   covariance_mm2, jpeg_bytes, position_mm, stereo_to_dict)
@@ -147,12 +148,14 @@ class Recording:
         self._h5.flush()
 
     @serialised
-    def set_preop_nodes(self, nodes: NodeSet) -> None:
-        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known)."""
+    def set_preop_nodes(self, nodes: NodeSet, down: PreopDown | None = None) -> None:
+        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known) and
+        what gives the down in its frame (the SPECT's patient position and the table's tilt; None: unknown)."""
         self._writable()
         data = {"ids": nodes.ids, "labels": nodes.labels, "xyz": nodes.xyz.tolist(),
                 "counts": None if nodes.counts is None else nodes.counts.tolist(), "frame": nodes.frame,
-                "cov": None if nodes.cov is None else nodes.cov.tolist()}
+                "cov": None if nodes.cov is None else nodes.cov.tolist(),
+                "down": None if down is None else down.to_json()}
         self._journal.append("preop", data)
         writer.write_preop(self._h5, data)
         self._h5.flush()

@@ -25,7 +25,8 @@ FORMAT_VERSION = 4      # 2: nodes carry earth_from_imu and the calibration vers
                         # because a format-3 reader would ignore both: its retrack or re-expression would map nodes
                         # stored with a tracked insertion through the chain's constant distance, and resuming the
                         # file would leave the node column short; a format-3 reader refuses a format-4 file instead.
-                        # Still 4 (unreleased when it came): each node's ``cov_trocar_mm2``, NaN when not stored.
+                        # Still 4 (unreleased when it came): each node's ``cov_trocar_mm2``, NaN when not stored; the
+                        # preop nodes' ``patient_position``, ``table_tilt_deg`` and ``tilt_entered`` (absent: unknown).
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")

@@ -151,7 +151,8 @@ def write_calibration(h5: h5py.File, kind: str, data: dict) -> None:
 
 def write_preop(h5: h5py.File, data: dict) -> None:
     """``nodes/preop``: ids, labels, xyz (N, 3) mm, counts (N,) and ``cov_mm2`` (N, 3, 3, each hot spot's own error
-    in the set's frame) when known; the frame as an attribute."""
+    in the set's frame) when known; the frame as an attribute, and when known what gives the down in that frame
+    (:class:`~snreg.preop.gravity.PreopDown`: attributes ``patient_position``, ``table_tilt_deg``, ``tilt_entered``)."""
     del h5["nodes/preop"]
     group = h5.create_group("nodes/preop")
     _variable(group, "id", [str(v) for v in data["ids"]])
@@ -162,6 +163,8 @@ def write_preop(h5: h5py.File, data: dict) -> None:
     if data.get("cov") is not None:
         group.create_dataset("cov_mm2", data=np.asarray(data["cov"], dtype=float).reshape(-1, 3, 3), **CHECKED)
     group.attrs["frame"] = data["frame"]
+    for key, value in (data.get("down") or {}).items():     # PreopDown.to_json: patient position and table tilt
+        group.attrs[key] = value
 
 
 def write_registration(h5: h5py.File, data: dict) -> None:

@@ -15,12 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from snreg.nodes import NodeSet, write_nodes
+from snreg.preop.gravity import PreopDown
 from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
 from snreg.registration.report_meta import ReportContext, sidecar_path
 from snreg.session import Session, SessionError
 from snreg.workflow.chain_change import mixed_calibration_note
+from snreg.workflow.registration_start import GravityStart
 
 # kind: (name, file dialog filter, suffix added when the chosen name ends in none of the accepted ones)
 EXPORTS = {"pairs": ("pairing CSV", "CSV (*.csv)", (".csv",)),
@@ -30,7 +32,11 @@ EXPORTS = {"pairs": ("pairing CSV", "CSV (*.csv)", (".csv",)),
 
 @dataclass(frozen=True)
 class RunRequest:
-    """One registration as chosen in the panel; ``session`` set only when the result is to be stored."""
+    """One registration as chosen in the panel; ``session`` set only when the result is to be stored.
+
+    ``gravity``: start from the two downs (:func:`~snreg.workflow.registration_start.session_gravity`), searching every
+    heading, instead of ``initial`` (the typed angles, then ignored); ``preop_down``: what gives the preop nodes' down
+    (the SPECT's patient position and the table's tilt), stored with them when ``store_preop``."""
 
     preop: NodeSet
     intraop: NodeSet
@@ -41,6 +47,13 @@ class RunRequest:
     max_translation_mm: float
     session: Session | None = None
     store_preop: bool = False
+    gravity: GravityStart | None = None
+    preop_down: PreopDown | None = None
+
+    @property
+    def start(self) -> str:
+        """The start in words: ``"start: gravity, table tilt 30 deg head down (default), heading searched"``."""
+        return self.gravity.words if self.gravity is not None else "start: the initial alignment entered"
 
 
 @dataclass(frozen=True)
@@ -53,6 +66,7 @@ class RunRecord:
     note: str = ""
     stored: bool = False
     final_n: int | None = None          # the session's registration number when this is the one marked final
+    start: str = ""                     # where the search started, in words ("" for a stored result)
 
 
 def final_record(session: Session) -> RunRecord | None:
@@ -89,22 +103,25 @@ def run_registration(request: RunRequest) -> RunRecord:
 
 def _run(request: RunRequest) -> RunRecord:
     labels = (request.preop.labels, request.intraop.labels) if request.use_labels else (None, None)
+    gravity = request.gravity
     result = register(request.preop.xyz, request.intraop.xyz, method=request.method, preop_labels=labels[0],
-                      intraop_labels=labels[1], initial=request.initial,
-                      max_rotation_deg=request.max_rotation_deg, max_translation_mm=request.max_translation_mm)
+                      intraop_labels=labels[1], initial=request.initial if gravity is None else None,
+                      max_rotation_deg=request.max_rotation_deg, max_translation_mm=request.max_translation_mm,
+                      down=None if gravity is None else gravity.down)
+    record = RunRecord(request.preop, request.intraop, result, start=request.start)
     if request.session is None:
-        return RunRecord(request.preop, request.intraop, result)
+        return record
     try:
         if request.store_preop:
-            request.session.set_preop_nodes(request.preop)
+            request.session.set_preop_nodes(request.preop, down=request.preop_down)
         n = request.session.add_registration(result, request.preop.ids, request.intraop.ids)
     except SessionError:
-        return RunRecord(request.preop, request.intraop, result,
-                         "Review session: the result is shown but not stored (the file is open for reading).")
+        return replace(record, note="Review session: the result is shown but not stored (the file is open for "
+                                    "reading).")
     except OSError as err:
-        return RunRecord(request.preop, request.intraop, result,
-                         f"The result could not be stored in the session ({err.strerror or err}); export it instead.")
-    return RunRecord(request.preop, request.intraop, result, f"Stored in the session as registration {n}.", True)
+        return replace(record, note=f"The result could not be stored in the session ({err.strerror or err}); export "
+                                    "it instead.")
+    return replace(record, note=f"Stored in the session as registration {n}.", stored=True)
 
 
 def report_context(session: Session | None) -> ReportContext:
