@@ -155,7 +155,7 @@ def _start(args, inputs: _Inputs) -> _Start:
         raise UserError("--down-preop gives the preop down with the table's tilt included; drop --tilt")
     preop_down, preop_problem = inputs.preop_down, ""
     if args.down_preop is not None:
-        preop, preop_source, preop_down = np.array(args.down_preop), "given with --down-preop", None
+        preop, preop_source, preop_down = _unit(args.down_preop), "given with --down-preop", None
     elif preop_down is None:
         preop, preop_problem = None, f"{args.preop} records no patient position for its preop nodes"
     else:
@@ -164,7 +164,7 @@ def _start(args, inputs: _Inputs) -> _Start:
             preop, preop_source = preop_down.vector, preop_down.source
         except PreopError as err:
             preop, preop_problem = None, f"{args.preop}: {err}"
-    intraop = np.array(args.down_intraop) if args.down_intraop is not None else inputs.intraop_down
+    intraop = _unit(args.down_intraop) if args.down_intraop is not None else inputs.intraop_down
     if preop is not None and intraop is not None:
         intraop_source = INTRAOP_SOURCE if args.down_intraop is None else "given with --down-intraop"
         gravity = GravityStart(preop, intraop, preop_source, intraop_source, preop_down)
@@ -179,6 +179,14 @@ def _start(args, inputs: _Inputs) -> _Start:
         return _Start("initial", f"start: the session's stored initial alignment (not gravity: {unknown})",
                       initial=inputs.initial)
     return _Start("identity", f"start: the identity (not gravity: {unknown})")
+
+
+def _unit(vector):
+    """A down given on the command line (three numbers, not all zero) as a unit vector."""
+    import numpy as np
+
+    vector = np.asarray(vector, dtype=float)
+    return vector / np.linalg.norm(vector)
 
 
 def cmd_register(args) -> int:
