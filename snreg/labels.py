@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["parse_label", "label_cost", "SIDE_CROSSING_NATS", "STATION_MISMATCH_NATS", "STATIONS", "LANDMARKS"]
+from snreg.landmarks import LANDMARKS     # the landmark vocabulary, defined with the rule its names pass
 
-# Anatomical landmarks found on the CT and touched with the probe in surgery (thesis §6: the pelvic arteries deform
-# less than 2.1 mm): the names offered in the app and the command line; any other name may be used.
-LANDMARKS = ("aortic bifurcation", "right common iliac bifurcation", "left common iliac bifurcation",
-             "right internal iliac origin", "left internal iliac origin", "top of the pubic symphysis")
+__all__ = ["parse_label", "label_cost", "SIDE_CROSSING_NATS", "STATION_MISMATCH_NATS", "STATIONS", "LANDMARKS"]
 
 SIDE_CROSSING_NATS = 50.0
 STATION_MISMATCH_NATS = 1.0

@@ -5,6 +5,14 @@ ids, anatomical labels (``"OBT R"``), positions in mm, optional gamma counts and
 own error, mm^2, in the set's frame: a SPECT hot spot's from the segmentation, a stored node's from the tracker and
 chain). A CSV carries the covariance in six columns ``cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz`` (mm^2; a node's
 cells all empty when its covariance is unknown).
+
+A file may also hold anatomical landmarks (issue 29), which :class:`NodeFile` keeps apart from its nodes: a landmark is
+never counted, paired or registered as a node (:func:`read_nodes` gives the nodes alone). A CSV row is a landmark when
+its ``kind`` column says ``landmark`` (empty or no column: a node), its ``id`` the name. In 3D Slicer markups (no kind)
+a control point is a landmark in a point list named with "landmark" (snreg writes its landmarks so) or when its label
+is a vocabulary name (:data:`snreg.landmarks.LANDMARKS`, any case); its label is its name. A file read as landmarks
+(:func:`read_landmarks`, e.g. a Slicer point list saved on its own) has landmarks only, whatever their names. Names
+pass :func:`snreg.landmarks.landmark_name`.
 """
 
 from __future__ import annotations
@@ -20,8 +28,10 @@ import numpy as np
 
 from snreg.errors import NodeFileError
 from snreg.files import atomic_write, read_text_file
+from snreg.landmarks import LANDMARK, NODE, in_vocabulary, kind_of, landmark_name
 
-__all__ = ["NodeSet", "NodeFileError", "read_nodes", "write_nodes", "PREOP_PREFIX", "INTRAOP_PREFIX"]
+__all__ = ["NodeSet", "NodeFile", "NodeFileError", "read_nodes", "read_node_file", "read_landmarks", "write_nodes",
+           "no_nodes", "PREOP_PREFIX", "INTRAOP_PREFIX", "LANDMARK_LIST"]
 
 # The ids snreg itself gives: preop nodes from a SPECT are P1, P2, ... (hottest first), intraop nodes stored in
 # surgery SN1, SN2, ..., so "SN1 -> P3" cannot be misread. Ids read from a user's file may be anything.
@@ -36,6 +46,7 @@ SLICER_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
     "Resources/Schema/markups-schema-v1.0.3.json#"
 )
+LANDMARK_LIST = "landmarks"           # the name of the markups point list snreg writes its landmarks into
 
 
 @dataclass
@@ -93,28 +104,72 @@ class NodeSet:
         labels = list(labels) if labels is not None else [""] * len(xyz)
         return cls([f"{prefix}{k + 1}" for k in range(len(xyz))], labels, xyz, **kwargs)
 
-    # -- CSV ---------------------------------------------------------------
     def to_csv(self) -> str:
-        out = io.StringIO()
-        if self.frame:
-            out.write(f"# frame: {self.frame}\n")
-        for comment in self.comments:
-            out.write(f"# {comment}\n")
-        writer = csv.writer(out, lineterminator="\n")
-        header = (["id", "label", "x", "y", "z"] + (["counts"] if self.counts is not None else [])
-                  + (list(COV_COLUMNS) if self.cov is not None else []))
-        writer.writerow(header)
-        for k in range(len(self)):
-            row = [self.ids[k], self.labels[k]] + [_fmt(v) for v in self.xyz[k]]
-            if self.counts is not None:
-                row.append(_fmt(self.counts[k]))
-            if self.cov is not None:
-                row += [_fmt(v) for v in self.cov[k][_UPPER]]
-            writer.writerow(row)
-        return out.getvalue()
+        """The node CSV of these nodes (:meth:`NodeFile.to_csv`)."""
+        return NodeFile(self).to_csv()
 
     @classmethod
     def from_csv(cls, text: str, source: str = "node file") -> "NodeSet":
+        """The nodes of a node CSV; its landmarks are left out (:meth:`NodeFile.from_csv` keeps them)."""
+        return NodeFile.from_csv(text, source).nodes
+
+    def subset(self, keep) -> "NodeSet":
+        """The nodes at ``keep`` (indices or a boolean mask), with their counts and covariances; frame kept."""
+        keep = np.asarray(keep)
+        keep = np.flatnonzero(keep) if keep.dtype == bool else keep.astype(int).reshape(-1)
+        return NodeSet([self.ids[k] for k in keep], [self.labels[k] for k in keep], self.xyz[keep],
+                       None if self.counts is None else self.counts[keep], frame=self.frame,
+                       cov=None if self.cov is None else self.cov[keep])
+
+
+def no_nodes(frame: str = "") -> NodeSet:
+    """An empty node set (no landmarks, say)."""
+    return NodeSet([], [], np.zeros((0, 3)), frame=frame)
+
+
+@dataclass
+class NodeFile:
+    """What a node file holds: its ``nodes`` and, apart, its anatomical ``landmarks`` (a :class:`NodeSet` whose ids are
+    the landmark names, empty when there are none). Registration counts and pairs the nodes alone and takes the
+    landmarks by name (``register(..., preop_landmarks=file.landmarks)``)."""
+
+    nodes: NodeSet
+    landmarks: NodeSet = field(default_factory=no_nodes)
+
+    def __post_init__(self) -> None:
+        both = sorted(set(self.nodes.ids) & set(self.landmarks.ids))
+        if both:
+            raise ValueError(f"{both[0]!r} names both a node and a landmark; give the node another id")
+
+    # -- CSV ---------------------------------------------------------------
+    def to_csv(self) -> str:
+        """Nodes, then landmarks (``kind`` column only when there are landmarks); counts and covariance columns when
+        either set has them (a set without: empty cells)."""
+        nodes, marks = self.nodes, self.landmarks
+        with_counts = nodes.counts is not None or marks.counts is not None
+        with_cov = nodes.cov is not None or marks.cov is not None
+        out = io.StringIO()
+        if nodes.frame:
+            out.write(f"# frame: {nodes.frame}\n")
+        for comment in nodes.comments:
+            out.write(f"# {comment}\n")
+        writer = csv.writer(out, lineterminator="\n")
+        writer.writerow(["id", "label", "x", "y", "z"] + (["counts"] if with_counts else [])
+                        + (list(COV_COLUMNS) if with_cov else []) + (["kind"] if len(marks) else []))
+        for kind, part in ((NODE, nodes), (LANDMARK, marks)):
+            for k in range(len(part)):
+                row = [part.ids[k], part.labels[k]] + [_fmt(v) for v in part.xyz[k]]
+                if with_counts:
+                    row.append("" if part.counts is None else _fmt(part.counts[k]))
+                if with_cov:
+                    row += [""] * 6 if part.cov is None else [_fmt(v) for v in part.cov[k][_UPPER]]
+                writer.writerow(row + ([kind] if len(marks) else []))
+        return out.getvalue()
+
+    @classmethod
+    def from_csv(cls, text: str, source: str = "node file", kind: str = NODE) -> "NodeFile":
+        """Parse a node CSV; ``kind``: what a row is whose ``kind`` cell is empty or absent. NodeFileError in one
+        sentence naming the file and the row."""
         frame, comments, body, body_lines = "", [], [], []
         for line_no, line in enumerate(text.removeprefix("\ufeff").split("\n"), start=1):
             line = line.rstrip("\r")
@@ -138,12 +193,12 @@ class NodeSet:
         header = [h.strip().lower() for h in rows[0]]
         missing = [c for c in ("id", "label", "x", "y", "z") if c not in header]
         if missing:
-            raise NodeFileError(f"{source}: header lacks {', '.join(missing)}; expected 'id,label,x,y,z[,counts]'"
-                                + _separator_hint(body[0]))
+            raise NodeFileError(f"{source}: header lacks {', '.join(missing)}; expected 'id,label,x,y,z[,counts]"
+                                "[,kind]'" + _separator_hint(body[0]))
         col = {}
         for index, name in enumerate(header):
             col.setdefault(name, index)
-        ids, labels, xyz, counts, covs = [], [], [], [], []
+        ids, labels, xyz, counts, covs, kinds = [], [], [], [], [], []
         has_counts = "counts" in col
         has_cov = _cov_columns(col, source)
         for row_no, row in enumerate(rows[1:], start=1):
@@ -160,69 +215,114 @@ class NodeSet:
                 raise NodeFileError(f"{source}: {where} has counts that are not a number "
                                     f"({row[col['counts']].strip()!r}); leave the cell empty if unknown") from None
             if not row[col["id"]].strip():
-                raise NodeFileError(f"{source}: {where} has an empty id; every node needs a unique id, e.g. SN1")
-            ids.append(row[col["id"]].strip())
+                raise NodeFileError(f"{source}: {where} has an empty id; every node needs a unique id, e.g. SN1, "
+                                    "and every landmark its name")
+            try:
+                kinds.append(kind_of(row[col["kind"]] if "kind" in col else "", kind))
+                ids.append(landmark_name(row[col["id"]]) if kinds[-1] == LANDMARK else row[col["id"]].strip())
+            except ValueError as err:
+                raise NodeFileError(f"{source}: {where}: {err}") from None
             labels.append(row[col["label"]].strip())
             xyz.append(point)
             counts.append(count)
             if has_cov:
                 covs.append(_cov_cells([row[col[name]] for name in COV_COLUMNS], f"{source}: {where}"))
+        return cls._split(source, kinds, ids, labels, np.array(xyz).reshape(-1, 3),
+                          np.array(counts) if has_counts else None, frame=frame, comments=comments,
+                          cov=np.array(covs).reshape(-1, 3, 3) if has_cov else None)
+
+    @classmethod
+    def _split(cls, source: str, kinds: list[str], ids, labels, xyz, counts=None, *, frame: str = "",
+               comments=(), cov=None) -> "NodeFile":
+        """The rows as nodes and landmarks by ``kinds`` (comments with the nodes, no counts for landmarks);
+        NodeFileError naming ``source`` for a landmark given twice or rows that make no node set."""
+        marks = [ids[k] for k, kind in enumerate(kinds) if kind == LANDMARK]
+        twice = sorted({name for name in marks if marks.count(name) > 1})
+        if twice:
+            raise NodeFileError(f"{source}: landmark {twice[0]!r} is given twice; give each landmark once")
         try:
-            return cls(ids, labels, np.array(xyz).reshape(-1, 3),
-                       np.array(counts) if has_counts else None, frame=frame, comments=comments,
-                       cov=np.array(covs).reshape(-1, 3, 3) if has_cov else None)
+            every = NodeSet(ids, labels, xyz, counts, frame=frame, cov=cov)
         except ValueError as err:
             raise NodeFileError(f"{source}: {err}") from None
+        is_mark = np.array([kind == LANDMARK for kind in kinds], dtype=bool)
+        nodes, landmarks = every.subset(~is_mark), every.subset(is_mark)
+        nodes.comments, landmarks.counts = list(comments), None
+        return cls(nodes, landmarks)
 
     # -- 3D Slicer markups ---------------------------------------------------
     def to_slicer(self) -> dict:
-        """A Slicer fiducial list: our id as point label, our anatomical label as description.
+        """A Slicer markups document: the nodes' fiducial list (our id as point label, our anatomical label as
+        description) and, when there are landmarks, a second list named :data:`LANDMARK_LIST` (label = name).
 
-        Positions are written as given with ``coordinateSystem`` LPS (DICOM patient space);
-        counts have no place in the Slicer schema and are not written.
+        Positions are written as given with ``coordinateSystem`` LPS (DICOM patient space); counts have no place in
+        the Slicer schema and are not written.
         """
-        points = [
-            {"id": str(k + 1), "label": self.ids[k], "description": self.labels[k], "associatedNodeID": "",
-             "position": [float(v) for v in self.xyz[k]], "orientation": [-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0],
-             "selected": True, "locked": False, "visibility": True, "positionStatus": "defined"}
-            for k in range(len(self))
-        ]
-        return {"@schema": SLICER_SCHEMA,
-                "markups": [{"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm",
-                             "locked": False, "labelFormat": "%N-%d", "controlPoints": points, "measurements": []}]}
+        lists = [_slicer_list(self.nodes)] + ([_slicer_list(self.landmarks, LANDMARK_LIST)] if len(self.landmarks)
+                                              else [])
+        return {"@schema": SLICER_SCHEMA, "markups": lists}
 
     @classmethod
-    def from_slicer(cls, doc: dict, source: str = "markups file") -> "NodeSet":
+    def from_slicer(cls, doc: dict, source: str = "markups file", kind: str = NODE) -> "NodeFile":
+        """Nodes from the first fiducial list not named for landmarks, landmarks from the lists named for them and
+        from vocabulary labels (module docstring); each list's positions in LPS whichever system it says. ``kind``:
+        what a control point of the nodes' list is when its label is not a vocabulary name."""
+        ids, labels, xyz, kinds = [], [], [], []
+        foreign = NodeFileError(f"{source}: not a 3D Slicer fiducial list (.mrk.json with markups/controlPoints)")
         try:
-            markups = doc["markups"]
-            fiducials = [m for m in markups if m.get("type", "Fiducial") == "Fiducial"]
-            markup = fiducials[0]
-            system = markup.get("coordinateSystem", "LPS").upper()
-            ids, labels, xyz = [], [], []
-            points = markup.get("controlPoints", [])
-            for k, point in enumerate(points):
-                ids.append(point.get("label") or point.get("id") or f"F-{k + 1}")
-                labels.append(point.get("description", ""))
-                xyz.append([float(v) for v in point["position"]])
+            fiducials = [m for m in doc["markups"] if m.get("type", "Fiducial") == "Fiducial"]
+            named = [LANDMARK in str(m.get("name", "")).casefold() for m in fiducials]
+            if not fiducials:
+                raise foreign
+            lists = [(m, False) for m, marks in zip(fiducials, named) if not marks][:1] + \
+                [(m, True) for m, marks in zip(fiducials, named) if marks]
+            for markup, marks in lists:
+                system = str(markup.get("coordinateSystem", "LPS")).upper()
+                for k, point in enumerate(markup.get("controlPoints", [])):
+                    label = point.get("label")
+                    kinds.append(LANDMARK if marks or in_vocabulary(label or "") else kind)
+                    if kinds[-1] == LANDMARK:
+                        try:
+                            ids.append(landmark_name("" if label is None else str(label)))
+                        except ValueError as err:
+                            raise NodeFileError(f"{source}: control point {k + 1} ({point.get('id', '?')}): "
+                                                f"{err}") from None
+                    else:
+                        ids.append(label or point.get("id") or f"F-{k + 1}")
+                    labels.append(point.get("description", ""))
+                    position = [float(v) for v in point["position"]]
+                    if len(position) != 3:
+                        raise NodeFileError(f"{source}: control point {k + 1} has a position of {len(position)} "
+                                            "numbers; every position needs x, y, z (mm)")
+                    xyz.append([-position[0], -position[1], position[2]] if system == "RAS" else position)
+        except NodeFileError:
+            raise
         except (KeyError, IndexError, TypeError, ValueError, AttributeError):
-            raise NodeFileError(f"{source}: not a 3D Slicer fiducial list (.mrk.json with markups/controlPoints)") from None
+            raise foreign from None
         except OverflowError:
             raise NodeFileError(f"{source}: a control point position is a number too large for mm") from None
-        ragged = [k + 1 for k, p in enumerate(xyz) if len(p) != 3]
-        if ragged:
-            raise NodeFileError(f"{source}: control point {ragged[0]} has a position of {len(xyz[ragged[0] - 1])} numbers; "
-                                "every position needs x, y, z (mm)")
-        xyz = np.array(xyz, dtype=float).reshape(-1, 3)
-        if system == "RAS":
-            xyz[:, :2] *= -1.0
-        try:
-            return cls(ids, labels, xyz, frame="LPS")
-        except ValueError as err:
-            raise NodeFileError(f"{source}: {err}") from None
+        return cls._split(source, kinds, ids, labels, np.array(xyz, dtype=float).reshape(-1, 3), frame="LPS")
 
 
 def read_nodes(path: str | Path) -> NodeSet:
-    """Read a node CSV or a Slicer ``.mrk.json``; :class:`NodeFileError` says what is wrong."""
+    """The nodes of a node CSV or a Slicer ``.mrk.json`` (its landmarks left out: :func:`read_node_file` gives both);
+    :class:`NodeFileError` says what is wrong."""
+    return read_node_file(path).nodes
+
+
+def read_landmarks(path: str | Path) -> NodeSet:
+    """A file of landmarks alone (a Slicer point list saved on its own, a CSV of landmark rows): every entry a landmark
+    whatever its name; :class:`NodeFileError` when a CSV row says it is a node."""
+    read = read_node_file(path, kind=LANDMARK)
+    if len(read.nodes):
+        what = "is a node" if len(read.nodes) == 1 else "are nodes"
+        raise NodeFileError(f"{path}: {', '.join(read.nodes.ids[:3])} {what} (kind node); a landmark file holds "
+                            "landmarks only")
+    return read.landmarks
+
+
+def read_node_file(path: str | Path, kind: str = NODE) -> NodeFile:
+    """The nodes and landmarks of a node CSV or a Slicer ``.mrk.json`` (module docstring); ``kind``: what an entry
+    is that does not say. :class:`NodeFileError` says what is wrong."""
     path = Path(path)
     text = read_text_file(path, "node", NodeFileError, max_bytes=MAX_NODE_FILE_BYTES)
     if path.name.lower().endswith(".json"):
@@ -232,17 +332,30 @@ def read_nodes(path: str | Path) -> NodeSet:
             raise NodeFileError(f"{path}: nested too deeply to be a 3D Slicer markups file") from None
         except ValueError as err:                 # JSONDecodeError, or an integer of more than 4300 digits
             raise NodeFileError(f"{path}: not valid JSON ({str(err).split(':')[0]})") from None
-        return NodeSet.from_slicer(doc, str(path))
-    return NodeSet.from_csv(text, str(path))
+        return NodeFile.from_slicer(doc, str(path), kind)
+    return NodeFile.from_csv(text, str(path), kind)
 
 
-def write_nodes(nodes: NodeSet, path: str | Path) -> None:
-    """Write a node set as CSV, or as Slicer markups when the name ends in ``.json``, atomically (``OSError`` if it
-    cannot be written; the previous file then stays as it was)."""
+def write_nodes(nodes: NodeSet, path: str | Path, landmarks: NodeSet | None = None) -> None:
+    """Write a node set, and ``landmarks`` apart when given, as CSV, or as Slicer markups when the name ends in
+    ``.json``, atomically (``OSError`` if it cannot be written; the previous file then stays as it was)."""
     path = Path(path)
-    text = json.dumps(nodes.to_slicer(), indent=2) if path.name.lower().endswith(".json") else nodes.to_csv()
+    written = NodeFile(nodes, no_nodes(nodes.frame) if landmarks is None else landmarks)
+    text = json.dumps(written.to_slicer(), indent=2) if path.name.lower().endswith(".json") else written.to_csv()
     with atomic_write(path) as temporary:
         temporary.write_text(text, encoding="utf-8")
+
+
+def _slicer_list(nodes: NodeSet, name: str = "") -> dict:
+    """One fiducial list: our id as point label, our anatomical label as description; named when ``name``."""
+    points = [
+        {"id": str(k + 1), "label": nodes.ids[k], "description": nodes.labels[k], "associatedNodeID": "",
+         "position": [float(v) for v in nodes.xyz[k]], "orientation": [-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0],
+         "selected": True, "locked": False, "visibility": True, "positionStatus": "defined"}
+        for k in range(len(nodes))
+    ]
+    return {"type": "Fiducial", **({"name": name} if name else {}), "coordinateSystem": "LPS", "coordinateUnits": "mm",
+            "locked": False, "labelFormat": "%N-%d", "controlPoints": points, "measurements": []}
 
 
 def _cov_columns(col: dict, source: str) -> bool:

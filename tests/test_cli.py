@@ -83,7 +83,7 @@ def test_simulate_small(tmp_path):
 
 def test_simulate_rejects_bad_arguments(capsys):
     assert main(["simulate", "--methods", "global+magic"]) == 2
-    assert "only '+labels'" in capsys.readouterr().err
+    assert "only +labels" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         main(["simulate", "--sigmas", "two"])
     assert exc.value.code == 2

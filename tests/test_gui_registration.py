@@ -210,7 +210,8 @@ def test_missing_or_too_few_nodes_give_a_sentence_not_a_crash(qtbot, panel, pelv
     panel.set_intraop_nodes(NodeSet.from_xyz(xyz, labels))
     qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
-    assert panel.message.text() == "Registration needs at least 3 preop nodes; got 2."
+    assert panel.message.text() == ("Registration needs at least 3 preop nodes (or landmarks named on both sides to make "
+                                    "3 points with them); got 2.")
     assert panel.last_result is None and panel.run_button.isEnabled()
     assert not any(button.isEnabled() for button in panel.export_buttons.values())
 

@@ -7,6 +7,7 @@ from PySide6.QtCore import Qt
 from test_session_timeline import (CAMERA_LAG_S, DURATION_S, FRAME_RATE_HZ, LOST_FRAMES, PREOP_IDS, STEREO_RMS_PX,
                                    YAW_TURN_DEG, damaged_copy, record_session)
 
+from snreg.session.schema import FORMAT_VERSION
 from snreg_gui.review.screen import ReviewScreen
 from snreg_gui.review.timelines import label_rows
 
@@ -43,7 +44,7 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     path, truth = recorded
     _load(qtbot, screen, path)
     header = screen.header.text()
-    assert str(path) in header and "case review-01" in header and "format version 4" in header
+    assert str(path) in header and "case review-01" in header and f"format version {FORMAT_VERSION}" in header
     assert f"stereo RMS {STEREO_RMS_PX:.2f} px" in header and "IMU-trocar 460.0 mm, trocar-camera 158.0 mm" in header
     assert "DAMAGED" not in header and "1 gap, longest 0.53 s" in header
     table = screen.node_table

@@ -19,7 +19,7 @@ from snreg.nodes import NodeSet
 from snreg.workflow import live_messages as msg
 from snreg.workflow.live_link import LiveLink
 
-DEVICES = 5                 # ProbeTipToTrocar, IntraopNodes, PreopNodes, TrocarToRas, Status
+DEVICES = 7     # ProbeTipToTrocar, IntraopNodes, PreopNodes, IntraopLandmarks, PreopLandmarks, TrocarToRas, Status
 
 
 def frame(pose):
@@ -27,8 +27,8 @@ def frame(pose):
     return SimpleNamespace(trocar_from_probe=pose)
 
 
-def node(node_id, xyz, label=""):
-    return SimpleNamespace(id=node_id, xyz_trocar=np.asarray(xyz, dtype=float), label=label)
+def node(node_id, xyz, label="", kind="node"):
+    return SimpleNamespace(id=node_id, xyz_trocar=np.asarray(xyz, dtype=float), label=label, kind=kind)
 
 
 def unpack(data: bytes):
@@ -91,6 +91,39 @@ def test_a_client_gets_nodes_preop_registration_and_status_at_once(link, igtl_cl
     assert client.messages("Status")[-1].string.endswith("last: registered with global, RMS 0.50 mm: SN1 -> P1 (with "
                                                          "SN2); SN2 -> P1 (with SN1)")
     assert client.messages("ProbeTipToTrocar") == []      # no stale pose for a late joiner
+
+
+def test_landmarks_have_lists_of_their_own(link, igtl_client):
+    client = igtl_client(link.port)
+    assert client.wait_for(lambda c: shown_list(c, "IntraopLandmarks") == ([], []))      # empty: the hidden point
+    link.add_node(node("SN1", [1.0, 2.0, 3.0]))
+    aorta = node("aortic bifurcation", [10.0, -20.0, 150.0], kind="landmark")
+    link.add_node(aorta)
+    link.set_preop_landmarks(NodeSet(["aortic bifurcation", "left common iliac bifurcation"], ["", ""],
+                                     [[0.0, 85.0, 160.0], [40.0, 80.0, 95.0]], frame="LPS"))
+    assert client.wait_for(lambda c: shown_list(c, "IntraopLandmarks")[0] == ["aortic bifurcation"]
+                           and shown_list(c, "PreopLandmarks")[0] != [] and shown_list(c, "IntraopNodes")[0] == ["SN1"])
+    assert shown_list(client, "IntraopLandmarks")[1] == [[10.0, -20.0, 150.0]]           # trocar frame, as stored
+    names, positions = shown_list(client, "PreopLandmarks")
+    assert names == ["aortic bifurcation", "left common iliac bifurcation"]
+    assert np.allclose(positions, [[0.0, -85.0, 160.0], [-40.0, -80.0, 95.0]])            # LPS -> RAS
+    assert "1 stored, 1 landmark" in client.messages("Status")[-1].string
+    link.remove_node(aorta)
+    assert client.wait_for(lambda c: shown_list(c, "IntraopLandmarks") == ([], []))
+    assert shown_list(client, "IntraopNodes")[0] == ["SN1"]
+    late = igtl_client(link.port)                    # a late joiner gets both landmark lists at once
+    assert late.wait_for(lambda c: {"IntraopLandmarks", "PreopLandmarks"} <= {m.device_name for m in c.log})
+    link.set_intraop_nodes([node("SN1", [1, 2, 3]), node("left common iliac bifurcation", [4, 5, 6], kind="landmark")])
+    assert late.wait_for(lambda c: shown_list(c, "IntraopLandmarks")[0] == ["left common iliac bifurcation"])
+
+
+def shown_list(client, device):
+    """The names and positions (lists) of the newest ``device`` message a client holds; None before any."""
+    messages = client.messages(device)
+    if not messages:
+        return None
+    names, positions = shown(messages[-1])
+    return names, positions.tolist()
 
 
 def test_poses_stream_and_undo_empties_the_node_list(link, igtl_client):

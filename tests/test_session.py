@@ -13,7 +13,7 @@ from snreg.camera import thesis_calibration
 from snreg.chain import ChainCalibration
 from snreg.nodes import NodeSet
 from snreg.registration import register
-from snreg.session import Session, SessionError, read_intraop_nodes
+from snreg.session import Session, SessionError, read_intraop
 from snreg.session.export import session_info
 from snreg.session.journal import journal_path
 from snreg.session.reader import HEADER_KEYS
@@ -75,7 +75,7 @@ def test_round_trip(tmp_path, rng, pelvic_nodes):
         assert s.stream("probe").shape == (300,) and s.stream("frames")["index"][-1] == 299
     with h5py.File(path, "r") as h5:
         assert h5["streams/imu"].chunks is not None and h5["streams/imu"].compression == "gzip"
-    assert read_intraop_nodes(path).ids == ["SN1", "SN2", "SN3"]
+    assert read_intraop(path).nodes.ids == ["SN1", "SN2", "SN3"]
 
 
 def test_streams_are_buffered_and_flushed_in_chunks(tmp_path):

@@ -15,7 +15,7 @@ from snreg.session.export import session_info
 from snreg.session.integrity import verify
 from snreg.session.journal import _line, journal_path, read_journal
 from snreg.session.recovery import recover
-from snreg.session.schema import CAMERA_STATES, STREAM_DTYPES
+from snreg.session.schema import CAMERA_STATES, FORMAT_VERSION, STREAM_DTYPES
 from snreg.session.slicer_sequence import probe_poses
 
 T0_NS = 7_000_000_000
@@ -107,11 +107,11 @@ def test_a_format_3_file_without_the_camera_stream_reads_as_the_chains_constant(
     poses = probe_poses(path)                                   # the constant insertion maps the fix
     np.testing.assert_allclose(poses.insertion_mm, [chain.trocar_camera_mm])
     np.testing.assert_allclose(poses.trocar_from_probe[0][:3, 3], [1.0, 2.0, 80.0 + chain.trocar_camera_mm], atol=1e-4)
-    with Session.resume(path) as session:                       # continued: the file becomes format 4
+    with Session.resume(path) as session:                       # continued: the file becomes the current format
         append_rows(session, T0_NS + 10**9)
         session.add_intraop_node("SN2", "", [4.0, 5.0, 6.0], trocar_camera_mm=171.5)
     with Session.open(path) as session:
-        assert session.header["format_version"] == 4 and not session.damaged
+        assert session.header["format_version"] == FORMAT_VERSION and not session.damaged
         assert len(session.stream("camera")) == len(STATES)
         first, second = session.intraop_records()
         assert np.isnan(first.trocar_camera_mm) and second.trocar_camera_mm == 171.5

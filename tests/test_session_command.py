@@ -11,6 +11,7 @@ from snreg.errors import UserError
 from snreg.nodes import read_nodes
 from snreg.session import Session
 from snreg.session.journal import journal_path
+from snreg.session.schema import FORMAT_VERSION
 
 
 def _run(argv):
@@ -36,7 +37,7 @@ def test_info_json(session_file, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["case_id"] == "phantom-01" and info["intraop_nodes"] == 2
     assert info["streams"] == {"imu": 3, "probe": 0, "frames": 0, "camera": 0} and info["registrations"] == []
-    assert info["format_version"] == 4 and not info["damaged"] and info["events"] == {"store_refused": 1}
+    assert info["format_version"] == FORMAT_VERSION and not info["damaged"] and info["events"] == {"store_refused": 1}
 
 
 def test_info_text(session_file, capsys):

@@ -10,6 +10,7 @@ import pytest
 from snreg.session import Session, SessionError
 from snreg.session.recovery import recover
 from snreg.session.journal import journal_path
+from snreg.session.schema import FORMAT_VERSION
 
 
 def _store(session, node_id, x):
@@ -24,7 +25,7 @@ def test_events_are_durable_in_both_files_and_survive_recovery(tmp_path):
         s.log_event("acquisition_started", imu="absent by choice")
         assert [e["kind"] for e in s.events()] == ["store_refused", "acquisition_started"]
     with h5py.File(path) as h5:
-        assert h5["events"].shape == (2,) and h5.attrs["format_version"] == 4
+        assert h5["events"].shape == (2,) and h5.attrs["format_version"] == FORMAT_VERSION
     with Session.open(path) as s:
         [event] = s.events("store_refused")
         assert (event["reason"], event["trigger"], event["n"]) == ("the IMU is stale", "F5", 0)
@@ -78,5 +79,5 @@ def test_a_format_1_file_reads_and_is_continued_as_format_2(tmp_path):
         s.log_event("store_refused", reason="r", trigger="button")
     with Session.open(path) as s:
         first, second = s.intraop_records()
-        assert s.header["format_version"] == 4 and np.isnan(first.earth_from_imu).all()
+        assert s.header["format_version"] == FORMAT_VERSION and np.isnan(first.earth_from_imu).all()
         assert second.measured_under == ("aaaaaaaa", "bbbbbbbb") and len(s.events()) == 1

@@ -15,6 +15,7 @@ from snreg.nodes import NodeSet
 from snreg.registration import register
 from snreg.session import Session, SessionError
 from snreg.session.journal import Journal, journal_path, read_journal
+from snreg.session.schema import FORMAT_VERSION
 from snreg.session.timeline import (GAP_PERIODS, clock_figures, frame_series, fuse_imu, fuse_imu_blocks, gap_after,
                                     load_review, with_gaps)
 
@@ -101,7 +102,7 @@ def recorded(tmp_path_factory):
 def test_load_review_copies_header_nodes_and_snapshots(recorded):
     path, truth = recorded
     review = load_review(path)
-    assert (review.case_id, review.format_version, review.damaged) == ("review-01", 4, False)
+    assert (review.case_id, review.format_version, review.damaged) == ("review-01", FORMAT_VERSION, False)
     assert review.created_utc.endswith("+00:00") and review.snreg_version
     assert review.stereo_rms_px == pytest.approx(STEREO_RMS_PX)
     assert (review.imu_trocar_mm, review.trocar_camera_mm) == pytest.approx((460.0, 158.0))

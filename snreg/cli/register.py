@@ -5,6 +5,12 @@ Each side's covariances (a stored node's own error, a hot spot's from the segmen
 ``cov_*`` columns) are given to ``register`` when every node of that side has one; ``--no-covariances`` registers
 without them, for comparison. The output says which were used.
 
+Anatomical landmarks come with the nodes: a CSV's rows of ``kind`` landmark, a markups file's landmark points
+(:mod:`snreg.nodes`), a session's stored and preop landmarks; ``--preop-landmarks``/``--intraop-landmarks`` add a file
+of landmarks alone (a Slicer point list saved on its own). They are paired by name and given to ``register``, so one
+or two nodes register when landmarks make three points; each pair's residual and leave-one-out residual are printed,
+and the pairs the registration left out as contradicting the rest are named as suspect.
+
 The start (:mod:`snreg.workflow.registration_start`): ``--initial`` when given; else gravity when both downs are known
 (the preop one from the SPECT's patient position and the table's tilt, as ``snreg preop`` records them in the node
 file's comments or the session keeps them with its preop nodes; the intraop one from the session's chain), which
@@ -22,10 +28,10 @@ from typing import TYPE_CHECKING
 from snreg.cli.common import check_output_file, down_vector, finite_float, float_range, read_initial, seed, write_text
 from snreg.errors import UserError
 
-if TYPE_CHECKING:                  # building the parser imports no numpy
+if TYPE_CHECKING:                       # numpy and the node files are imported when a command runs, not for --help
     import numpy as np
 
-    from snreg.nodes import NodeSet
+    from snreg.nodes import NodeFile
     from snreg.preop.gravity import PreopDown
     from snreg.workflow.registration_start import GravityStart
 
@@ -60,6 +66,14 @@ def add_register_parser(subparsers) -> None:
     p.add_argument("--seed", type=seed, default=0, help="random seed of the search")
     p.add_argument("--no-covariances", action="store_true",
                    help="ignore the nodes' own covariances (used by default when every node of a side has one)")
+    p.add_argument("--preop-landmarks", metavar="FILE",
+                   help="anatomical landmarks on the CT (patient LPS, mm): a .mrk.json point list or CSV of landmarks "
+                        "alone, labels = names; added to those the preop file holds (kind landmark)")
+    p.add_argument("--intraop-landmarks", metavar="FILE",
+                   help="landmarks touched in surgery (the intraop frame, mm), a file of landmarks alone; added to "
+                        "those the intraop file or session holds")
+    p.add_argument("--landmark-sd", type=finite_float, default=2.0, metavar="MM",
+                   help="a landmark pair's own error, sd per axis in mm (default 2)")
     p.add_argument("-o", "--output", help="write the result as JSON")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=cmd_register)
@@ -70,22 +84,24 @@ def _is_session(path: str) -> bool:
 
 
 @dataclass(frozen=True, eq=False)
-class _Inputs:
-    """The node sets and what comes with them: the session's stored initial alignment, the patient position and tilt
-    recorded with the preop nodes (None: none recorded), the intraop down (None, with why, when unknown)."""
+class Inputs:
+    """What ``snreg register`` registers: each side's nodes and landmarks, a session's initial alignment, the patient
+    position and tilt recorded with the preop nodes (None: none recorded), the intraop down (None, with why, when
+    unknown)."""
 
-    preop: NodeSet
-    intraop: NodeSet
+    preop: NodeFile
+    intraop: NodeFile
     initial: np.ndarray | None = None
     preop_down: PreopDown | None = None
     intraop_down: np.ndarray | None = None
     intraop_unknown: str = ""
 
 
-def _inputs(args) -> _Inputs:
-    """From two files (a node file's comments record the SPECT's patient position), or both node sets and the initial
-    alignment kept with its last registration from one session; the intraop down from the intraop session's chain."""
-    from snreg.nodes import read_nodes
+def _inputs(args) -> Inputs:
+    """Both sides from two files (a session as the intraop one; a node file's comments record the SPECT's patient
+    position), or both node sets, their landmarks, the preop down and the initial alignment kept with the last
+    registration from one session; the landmark files of the options added; the intraop down from a session's chain."""
+    from snreg.nodes import NodeFile, read_node_file
     from snreg.preop.gravity import PreopDown
     from snreg.session import Session
 
@@ -94,18 +110,23 @@ def _inputs(args) -> _Inputs:
             raise UserError(f"{args.preop}: give the preop and the intraop node files, or one session (.h5)")
         with Session.open(args.preop) as session:
             preop, initial, preop_down = session.preop_nodes(), session.last_initial(), session.preop_down()
-            intraop, (down, unknown) = session.intraop_nodes(), _intraop_down(session)
+            intraop = NodeFile(session.intraop_nodes(), session.intraop_landmarks())
+            preop = None if preop is None else NodeFile(preop, session.preop_landmarks())
+            down, unknown = _intraop_down(session)
         if preop is None:
             raise UserError(f"{args.preop}: the session holds no preop nodes; give PREOP.csv {args.preop}")
-        return _Inputs(preop, intraop, initial, preop_down, down, unknown)
-    preop = read_nodes(args.preop)
-    preop_down = PreopDown.from_comments(preop.comments, args.preop)
-    if not _is_session(args.intraop):
-        return _Inputs(preop, read_nodes(args.intraop), None, preop_down, None,
-                       f"{args.intraop} is a node file, which carries no down")
-    with Session.open(args.intraop) as session:
-        intraop, (down, unknown) = session.intraop_nodes(), _intraop_down(session)
-    return _Inputs(preop, intraop, None, preop_down, down, unknown)
+    else:
+        preop, initial = read_node_file(args.preop), None
+        preop_down = PreopDown.from_comments(preop.nodes.comments, args.preop)
+        if _is_session(args.intraop):
+            with Session.open(args.intraop) as session:
+                intraop = NodeFile(session.intraop_nodes(), session.intraop_landmarks())
+                down, unknown = _intraop_down(session)
+        else:
+            intraop = read_node_file(args.intraop)
+            down, unknown = None, f"{args.intraop} is a node file, which carries no down"
+    return Inputs(_with_landmarks(preop, args.preop_landmarks), _with_landmarks(intraop, args.intraop_landmarks),
+                  initial, preop_down, down, unknown)
 
 
 def _intraop_down(session):
@@ -136,12 +157,10 @@ class _Start:
         return out
 
 
-def _start(args, inputs: _Inputs) -> _Start:
+def _start(args, inputs: Inputs) -> _Start:
     """``--initial``; else gravity when both downs are known (the options override what the files say); else the
     session's stored initial alignment; else the identity. UserError in one sentence for options that contradict each
     other, a down asked for but unknown, or a SPECT whose patient position gives none."""
-    import numpy as np
-
     from snreg.errors import PreopError
     from snreg.workflow.registration_start import INTRAOP_SOURCE, GravityStart
 
@@ -189,10 +208,26 @@ def _unit(vector):
     return vector / np.linalg.norm(vector)
 
 
+def _with_landmarks(read, path: str | None):
+    """``read`` (a NodeFile) with the landmarks of the file at ``path`` added; ValueError for a name given twice."""
+    from snreg.nodes import NodeFile, NodeSet, read_landmarks
+
+    if path is None:
+        return read
+    more = read_landmarks(path)
+    twice = sorted(set(more.ids) & set(read.landmarks.ids))
+    if twice:
+        raise ValueError(f"{path}: landmark {twice[0]!r} is in the node file too; give each landmark once")
+    both = NodeSet(read.landmarks.ids + more.ids, read.landmarks.labels + more.labels,
+                   [*read.landmarks.xyz, *more.xyz], frame=read.landmarks.frame or more.frame)
+    return NodeFile(read.nodes, both)
+
+
 def cmd_register(args) -> int:
     from snreg.errors import NodeFileError, NoFitError, SessionError
     from snreg.registration import CONFIDENT, register
     from snreg.registration.naming import PREOP_MARK, ids_collide, marked_missing, marked_rows, pair_text
+    from snreg.registration.landmark_report import landmark_notes, landmark_rows, unpaired_landmarks
     from snreg.registration.report import missing_nodes, node_warnings, pair_rows
 
     if args.output:
@@ -201,7 +236,8 @@ def cmd_register(args) -> int:
         inputs = _inputs(args)
     except (NodeFileError, SessionError, ValueError, OSError) as err:
         raise UserError(str(err)) from None
-    preop, intraop, start = inputs.preop, inputs.intraop, _start(args, inputs)
+    preop, intraop, start = inputs.preop.nodes, inputs.intraop.nodes, _start(args, inputs)
+    marks = (inputs.preop.landmarks, inputs.intraop.landmarks)
     covariances = _covariances(preop, intraop, args.no_covariances)
     try:
         result = register(preop.xyz, intraop.xyz, method=args.method,
@@ -210,6 +246,8 @@ def cmd_register(args) -> int:
                           initial=start.initial, max_rotation_deg=args.max_rotation,
                           max_translation_mm=args.max_translation, seed=args.seed,
                           intraop_cov=covariances["intraop"], preop_cov=covariances["preop"],
+                          preop_landmarks=marks[0] if len(marks[0]) else None,
+                          intraop_landmarks=marks[1] if len(marks[1]) else None, landmark_sd_mm=args.landmark_sd,
                           down=None if start.gravity is None else start.gravity.down)
     except NoFitError:
         raise UserError(_no_fit_text(args, start)) from None
@@ -222,7 +260,11 @@ def cmd_register(args) -> int:
            "initial": result.initial.tolist(), "start": start.as_json(),
            "covariances": {side: covariances[side] is not None for side in ("intraop", "preop")},
            "nodes": [row.as_json() for row in rows],
-           "missing": [node.as_json() for node in missing], "warnings": node_warnings(rows)}
+           "missing": [node.as_json() for node in missing],
+           "warnings": node_warnings(rows) + landmark_notes(result, marks[0].ids, marks[1].ids),
+           "landmark_sd_mm": args.landmark_sd, "landmarks": [row.as_json() for row in landmark_rows(result)],
+           "landmarks_suspect": list(result.landmarks_suspect),
+           "landmarks_unpaired": unpaired_landmarks(marks[0].ids, marks[1].ids)}
     if args.output:
         write_text(args.output, json.dumps(doc, indent=2), "result")
     if args.json:
@@ -249,7 +291,8 @@ def cmd_register(args) -> int:
         x, y, z = node.mapped_xyz
         print(f"missing {node.preop_id} ({node.preop_label or 'no label'}): expected at ({x:.1f}, {y:.1f}, {z:.1f}) mm, "
               f"within {node.bound_mm:.1f} mm (90%)")
-    for text in node_warnings(shown):
+    _print_landmarks(landmark_rows(result), args.landmark_sd)
+    for text in node_warnings(shown) + landmark_notes(result, marks[0].ids, marks[1].ids):
         print(f"warning: {text}")
     print("hot spot: the SPECT node a removed node came from (several may share one: 'with'; none: from no imaged "
           "hot spot);\nloo: the node's distance when the other pairs alone register (a large value flags a suspect "
@@ -261,12 +304,25 @@ def _no_fit_text(args, start: _Start) -> str:
     """One sentence: no pairing fits from this start, and what to change (the options that would)."""
     if start.gravity is not None:
         return (f"no pairing fits from gravity's start (every heading, the tilt near the two downs, the centroids "
-                f"within {args.max_translation:g} mm): check the table tilt (--tilt) and the patient position, give a rough "
-                "alignment with --initial, add --labels, or widen --max-translation")
+                f"within {args.max_translation:g} mm): check the table tilt (--tilt) and the patient position, give a "
+                "rough alignment with --initial, add --labels, or widen --max-translation")
     return (f"no pairing fits within {args.max_rotation:g} degrees and {args.max_translation:g} mm of the "
             f"{'given' if start.initial is not None else 'identity'} initial alignment: give a rough alignment "
             "with --initial (a 4x4 file or the session) or the downs (--down-preop, --down-intraop), add --labels, "
             "or widen --max-rotation and --max-translation")
+
+
+def _print_landmarks(rows, sd_mm: float) -> None:
+    """The landmark pairs' table: residual, leave-one-out residual, and SUSPECT where one was left out."""
+    if not rows:
+        return
+    width = max(len("landmark"), *(len(row.name) for row in rows))
+    pairs = f"{len(rows)} pair{'s' if len(rows) > 1 else ''}"
+    print(f"landmarks: {pairs}, each with {sd_mm:g} mm of its own error per axis")
+    print(f"{'landmark':<{width}} {'dist mm':>8} {'loo mm':>7}")
+    for row in rows:
+        print(f"{row.name:<{width}} {row.residual_mm:>8.1f} {row.leave_one_out_mm:>7.1f}"
+              + ("  SUSPECT: left out of the fit" if row.suspect else ""))
 
 
 def _covariances(preop, intraop, ignore: bool) -> dict:

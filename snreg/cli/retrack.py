@@ -24,7 +24,7 @@ def add_retrack_parser(commands) -> None:
                          "video from the session chain's distance), chain (the chain's constant distance: a still "
                          "camera), auto (default: video when the session tracked the insertion live, else chain)")
     retrack.add_argument("--dry-run", action="store_true", help="say where each node would move; store nothing")
-    retrack.add_argument("--json", action="store_true", help='one JSON object: {"nodes": [{"id", "before_mm", '
+    retrack.add_argument("--json", action="store_true", help='one JSON object: {"nodes": [{"id", "kind", "before_mm", '
                          '"after_mm", "moved_mm", "before_camera_mm", "after_camera_mm", "before_trocar_camera_mm", '
                          '"after_trocar_camera_mm", "fixes"}], "calibration", "method", "insertion": {"pairs", '
                          '"tracked", "lost"} or null, "stored"}')
@@ -61,13 +61,14 @@ def cmd_retrack(args) -> int:
               f"({summary['lost']} lost; orientations: {summary['orientation']})")
     for node in result.nodes:
         before = ", ".join(f"{v:.2f}" for v in node.node.xyz_trocar)
+        name = node.node.id if node.node.kind == "node" else f"landmark {node.node.id!r}"
         if node.after_trocar is None:
-            print(f"{node.node.id}: at ({before}) mm, not re-tracked: {node.problem}")
+            print(f"{name}: at ({before}) mm, not re-tracked: {node.problem}")
             continue
         after = ", ".join(f"{v:.2f}" for v in node.after_trocar)
         insertion = "" if result.insertion is None else \
             f", camera {_mm(node.node.trocar_camera_mm)} -> {_mm(node.after_insertion_mm)}"
-        print(f"{node.node.id}: was ({before}) mm, now ({after}) mm: moved {node.moved_mm:.2f} mm "
+        print(f"{name}: was ({before}) mm, now ({after}) mm: moved {node.moved_mm:.2f} mm "
               f"({node.fixes} fixes in {node.frames} frames{insertion})")
     print("dry run: nothing stored" if args.dry_run else f"{stored} nodes stored as new versions; the old positions "
           "stay on record in the session's events")

@@ -18,11 +18,12 @@ def add_session_parser(subparsers) -> None:
     info.add_argument("session", help="session file (.h5)")
     info.add_argument("--json", action="store_true", help="one JSON object on stdout")
     info.set_defaults(func=cmd_info)
-    export = commands.add_parser("export", help="write the intraop nodes (trocar frame, mm) as CSV or Slicer markups, "
-                                 "or the probe pose stream as a 3D Slicer sequence")
+    export = commands.add_parser("export", help="write the intraop nodes and landmarks (trocar frame, mm) as CSV or "
+                                 "Slicer markups, or the probe pose stream as a 3D Slicer sequence")
     export.add_argument("session", help="session file (.h5)")
     export.add_argument("--format", choices=("csv", "slicer", "slicer-sequence", "calibration"), default="csv",
-                        help="csv or slicer: the intraop nodes into the file OUT (node CSV or 3D Slicer .mrk.json); "
+                        help="csv or slicer: the intraop nodes into the file OUT (node CSV, landmarks as rows of kind "
+                        "landmark; 3D Slicer .mrk.json, landmarks in a point list of their own); "
                         "slicer-sequence: the probe poses (trocar frame) as ProbeTipToTrocar.seq.mha, 3D Slicer's "
                         "linear transform sequence, into the folder OUT; calibration: the stereo calibration the "
                         "session used, as a calibration file (.yaml)")
@@ -56,6 +57,10 @@ def cmd_info(args) -> int:
     print(f"case {info['case_id'] or '(none)'}, created {info['created_utc'] or '(unknown)'}, "
           f"format {info['format_version']}, snreg {info['snreg_version'] or '(unknown)'}")
     print(f"nodes: {info['intraop_nodes']} intraop, {info['preop_nodes']} preop; streams: {streams}")
+    if info["intraop_landmarks"] or info["preop_landmarks"]:
+        names = ", ".join(node["id"] for node in info["landmarks"])
+        print(f"landmarks: {info['intraop_landmarks']} stored in surgery{f' ({names})' if names else ''}, "
+              f"{info['preop_landmarks']} on the CT")
     camera = info["camera"]
     if camera["tracked"] or camera["lost"] or any(node["trocar_camera_mm"] is not None for node in info["nodes"]):
         mapped = ", ".join(f"{node['id']} " + ("untracked" if node["trocar_camera_mm"] is None else
@@ -97,8 +102,9 @@ def cmd_export(args) -> int:
         return 0
     from snreg.session.export import export_nodes
     check_output_file(args.output, "node file")
-    n = _guard(export_nodes, args.session, args.format, args.output)
-    print(f"wrote {n} nodes to {args.output}")
+    points = _guard(export_nodes, args.session, args.format, args.output)
+    marks = f" and {len(points.landmarks)} landmarks" if len(points.landmarks) else ""
+    print(f"wrote {len(points.nodes)} nodes{marks} to {args.output}")
     return 0
 
 

@@ -84,7 +84,6 @@ class _Step:
     points: int
     depth_mm: float          # median depth of the agreeing points now
     keyframe: Keyframe
-    rotation_deg: float      # keyframe to now
 
 
 class InsertionTracker:
@@ -141,7 +140,7 @@ class InsertionTracker:
         keyframe = self._add_keyframe(view, rotation, self.start_mm, 0.0)
         if keyframe is None:
             return self._lost("too few tissue features to start from")
-        self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe, 0.0)
+        self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe)
         self._last_index = self._index
         return InsertionEstimate(self._index, TRACKED, self.start_mm, 1.0, 0.0, 0.0, "", len(keyframe.points),
                                  keyframe.number)
@@ -239,8 +238,7 @@ class InsertionTracker:
         free = fit_free(obs, fit.rotation, fit.translation, fit.inliers)
         residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
         now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
-        return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe,
-                     float(rotation_angle_deg(fit.rotation))), ""
+        return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe), ""
 
     def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float) -> list[Keyframe]:
         """Keyframes close enough in scale and turn to follow into this view at this rotation and insertion, with

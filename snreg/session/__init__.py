@@ -4,6 +4,11 @@
 ...     s.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0])   # durable once it returns
 >>> Session.open("s.h5").intraop_nodes()                    # NodeSet, frame "trocar"
 
+Anatomical landmarks touched with the probe are intraop points of kind ``landmark`` (``add_intraop_node(name, ...,
+kind="landmark")``, :meth:`Session.intraop_landmarks`), kept, re-expressed and exported beside the nodes but never
+among them: :meth:`Session.intraop_records` and :meth:`Session.intraop_nodes` give the nodes alone. The preop
+landmarks are stored with the preop nodes (:meth:`Session.set_preop_nodes`, :meth:`Session.preop_landmarks`).
+
 Nodes, node removals (undo), calibrations, preop sets and registrations go to a write-ahead journal
 (``s.h5.journal``, fsynced) before the HDF5 file; :meth:`Session.open` merges the journal, and reads it alone
 when a kill left the HDF5 file unreadable (``Session.damaged``); ``snreg session recover`` rebuilds a clean
@@ -20,9 +25,9 @@ journal first as well. A re-expression is one journal line, so a kill during it 
 or all new, never half.
 """
 
-from snreg.session.closed import read_intraop_nodes, set_final_in_file
+from snreg.session.closed import read_intraop, set_final_in_file
 from snreg.session.schema import IntraopNode, SessionError, StoredRegistration, calibration_version, validate_case_id
 from snreg.session.session import Session
 
-__all__ = ["Session", "SessionError", "IntraopNode", "StoredRegistration", "read_intraop_nodes", "validate_case_id",
+__all__ = ["Session", "SessionError", "IntraopNode", "StoredRegistration", "read_intraop", "validate_case_id",
            "calibration_version", "set_final_in_file"]

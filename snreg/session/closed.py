@@ -1,4 +1,5 @@
-"""Work on a closed session file: read its nodes (``snreg register``), mark a registration final (review)."""
+"""Work on a closed session file: read its nodes and landmarks (``snreg register``), mark a registration final
+(review)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from pathlib import Path
 
 import h5py
 
-from snreg.nodes import NodeSet
+from snreg.nodes import NodeFile
 from snreg.session import writer
 from snreg.session.journal import Journal, journal_path
 from snreg.session.schema import SessionError
@@ -38,7 +39,7 @@ def set_final_in_file(path: str | Path, n: int | None) -> None:
         h5.flush()
 
 
-def read_intraop_nodes(path: str | Path) -> NodeSet:
-    """The intraop nodes of a session file (trocar frame, mm), for ``snreg register``."""
+def read_intraop(path: str | Path) -> NodeFile:
+    """The intraop nodes of a session file and, apart, its landmarks (trocar frame, mm), for ``snreg register``."""
     with Session.open(path) as session:
-        return session.intraop_nodes()
+        return NodeFile(session.intraop_nodes(), session.intraop_landmarks())

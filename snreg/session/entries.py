@@ -15,6 +15,8 @@ from collections.abc import Callable
 import numpy as np
 
 from snreg.chain import ChainCalibration
+from snreg.landmarks import KINDS as POINT_KINDS
+from snreg.landmarks import LANDMARK, landmark_name
 from snreg.nodes import NodeSet
 from snreg.preop.gravity import PreopDown
 from snreg.session.schema import FORMAT, StoredRegistration, stereo_from_dict
@@ -84,6 +86,22 @@ def _hex(value) -> str:
     return text
 
 
+def _point_kind(value) -> str:
+    if value not in POINT_KINDS:
+        raise EntryError(f"is {value!r}, not one of {', '.join(POINT_KINDS)}")
+    return value
+
+
+def _names_mm(value) -> dict:
+    if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+        raise EntryError("is not a record of landmark names")
+    return {k: _number(v) for k, v in value.items()}
+
+
+def _landmark_results(value) -> dict:
+    return _fields(value, {"residual_mm": _names_mm, "leave_one_out_mm": _names_mm, "suspect": _texts})
+
+
 def _optional(check: Callable):
     def optional(value):
         return None if value is None else check(value)
@@ -96,7 +114,7 @@ _NODE = {"id": lambda v: _text(v, empty=False), "label": _text, "time_ns": _inte
          "n_frames": _integer, "counts": _number, "left_jpeg": _hex, "right_jpeg": _hex,
          "earth_from_imu": _optional(_array((3, 3))), "stereo_version": _optional(_text),
          "chain_version": _optional(_text), "trocar_camera_mm": _optional(_number),
-         "cov_trocar_mm2": _optional(_array((3, 3)))}
+         "cov_trocar_mm2": _optional(_array((3, 3))), "kind": _optional(_point_kind)}
 _CHANGE = {"id": lambda v: _text(v, empty=False), "xyz_trocar": _array((3,), finite=True), "xyz_camera": _array((3,)),
            "stereo_version": _text, "chain_version": _text, "trocar_camera_mm": _optional(_number),
            "cov_trocar_mm2": _optional(_array((3, 3)))}
@@ -105,9 +123,12 @@ _REGISTRATION = {"n": _integer, "method": _text, "rms_mm": _number, "pairing_rul
                  "distances_mm": _array((-1,)), "confidence": _array((-1,)), "preop_ids": _optional(_texts),
                  "intraop_ids": _optional(_texts), "initial": _optional(_array((4, 4), finite=True)),
                  "target_error_mm": _optional(_array((-1,))), "missing": _optional(_array((-1,))),
-                 "leave_one_out_mm": _optional(_array((-1,))), "final": _optional(lambda v: bool(v))}
+                 "leave_one_out_mm": _optional(_array((-1,))), "final": _optional(lambda v: bool(v)),
+                 "landmarks": _optional(_landmark_results)}
 _DROPPED_WHEN_NULL = {"earth_from_imu", "stereo_version", "chain_version",   # null there means "not recorded"
-                      "trocar_camera_mm", "cov_trocar_mm2"}
+                      "trocar_camera_mm", "cov_trocar_mm2", "kind", "landmarks"}
+
+
 def _preop_down(value) -> dict:
     try:
         return PreopDown.from_json(value).to_json()
@@ -117,6 +138,7 @@ def _preop_down(value) -> dict:
 
 _PREOP = {"ids": _texts, "labels": _texts, "xyz": _array((-1, 3), finite=True), "counts": _optional(_array((-1,))),
           "frame": _text, "cov": _optional(_array((-1, 3, 3))), "down": _optional(_preop_down)}
+_PREOP_LANDMARKS = {"ids": _texts, "labels": _texts, "xyz": _array((-1, 3), finite=True)}
 
 
 def _fields(data, spec: dict, extra: bool = True) -> dict:
@@ -139,8 +161,14 @@ def _fields(data, spec: dict, extra: bool = True) -> dict:
 
 def check_node(data) -> dict:
     """A node in the journal's JSON form (:meth:`IntraopNode.to_json`), checked field by field: it builds an
-    :class:`IntraopNode`."""
-    return _fields(data, _NODE)
+    :class:`IntraopNode` (a landmark's id a landmark name)."""
+    data = _fields(data, _NODE)
+    if data.get("kind") == LANDMARK:
+        try:
+            landmark_name(data["id"])
+        except ValueError as err:
+            raise EntryError(f"'id' {err}") from None
+    return data
 
 
 def _event(data) -> dict:
@@ -193,10 +221,19 @@ def _preop(data) -> dict:
     data.setdefault("counts", None)                  # not given: no counts (the readers expect the key)
     data.setdefault("cov", None)                     # not given (older files): no covariances
     data.setdefault("down", None)                    # not given (older files, node files from elsewhere): unknown
+    marks = data.get("landmarks")
     try:
         NodeSet(data["ids"], data["labels"], data["xyz"], data["counts"], frame=data["frame"], cov=data["cov"])
+        if marks is not None:
+            marks = data["landmarks"] = _fields(marks, _PREOP_LANDMARKS)
+            NodeSet(marks["ids"], marks["labels"], marks["xyz"])
+            for name in marks["ids"]:
+                landmark_name(name)
+    except EntryError as err:
+        raise EntryError(f"'landmarks' {err}") from None
     except ValueError as err:
         raise EntryError(f"does not make a node set ({_short(err)})") from None
+    data.setdefault("landmarks", None)               # not given (before format 5): no preop landmarks
     return data
 
 

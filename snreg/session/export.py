@@ -11,6 +11,8 @@ import numpy as np
 
 from snreg.camera import save_calibration
 from snreg.files import atomic_write
+from snreg.landmarks import LANDMARK
+from snreg.nodes import NodeFile
 from snreg.session import Session
 from snreg.session.integrity import verify
 from snreg.session.journal import journal_path, read_journal
@@ -21,7 +23,8 @@ from snreg.session.schema import STREAM_DTYPES, SessionError, covariance_json
 def session_info(path: str | Path) -> dict:
     """JSON-ready summary: case id, creation time, versions, counts of nodes and stream rows, each intraop node's id,
     label, the insertion it was mapped with (``trocar_camera_mm``, null when untracked) and its own error's covariance
-    (``cov_trocar_mm2``, 3x3 mm^2 in the trocar frame, null when unknown), the camera stream's
+    (``cov_trocar_mm2``, 3x3 mm^2 in the trocar frame, null when unknown), the stored landmarks apart (``landmarks``,
+    the same fields, id = name; ``intraop_landmarks`` and ``preop_landmarks`` their counts), the camera stream's
     tracked and lost pairs, calibration, registrations, events by kind (e.g. ``store_refused``), the recorded videos;
     ``damaged`` also when a dataset fails its checksum or digest (``damage`` names them; the videos' SHA-256 is left
     to ``snreg session verify``)."""
@@ -34,11 +37,11 @@ def session_info(path: str | Path) -> dict:
                 "format_version": session.header.get("format_version"),
                 "snreg_version": session.header.get("snreg_version", ""),
                 "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
+                "intraop_landmarks": len(session.intraop_records(LANDMARK)),
+                "preop_landmarks": len(session.preop_landmarks()),
                 "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
-                "nodes": [{"id": node.id, "label": node.label, "trocar_camera_mm":
-                           float(node.trocar_camera_mm) if np.isfinite(node.trocar_camera_mm) else None,
-                           "cov_trocar_mm2": covariance_json(node.cov_trocar_mm2)}
-                          for node in session.intraop_records()],
+                "nodes": [_point_info(node) for node in session.intraop_records()],
+                "landmarks": [_point_info(node) for node in session.intraop_records(LANDMARK)],
                 "camera": {"tracked": tracked, "lost": int(len(camera)) - tracked},
                 "calibration": sorted(session.calibration()),
                 "registrations": [{"n": r.n, "method": r.result.method, "rms_mm": r.result.rms_mm, "final": r.final}
@@ -51,6 +54,12 @@ def session_info(path: str | Path) -> dict:
                 "journal": session.has_journal, "problems": list(session.problems)}
 
 
+def _point_info(node) -> dict:
+    return {"id": node.id, "label": node.label,
+            "trocar_camera_mm": float(node.trocar_camera_mm) if np.isfinite(node.trocar_camera_mm) else None,
+            "cov_trocar_mm2": covariance_json(node.cov_trocar_mm2)}
+
+
 def export_calibration(path: str | Path, out: str | Path) -> None:
     """Write the stereo calibration a session used as a calibration file (DESIGN.md §4 "Calibration file")."""
     with Session.open(path) as session:
@@ -60,11 +69,12 @@ def export_calibration(path: str | Path, out: str | Path) -> None:
     save_calibration(stereo, out)
 
 
-def export_nodes(path: str | Path, fmt: str, out: str | Path) -> int:
-    """Write the intraop nodes (trocar frame, mm) as node CSV or 3D Slicer markups; returns how many."""
+def export_nodes(path: str | Path, fmt: str, out: str | Path) -> NodeFile:
+    """Write the intraop nodes and, apart, the stored landmarks (trocar frame, mm) as node CSV (landmarks as rows of
+    ``kind`` landmark) or 3D Slicer markups (landmarks in their own point list); returns what was written."""
     with Session.open(path) as session:
-        nodes = session.intraop_nodes()
-    text = nodes.to_csv() if fmt == "csv" else json.dumps(nodes.to_slicer(), indent=2)
+        points = NodeFile(session.intraop_nodes(), session.intraop_landmarks())
+    text = points.to_csv() if fmt == "csv" else json.dumps(points.to_slicer(), indent=2)
     with atomic_write(out) as temporary:
         temporary.write_text(text, encoding="utf-8")
-    return len(nodes)
+    return points

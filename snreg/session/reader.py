@@ -8,6 +8,7 @@ import json
 import h5py
 import numpy as np
 
+from snreg.landmarks import NODE
 from snreg.session.schema import IntraopNode
 
 HEADER_KEYS = ("format", "format_version", "created_utc", "snreg_version", "case_id")
@@ -30,7 +31,8 @@ def read_nodes(h5: h5py.File) -> list[IntraopNode]:
                         _plain(cols["stereo_version"][k]) if "stereo_version" in cols else "",
                         _plain(cols["chain_version"][k]) if "chain_version" in cols else "",
                         float(cols["trocar_camera_mm"][k]) if "trocar_camera_mm" in cols else float("nan"),
-                        cols["cov_trocar_mm2"][k] if "cov_trocar_mm2" in cols else unknown.copy())
+                        cols["cov_trocar_mm2"][k] if "cov_trocar_mm2" in cols else unknown.copy(),
+                        _plain(cols["kind"][k]) if "kind" in cols else NODE)     # before format 5: nodes only
             for k in range(n)]
 
 
@@ -75,7 +77,17 @@ def read_preop(h5: h5py.File) -> dict | None:
             "frame": _plain(group.attrs.get("frame", "")),
             "cov": group["cov_mm2"][()].tolist() if "cov_mm2" in group else None,     # absent: none stored
             "down": ({key: _plain(group.attrs[key]) for key in _DOWN_KEYS}              # absent: unknown
-                     if all(key in group.attrs for key in _DOWN_KEYS) else None)}
+                     if all(key in group.attrs for key in _DOWN_KEYS) else None),
+            "landmarks": _preop_landmarks(group)}
+
+
+def _preop_landmarks(group: h5py.Group) -> dict | None:
+    """``nodes/preop/landmarks`` in the journal's JSON form; None when absent (none stored, or before format 5)."""
+    if "landmarks" not in group:
+        return None
+    marks = group["landmarks"]
+    return {"ids": [_plain(v) for v in marks["id"][()]], "labels": [_plain(v) for v in marks["label"][()]],
+            "xyz": marks["xyz"][()].tolist()}
 
 
 def read_registration(group: h5py.Group, n: int) -> dict:
@@ -87,6 +99,7 @@ def read_registration(group: h5py.Group, n: int) -> dict:
     for key in ("initial", "target_error_mm", "leave_one_out_mm", "missing"):   # absent in older files
         data[key] = group[key][()].tolist() if key in group else None
     data["final"] = bool(group.attrs.get("final", False))          # absent: not final (older files: none is)
+    data["landmarks"] = json.loads(_plain(group.attrs["landmarks"])) if "landmarks" in group.attrs else None
     return data
 
 

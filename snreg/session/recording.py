@@ -10,11 +10,12 @@ import time
 
 import numpy as np
 
+from snreg.landmarks import LANDMARK, NODE, kind_of, landmark_name
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
 from snreg.preop.gravity import PreopDown
 from snreg.session import writer
 from snreg.session.schema import (CAMERA_STATES, STREAM_DTYPES, IntraopNode, SessionError, covariance_json,
-                                  covariance_mm2, jpeg_bytes, position_mm, stereo_to_dict)
+                                  covariance_mm2, jpeg_bytes, landmark_results_json, position_mm, stereo_to_dict)
 from snreg.session.video import MIN_FREE_BYTES, RecorderState, StereoRecorder, VideoSegment, free_bytes, segment_files
 
 
@@ -37,18 +38,25 @@ class Recording:
                          n_frames: int = 0, counts: float = float("nan"), time_ns: int | None = None,
                          left_jpeg=b"", right_jpeg=b"", earth_from_imu=None, stereo_version: str = "",
                          chain_version: str = "", trocar_camera_mm: float = float("nan"),
-                         cov_trocar_mm2=None) -> IntraopNode:
+                         cov_trocar_mm2=None, kind: str = NODE) -> IntraopNode:
         """Store a node (positions mm; time ns on the host clock, perf_counter_ns like the streams); on disk when this returns.
 
         Snapshots are JPEG bytes or images (H, W[, 3]) uint8, encoded here. ``earth_from_imu`` (3, 3), the
         calibration versions and ``trocar_camera_mm`` (the tracked insertion it was mapped with, NaN when untracked)
         say what the node was measured with; ``cov_trocar_mm2`` (3, 3) its own error's covariance, mm^2, trocar
-        frame (None: unknown) (see :class:`IntraopNode`).
+        frame (None: unknown) (see :class:`IntraopNode`). ``kind="landmark"`` stores an anatomical landmark instead,
+        ``node_id`` its name (:func:`snreg.landmarks.landmark_name`); ids and names share one namespace.
         """
         self._writable()
-        node_id = str(node_id)
+        try:
+            kind = kind_of(kind)
+            node_id = landmark_name(node_id) if kind == LANDMARK else str(node_id)
+        except ValueError as err:
+            raise SessionError(str(err)) from None
         if node_id in self._nodes:
-            raise SessionError(f"{self.path}: node id {node_id!r} is already stored; use a new id")
+            what = "landmark" if self._nodes[node_id].kind == LANDMARK else "node"
+            raise SessionError(f"{self.path}: {what} {node_id!r} is already stored; "
+                               + ("take it back first to store it again" if kind == LANDMARK else "use a new id"))
         nan3 = np.full(3, np.nan)
         node = IntraopNode(node_id, str(label), time.perf_counter_ns() if time_ns is None else int(time_ns),
                            position_mm(xyz_trocar), nan3 if xyz_camera is None else position_mm(xyz_camera), float(spread_mm),
@@ -56,7 +64,7 @@ class Recording:
                            np.full((3, 3), np.nan) if earth_from_imu is None
                            else np.asarray(earth_from_imu, dtype=float).reshape(3, 3),
                            str(stereo_version), str(chain_version), float(trocar_camera_mm),
-                           covariance_mm2(cov_trocar_mm2))
+                           covariance_mm2(cov_trocar_mm2), kind)
         self._journal.append("node", node.to_json())
         writer.write_node(self._h5, node)
         self._h5.flush()
@@ -65,7 +73,7 @@ class Recording:
 
     @serialised
     def remove_intraop_node(self, node_id: str) -> IntraopNode:
-        """Take back a stored node (undo); durable when this returns. The journal keeps the node on record."""
+        """Take back a stored node or landmark (undo); durable when this returns. The journal keeps it on record."""
         self._writable()
         node_id = str(node_id)
         if node_id not in self._nodes:
@@ -148,13 +156,22 @@ class Recording:
         self._h5.flush()
 
     @serialised
-    def set_preop_nodes(self, nodes: NodeSet, down: PreopDown | None = None) -> None:
-        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known) and
-        what gives the down in its frame (the SPECT's patient position and the table's tilt; None: unknown)."""
+    def set_preop_nodes(self, nodes: NodeSet, landmarks: NodeSet | None = None, down: PreopDown | None = None) -> None:
+        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known), the
+        preop landmarks read with it (ids = names, in the nodes' frame; None or empty: none) and what gives the down in
+        its frame (the SPECT's patient position and the table's tilt; None: unknown). All replace what was stored: a
+        preop set given without its landmarks or its down leaves the session without them."""
         self._writable()
+        marks = None
+        if landmarks is not None and len(landmarks):
+            try:
+                names = NodeSet([landmark_name(name) for name in landmarks.ids], landmarks.labels, landmarks.xyz).ids
+            except ValueError as err:
+                raise SessionError(f"the preop landmarks cannot be stored: {err}") from None
+            marks = {"ids": names, "labels": list(landmarks.labels), "xyz": landmarks.xyz.tolist()}
         data = {"ids": nodes.ids, "labels": nodes.labels, "xyz": nodes.xyz.tolist(),
                 "counts": None if nodes.counts is None else nodes.counts.tolist(), "frame": nodes.frame,
-                "cov": None if nodes.cov is None else nodes.cov.tolist(),
+                "cov": None if nodes.cov is None else nodes.cov.tolist(), "landmarks": marks,
                 "down": None if down is None else down.to_json()}
         self._journal.append("preop", data)
         writer.write_preop(self._h5, data)
@@ -164,8 +181,8 @@ class Recording:
     @serialised
     def add_registration(self, result, preop_ids, intraop_ids) -> int:
         """Store a :class:`~snreg.registration.RegistrationResult` as ``registration/<n>`` with the ids of the preop
-        and intraop nodes it paired (so it stays readable after an undo or a re-segmentation) and the initial
-        alignment it started from; returns n."""
+        and intraop nodes it paired (so it stays readable after an undo or a re-segmentation), the initial
+        alignment it started from and, when landmarks took part, each pair's residuals and the suspects; returns n."""
         self._writable()
         preop_ids, intraop_ids = [str(i) for i in preop_ids], [str(i) for i in intraop_ids]
         pairing = np.asarray(result.pairing, dtype=int)
@@ -182,7 +199,8 @@ class Recording:
                 "pairing": pairing.tolist(), "distances_mm": np.asarray(result.distances_mm).tolist(),
                 "confidence": np.asarray(result.confidence).tolist(), "preop_ids": preop_ids,
                 "intraop_ids": intraop_ids,
-                **{name: optional(name) for name in ("initial", "target_error_mm", "missing", "leave_one_out_mm")}}
+                **{name: optional(name) for name in ("initial", "target_error_mm", "missing", "leave_one_out_mm")},
+                "landmarks": landmark_results_json(result)}
         self._journal.append("registration", data)
         writer.write_registration(self._h5, data)
         self._h5.flush()

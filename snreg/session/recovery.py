@@ -24,6 +24,7 @@ from pathlib import Path
 import h5py
 
 from snreg.files import atomic_write
+from snreg.landmarks import LANDMARK
 from snreg.session import Session, salvage
 from snreg.session.entries import checked_entries
 from snreg.session.journal import journal_path, read_journal
@@ -52,6 +53,7 @@ class Recovery:
     videos: int = 0
     problems: list[str] = field(default_factory=list)
     carried: list[str] = field(default_factory=list)      # video files linked (or copied) beside a copy elsewhere
+    landmarks: tuple[int, str] = (0, "")                  # intraop landmarks, as ``nodes``
 
     def lines(self) -> list[str]:
         """The report in words, one line each."""
@@ -63,6 +65,7 @@ class Recovery:
         lines.append("salvaged: " + "; ".join([
             part(self.nodes[0], "node(s)", self.nodes[1]), part(self.registrations[0], "registration(s)",
                                                                 self.registrations[1]),
+            *([part(self.landmarks[0], "landmark(s)", self.landmarks[1])] if self.landmarks[0] else []),
             f"{self.preop} preop node(s)", f"{self.events} event(s)"]))
         lines.append("streams from the file: " + ", ".join(f"{name} {n}" for name, n in self.streams.items())
                      + " rows")
@@ -191,7 +194,7 @@ def _write(session: Session, path: Path, target: Path, in_place: bool) -> Recove
             if (problem := salvage.stream_problem(session._h5, name, session._check)) not in (None, *session.problems)]
     return Recovery(target, backup, session.has_journal, report["nodes"], report["registrations"],
                     report["calibration"], report["preop"], report["events"], written, len(session.videos()),
-                    list(session.problems) + rows, carried)
+                    list(session.problems) + rows, carried, report["landmarks"])
 
 
 def _carry_videos(session: Session, path: Path, target: Path) -> list[str]:
@@ -220,14 +223,16 @@ def _carry_videos(session: Session, path: Path, target: Path) -> list[str]:
 def _report(session: Session, entries: list) -> dict:
     """Counts of what the session holds and where each part came from."""
     node_ids = {data["id"] for kind, data in entries if kind == "node"}
-    nodes = session.intraop_records()
+    nodes, landmarks = session.intraop_records(), session.intraop_records(LANDMARK)
     in_journal = sum(node.id in node_ids for node in nodes)
+    marks_in_journal = sum(node.id in node_ids for node in landmarks)
     registration_ns = {data["n"] for kind, data in entries if kind == "registration"}
     registrations = session.registrations()
     from_journal = sum(r.n in registration_ns for r in registrations)
     calibration_kinds = {data["kind"] for kind, data in entries if kind == "calibration"}
     preop = session.preop_nodes()
     return {"nodes": (len(nodes), _source(in_journal, len(nodes) - in_journal)),
+            "landmarks": (len(landmarks), _source(marks_in_journal, len(landmarks) - marks_in_journal)),
             "registrations": (len(registrations), _source(from_journal, len(registrations) - from_journal)),
             "calibration": tuple((kind, "journal" if kind in calibration_kinds else "file")
                                  for kind in sorted(session.calibration())),

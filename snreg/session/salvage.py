@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import h5py
 import numpy as np
 
+from snreg.landmarks import NODE
 from snreg.session import reader
 from snreg.session.entries import EntryError, check_entry, check_node
 from snreg.session import filecheck
@@ -27,7 +28,8 @@ __all__ = ["FileParts", "read_parts", "stream_rows", "stream_problem"]
 _ESSENTIAL = ("id", "label", "xyz_trocar")          # a node row is kept when these survive
 _DEFAULTS = {"time_ns": 0, "xyz_camera": [float("nan")] * 3, "spread_mm": float("nan"), "n_frames": 0,
              "counts": float("nan"), "left_jpeg": "", "right_jpeg": "", "earth_from_imu": None,
-             "stereo_version": "", "chain_version": "", "trocar_camera_mm": float("nan"), "cov_trocar_mm2": None}
+             "stereo_version": "", "chain_version": "", "trocar_camera_mm": float("nan"), "cov_trocar_mm2": None,
+             "kind": NODE}                          # files before format 5 (no kind column) hold nodes only
 
 
 @dataclass
@@ -183,8 +185,12 @@ def _nodes_by_column(group: h5py.Group, check: FileCheck | None, problems: list[
     if missing:
         problems.append(f"nodes/intraop: the {', '.join(missing)} column(s) cannot be read; no node read from the file")
         return []
-    rows = []
+    rows, unknown_kind = [], []
+    kinds, has_kind = columns.get("kind", []), _has_kind(group)
     for k in range(min(len(columns[name]) for name in _ESSENTIAL)):
+        if has_kind and (k >= len(kinds) or kinds[k] is None):
+            unknown_kind.append(k + 1)              # a landmark must never be read back as a node
+            continue
         row = {}
         for name in list(_ESSENTIAL) + list(_DEFAULTS):
             value = columns[name][k] if name in columns and k < len(columns[name]) else None
@@ -192,9 +198,20 @@ def _nodes_by_column(group: h5py.Group, check: FileCheck | None, problems: list[
         if row["earth_from_imu"] is None:
             del row["earth_from_imu"]
         rows.append(row)
+    if unknown_kind:
+        problems.append(f"nodes/intraop: rows {', '.join(map(str, unknown_kind[:5]))} left out: whether each is a node "
+                        "or a landmark cannot be read (the journal may still hold them)")
     if check is not None and not check.clean("/nodes/intraop"):
         problems.append(f"nodes/intraop: damaged ({check.cause('/nodes/intraop')}); read around the damage")
     return _checked_nodes(rows, problems)
+
+
+def _has_kind(group: h5py.Group) -> bool:
+    """Whether the node table has a ``kind`` column (format 5), readable or not."""
+    try:
+        return "kind" in group
+    except (OSError, ValueError, RuntimeError, TypeError):
+        return True
 
 
 def _plain(name: str, value):

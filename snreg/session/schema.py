@@ -16,17 +16,22 @@ import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.errors import SessionError
+from snreg.landmarks import NODE
 from snreg.registration import RegistrationResult
 
 FORMAT = "snreg-session"
-FORMAT_VERSION = 4      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (version 1 reads)
+FORMAT_VERSION = 5      # 2: nodes carry earth_from_imu and the calibration versions; an ``events`` log (1 reads)
                         # 3: Fletcher-32 on every fixed-size dataset, digests of the variable-length data, ``videos``
                         # 4: ``streams/camera`` (the tracked insertion) and each node's ``trocar_camera_mm``. Bumped
                         # because a format-3 reader would ignore both: its retrack or re-expression would map nodes
                         # stored with a tracked insertion through the chain's constant distance, and resuming the
                         # file would leave the node column short; a format-3 reader refuses a format-4 file instead.
-                        # Still 4 (unreleased when it came): each node's ``cov_trocar_mm2``, NaN when not stored; the
-                        # preop nodes' ``patient_position``, ``table_tilt_deg`` and ``tilt_entered`` (absent: unknown).
+                        # Still 4 (unreleased when it came): each node's ``cov_trocar_mm2``, NaN when not stored.
+                        # 5: intraop points of kind ``landmark`` beside the nodes (``nodes/intraop/kind``), preop
+                        # landmarks (``nodes/preop/landmarks``), registrations' landmark residuals. Bumped because a
+                        # format-4 reader would take a stored landmark for a node and register it as one.
+                        # Still 5 (unreleased when it came): the preop nodes' ``patient_position``, ``table_tilt_deg``
+                        # and ``tilt_entered`` attributes (absent: unknown).
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
@@ -80,7 +85,9 @@ class IntraopNode:
     ``trocar_camera_mm`` the camera's insertion it was mapped with, the median over its fixes while the insertion was
     tracked (NaN when unknown: tracking off, or files before format 4; the chain's own distance then mapped it);
     ``cov_trocar_mm2`` (3, 3) its own error's covariance in the trocar frame (:mod:`snreg.tracking.uncertainty`; NaN
-    when unknown: files written before it was stored, or nodes stored without the acquisition).
+    when unknown: files written before it was stored, or nodes stored without the acquisition). ``kind``: ``node``, or
+    ``landmark`` for an anatomical landmark touched with the probe (format 5), whose ``id`` is its name: stored,
+    re-expressed and exported as a node is, but never counted, paired or registered as one.
     """
 
     id: str
@@ -98,6 +105,7 @@ class IntraopNode:
     chain_version: str = ""
     trocar_camera_mm: float = float("nan")
     cov_trocar_mm2: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    kind: str = NODE
 
     def to_json(self) -> dict:
         """JSON-ready, the snapshots as hex (the journal's form)."""
@@ -108,7 +116,7 @@ class IntraopNode:
                 "earth_from_imu": np.asarray(self.earth_from_imu, dtype=float).tolist(),
                 "stereo_version": self.stereo_version, "chain_version": self.chain_version,
                 "trocar_camera_mm": float(self.trocar_camera_mm),
-                "cov_trocar_mm2": covariance_json(self.cov_trocar_mm2)}
+                "cov_trocar_mm2": covariance_json(self.cov_trocar_mm2), "kind": self.kind}
 
     @classmethod
     def from_json(cls, data: dict) -> "IntraopNode":
@@ -118,7 +126,8 @@ class IntraopNode:
                    bytes.fromhex(data["left_jpeg"]), bytes.fromhex(data["right_jpeg"]),
                    np.asarray(data.get("earth_from_imu", np.full((3, 3), np.nan)), dtype=float).reshape(3, 3),
                    str(data.get("stereo_version", "")), str(data.get("chain_version", "")),
-                   float(data.get("trocar_camera_mm", float("nan"))), covariance_mm2(data.get("cov_trocar_mm2")))
+                   float(data.get("trocar_camera_mm", float("nan"))), covariance_mm2(data.get("cov_trocar_mm2")),
+                   str(data.get("kind", NODE)))
 
     @property
     def measured_under(self) -> tuple[str, str]:
@@ -147,8 +156,28 @@ class StoredRegistration:
                                     np.asarray(data["distances_mm"]), float(data["rms_mm"]),
                                     np.asarray(data["confidence"]), data["pairing_rule"], initial=optional("initial"),
                                     target_error_mm=optional("target_error_mm"), missing=optional("missing", bool),
-                                    leave_one_out_mm=optional("leave_one_out_mm"))
+                                    leave_one_out_mm=optional("leave_one_out_mm"),
+                                    **landmark_results(data.get("landmarks")))
         return cls(int(data["n"]), result, data.get("preop_ids"), data.get("intraop_ids"), final)
+
+
+def landmark_results(data: dict | None) -> dict:
+    """A registration's landmark fields from their stored form (``{"residual_mm", "leave_one_out_mm", "suspect"}``;
+    None: no landmarks, or a file before format 5)."""
+    data = data or {}
+    return {"landmark_residual_mm": {str(k): float(v) for k, v in data.get("residual_mm", {}).items()},
+            "landmark_leave_one_out_mm": {str(k): float(v) for k, v in data.get("leave_one_out_mm", {}).items()},
+            "landmarks_suspect": [str(name) for name in data.get("suspect", [])]}
+
+
+def landmark_results_json(result) -> dict | None:
+    """The stored form of a result's landmark fields (:func:`landmark_results`); None when it had no landmarks."""
+    residual = getattr(result, "landmark_residual_mm", None) or {}
+    if not residual and not getattr(result, "landmarks_suspect", None):
+        return None
+    return {"residual_mm": {k: float(v) for k, v in residual.items()},
+            "leave_one_out_mm": {k: float(v) for k, v in (result.landmark_leave_one_out_mm or {}).items()},
+            "suspect": [str(name) for name in result.landmarks_suspect]}
 
 
 def covariance_mm2(value) -> np.ndarray:

@@ -14,7 +14,8 @@ import numpy as np
 
 from snreg import __version__
 from snreg.chain import ChainCalibration
-from snreg.nodes import NodeSet
+from snreg.landmarks import LANDMARK, NODE
+from snreg.nodes import NodeSet, no_nodes
 from snreg.preop.gravity import PreopDown
 from snreg.session import opening, reader, salvage, writer
 from snreg.session.journal import Journal, fsync_directory, journal_path
@@ -97,7 +98,7 @@ class Session(Recording):
             if merged.damaged:
                 raise SessionError(f"{path}: the HDF5 file is damaged; run 'snreg session recover' on it, "
                                    "then continue the recovered file")
-            state = (merged.header, merged.intraop_records(), dict(merged._calibration), merged._preop,
+            state = (merged.header, merged.intraop_records(kind=None), dict(merged._calibration), merged._preop,
                      list(merged._registrations), list(merged._events), merged._final, dict(merged._videos))
         header, nodes, calibration, preop, registrations, events, final, videos = state
         try:
@@ -177,19 +178,20 @@ class Session(Recording):
     def case_id(self) -> str:
         return str(self.header.get("case_id", ""))
 
-    def intraop_records(self) -> list[IntraopNode]:
-        return list(self._nodes.values())
+    def intraop_records(self, kind: str | None = NODE) -> list[IntraopNode]:
+        """The stored intraop points in the order stored: the nodes (default), the landmarks (``"landmark"``) or both
+        (None: what is re-tracked, re-expressed and copied with the nodes)."""
+        return [r for r in self._nodes.values() if kind is None or r.kind == kind]
 
     def intraop_nodes(self) -> NodeSet:
-        """The stored nodes in the trocar frame (mm); counts None when no node has any, cov (mm^2) None when no node
-        has one (a node's NaN when its own is unknown)."""
-        records = self.intraop_records()
-        counts = np.array([r.counts for r in records], dtype=float)
-        cov = np.array([r.cov_trocar_mm2 for r in records], dtype=float).reshape(-1, 3, 3)
-        return NodeSet([r.id for r in records], [r.label for r in records],
-                       np.array([r.xyz_trocar for r in records], dtype=float).reshape(-1, 3),
-                       counts if np.any(np.isfinite(counts)) else None, frame="trocar",
-                       cov=cov if np.any(np.isfinite(cov)) else None)
+        """The stored nodes in the trocar frame (mm), landmarks never among them; counts None when no node has any,
+        cov (mm^2) None when no node has one (a node's NaN when its own is unknown)."""
+        return _point_set(self.intraop_records())
+
+    def intraop_landmarks(self) -> NodeSet:
+        """The stored landmarks in the trocar frame (mm), ids = their names (empty when none); as
+        ``register(..., intraop_landmarks=)`` takes them."""
+        return _point_set(self.intraop_records(LANDMARK))
 
     def preop_nodes(self) -> NodeSet | None:
         p = self._preop
@@ -217,6 +219,12 @@ class Session(Recording):
                                f"{version}, so gravity's direction in their frame is unknown; re-express them under "
                                "the stored chain")
         return ChainCalibration.from_dict(chain).down_trocar
+    def preop_landmarks(self) -> NodeSet:
+        """The preop landmarks stored with the preop nodes (their frame, mm; ids = names); empty when none."""
+        p = self._preop or {}
+        marks = p.get("landmarks")
+        return no_nodes(p.get("frame", "")) if marks is None else NodeSet(marks["ids"], marks["labels"], marks["xyz"],
+                                                                           frame=p.get("frame", ""))
 
     def calibration(self) -> dict:
         """``{"stereo": StereoCalibration, "chain": ChainCalibration}`` for those stored."""
@@ -269,7 +277,7 @@ class Session(Recording):
         """Write everything this session holds, streams up to their first unreadable block, to a clean HDF5 file."""
         with h5py.File(path, "w") as h5:
             writer.init_file(h5, self.header)
-            for node in self.intraop_records():
+            for node in self.intraop_records(kind=None):
                 writer.write_node(h5, node)
             for kind, data in self._calibration.items():
                 writer.write_calibration(h5, kind, data)
@@ -306,3 +314,13 @@ class Session(Recording):
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _point_set(records: list[IntraopNode]) -> NodeSet:
+    """Stored points as a node set, trocar frame; counts and cov None when no point has any."""
+    counts = np.array([r.counts for r in records], dtype=float)
+    cov = np.array([r.cov_trocar_mm2 for r in records], dtype=float).reshape(-1, 3, 3)
+    return NodeSet([r.id for r in records], [r.label for r in records],
+                   np.array([r.xyz_trocar for r in records], dtype=float).reshape(-1, 3),
+                   counts if np.any(np.isfinite(counts)) else None, frame="trocar",
+                   cov=cov if np.any(np.isfinite(cov)) else None)

@@ -32,9 +32,11 @@ _NODE_FIELDS = {"id": _STR, "label": _STR, "time_ns": "<i8", "xyz_trocar": ("<f8
                 "digest": ("S64", (6,)),
                 # format 4: the insertion the node was mapped with (NaN: untracked) and the node's own error's
                 # covariance, mm^2, trocar frame (NaN: unknown)
-                "trocar_camera_mm": "<f8", "cov_trocar_mm2": ("<f8", (3, 3))}
+                "trocar_camera_mm": "<f8", "cov_trocar_mm2": ("<f8", (3, 3)),
+                # format 5: node | landmark (fixed length, so Fletcher-32 covers it)
+                "kind": "S8"}
 _FILL = {"earth_from_imu": np.nan, "stereo_version": "", "chain_version": "", "digest": b"", "trocar_camera_mm": np.nan,
-         "cov_trocar_mm2": np.nan}
+         "cov_trocar_mm2": np.nan, "kind": b"node"}
 DIGESTED = ("id", "label", "left_jpeg", "right_jpeg", "stereo_version", "chain_version")   # the digest's columns
 CHECKED = {"fletcher32": True}        # every fixed-size dataset: HDF5 verifies its chunks on every read
 
@@ -122,7 +124,8 @@ def write_node(h5: h5py.File, node: IntraopNode) -> None:
               "counts": node.counts, "left_jpeg": np.frombuffer(node.left_jpeg, np.uint8),
               "right_jpeg": np.frombuffer(node.right_jpeg, np.uint8), "earth_from_imu": node.earth_from_imu,
               "stereo_version": node.stereo_version, "chain_version": node.chain_version,
-              "trocar_camera_mm": node.trocar_camera_mm, "cov_trocar_mm2": node.cov_trocar_mm2}
+              "trocar_camera_mm": node.trocar_camera_mm, "cov_trocar_mm2": node.cov_trocar_mm2,
+              "kind": node.kind.encode("ascii")}
     values["digest"] = [row_digest([values[name]]) for name in DIGESTED]
     for name, value in values.items():
         intraop[name].resize(n + 1, axis=0)
@@ -151,8 +154,10 @@ def write_calibration(h5: h5py.File, kind: str, data: dict) -> None:
 
 def write_preop(h5: h5py.File, data: dict) -> None:
     """``nodes/preop``: ids, labels, xyz (N, 3) mm, counts (N,) and ``cov_mm2`` (N, 3, 3, each hot spot's own error
-    in the set's frame) when known; the frame as an attribute, and when known what gives the down in that frame
-    (:class:`~snreg.preop.gravity.PreopDown`: attributes ``patient_position``, ``table_tilt_deg``, ``tilt_entered``)."""
+    in the set's frame) when known; the frame as an attribute; the preop landmarks, when given, in
+    ``nodes/preop/landmarks`` (id = name, label, xyz (L, 3) mm, in the nodes' frame); when known what gives the down
+    in that frame (:class:`~snreg.preop.gravity.PreopDown`: attributes ``patient_position``, ``table_tilt_deg``,
+    ``tilt_entered``)."""
     del h5["nodes/preop"]
     group = h5.create_group("nodes/preop")
     _variable(group, "id", [str(v) for v in data["ids"]])
@@ -165,13 +170,20 @@ def write_preop(h5: h5py.File, data: dict) -> None:
     group.attrs["frame"] = data["frame"]
     for key, value in (data.get("down") or {}).items():     # PreopDown.to_json: patient position and table tilt
         group.attrs[key] = value
+    marks = data.get("landmarks")
+    if marks is not None:
+        landmarks = group.create_group("landmarks")
+        _variable(landmarks, "id", [str(v) for v in marks["ids"]])
+        _variable(landmarks, "label", [str(v) for v in marks["labels"]])
+        landmarks.create_dataset("xyz", data=np.asarray(marks["xyz"], dtype=float).reshape(-1, 3), **CHECKED)
 
 
 def write_registration(h5: h5py.File, data: dict) -> None:
     """``registration/<n>``: transform (4, 4) intraop_from_preop, pairing (the hot spot each intraop node came from,
     -1 for none), shares (another node came from the same hot spot), distances (mm), confidence, the ids of the preop
     and intraop nodes paired; when known the initial alignment (4, 4), the target-error bounds and missing flags (per
-    preop node) and the leave-one-out distances (per intraop node); method, RMS as attributes."""
+    preop node) and the leave-one-out distances (per intraop node); method, RMS as attributes; with landmarks, their
+    residuals, leave-one-out residuals and suspects as the JSON attribute ``landmarks``."""
     group = h5["registration"].create_group(str(data["n"]))
     for key in ("transform", "pairing", "distances_mm", "confidence"):
         group.create_dataset(key, data=np.asarray(data[key], dtype=int if key == "pairing" else float), **CHECKED)
@@ -186,6 +198,8 @@ def write_registration(h5: h5py.File, data: dict) -> None:
         group.create_dataset("missing", data=np.asarray(data["missing"], dtype=bool), **CHECKED)
     for key in ("method", "rms_mm", "pairing_rule"):
         group.attrs[key] = data[key]
+    if data.get("landmarks") is not None:
+        group.attrs["landmarks"] = json.dumps(data["landmarks"], allow_nan=True)
 
 
 def write_final(h5: h5py.File, n: int | None) -> None:

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from snreg import geometry
-from snreg.labels import LANDMARKS
+from snreg.landmarks import LANDMARKS
 
 __all__ = ["LANDMARK_POSITIONS_MM", "ANATOMY_SD_MM", "with_landmarks", "landmark_order"]
 

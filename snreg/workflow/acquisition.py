@@ -14,7 +14,11 @@ window is not full, its newest fix is stale (the probe is out of view), the IMU 
 acquisition runs without an IMU by choice) or the window spreads over the limit (:class:`StoreLimits`, 2 mm by
 default); a store within ``duplicate_mm`` of a stored node needs ``confirmed=True``
 (:class:`~snreg.errors.StoreNeedsConfirmation` names that node). Auto-store keeps its stricter rule (held still
-within ``STILL_SPREAD_MM``, over ``AUTO_STORE_SEPARATION_MM`` from every node) on top of the guard.
+within ``STILL_SPREAD_MM``, over ``AUTO_STORE_SEPARATION_MM`` from every stored node and landmark) on top of the guard.
+
+Store landmark (issue 29) stores the window as an anatomical landmark (kind ``landmark``, id = its name, provenance as
+a node's) under the same guard; a landmark of that name already stored asks first, and confirmed, the new one replaces
+it (the old stays on record: journal, ``landmark_replaced`` event). Undo takes back the last stored, node or landmark.
 
 With insertion tracking (``insertion``, issue 27) each pair is mapped with the chain at the camera's insertion at that
 pair (:class:`~snreg.workflow.insertion.CameraInsertion`), the insertion goes to ``streams/camera`` and a node
@@ -36,8 +40,8 @@ from scipy.spatial.transform import Rotation
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration, camera_from_probe, camera_to_trocar, trocar_from_probe
 from snreg.errors import StoreError, StoreNeedsConfirmation, StoreRefused
-from snreg.imu.monitor import STALE_AFTER_S
 from snreg.imu.protocol import ImuSample
+from snreg.landmarks import LANDMARK, NODE, landmark_name
 from snreg.odometry import InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, calibration_version
@@ -46,6 +50,7 @@ from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
 from snreg.tracking.uncertainty import NodeUncertainty, node_covariance
 from snreg.workflow.insertion import CameraInsertion, InsertionStep, insertion_text
+from snreg.workflow.store_guard import StoreCheck, StoreLimits, nearest_node, same_landmark
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
            "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT", "video_text"]
@@ -55,39 +60,6 @@ STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below 
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
 IMU_ABSENT = "absent"            # the IMU state of a rig run without one (chosen in the device dialog)
 VIDEO_START_WAIT_S = 10.0        # for the video encoder to start before the first frame (it runs in its own process)
-
-
-@dataclass(frozen=True)
-class StoreLimits:
-    """When a manual store is refused or asks first: spread over ``max_spread_mm`` (the app's setting), newest fix
-    older than ``fix_stale_s``, an IMU sample farther than ``imu_stale_s`` from a fix's frame; within
-    ``duplicate_mm`` of a stored node it asks."""
-
-    max_spread_mm: float = 2.0
-    duplicate_mm: float = 5.0
-    fix_stale_s: float = 1.0
-    imu_stale_s: float = STALE_AFTER_S
-
-
-@dataclass(frozen=True, eq=False)
-class StoreCheck:
-    """Whether Store SN would store now: ``refusal`` (one sentence, "" when it would), ``overridable`` when the
-    operator may store anyway (only the insertion's refusal is), and the stored node within the duplicate distance
-    (``near``, None when none) and how far it is (mm)."""
-
-    refusal: str
-    near: IntraopNode | None = None
-    near_mm: float = float("nan")
-    overridable: bool = False
-
-    @property
-    def question(self) -> str:
-        """The confirmation to ask when a stored node is near, naming it; "" otherwise."""
-        if self.near is None:
-            return ""
-        label = f" ({self.near.label})" if self.near.label else ""
-        return (f"{self.near.id}{label} is already stored {self.near_mm:.1f} mm from here. "
-                f"Store this as a new node anyway?")
 
 
 @dataclass(frozen=True, eq=False)
@@ -266,6 +238,17 @@ class Acquisition:
     def check_store(self, window=None) -> StoreCheck:
         """Whether Store SN would store now, and if not why (in words); the near node when one is. ``window``: the
         store window's summary when the caller has it already."""
+        return self._check(window, lambda here: nearest_node(self.session.intraop_records(), here,
+                                                             self.limits.duplicate_mm))
+
+    def check_landmark(self, name: str, window=None) -> StoreCheck:
+        """Whether Store landmark would store ``name`` now: Store SN's guard, and the landmark of that name when one
+        is stored (``near``, to ask about first)."""
+        return self._check(window, lambda here: same_landmark(self.session.intraop_records(LANDMARK), name, here))
+
+    def _check(self, window, near: Callable[[np.ndarray], StoreCheck]) -> StoreCheck:
+        """The guard's refusal in words, else ``near`` at the window's median (with the insertion's overridable
+        refusal when the camera may have moved)."""
         n, needed = len(self._fixes), self.fixes_per_node
         if n < needed:
             return StoreCheck(f"only {n} of {needed} valid fixes so far; hold the probe on the node")
@@ -281,9 +264,9 @@ class Acquisition:
         if window.spread_mm > self.limits.max_spread_mm:
             return StoreCheck(f"the probe moved: the last {needed} fixes spread {window.spread_mm:.1f} mm (limit "
                               f"{self.limits.max_spread_mm:.1f} mm); hold it still on the node")
-        near = self._nearest(window.xyz)
+        found = near(window.xyz)
         moved = self.insertion.store_refusal() if self.insertion is not None else ""
-        return replace(near, refusal=moved, overridable=True) if moved else near
+        return replace(found, refusal=moved, overridable=True) if moved else found
 
     def store(self, node_id: str, label: str, *, counts: float = float("nan"), left_jpeg=b"", right_jpeg=b"",
               confirmed: bool = False, trigger: str = "", override: bool = False) -> IntraopNode:
@@ -294,14 +277,39 @@ class Acquisition:
         says, unless the refusal is overridable and ``override`` is True (the node is stored and a ``store_override``
         event keeps the refusal); :class:`StoreNeedsConfirmation` when a stored node is near and ``confirmed`` is
         False. Snapshots are JPEG bytes or BGR images."""
-        check = self.check_store()
+        return self._store(self.check_store(), str(node_id), label, NODE, counts, left_jpeg, right_jpeg, confirmed,
+                           trigger, override)
+
+    def store_landmark(self, name: str, *, left_jpeg=b"", right_jpeg=b"", confirmed: bool = False, trigger: str = "",
+                       override: bool = False) -> IntraopNode:
+        """The median of the store window as the anatomical landmark ``name`` (kind landmark, id = the name as
+        :func:`~snreg.landmarks.landmark_name` keeps it), stored and guarded as :meth:`store` stores a node;
+        :class:`StoreError` when the name is missing or not a landmark name; :class:`StoreNeedsConfirmation` when a
+        landmark of that name is stored and ``confirmed`` is False; confirmed, this one replaces it."""
+        try:
+            name = landmark_name(name)
+        except ValueError as err:
+            raise StoreError(f"{err}; pick one of the preop landmarks or type its name") from None
+        return self._store(self.check_landmark(name), name, "", LANDMARK, float("nan"), left_jpeg, right_jpeg,
+                           confirmed, trigger, override)
+
+    def _store(self, check: StoreCheck, node_id: str, label: str, kind: str, counts: float, left_jpeg, right_jpeg,
+               confirmed: bool, trigger: str, override: bool) -> IntraopNode:
+        """Store the window as ``node_id`` of ``kind`` once ``check`` allows it (refusals and confirmations as
+        :meth:`store` says; a confirmed landmark replaces the stored one of its name)."""
         overriding = bool(check.refusal) and check.overridable and override
         if check.refusal and not overriding:
-            self.session.log_event("store_refused", reason=check.refusal, trigger=str(trigger), node_id=str(node_id),
-                                   **({"overridable": True} if check.overridable else {}))
+            self.session.log_event("store_refused", reason=check.refusal, trigger=str(trigger), node_id=node_id,
+                                   **({"overridable": True} if check.overridable else {}),
+                                   **({"landmark": True} if kind == LANDMARK else {}))
             raise StoreRefused(check.refusal, overridable=check.overridable)
         if check.near is not None and not confirmed:
             raise StoreNeedsConfirmation(check.question, check.near.id)
+        if kind == LANDMARK and check.near is not None:
+            self.session.remove_intraop_node(node_id)
+            self.session.log_event("landmark_replaced", node_id=node_id, distance_mm=round(check.near_mm, 2),
+                                   old_xyz_trocar=[round(float(v), 3) for v in check.near.xyz_trocar],
+                                   trigger=str(trigger))
         camera = summarise(np.array([f.camera for f in self._fixes]))
         trocar = summarise(np.array([f.trocar for f in self._fixes]))
         orientation = Rotation.from_quat(np.array([f.quat_xyzw for f in self._fixes])).mean().as_matrix()
@@ -312,10 +320,11 @@ class Acquisition:
                                              right_jpeg=right_jpeg, earth_from_imu=orientation,
                                              stereo_version=self.stereo_version, chain_version=self.chain_version,
                                              trocar_camera_mm=insertion,
-                                             cov_trocar_mm2=self._covariance(camera.xyz, orientation, insertion))
+                                             cov_trocar_mm2=self._covariance(camera.xyz, orientation, insertion),
+                                             kind=kind)
         if overriding:
             self.session.log_event("store_override", node_id=node.id, reason=check.refusal, trigger=str(trigger))
-        if check.near is not None:
+        if check.near is not None and kind == NODE:
             self.session.log_event("store_near_confirmed", node_id=node.id, near=check.near.id,
                                    distance_mm=round(check.near_mm, 2), trigger=str(trigger))
         self._stored_here.append(node.id)
@@ -331,8 +340,9 @@ class Acquisition:
                                insertion_sd_mm=float(np.median(slide)) if np.isfinite(slide).all() else None)
 
     def undo(self) -> IntraopNode:
-        """Take back the node stored last (in this run, else the session's last); :class:`StoreError` if none."""
-        stored = [n.id for n in self.session.intraop_records()]
+        """Take back the node or landmark stored last (in this run, else the session's last); :class:`StoreError` if
+        none. A landmark that replaced another is taken back alone: the one it replaced stays on record only."""
+        stored = [n.id for n in self.session.intraop_records(kind=None)]
         while self._stored_here and self._stored_here[-1] not in stored:
             self._stored_here.pop()
         target = self._stored_here.pop() if self._stored_here else (stored[-1] if stored else None)
@@ -356,19 +366,10 @@ class Acquisition:
                     "mapped into the trocar frame; reconnect the IMU and store again")
         return ""
 
-    def _nearest(self, here: np.ndarray) -> StoreCheck:
-        records = self.session.intraop_records()
-        if not records:
-            return StoreCheck("")
-        distances = np.linalg.norm(np.array([r.xyz_trocar for r in records]) - here, axis=1)
-        k = int(np.argmin(distances))
-        if distances[k] > self.limits.duplicate_mm:
-            return StoreCheck("")
-        return StoreCheck("", records[k], float(distances[k]))
-
     def _away_from_stored(self, here: np.ndarray) -> bool:
-        """Auto-store rule, for a full and still window with median ``here``: away from every stored node."""
-        stored = [node.xyz_trocar for node in self.session.intraop_records()]
+        """Auto-store rule, for a full and still window with median ``here``: away from every stored node and landmark
+        (the probe resting on a landmark just stored is not a new node)."""
+        stored = [node.xyz_trocar for node in self.session.intraop_records(kind=None)]
         return not stored or float(np.min(np.linalg.norm(np.array(stored) - here, axis=1))) > AUTO_STORE_SEPARATION_MM
 
     def _window_trocar(self):

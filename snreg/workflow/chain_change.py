@@ -98,7 +98,7 @@ def calibration_change(session: Session, stereo: StereoCalibration, chain: Chain
     previous = calibration_version(stereo_to_dict(previous_stereo)) if previous_stereo is not None else None
     distances = {version: known.trocar_camera_mm for version, known in _chains(session, chain, previous_chain).items()}
     movable, stuck, starts = [], [], {}
-    for node in session.intraop_records():
+    for node in session.intraop_records(kind=None):
         if node.measured_under == (stereo_version, chain_version):
             continue
         tracked = np.isfinite(node.trocar_camera_mm)
@@ -147,7 +147,7 @@ def reexpress(session: Session, stereo: StereoCalibration, chain: ChainCalibrati
                                            trocar_camera_mm=insertion,
                                            cov_trocar_mm2=_carried(node, chains.get(node.chain_version), mapping)))
     session.reexpress_nodes(updated, reason=change.message)
-    stored = {node.id: node for node in session.intraop_records()}
+    stored = {node.id: node for node in session.intraop_records(kind=None)}
     return [stored[node.id] for node in updated]
 
 

@@ -12,13 +12,14 @@ Threads: the feeding methods (:meth:`LiveLink.show_frame`, :meth:`~LiveLink.add_
 state under a lock and wake the server thread, without a socket call; they are safe from any thread. The server
 thread owns every socket: it accepts clients, packs what changed and writes without blocking. Per client, only the
 newest message of each device waits (latest wins), so a client that stalls holds at most one message per device
-and is dropped after ``stall_drop_s`` without progress; one that connects gets the node lists, the registration
-and the status at once; probe poses are sent only while someone listens.
+and is dropped after ``stall_drop_s`` without progress; one that connects gets the node and landmark lists, the
+registration and the status at once; probe poses are sent only while someone listens. Stored landmarks (points of
+kind ``landmark``) go to ``IntraopLandmarks``, never to ``IntraopNodes``.
 
 >>> link = LiveLink(18944)                  # LiveLinkError when the port is taken
 >>> link.wait_for_client(30.0)             # True once Slicer (or any OpenIGTLink client) is connected
 >>> link.show_frame(outcome)                # per processed frame (a FrameOutcome)
->>> link.add_node(node); link.set_registration(result)
+>>> link.add_node(node); link.set_registration(result)    # a stored landmark: add_node too, by its kind
 >>> link.close()                            # sends what is queued (up to a second), then closes
 """
 
@@ -30,12 +31,13 @@ import selectors
 import socket
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
 from snreg.errors import LiveLinkError
+from snreg.landmarks import LANDMARK, NODE
 from snreg.workflow import live_messages as msg
+from snreg.workflow.live_client import Client, LinkStats
 from snreg.workflow.live_door import MAX_CLIENTS, Door
 
 __all__ = ["LiveLink", "LinkStats", "LiveLinkError", "STALL_DROP_S", "SEND_BUFFER_BYTES", "MAX_CLIENTS"]
@@ -45,66 +47,11 @@ log = logging.getLogger(__name__)
 STALL_DROP_S = 10.0             # a client that takes nothing for this long while messages wait is dropped
 STATUS_PERIOD_S = 1.0           # the Status string is recomputed (and sent if it changed) this often
 SEND_BUFFER_BYTES = 8 * 1024    # per client (Linux doubles it): bounds how stale the poses a slow reader gets can be
-_STATE = (msg.INTRAOP_NODES, msg.PREOP_NODES, msg.TROCAR_TO_RAS, msg.STATUS)   # re-sent whole to every new client
+_STATE = (msg.INTRAOP_NODES, msg.PREOP_NODES, msg.INTRAOP_LANDMARKS, msg.PREOP_LANDMARKS, msg.TROCAR_TO_RAS,
+          msg.STATUS)                                  # re-sent whole to every new client
+_STORED = (msg.INTRAOP_NODES, msg.INTRAOP_LANDMARKS)     # the stored points' lists, by kind
+_PREOP = (msg.PREOP_NODES, msg.PREOP_LANDMARKS)
 _LISTEN, _WAKE = "listen", "wake"
-
-
-@dataclass(frozen=True)
-class LinkStats:
-    """Clients now, messages waiting for them now (at most one per device and client), and counters since the start:
-    clients ever, messages written whole, messages replaced by a newer one of their device before a client took
-    them (latest wins), clients dropped for stalling or gone, connections refused (over ``max_clients``, or when the
-    process ran out of file descriptors), and the CPU seconds the server thread has used (packing and writing: the
-    link's own cost besides the callers' calls)."""
-
-    clients: int
-    waiting: int
-    clients_seen: int
-    messages_sent: int
-    messages_replaced: int
-    dropped_stalled: int
-    disconnected: int
-    refused: int
-    cpu_s: float
-
-
-class _Client:
-    """One connection, owned by the server thread: the message being written and the newest waiting per device."""
-
-    def __init__(self, sock: socket.socket, address: str):
-        self.sock, self.address = sock, address
-        self.outbox: dict[str, bytes] = {}
-        self.current: memoryview | None = None
-        self.blocked_since: float | None = None
-
-    @property
-    def waiting(self) -> bool:
-        return self.current is not None or bool(self.outbox)
-
-    def queue(self, device: str, payload: bytes) -> bool:
-        """Make ``payload`` the next message of ``device``; True when it replaced one not yet taken."""
-        replaced = self.outbox.pop(device, None) is not None
-        self.outbox[device] = payload
-        return replaced
-
-    def write(self, now: float) -> int:
-        """Write what the socket takes now; returns the messages completed. OSError when the client is gone."""
-        done = 0
-        while self.waiting:
-            if self.current is None:
-                device = next(iter(self.outbox))
-                self.current = memoryview(self.outbox.pop(device))
-            try:
-                sent = self.sock.send(self.current)
-            except (BlockingIOError, InterruptedError):
-                sent = 0
-            if sent == 0:
-                self.blocked_since = self.blocked_since or now
-                return done
-            self.blocked_since = None
-            self.current = self.current[sent:] if sent < len(self.current) else None
-            done += self.current is None
-        return done
 
 
 class LiveLink:
@@ -138,11 +85,11 @@ class LiveLink:
         self._lock = threading.Lock()
         self._pending: dict[str, object] = {}          # device -> what to pack next (latest wins); under _lock
         self._woken = False
-        self._nodes: dict[str, np.ndarray] = {}        # stored nodes by id, trocar frame
+        self._points = {device: {} for device in _STORED}   # stored nodes and landmarks by id, trocar frame
         self._action = "link started"
         self._frames = self._fixes = 0
         self._last_frame = None
-        self._clients: list[_Client] = []               # server thread only
+        self._clients: list[Client] = []               # server thread only
         self._client_count = self._waiting = 0
         self._current: dict[str, bytes] = {}           # the packed state, server thread only
         self._counts = dict(clients_seen=0, messages_sent=0, messages_replaced=0, dropped_stalled=0, disconnected=0)
@@ -150,7 +97,8 @@ class LiveLink:
         self._connected = threading.Event()
         self._drained = threading.Event()
         self._closing = False
-        self._offer(msg.INTRAOP_NODES, ([], np.zeros((0, 3))))    # a client always gets the list, empty or not
+        for device in _STORED:                             # a client always gets the lists, empty or not
+            self._offer(device, ([], np.zeros((0, 3))))
         self._offer(msg.STATUS, True)
         self._thread = threading.Thread(target=self._serve, name="snreg-live-link", daemon=True)
         self._thread.start()
@@ -179,29 +127,41 @@ class LiveLink:
         self._offer(msg.PROBE_POSE, (np.array(pose, dtype=float), time.time()))
 
     def set_intraop_nodes(self, records) -> None:
-        """All stored nodes (objects with ``id`` and ``xyz_trocar``), e.g. those of a continued session."""
+        """All stored points (objects with ``id``, ``xyz_trocar`` and ``kind``: nodes and landmarks apart), e.g. those
+        of a continued session (``session.intraop_records(kind=None)``)."""
         with self._lock:
-            self._nodes = {str(r.id): np.array(r.xyz_trocar, dtype=float) for r in records}
-        self._offer_nodes(f"{len(self._nodes)} stored nodes loaded")
+            for device in _STORED:
+                self._points[device] = {}
+            for r in records:
+                self._points[_stored_device(r)][str(r.id)] = np.array(r.xyz_trocar, dtype=float)
+            counts = [len(self._points[device]) for device in _STORED]
+        self._offer_points(msg.INTRAOP_LANDMARKS)
+        self._offer_points(msg.INTRAOP_NODES, f"{counts[0]} stored nodes and {counts[1]} landmarks loaded")
 
     def add_node(self, node) -> None:
-        """A node just stored (an :class:`~snreg.session.IntraopNode`)."""
+        """A node or landmark just stored (an :class:`~snreg.session.IntraopNode`; its ``kind`` says which list)."""
+        device = _stored_device(node)
         with self._lock:
-            self._nodes[str(node.id)] = np.array(node.xyz_trocar, dtype=float)
+            self._points[device][str(node.id)] = np.array(node.xyz_trocar, dtype=float)
         label = getattr(node, "label", "")
-        self._offer_nodes(f"stored {node.id}" + (f" ({label})" if label else ""))
+        what = f"landmark {node.id}" if device == msg.INTRAOP_LANDMARKS else str(node.id)
+        self._offer_points(device, f"stored {what}" + (f" ({label})" if label else ""))
 
     def remove_node(self, node) -> None:
-        """A node taken back (undo)."""
+        """A node or landmark taken back (undo)."""
+        device = _stored_device(node)
         with self._lock:
-            self._nodes.pop(str(node.id), None)
-        self._offer_nodes(f"undid {node.id}")
+            self._points[device].pop(str(node.id), None)
+        self._offer_points(device, f"undid {'landmark ' if device == msg.INTRAOP_LANDMARKS else ''}{node.id}")
 
     def set_preop_nodes(self, nodes) -> None:
         """The preop nodes (a :class:`~snreg.nodes.NodeSet` in patient LPS, mm), sent in RAS; None clears them."""
-        ids = [] if nodes is None else [str(i) for i in nodes.ids]
-        xyz = np.zeros((0, 3)) if nodes is None else np.array(nodes.xyz, dtype=float).reshape(-1, 3)
-        self._offer(msg.PREOP_NODES, (ids, xyz), f"preop nodes: {len(ids)}")
+        self._offer_preop(msg.PREOP_NODES, nodes, "preop nodes")
+
+    def set_preop_landmarks(self, landmarks) -> None:
+        """The preop landmarks (a :class:`~snreg.nodes.NodeSet` in patient LPS, mm, ids = names), sent in RAS as
+        ``PreopLandmarks``; None clears them."""
+        self._offer_preop(msg.PREOP_LANDMARKS, landmarks, "preop landmarks")
 
     def set_registration(self, result, pairs: str = "") -> None:
         """A registration done (a :class:`~snreg.registration.RegistrationResult`): ``TrocarToRas`` from its transform,
@@ -242,10 +202,16 @@ class LiveLink:
         self.close()
 
     # -- internals: callers' side ------------------------------------------------------------
-    def _offer_nodes(self, action: str) -> None:
+    def _offer_points(self, device: str, action: str | None = None) -> None:
         with self._lock:
-            ids, xyz = list(self._nodes), np.array(list(self._nodes.values())).reshape(-1, 3)
-        self._offer(msg.INTRAOP_NODES, (ids, xyz), action)
+            points = self._points[device]
+            ids, xyz = list(points), np.array(list(points.values())).reshape(-1, 3)
+        self._offer(device, (ids, xyz), action)
+
+    def _offer_preop(self, device: str, nodes, what: str) -> None:
+        ids = [] if nodes is None else [str(i) for i in nodes.ids]
+        xyz = np.zeros((0, 3)) if nodes is None else np.array(nodes.xyz, dtype=float).reshape(-1, 3)
+        self._offer(device, (ids, xyz), f"{what}: {len(ids)}")
 
     def _offer(self, device: str, data, action: str | None = None) -> None:
         with self._lock:
@@ -271,7 +237,7 @@ class LiveLink:
         selector = selectors.DefaultSelector()
         selector.register(self._listener, selectors.EVENT_READ, _LISTEN)
         selector.register(self._wake_r, selectors.EVENT_READ, _WAKE)
-        self._health = _Health()
+        self._health = msg.StreamHealth()
         next_status = time.monotonic() + STATUS_PERIOD_S
         try:
             while not self._closing:
@@ -310,7 +276,7 @@ class LiveLink:
             except OSError:
                 sock.close()
                 continue
-            client = _Client(sock, address)
+            client = Client(sock, address)
             for device in _STATE:
                 if device in self._current:
                     client.queue(device, self._current[device])
@@ -319,7 +285,7 @@ class LiveLink:
             self._set_count(+1)
             self._connected.set()
 
-    def _read(self, selector, client: _Client) -> None:
+    def _read(self, selector, client: Client) -> None:
         """Take and ignore what a client sends (Slicer may query or echo); an empty read means it has gone."""
         try:
             data = client.sock.recv(65536)
@@ -333,11 +299,11 @@ class LiveLink:
     def _distribute(self, now: float) -> None:
         with self._lock:
             pending, self._pending, self._woken = self._pending, {}, False
-            frames, fixes, last_frame, action, n_nodes = self._frames, self._fixes, self._last_frame, self._action, \
-                len(self._nodes)
+            frames, fixes, last_frame, action = self._frames, self._fixes, self._last_frame, self._action
+            n_nodes, n_landmarks = (len(self._points[device]) for device in _STORED)
         for device, data in pending.items():
             try:
-                payload = self._pack(device, data, now, frames, fixes, last_frame, action, n_nodes)
+                payload = self._pack(device, data, now, frames, fixes, last_frame, action, n_nodes, n_landmarks)
             except (ValueError, TypeError) as err:                  # bad data from a caller: say so, keep serving
                 log.warning("live link: %s not sent: %s", device, err)
                 continue
@@ -349,16 +315,17 @@ class LiveLink:
                 if client.queue(device, payload):
                     self._count("messages_replaced")
 
-    def _pack(self, device, data, now, frames, fixes, last_frame, action, n_nodes) -> bytes | None:
+    def _pack(self, device, data, now, frames, fixes, last_frame, action, n_nodes, n_landmarks) -> bytes | None:
         if device == msg.PROBE_POSE:
             return msg.probe_pose(*data)
-        if device == msg.INTRAOP_NODES:
-            return msg.point_list(msg.INTRAOP_NODES, *data)
-        if device == msg.PREOP_NODES:
-            return msg.preop_points(*data)
+        if device in _STORED:
+            return msg.point_list(device, *data)
+        if device in _PREOP:
+            return msg.preop_points(*data, device=device)
         if device == msg.TROCAR_TO_RAS:
             return msg.trocar_to_ras(data)
-        text = f"{self._health.describe(now, frames, fixes, last_frame)}; {n_nodes} stored; last: {action}"
+        landmarks = f", {n_landmarks} landmark{'s' if n_landmarks != 1 else ''}" if n_landmarks else ""
+        text = f"{self._health.describe(now, frames, fixes, last_frame)}; {n_nodes} stored{landmarks}; last: {action}"
         if self._current.get(msg.STATUS) is not None and text == self._health.last_text:
             return None
         self._health.last_text = text
@@ -385,7 +352,7 @@ class LiveLink:
             if not self._pending and not waiting:
                 self._drained.set()
 
-    def _drop(self, selector, client: _Client, reason: str | None) -> None:
+    def _drop(self, selector, client: Client, reason: str | None) -> None:
         self._clients.remove(client)
         selector.unregister(client.sock)
         client.sock.close()
@@ -416,20 +383,6 @@ class LiveLink:
                 log.exception("live link: the on_clients callback failed")
 
 
-class _Health:
-    """The stream-health words of ``Status``: frame rate and how often the probe was found since the last time."""
-
-    def __init__(self):
-        self.last_text = ""
-        self._t, self._frames, self._fixes = time.monotonic(), 0, 0
-
-    def describe(self, now: float, frames: int, fixes: int, last_frame: float | None) -> str:
-        span, new_frames, new_fixes = now - self._t, frames - self._frames, fixes - self._fixes
-        if span < 0.5 and self.last_text:                   # too soon for a rate: keep the words as they were
-            return self.last_text.split(";")[0]
-        self._t, self._frames, self._fixes = now, frames, fixes
-        if last_frame is None:
-            return "waiting for frames"
-        if new_frames == 0:
-            return f"no frames for {now - last_frame:.0f} s"
-        return f"video {new_frames / span:.1f} fps, probe found in {100.0 * new_fixes / new_frames:.0f}% of frames"
+def _stored_device(point) -> str:
+    """The list a stored point goes to by its ``kind`` (objects without one are nodes)."""
+    return msg.INTRAOP_LANDMARKS if getattr(point, "kind", NODE) == LANDMARK else msg.INTRAOP_NODES

@@ -34,6 +34,9 @@ EXPORTS = {"pairs": ("pairing CSV", "CSV (*.csv)", (".csv",)),
 class RunRequest:
     """One registration as chosen in the panel; ``session`` set only when the result is to be stored.
 
+    ``preop_landmarks``/``intraop_landmarks``: the landmarks to pair by name (ids = names; None: none), in the app the
+    preop landmarks read with the preop nodes (stored with them when ``store_preop``) and the session's
+    (:meth:`~snreg.session.Session.intraop_landmarks`); ``landmark_sd_mm`` their own error, sd per axis.
     ``gravity``: start from the two downs (:func:`~snreg.workflow.registration_start.session_gravity`), searching every
     heading, instead of ``initial`` (the typed angles, then ignored); ``preop_down``: what gives the preop nodes' down
     (the SPECT's patient position and the table's tilt), stored with them when ``store_preop``."""
@@ -47,6 +50,9 @@ class RunRequest:
     max_translation_mm: float
     session: Session | None = None
     store_preop: bool = False
+    preop_landmarks: NodeSet | None = None
+    intraop_landmarks: NodeSet | None = None
+    landmark_sd_mm: float = 2.0
     gravity: GravityStart | None = None
     preop_down: PreopDown | None = None
 
@@ -58,7 +64,8 @@ class RunRequest:
 
 @dataclass(frozen=True)
 class RunRecord:
-    """A result with the node sets it pairs, and what happened to it in the session (one sentence, or "")."""
+    """A result with the node sets it pairs (and the landmarks it was given, None for none), and what happened to it
+    in the session (one sentence, or "")."""
 
     preop: NodeSet
     intraop: NodeSet
@@ -66,6 +73,8 @@ class RunRecord:
     note: str = ""
     stored: bool = False
     final_n: int | None = None          # the session's registration number when this is the one marked final
+    preop_landmarks: NodeSet | None = None
+    intraop_landmarks: NodeSet | None = None
     start: str = ""                     # where the search started, in words ("" for a stored result)
 
 
@@ -86,7 +95,8 @@ def final_record(session: Session) -> RunRecord | None:
     keep = [intraop.ids.index(i) for i in stored.intraop_ids]
     paired = NodeSet(stored.intraop_ids, [intraop.labels[k] for k in keep], intraop.xyz[keep],
                      None if intraop.counts is None else intraop.counts[keep], frame=intraop.frame)
-    return RunRecord(preop, paired, stored.result, f"Registration {n}, marked final.", True, n)
+    return RunRecord(preop, paired, stored.result, f"Registration {n}, marked final.", True, n,
+                     session.preop_landmarks(), session.intraop_landmarks())
 
 
 def run_registration(request: RunRequest) -> RunRecord:
@@ -96,24 +106,28 @@ def run_registration(request: RunRequest) -> RunRecord:
     record = _run(request)
     if request.session is None:
         return record
-    stored = {node.id: node for node in request.session.intraop_records()}
-    mixed = mixed_calibration_note([stored[i] for i in request.intraop.ids if i in stored])
+    stored = {node.id: node for node in request.session.intraop_records(kind=None)}
+    used = request.intraop.ids + ([] if request.intraop_landmarks is None else request.intraop_landmarks.ids)
+    mixed = mixed_calibration_note([stored[i] for i in used if i in stored])
     return replace(record, note=f"{mixed} {record.note}".strip()) if mixed else record
 
 
 def _run(request: RunRequest) -> RunRecord:
     labels = (request.preop.labels, request.intraop.labels) if request.use_labels else (None, None)
+    marks = [None if m is None or not len(m) else m for m in (request.preop_landmarks, request.intraop_landmarks)]
     gravity = request.gravity
     result = register(request.preop.xyz, request.intraop.xyz, method=request.method, preop_labels=labels[0],
                       intraop_labels=labels[1], initial=request.initial if gravity is None else None,
                       max_rotation_deg=request.max_rotation_deg, max_translation_mm=request.max_translation_mm,
+                      preop_landmarks=marks[0], intraop_landmarks=marks[1], landmark_sd_mm=request.landmark_sd_mm,
                       down=None if gravity is None else gravity.down)
-    record = RunRecord(request.preop, request.intraop, result, start=request.start)
+    record = RunRecord(request.preop, request.intraop, result, preop_landmarks=request.preop_landmarks,
+                       intraop_landmarks=request.intraop_landmarks, start=request.start)
     if request.session is None:
         return record
     try:
         if request.store_preop:
-            request.session.set_preop_nodes(request.preop, down=request.preop_down)
+            request.session.set_preop_nodes(request.preop, request.preop_landmarks, down=request.preop_down)
         n = request.session.add_registration(result, request.preop.ids, request.intraop.ids)
     except SessionError:
         return replace(record, note="Review session: the result is shown but not stored (the file is open for "
@@ -142,8 +156,9 @@ def report_context(session: Session | None) -> ReportContext:
 
 
 def export_file(kind: str, path: str, record: RunRecord, context: ReportContext | None = None) -> Path:
-    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups or ``report`` PNG (with
-    its sidecar JSON, both carrying ``context``: :func:`report_context`).
+    """Write one export of ``record`` (worker thread): ``pairs`` CSV, ``slicer`` markups (the preop nodes mapped into
+    the intraop frame, and the preop landmarks so mapped in a point list of their own) or ``report`` PNG (with its
+    sidecar JSON, both carrying ``context``: :func:`report_context`).
 
     Written beside the target under a hidden name and then renamed, so a reader (3D Slicer, a script watching
     the folder) never sees a half-written file and a failed export leaves no file."""
@@ -158,7 +173,9 @@ def export_file(kind: str, path: str, record: RunRecord, context: ReportContext 
                 partial.write_text(f"# registration: {final}\n" + partial.read_text(encoding="utf-8"), encoding="utf-8")
         elif kind == "slicer":
             mapped = mapped_preop(record.preop, record.result)
-            write_nodes(replace(mapped, comments=mapped.comments + [final] if final else mapped.comments), partial)
+            marks = None if record.preop_landmarks is None else mapped_preop(record.preop_landmarks, record.result)
+            write_nodes(replace(mapped, comments=mapped.comments + [final] if final else mapped.comments), partial,
+                        landmarks=marks)
         else:
             shown = replace(record.preop, ids=shown_preop_ids(record.preop.ids, record.intraop.ids))   # "P:SN4"
             context = replace(context or ReportContext(), final_registration=record.final_n)

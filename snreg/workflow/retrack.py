@@ -21,7 +21,7 @@ fixes, its insertion the median over them (NaN while no pair up to it was tracke
 then), its covariance computed anew from the new fixes (:func:`~snreg.tracking.uncertainty.node_covariance` with its
 default magnitudes, the insertion's sd as tracked); :func:`store_retracked` keeps them as a new version of the node
 (the old values stay on record in the session's events, as any re-expression). The session's ``streams/camera``
-keeps what was tracked live.
+keeps what was tracked live. Stored landmarks are re-tracked as nodes are (their ``kind`` in the output).
 
 >>> result = retrack("s.h5", calibration=load_calibration("corrected.yaml"))
 >>> [(node.id, node.moved_mm) for node in result.nodes]
@@ -78,7 +78,8 @@ class RetrackedNode:
             return None if value is None else [round(float(v), 4) for v in value]
         def mm(value):
             return round(float(value), 4) if np.isfinite(value) else None
-        return {"id": self.node.id, "label": self.node.label, "before_mm": xyz(self.node.xyz_trocar),
+        return {"id": self.node.id, "kind": self.node.kind, "label": self.node.label,
+                "before_mm": xyz(self.node.xyz_trocar),
                 "after_mm": xyz(self.after_trocar), "moved_mm": None if self.after_trocar is None else
                 round(self.moved_mm, 4), "before_camera_mm": xyz(self.node.xyz_camera),
                 "after_camera_mm": xyz(self.after_camera), "before_trocar_camera_mm": mm(self.node.trocar_camera_mm),
@@ -133,7 +134,7 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
     with Session.open(path) as session:
         stored = session.calibration()
         segments = session.videos()
-        nodes = session.intraop_records()
+        nodes = session.intraop_records(kind=None)
         frames, probe_rows, imu, camera = (_rows(session.stream(name)) for name in ("frames", "probe", "imu", "camera"))
     if not segments:
         raise SessionError(f"{path}: the session has no recorded video; only sessions recorded with video can be "

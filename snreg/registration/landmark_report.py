@@ -1,0 +1,62 @@
+"""A registration's landmark pairs in rows and in words, the same on every screen (command line, app, review).
+
+Why: a landmark pair enters the fit as a known correspondence, so a wrong one (a name given to the wrong vessel, a
+bifurcation that moved) must never be trusted silently (issue 29). Every screen shows each pair's residual and
+leave-one-out residual, names the pairs the registration left out as contradicting the rest
+(``landmarks_suspect``), and names the landmarks that took no part because they were given on one side only.
+
+>>> for row in landmark_rows(result): print(row.name, row.residual_mm, row.suspect)
+>>> for text in landmark_notes(result, preop.landmarks.ids, intraop.landmarks.ids): print(text)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["LandmarkRow", "landmark_rows", "unpaired_landmarks", "landmark_notes"]
+
+
+@dataclass(frozen=True)
+class LandmarkRow:
+    """One landmark pair: its residual at the registration, mm; its residual when the nodes and the other pairs alone
+    register (NaN when too few points remain); whether it was left out as contradicting the rest."""
+
+    name: str
+    residual_mm: float
+    leave_one_out_mm: float
+    suspect: bool
+
+    def as_json(self) -> dict:
+        """For JSON output: NaN as null, mm rounded to 3 decimals."""
+        def mm(value: float):
+            return None if math.isnan(value) else round(value, 3)
+        return {"name": self.name, "residual_mm": mm(self.residual_mm),
+                "leave_one_out_mm": mm(self.leave_one_out_mm), "suspect": self.suspect}
+
+
+def landmark_rows(result) -> list[LandmarkRow]:
+    """One :class:`LandmarkRow` per landmark pair of a :class:`~snreg.registration.RegistrationResult`, by name."""
+    loo = result.landmark_leave_one_out_mm or {}
+    suspects = set(result.landmarks_suspect or ())
+    return [LandmarkRow(name, float(mm), float(loo.get(name, math.nan)), name in suspects)
+            for name, mm in sorted((result.landmark_residual_mm or {}).items())]
+
+
+def unpaired_landmarks(preop_names, intraop_names) -> dict[str, list[str]]:
+    """The landmark names given on one side only: ``{"preop": [...], "intraop": [...]}``, each sorted."""
+    preop, intraop = set(preop_names or ()), set(intraop_names or ())
+    return {"preop": sorted(preop - intraop), "intraop": sorted(intraop - preop)}
+
+
+def landmark_notes(result, preop_names=(), intraop_names=()) -> list[str]:
+    """One sentence per suspect pair and per landmark that took no part, saying what to check."""
+    notes = [f"landmark {row.name!r} contradicts the nodes and the other landmarks ({row.residual_mm:.1f} mm off): "
+             "a wrong name, or a vessel that moved; it was left out of the fit, check it on the CT and in surgery"
+             for row in landmark_rows(result) if row.suspect]
+    unpaired = unpaired_landmarks(preop_names, intraop_names)
+    notes += [f"landmark {name!r} is on the CT only: touch it with the probe and store it to use it"
+              for name in unpaired["preop"]]
+    notes += [f"landmark {name!r} was stored in surgery but is not among the CT's landmarks: check its name"
+              for name in unpaired["intraop"]]
+    return notes
