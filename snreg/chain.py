@@ -17,6 +17,10 @@ Frames: the trocar frame has its origin at the pivot and, in the reference pose
 turned by the least rotation that does so (none for a camera looking along the shaft): the camera at
 ``z = +trocar_camera_mm``, the IMU at ``z = -imu_trocar_mm`` (the thesis's Fig 8B counts d upwards).
 
+Gravity: the IMU's earth frame (imufusion's NWU, :mod:`snreg.imu.fusion`) has z up, so gravity points along
+``EARTH_DOWN`` in it and along :attr:`ChainCalibration.down_trocar` in the trocar frame. A 6-axis IMU's heading drifts
+about that very axis, so the drift never moves the down; the down is one vector for every node a chain maps.
+
 The IMU-trocar distance cancels in the product: the camera sits at ``-R_camera(t) p_camera`` from the
 pivot whatever the IMU's lever, so only the trocar-camera distance and the rotations matter, and the
 7 cm spread of the thesis's arc method (§4.1, Table 2) cannot reach the nodes as long as one value
@@ -34,12 +38,14 @@ from scipy.spatial.transform import Rotation
 from snreg.files import read_text_file
 from snreg.geometry import apply, make_transform
 
-__all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "ChainCalibration", "reference_rotation", "trocar_from_imu",
-           "trocar_from_camera", "camera_from_probe", "trocar_from_probe", "camera_to_trocar", "read_chain_file"]
+__all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "EARTH_DOWN", "ChainCalibration", "reference_rotation",
+           "trocar_from_imu", "trocar_from_camera", "camera_from_probe", "trocar_from_probe", "camera_to_trocar",
+           "read_chain_file"]
 
 # thesis §4.1: the IMU-trocar distance measured by hand, and the trocar-camera distance it measured (mm)
 THESIS_IMU_TROCAR_MM = 460.0
 THESIS_TROCAR_CAMERA_MM = 158.0
+EARTH_DOWN = np.array([0.0, 0.0, -1.0])     # gravity in the IMU's earth frame (z up: at rest the accelerometer reads +1 g)
 
 _TRANSFORMS = ("imu_from_camera", "trocar_from_earth")
 _ORTHONORMAL_TOL = 1e-6
@@ -99,6 +105,12 @@ class ChainCalibration:
         """(3,) unit direction of the shaft into the patient (IMU to camera) in the camera frame."""
         shaft = self.imu_from_camera[:3, 3]
         return self.imu_from_camera[:3, :3].T @ shaft / np.linalg.norm(shaft)
+
+    @property
+    def down_trocar(self) -> np.ndarray:
+        """(3,) unit: gravity's direction in the trocar frame, ``trocar_from_earth @ EARTH_DOWN`` (the intraop down a
+        registration from gravity starts from; identity reference: (0, 0, -1))."""
+        return self.trocar_from_earth[:3, :3] @ EARTH_DOWN
 
     def with_insertion(self, trocar_camera_mm: float) -> "ChainCalibration":
         """The same chain with the camera ``trocar_camera_mm`` from the pivot along its shaft (the camera slid

@@ -153,3 +153,26 @@ def test_chain_rejects_bad_input():
         camera_to_trocar(chain, np.diag([1.0, 1.0, -1.0]), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="positive"):
         ChainCalibration.manual(460.0, 0.0)
+
+
+def test_gravity_in_the_trocar_frame_is_the_imus_down_through_the_reference():
+    """The IMU's earth frame has z up (at rest the accelerometer reads +1 g up), so down is EARTH_DOWN there and
+    ``trocar_from_earth @ EARTH_DOWN`` in the trocar frame: at the reference pose, gravity as the camera sees it."""
+    from snreg.chain import EARTH_DOWN
+    from snreg.demo.imu_motion import MotionProfile, still
+    from snreg.demo.imu_simulator import ImuSimulator
+    from snreg.imu.fusion import fuse_arrays
+
+    np.testing.assert_array_equal(ChainCalibration.manual().down_trocar, [0.0, 0.0, -1.0])     # identity reference
+    held = Rotation.from_euler("ZYX", [0.0, 12.0, -97.0], degrees=True)          # an endoscope looking near level
+    readings = ImuSimulator(MotionProfile([still(1.0)], held), seed=1).readings(208 * 6)
+    fused = Rotation.from_euler("ZYX", fuse_arrays(readings.t_s, readings.gyro_dps, readings.accel_g)[-1], degrees=True)
+    up = readings.accel_g[-400:].mean(axis=0)
+    np.testing.assert_allclose(fused.apply(-up / np.linalg.norm(up)), EARTH_DOWN, atol=2e-3)
+    chain = ChainCalibration.manual().with_reference(fused)
+    np.testing.assert_allclose(chain.down_trocar, held.inv().apply(EARTH_DOWN), atol=2e-3)
+    # pivoting moves the camera, not the trocar frame: gravity seen from the turned camera, carried back, is the same
+    turned = Rotation.from_euler("xyz", [8.0, -15.0, 30.0], degrees=True)
+    camera_down = (held * turned).inv().apply(EARTH_DOWN)
+    np.testing.assert_allclose(trocar_from_camera(chain, held * turned)[:3, :3] @ camera_down, chain.down_trocar,
+                               atol=1e-9)

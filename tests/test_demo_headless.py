@@ -3,11 +3,14 @@
 import json
 
 import numpy as np
+import pytest
 
-from snreg.chain import ChainCalibration
+from snreg.chain import ChainCalibration, camera_to_trocar
 from snreg.cli import main
-from snreg.demo.phantom import rough_alignment, setup_patient_from_trocar, true_sources_lps
-from snreg.geometry import apply, invert, rotation_angle_deg
+from snreg.demo.phantom import (PATIENT_POSITION, TABLE_TILT_DEG, TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation,
+                                rough_alignment, setup_patient_from_trocar, still_demo_chain, true_sources_lps)
+from snreg.geometry import apply, euler_from_rotation, invert, rotation_angle_deg
+from snreg.preop.gravity import PreopDown
 from snreg.session import Session
 
 
@@ -23,6 +26,7 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     assert all(np.linalg.norm(np.subtract(node["xyz_trocar"], node["truth_trocar"])) < 1.5 for node in out["nodes"])
     assert all(np.linalg.eigvalsh(node["cov_trocar_mm2"]).min() > 0 for node in out["nodes"])
     with Session.open(path) as session:
+        assert session.preop_down() == PreopDown("HFS")                # kept with the preop nodes
         assert session.preop_nodes().cov.shape == (4, 3, 3)          # each hot spot's own, from the segmentation
         assert session.intraop_nodes().ids == ["SN1", "SN2", "SN3", "SN4"]
         assert session.preop_nodes().ids == ["P1", "P2", "P3", "P4"]    # never mistaken for the intraop SN1...
@@ -32,6 +36,13 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
         assert set(session.calibration()) == {"stereo", "chain"}
         assert all(len(node.left_jpeg) > 0 for node in session.intraop_records())
     assert (tmp_path / "demo-spect.dcm").exists()
+    # the default path needs no typed angle: the SPECT's nodes, then the session, from gravity
+    assert main(["preop", str(tmp_path / "demo-spect.dcm"), "-o", str(tmp_path / "p.csv")]) == 0
+    assert "table tilt 30 deg head down (default)" in capsys.readouterr().out
+    assert main(["register", str(tmp_path / "p.csv"), str(path), "--json"]) == 0
+    registered = json.loads(capsys.readouterr().out)
+    assert registered["start"]["kind"] == "gravity"
+    assert {n["id"]: n["preop_id"] for n in registered["nodes"]} == {n["id"]: n["preop"] for n in out["nodes"]}
 
 
 def test_demo_refuses_without_headless_and_an_existing_session(tmp_path, capsys):
@@ -45,7 +56,8 @@ def test_demo_refuses_without_headless_and_an_existing_session(tmp_path, capsys)
 
 
 def test_the_rough_alignment_is_rough_but_within_the_search_bounds():
-    """The operator's set-up guess differs from the truth by a few degrees and millimetres, inside +-60 deg/mm."""
+    """The operator's set-up guess (the error budget's start) differs from the truth by a few degrees and millimetres,
+    inside +-60 deg/mm."""
     tips = np.array([[-40.0, 0.0, 80.0], [-10.0, 5.0, 90.0], [-12.0, 15.0, 110.0], [-42.0, 12.0, 100.0]])
     chain = ChainCalibration.manual()
     preop = true_sources_lps(tips, chain)
@@ -56,3 +68,22 @@ def test_the_rough_alignment_is_rough_but_within_the_search_bounds():
     assert 3.0 < angle < 60.0
     np.testing.assert_allclose(apply(truth, preop), trocar, atol=1e-9)
     assert np.linalg.norm(apply(initial, preop).mean(axis=0) - trocar.mean(axis=0)) < 1e-9
+
+
+def test_the_demos_downs_agree_and_the_trocar_frame_is_the_camera_frame_shifted():
+    """The still endoscope's IMU is held as it lies in the supine patient on the table tilted 27 degrees head down, the
+    chain referenced there: the trocar frame is the camera's shifted along the shaft (the tests' ground truth), and
+    gravity in it, carried into the patient by the true set-up, is 3 degrees from what HFS and the entered 30 say."""
+    tips = np.array([[-40.0, 0.0, 80.0], [-10.0, 5.0, 90.0], [-12.0, 15.0, 110.0], [-42.0, 12.0, 100.0]])
+    imu = endoscope_orientation()
+    chain = still_demo_chain(imu)
+    trocar = tips + [0.0, 0.0, chain.trocar_camera_mm]
+    np.testing.assert_allclose(camera_to_trocar(chain, imu, tips), trocar, atol=1e-9)
+    patient_from_trocar = setup_patient_from_trocar(TRUE_TILT_DEG, TRUE_TURN_DEG)
+    np.testing.assert_allclose(apply(patient_from_trocar, trocar), true_sources_lps(tips, chain, earth_from_imu=imu),
+                               atol=1e-9)
+    true_down = patient_from_trocar[:3, :3] @ chain.down_trocar
+    np.testing.assert_allclose(true_down, PreopDown(PATIENT_POSITION, TABLE_TILT_DEG).vector, atol=1e-12)
+    entered = PreopDown(PATIENT_POSITION).vector                              # snreg's default tilt, 30
+    assert np.degrees(np.arccos(true_down @ entered)) == pytest.approx(30.0 - TABLE_TILT_DEG)
+    assert euler_from_rotation(imu)[0] == pytest.approx(0.0, abs=1e-9)       # the AHRS starts its heading at 0

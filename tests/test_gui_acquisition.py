@@ -84,7 +84,7 @@ def test_store_nodes_in_demo(qtbot, demo_window):
     assert [n.id for n in nodes] == ["SN1", "SN2"]
     for node, node_index in zip(nodes, (first, second)):
         truth_camera = rig.scene.truth_tip(node_index)
-        truth_trocar = truth_camera + [0.0, 0.0, rig.chain.trocar_camera_mm]     # IMU still and level
+        truth_trocar = truth_camera + [0.0, 0.0, rig.chain.trocar_camera_mm]     # IMU still at the chain's reference
         assert np.linalg.norm(node.xyz_camera - truth_camera) < 1.5
         assert np.linalg.norm(node.xyz_trocar - truth_trocar) < 2.0
         assert node.spread_mm < 1.0 and node.n_frames == FIXES

@@ -37,8 +37,7 @@ def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     session = window.session
     records = session.intraop_records()
     tips = np.array([rig.scene.truth_tip(k) for k in range(4)])
-    from snreg.demo.phantom import true_sources_lps
-    sources = true_sources_lps(tips, rig.chain)
+    sources = rig.phantom_sources_lps()
     preop = panel.preop_box.nodes.xyz
     for k, node in enumerate(records):
         source = int(np.argmin(np.linalg.norm(tips - node.xyz_camera, axis=1)))

@@ -52,3 +52,25 @@ def test_the_still_simulator_streams_level_samples_and_stops_when_its_parent_end
     parent.communicate("0\n", timeout=10)                      # the "app" ends
     assert wait_for(lambda: ended(child_pid), 10.0)
     assert not link.exists()                                   # it cleaned up as on Ctrl-C
+
+
+def test_the_still_simulator_holds_the_attitude_it_is_given(tmp_path):
+    """``--attitude``: the demo rig's endoscope held as it lies in the patient, the accelerometer reading up."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    link = tmp_path / "imu"
+    child = subprocess.Popen([sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--attitude=0,8,-95",
+                              "--port-link", str(link)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        assert wait_for(link.exists, 30.0)
+        with serial.Serial(str(link), 230400, timeout=0.2) as port:
+            decoder, samples, end = StreamDecoder(), [], time.monotonic() + 15.0
+            while time.monotonic() < end and len(samples) < 20:
+                samples += [item for item in decoder.feed(port.read(4096), time.perf_counter_ns())
+                            if hasattr(item, "accel_g")]
+    finally:
+        child.terminate()
+        child.wait(10)
+    up = Rotation.from_euler("ZYX", [0.0, 8.0, -95.0], degrees=True).inv().apply([0.0, 0.0, 1.0])
+    assert len(samples) >= 20 and all(np.linalg.norm(np.asarray(s.accel_g) - up) < 0.05 for s in samples)

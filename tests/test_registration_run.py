@@ -71,7 +71,7 @@ def test_the_preop_set_is_saved_once_and_a_run_stores_it_with_the_result(case, t
     with Session.create(tmp_path / "s.h5", case_id="c") as session:
         writes = []
         original = session.set_preop_nodes
-        session.set_preop_nodes = lambda nodes, marks=None: (writes.append(nodes.ids), original(nodes, marks))
+        session.set_preop_nodes = lambda nodes, marks=None, **kw: (writes.append(nodes.ids), original(nodes, marks, **kw))
         assert save_preop(session, preop) == "" and save_preop(session, preop) == ""
         assert len(writes) == 1                                       # the same set again: nothing written
         stored = session.preop_nodes()

@@ -171,7 +171,7 @@ def _registered_session(tmp_path, swap=False):
     names = [RIGHT, AORTA, LEFT] if swap else marks.ids
     for name, xyz in zip(names, marks.xyz @ turn.T + rng.normal(0, 1, (3, 3))):
         session.add_intraop_node(name, "", xyz, kind="landmark")
-    request = RunRequest(preop, session.intraop_nodes(), "global", False, np.eye(4), 60.0, 60.0, session, True,
+    request = RunRequest(preop, session.intraop_nodes(), "global", False, np.eye(4), 60.0, 60.0, session,
                          marks, session.intraop_landmarks())
     return path, session, run_registration(request)
 

@@ -21,7 +21,7 @@ from snreg.errors import UserError
 from snreg.files import atomic_write
 
 __all__ = ["Parser", "floats", "ints", "positive_int", "non_negative_int", "int_range", "float_range", "workers", "seed",
-           "positive_float", "finite_float",
+           "positive_float", "finite_float", "down_vector",
            "fraction", "image_size", "depth_range", "check_output_file", "check_output_folder", "writing", "write_text",
            "read_initial", "session_initial", "progress"]
 
@@ -154,6 +154,16 @@ def fraction(text: str) -> float:
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a fraction from 0 to 1, got {text!r}")
     return value
+
+
+def down_vector(text: str) -> tuple[float, float, float]:
+    """``X,Y,Z``: gravity's direction in a frame, three finite numbers not all zero (any length: only the direction
+    counts)."""
+    values = floats(text)
+    if len(values) != 3 or not any(values):
+        raise argparse.ArgumentTypeError(f"expected a direction X,Y,Z pointing down: three finite numbers, not all zero "
+                                         f"(e.g. 0,1,0), got {text!r}")
+    return values
 
 
 def image_size(text: str) -> tuple[int, int]:

@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 
-from snreg.cli.common import check_output_file, float_range, fraction, int_range, positive_int, seed, writing
+from snreg.cli.common import check_output_file, float_range, floats, fraction, int_range, positive_int, seed, writing
 from snreg.errors import UserError
 
 __all__ = ["add_imu_parser", "cmd_imu_monitor", "cmd_imu_simulate"]
@@ -48,6 +48,9 @@ def add_imu_parser(subparsers) -> None:
     s.add_argument("--dropout", type=fraction, default=0.0, help="fraction of samples skipped")
     s.add_argument("--still", action="store_true", help="hold the sensor still and level instead of the protractor "
                    "moves (the demo rig's still endoscope)")
+    s.add_argument("--attitude", type=floats, metavar="YAW,PITCH,ROLL",
+                   help="with --still: hold the sensor at this orientation instead of level (degrees, earth from "
+                        "sensor, z up, R = Rz Ry Rx as the IMU reports it; the demo rig's endoscope in its patient)")
     s.add_argument("--motion", metavar="FILE", help="play the motion profile in this JSON file (segments, initial "
                    "orientation, repeat; as snreg.demo.imu_motion.MotionProfile.to_dict writes it) instead")
     s.add_argument("--hold", type=float_range(0, MAX_SECONDS, "s", low_open=False), default=0.0, metavar="S",
@@ -148,6 +151,8 @@ def _monitor(reader, log: _AngleLog, seconds: float | None):
 
 
 def cmd_imu_simulate(args) -> int:
+    from scipy.spatial.transform import Rotation
+
     from snreg.demo.imu_motion import MotionProfile, protractor_profile, read_motion_file, still
     from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
 
@@ -161,6 +166,8 @@ def cmd_imu_simulate(args) -> int:
     if args.replay and (args.hold or args.epoch_file):
         raise UserError("--hold and --epoch-file do not apply to --replay, which keeps the recording's times; "
                         "drop them")
+    if args.attitude is not None and (not args.still or len(args.attitude) != 3):
+        raise UserError("--attitude holds the still sensor at YAW,PITCH,ROLL degrees: give three numbers, with --still")
     epoch_file = check_output_file(args.epoch_file, "epoch") if args.epoch_file else None
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
@@ -174,7 +181,10 @@ def cmd_imu_simulate(args) -> int:
             if args.motion:
                 motion, what = read_motion_file(args.motion), f"the motion of {args.motion}"
             elif args.still:
-                motion, what = MotionProfile([still(1.0)]), "held still and level"
+                attitude = None if args.attitude is None else Rotation.from_euler("ZYX", args.attitude, degrees=True)
+                motion = MotionProfile([still(1.0)], attitude)
+                what = "held still and " + ("level" if attitude is None else
+                                            "at yaw, pitch, roll " + ", ".join(f"{v:g}" for v in args.attitude))
             else:
                 motion, what = protractor_profile(repeat=True), "protractor moves (1, 5, 10 deg about y and z)"
             source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed)

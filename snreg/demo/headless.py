@@ -5,7 +5,8 @@ frame source and tracked, a simulated IMU on a pseudo-terminal read through pyse
 camera-to-trocar chain, nodes auto-stored into a crash-safe session (the probe held still on each
 source; the "technician" types the label written on the phantom), the phantom's SPECT written as NM
 DICOM, read back and segmented, and the preop nodes registered to the stored ones with ``global``
-from the operator's rough set-up alignment (:mod:`snreg.demo.phantom`).
+from gravity (:mod:`snreg.workflow.registration_start`: the SPECT's patient position and the table tilt the team
+enters, snreg's default; the IMU through the chain's reference), with no angle typed (:mod:`snreg.demo.phantom`).
 
 With a live link (:class:`snreg.workflow.live_link.LiveLink`) the run feeds it as the app does: every processed
 frame, every stored node, the preop nodes once segmented and the registration; the seconds the loop spends in those
@@ -20,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from snreg.demo.phantom import PHANTOM_LABELS, rough_alignment
+from snreg.demo.phantom import PHANTOM_LABELS
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
 from snreg.odometry import InsertionTracker
+from snreg.preop.gravity import volume_down
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
@@ -31,6 +33,7 @@ from snreg.registration.naming import pairs_line
 from snreg.registration.report import pair_table
 from snreg.session import Session
 from snreg.workflow.acquisition import Acquisition, ImuReading
+from snreg.workflow.registration_start import session_gravity
 
 N_NODES = len(NODE_CENTRES_MM)
 _IMU_WAIT_S = 5.0
@@ -128,11 +131,11 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
             spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
-            session.set_preop_nodes(preop)
+            session.set_preop_nodes(preop, down=volume_down(volume))
             feed("set_preop_nodes", preop)
             intraop = session.intraop_nodes()
             result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
-                              intraop_labels=intraop.labels, initial=rough_alignment(preop.xyz, intraop.xyz), seed=seed)
+                              intraop_labels=intraop.labels, down=session_gravity(session).down, seed=seed)
             session.add_registration(result, preop.ids, intraop.ids)
             feed("set_registration", result, pairs_line(preop, intraop, result))
     finally:

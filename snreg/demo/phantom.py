@@ -1,15 +1,18 @@
-"""The demo phantom in the patient: where its four sources lie on the SPECT, their labels, and the rough
-set-up alignment registration starts from.
+"""The demo phantom in the patient: where its four sources lie on the SPECT, their labels, and how the patient and
+the endoscope lie on the operating table, and the operator's rough set-up alignment the error budget starts from.
 
 Why: the phantom experiment (thesis §4.2) registers a SPECT of the phantom to the nodes stored with the
 probe. The demo needs that SPECT with a known truth: the four sources sit where the rendered probe tip
-rests (trocar frame, IMU level), carried into patient coordinates (LPS mm) by a set-up pose that a real
-operating room would only know roughly. The operator's rough alignment (the thesis' MATLAB tool) is the
-standard port placement, :func:`setup_patient_from_trocar` at the nominal tilt, with the centroids matched.
+rests (trocar frame), carried into patient coordinates (LPS mm) by a set-up pose that a real operating room would
+only know roughly (:func:`setup_patient_from_trocar`). The registration finds its own start from gravity: the SPECT is
+written with the patient supine (``PATIENT_POSITION``), the table is tilted head down (``TABLE_TILT_DEG``, a few
+degrees from the 30 the team enters), and the still endoscope's IMU is held as the endoscope lies in that tilted
+patient (:func:`endoscope_orientation`), with the chain's reference there (:func:`still_demo_chain`), so the trocar
+frame is the camera frame shifted along the shaft, as before.
 
 Set-up geometry: patient supine, the endoscope entering near the umbilicus and looking caudally into the
-pelvis, tilted ``tilt_deg`` below the horizontal, image "up" anterior, so the image's right is the
-patient's right (LPS -x) and the camera's y axis points posteriorly.
+pelvis, tilted ``tilt_deg`` below the patient's coronal plane (the horizontal of a level table), image "up" anterior,
+so the image's right is the patient's right (LPS -x) and the camera's y axis points posteriorly.
 """
 
 from __future__ import annotations
@@ -29,6 +32,10 @@ PHANTOM_LABELS = ("EXT L", "EXT R", "OBT R", "OBT L")
 TRUE_TILT_DEG, TRUE_TURN_DEG = 34.0, 7.0          # the set-up as it happened
 NOMINAL_TILT_DEG = 30.0                           # the set-up as the operator assumes it
 TROCAR_LPS_MM = np.array([0.0, -110.0, 210.0])    # the pivot point near the umbilicus
+PATIENT_POSITION = "HFS"                          # supine, head first: on the scanner and on the operating table
+TABLE_TILT_DEG = 27.0                             # the table's head-down tilt as it happened (the team enters 30)
+# the patient on a level table in the IMU's earth frame (x north, y west, z up): head north, posterior down
+_EARTH_FROM_LEVEL_LPS = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 def setup_patient_from_trocar(tilt_deg: float, turn_deg: float = 0.0, trocar_lps=TROCAR_LPS_MM) -> np.ndarray:
@@ -38,6 +45,28 @@ def setup_patient_from_trocar(tilt_deg: float, turn_deg: float = 0.0, trocar_lps
     axes = np.column_stack([[-1.0, 0.0, 0.0], [0.0, np.cos(t), np.sin(t)], [0.0, np.sin(t), -np.cos(t)]])
     turn = Rotation.from_euler("y", turn_deg, degrees=True).as_matrix()
     return make_transform(turn @ axes, trocar_lps)
+
+
+def earth_from_patient(table_tilt_deg: float = TABLE_TILT_DEG) -> np.ndarray:
+    """(3, 3) the supine patient (LPS) in the IMU's earth frame on a table tilted ``table_tilt_deg`` head down: the head
+    goes down, so gravity gains a superior component (as :mod:`snreg.preop.gravity` has it for HFS)."""
+    return Rotation.from_euler("y", table_tilt_deg, degrees=True).as_matrix() @ _EARTH_FROM_LEVEL_LPS
+
+
+def endoscope_orientation(setup_deg: tuple[float, float] = (TRUE_TILT_DEG, TRUE_TURN_DEG),
+                          table_tilt_deg: float = TABLE_TILT_DEG) -> np.ndarray:
+    """(3, 3) ``earth_from_imu`` of the still endoscope (IMU axes the camera's, the camera along the trocar axis) at the
+    set-up (tilt, turn) in the patient on the tilted table; headed so the IMU's yaw is 0, as the AHRS starts it (it has
+    no compass)."""
+    earth_from_camera = earth_from_patient(table_tilt_deg) @ setup_patient_from_trocar(*setup_deg)[:3, :3]
+    yaw = Rotation.from_matrix(earth_from_camera).as_euler("ZYX")[0]
+    return Rotation.from_euler("z", -yaw).as_matrix() @ earth_from_camera
+
+
+def still_demo_chain(earth_from_imu: np.ndarray) -> ChainCalibration:
+    """The thesis' manual chain with its reference at the still endoscope's orientation (as a trocar calibration there
+    would set it): the trocar frame is the camera frame shifted along the shaft, and gravity is seen in it."""
+    return ChainCalibration.manual().with_reference(earth_from_imu)
 
 
 def true_sources_lps(truth_tips_camera: np.ndarray, chain: ChainCalibration, *,
@@ -57,11 +86,13 @@ def write_phantom_spect(sources_lps: np.ndarray, path: str | Path, seed: int = 0
     :func:`~snreg.demo.spect.spect_of_nodes`' ``fwhm_mm`` and ``peak_counts`` (an error model's)."""
     centre = np.asarray(sources_lps, float).mean(axis=0)
     counts, origin = spect_of_nodes(sources_lps, centre=centre, seed=seed, voxel_mm=voxel_mm, **spect)
-    return write_nm(counts, origin, voxel_mm, Path(path), patient_id="PHANTOM-DEMO", patient_name="PHANTOM^DEMO")[0]
+    return write_nm(counts, origin, voxel_mm, Path(path), patient_id="PHANTOM-DEMO", patient_name="PHANTOM^DEMO",
+                    patient_position=PATIENT_POSITION)[0]
 
 
 def rough_alignment(preop_lps: np.ndarray, intraop_trocar: np.ndarray) -> np.ndarray:
-    """(4, 4) ``intraop_from_preop`` as an operator would set it: the nominal set-up rotation, centroids matched."""
+    """(4, 4) ``intraop_from_preop`` as an operator would set it: the nominal set-up rotation, centroids matched (the
+    error budget's start; the demo itself starts from gravity)."""
     rotation = invert(setup_patient_from_trocar(NOMINAL_TILT_DEG))[:3, :3]
     shift = np.mean(intraop_trocar, axis=0) - rotation @ np.mean(preop_lps, axis=0)
     return make_transform(rotation, shift)

@@ -7,13 +7,15 @@ chain), only with rendered frames and a simulated IMU. The IMU simulator runs as
 does not compete with the GUI for the interpreter. The session file is not the rig's: whoever runs
 it (the app, the headless demo) creates it.
 
-``camera="still"``: the phantom of :mod:`snreg.demo.scene`; the IMU is held still and level (``--still``), so the
-trocar frame is the camera frame shifted by the trocar-camera distance along the shaft, which the tests use as
-ground truth. ``camera="surgery"``: :mod:`snreg.demo.surgery_scene`, the camera sliding and turning between rests;
-the simulator plays the same motion (``--motion``), holding its start ``IMU_HOLD_S`` after its stream starts (its
-fusion's still start) and writing the host-clock instant the motion starts (``--epoch-file``); the rendered feed
-counts its frames from that instant (``epoch_ns``), so each frame meets the orientation it was rendered at, however
-long the simulator process took to start.
+``camera="still"``: the phantom of :mod:`snreg.demo.scene`; the IMU is held still as the endoscope lies in the patient
+on the tilted table (``--still --attitude``), and the chain's reference is there
+(:func:`~snreg.demo.phantom.still_demo_chain`), so the trocar frame is the camera frame shifted by the trocar-camera
+distance along the shaft, which the tests use as ground truth, and gravity in it agrees with the SPECT's patient
+position and the table's tilt. ``camera="surgery"``: :mod:`snreg.demo.surgery_scene`, the camera sliding and turning
+between rests in the same patient; the simulator plays the same motion (``--motion``), holding its start
+``IMU_HOLD_S`` after its stream starts (its fusion's still start) and writing the host-clock instant the motion starts
+(``--epoch-file``); the rendered feed counts its frames from that instant (``epoch_ns``), so each frame meets the
+orientation it was rendered at, however long the simulator process took to start.
 """
 
 from __future__ import annotations
@@ -31,16 +33,18 @@ import numpy as np
 
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
-from snreg.chain import ChainCalibration, camera_to_trocar, reference_rotation
+from snreg.chain import camera_to_trocar, reference_rotation
 from snreg.demo.board_tour import board_feed
 from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
-from snreg.demo.phantom import true_sources_lps, write_phantom_spect
+from snreg.demo.phantom import (TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation, still_demo_chain,
+                                 true_sources_lps, write_phantom_spect)
 from snreg.demo.pivot_scene import PivotScene, SceneImu
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
 from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain, surgery_tour
 from snreg.demo.tissue_pivot import TissuePivotScene
 from snreg.files import atomic_write
+from snreg.geometry import euler_from_rotation
 from snreg.imu.monitor import ImuMonitor
 from snreg.probe import default_probe_model
 from snreg.sources import CallableSource, FrameSource
@@ -81,8 +85,13 @@ class DemoRig:
                        if errors is not None else None)
         # what tracking uses (a calibration wizard replaces it): under an error model, one solved from noisy corners
         self.calibration = self.cameras if self.errors is None or self.errors.calibration is None else self.errors.calibration
-        # the chain as it truly is, and what tracking uses (the trocar wizard replaces it)
-        self.true_chain = surgery_demo_chain() if self.moving_camera else ChainCalibration.manual()
+        # the set-up as it happened, the chain as it truly is (referenced where the endoscope starts), and what
+        # tracking uses (the trocar wizard replaces it)
+        self.setup_deg = (TRUE_TILT_DEG, TRUE_TURN_DEG) if self.errors is None else self.errors.setup_deg
+        if self.moving_camera:
+            self.true_chain = surgery_demo_chain(self.setup_deg)
+        else:
+            self.true_chain = still_demo_chain(endoscope_orientation(self.setup_deg))
         self.chain = self.true_chain
         if schedule is None:
             schedule = Schedule(rest_frames=SURGERY_REST_FRAMES) if self.moving_camera else Schedule()
@@ -99,7 +108,8 @@ class DemoRig:
                 temporary.write_text(json.dumps(profile.to_dict()))
             self._launch_imu("--motion", str(motion), "--hold", str(IMU_HOLD_S), "--epoch-file", str(self._epoch_file))
         else:
-            self._launch_imu("--still")
+            attitude = ",".join(f"{v:.6f}" for v in euler_from_rotation(self._start_orientation()))
+            self._launch_imu("--still", f"--attitude={attitude}")
         self.imu = ImuMonitor(str(self._link))
 
     @property
@@ -144,17 +154,13 @@ class DemoRig:
 
     def phantom_sources_lps(self) -> np.ndarray:
         """(4, 3) LPS mm: where the phantom's sources were when the SPECT was made (the truth the demo's SPECT images)."""
-        tips, start = phantom_tips(self.probe), self._start_orientation()
-        if self.errors is None:
-            return true_sources_lps(tips, self.true_chain, earth_from_imu=start)
-        return true_sources_lps(tips, self.true_chain, setup_deg=self.errors.setup_deg,
-                                scan_shift_mm=self.errors.scan_shift_mm, earth_from_imu=start)
+        shift = 0.0 if self.errors is None else self.errors.scan_shift_mm
+        return true_sources_lps(phantom_tips(self.probe), self.true_chain, setup_deg=self.setup_deg,
+                                scan_shift_mm=shift, earth_from_imu=self._start_orientation())
 
     def _start_orientation(self) -> np.ndarray:
-        """(3, 3) the IMU's true orientation where the nodes are defined from: level for the still camera; for the
-        surgery tour its start, the chain's reference pose (the camera along the trocar axis)."""
-        if not self.moving_camera:
-            return np.eye(3)
+        """(3, 3) the IMU's true orientation where the nodes are defined from: the chain's reference pose (the camera
+        along the trocar axis), where the still camera stays and the surgery tour starts."""
         chain = self.true_chain
         return (chain.trocar_from_earth[:3, :3].T @ reference_rotation(chain.shaft_camera)
                 @ chain.imu_from_camera[:3, :3].T)

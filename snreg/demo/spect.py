@@ -47,12 +47,14 @@ def spect_of_nodes(xyz, *, activity=None, shape=THESIS_SHAPE, voxel_mm: float = 
 
 
 def write_nm(counts, origin, voxel_mm, path, *, multiframe: bool = True, patient_id: str = "SYNTH-001",
-             patient_name: str = "SYNTHETIC^PHANTOM", birth_date: str = "", rescale_slope: float = 1.0) -> list[Path]:
+             patient_name: str = "SYNTHETIC^PHANTOM", birth_date: str = "", rescale_slope: float = 1.0,
+             patient_position: str | None = "HFS") -> list[Path]:
     """Write counts (Z, Y, X) as NM DICOM; returns the files written.
 
     ``multiframe``: one reconstructed-tomo file at ``path`` with geometry in the
     DetectorInformationSequence; otherwise one file per slice in directory ``path``
     with ImagePositionPatient per slice. Stored values are counts / ``rescale_slope`` (uint16).
+    ``patient_position``: DICOM Patient Position (0018,5100), how the patient lay (None: not written).
     """
     counts = np.asarray(counts, float)
     stored = np.clip(np.round(counts / rescale_slope), 0, 65535).astype(np.uint16)
@@ -63,6 +65,8 @@ def write_nm(counts, origin, voxel_mm, path, *, multiframe: bool = True, patient
 
     def dataset(pixels: np.ndarray, position, instance: int) -> Dataset:
         ds = _base(patient_id, patient_name, birth_date, study, series, frame_of_ref, instance)
+        if patient_position is not None:
+            ds.PatientPosition = patient_position
         ds.Rows, ds.Columns = pixels.shape[-2:]
         ds.PixelSpacing = [spacing[1], spacing[0]]
         ds.SliceThickness = spacing[2]

@@ -13,8 +13,8 @@ scene's. At each rest the probe lies as in the still scene relative to the camer
 between rests it glides to the next node while the camera moves (:class:`~snreg.demo.camera_tour.CameraTour`).
 
 The chain is the thesis' manual one with the endoscope held as the phantom's set-up holds it (looking caudally
-34 degrees below the horizontal, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`), so a turn left or right is mostly a
-turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
+34 degrees below the patient's coronal plane, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`, on a table tilted 27 degrees
+head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
 resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: ``noise_variants``
 exposures per rest, one per moving frame: about 145 pairs, 0.45 GB, 20-40 s) and replayed from memory.
 """
@@ -22,12 +22,11 @@ exposures per rest, one per moving frame: about 145 pairs, 0.45 GB, 20-40 s) and
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
 from snreg.demo.camera_tour import CameraKey, CameraTour
-from snreg.demo.phantom import TRUE_TILT_DEG, TRUE_TURN_DEG, setup_patient_from_trocar
+from snreg.demo.phantom import TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation
 from snreg.demo.renderer import ProbePose, RenderOptions
 from snreg.demo.scene import PROBE_AXIS, Schedule, phantom_tips
 from snreg.demo.tissue import TissueScene, TissueSurface
@@ -44,16 +43,15 @@ REST_KEYS = (CameraKey(0.0, (0.0, 0.0)), CameraKey(15.0, (-2.0, -6.0)), CameraKe
 VIA_KEYS = ((CameraKey(-30.0, (-2.0, -18.0)),), (), (CameraKey(30.0, (-2.0, -7.0)),), ())
 # the tissue: a bowl 245 mm from the pivot on the axis, tilted to recede down the view, through every node
 _TISSUE = dict(depth_mm=245.0, tilt_deg=(5.7, 26.6), relief_mm=2.0, anchor_radius_mm=12.0)
-_EARTH_FROM_LPS = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])   # supine, head north (NWU earth)
 
 
-def surgery_demo_chain() -> ChainCalibration:
-    """The thesis' manual chain (axes aligned, 460 + 158 mm) with the endoscope held as the phantom's set-up holds it:
-    looking caudally :data:`~snreg.demo.phantom.TRUE_TILT_DEG` below the horizontal, image up anterior, the patient
-    supine; headed so the IMU's yaw starts at 0, as the AHRS's does (it has no compass)."""
-    earth_from_trocar = _EARTH_FROM_LPS @ setup_patient_from_trocar(TRUE_TILT_DEG, TRUE_TURN_DEG)[:3, :3]
-    yaw = Rotation.from_matrix(earth_from_trocar).as_euler("ZYX")[0]
-    earth_from_trocar = Rotation.from_euler("z", -yaw).as_matrix() @ earth_from_trocar
+def surgery_demo_chain(setup_deg: tuple[float, float] = (TRUE_TILT_DEG, TRUE_TURN_DEG)) -> ChainCalibration:
+    """The thesis' manual chain (axes aligned, 460 + 158 mm) with the endoscope held as the phantom's set-up
+    ``setup_deg`` (tilt, turn) holds it: looking caudally below the patient's coronal plane, image up anterior, the
+    patient supine on the table tilted head down (:func:`~snreg.demo.phantom.endoscope_orientation`, so gravity in
+    the trocar frame agrees with the SPECT's patient position); headed so the IMU's yaw starts at 0, as the AHRS's does
+    (it has no compass)."""
+    earth_from_trocar = endoscope_orientation(setup_deg)
     manual = ChainCalibration.manual()
     return ChainCalibration(manual.imu_from_camera, manual.imu_trocar_mm,
                             make_transform(earth_from_trocar.T, np.zeros(3)))

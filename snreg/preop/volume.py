@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import struct
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,9 @@ class Volume:
     """voxels (Z, Y, X) float32 in real units (counts, Bq/ml or HU) and its patient geometry.
 
     ``patient_from_index`` (4, 4) maps a homogeneous index ``(column, row, slice, 1)`` --
-    the reverse of the array's axis order -- to LPS patient mm.
+    the reverse of the array's axis order -- to LPS patient mm. ``patient_position``: how the patient lay, DICOM
+    Patient Position (0018,5100) as written (``"HFS"``, ...; "" when absent), what :mod:`snreg.preop.gravity` turns
+    into the down.
     """
 
     voxels: np.ndarray
@@ -41,6 +43,7 @@ class Volume:
     modality: str
     placed_by_default: bool = False
     warnings: tuple[str, ...] = ()
+    patient_position: str = ""
 
     @property
     def spacing_mm(self) -> np.ndarray:
@@ -73,9 +76,8 @@ def _load(path, modality: str | None) -> Volume:
     series = {str(ds.get("SeriesInstanceUID", "")) for ds in datasets}
     if len(series) > 1:
         raise PreopError(f"{_name(path)}: {len(series)} series found; give the files of one series")
-    if len(datasets) == 1:
-        return _from_multiframe(datasets[0], _name(path))
-    return _from_slices(datasets, _name(path))
+    volume = _from_multiframe(datasets[0], _name(path)) if len(datasets) == 1 else _from_slices(datasets, _name(path))
+    return replace(volume, patient_position=str(datasets[0].get("PatientPosition", "") or "").strip().upper())
 
 
 def _name(path) -> str:

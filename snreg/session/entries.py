@@ -18,6 +18,7 @@ from snreg.chain import ChainCalibration
 from snreg.landmarks import KINDS as POINT_KINDS
 from snreg.landmarks import LANDMARK, landmark_name
 from snreg.nodes import NodeSet
+from snreg.preop.gravity import PreopDown
 from snreg.session.schema import FORMAT, StoredRegistration, stereo_from_dict
 
 __all__ = ["EntryError", "check_entry", "checked_entries", "check_node", "KINDS"]
@@ -126,8 +127,17 @@ _REGISTRATION = {"n": _integer, "method": _text, "rms_mm": _number, "pairing_rul
                  "landmarks": _optional(_landmark_results)}
 _DROPPED_WHEN_NULL = {"earth_from_imu", "stereo_version", "chain_version",   # null there means "not recorded"
                       "trocar_camera_mm", "cov_trocar_mm2", "kind", "landmarks"}
+
+
+def _preop_down(value) -> dict:
+    try:
+        return PreopDown.from_json(value).to_json()
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise EntryError(f"is not a patient position with a table tilt ({_short(err)})") from None
+
+
 _PREOP = {"ids": _texts, "labels": _texts, "xyz": _array((-1, 3), finite=True), "counts": _optional(_array((-1,))),
-          "frame": _text, "cov": _optional(_array((-1, 3, 3)))}
+          "frame": _text, "cov": _optional(_array((-1, 3, 3))), "down": _optional(_preop_down)}
 _PREOP_LANDMARKS = {"ids": _texts, "labels": _texts, "xyz": _array((-1, 3), finite=True)}
 
 
@@ -210,6 +220,7 @@ def _preop(data) -> dict:
     data = _fields(data, _PREOP)
     data.setdefault("counts", None)                  # not given: no counts (the readers expect the key)
     data.setdefault("cov", None)                     # not given (older files): no covariances
+    data.setdefault("down", None)                    # not given (older files, node files from elsewhere): unknown
     marks = data.get("landmarks")
     try:
         NodeSet(data["ids"], data["labels"], data["xyz"], data["counts"], frame=data["frame"], cov=data["cov"])

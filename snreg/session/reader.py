@@ -12,6 +12,7 @@ from snreg.landmarks import NODE
 from snreg.session.schema import IntraopNode
 
 HEADER_KEYS = ("format", "format_version", "created_utc", "snreg_version", "case_id")
+_DOWN_KEYS = ("patient_position", "table_tilt_deg", "tilt_entered")     # nodes/preop's, as PreopDown.to_json has them
 
 
 def read_nodes(h5: h5py.File) -> list[IntraopNode]:
@@ -75,6 +76,8 @@ def read_preop(h5: h5py.File) -> dict | None:
             "xyz": group["xyz"][()].tolist(), "counts": group["counts"][()].tolist() if "counts" in group else None,
             "frame": _plain(group.attrs.get("frame", "")),
             "cov": group["cov_mm2"][()].tolist() if "cov_mm2" in group else None,     # absent: none stored
+            "down": ({key: _plain(group.attrs[key]) for key in _DOWN_KEYS}              # absent: unknown
+                     if all(key in group.attrs for key in _DOWN_KEYS) else None),
             "landmarks": _preop_landmarks(group)}
 
 

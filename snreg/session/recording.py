@@ -12,6 +12,7 @@ import numpy as np
 
 from snreg.landmarks import LANDMARK, NODE, kind_of, landmark_name
 from snreg.nodes import INTRAOP_PREFIX, NodeSet
+from snreg.preop.gravity import PreopDown
 from snreg.session import writer
 from snreg.session.schema import (CAMERA_STATES, STREAM_DTYPES, IntraopNode, SessionError, covariance_json,
                                   covariance_mm2, jpeg_bytes, landmark_results_json, position_mm, stereo_to_dict)
@@ -155,10 +156,11 @@ class Recording:
         self._h5.flush()
 
     @serialised
-    def set_preop_nodes(self, nodes: NodeSet, landmarks: NodeSet | None = None) -> None:
-        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known) and the
-        preop landmarks read with it (ids = names, in the nodes' frame; None or empty: none). Both replace what was
-        stored: a preop set given without its landmarks leaves the session without preop landmarks."""
+    def set_preop_nodes(self, nodes: NodeSet, landmarks: NodeSet | None = None, down: PreopDown | None = None) -> None:
+        """Store the preop node set (ids, labels, positions, counts and each hot spot's covariance when known), the
+        preop landmarks read with it (ids = names, in the nodes' frame; None or empty: none) and what gives the down in
+        its frame (the SPECT's patient position and the table's tilt; None: unknown). All replace what was stored: a
+        preop set given without its landmarks or its down leaves the session without them."""
         self._writable()
         marks = None
         if landmarks is not None and len(landmarks):
@@ -169,7 +171,8 @@ class Recording:
             marks = {"ids": names, "labels": list(landmarks.labels), "xyz": landmarks.xyz.tolist()}
         data = {"ids": nodes.ids, "labels": nodes.labels, "xyz": nodes.xyz.tolist(),
                 "counts": None if nodes.counts is None else nodes.counts.tolist(), "frame": nodes.frame,
-                "cov": None if nodes.cov is None else nodes.cov.tolist(), "landmarks": marks}
+                "cov": None if nodes.cov is None else nodes.cov.tolist(), "landmarks": marks,
+                "down": None if down is None else down.to_json()}
         self._journal.append("preop", data)
         writer.write_preop(self._h5, data)
         self._h5.flush()

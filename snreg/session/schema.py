@@ -30,6 +30,8 @@ FORMAT_VERSION = 5      # 2: nodes carry earth_from_imu and the calibration vers
                         # 5: intraop points of kind ``landmark`` beside the nodes (``nodes/intraop/kind``), preop
                         # landmarks (``nodes/preop/landmarks``), registrations' landmark residuals. Bumped because a
                         # format-4 reader would take a stored landmark for a node and register it as one.
+                        # Still 5 (unreleased when it came): the preop nodes' ``patient_position``, ``table_tilt_deg``
+                        # and ``tilt_entered`` attributes (absent: unknown).
 JOURNAL_SUFFIX = ".journal"
 
 _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")

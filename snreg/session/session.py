@@ -16,6 +16,7 @@ from snreg import __version__
 from snreg.chain import ChainCalibration
 from snreg.landmarks import LANDMARK, NODE
 from snreg.nodes import NodeSet, no_nodes
+from snreg.preop.gravity import PreopDown
 from snreg.session import opening, reader, salvage, writer
 from snreg.session.journal import Journal, fsync_directory, journal_path
 from snreg.session.recording import Recording, serialised
@@ -197,6 +198,27 @@ class Session(Recording):
         return None if p is None else NodeSet(p["ids"], p["labels"], p["xyz"], p["counts"], frame=p["frame"],
                                               cov=p.get("cov"))
 
+    def preop_down(self) -> PreopDown | None:
+        """What gives the down in the preop nodes' frame (the SPECT's patient position, the table's tilt), kept with
+        them; None when not known (not stored with them, or files written before it was)."""
+        down = None if self._preop is None else self._preop.get("down")
+        return None if down is None else PreopDown.from_json(down)
+
+    def intraop_down(self) -> np.ndarray:
+        """(3,) unit gravity in the trocar frame of the stored nodes: the IMU's down through the stored chain's
+        reference (:attr:`ChainCalibration.down_trocar`). SessionError in one sentence when no chain is stored, or
+        when a node was mapped with a chain other than the stored one (re-express the nodes under it first)."""
+        chain = self._calibration.get("chain")
+        if chain is None:
+            raise SessionError(f"{self.path}: the session holds no chain calibration, so gravity's direction in its "
+                               "trocar frame is unknown")
+        version = calibration_version(chain)
+        others = sorted({node.chain_version for node in self._nodes.values()} - {version, ""})
+        if others:
+            raise SessionError(f"{self.path}: nodes were mapped with chain {', '.join(others)}, not the stored chain "
+                               f"{version}, so gravity's direction in their frame is unknown; re-express them under "
+                               "the stored chain")
+        return ChainCalibration.from_dict(chain).down_trocar
     def preop_landmarks(self) -> NodeSet:
         """The preop landmarks stored with the preop nodes (their frame, mm; ids = names); empty when none."""
         p = self._preop or {}

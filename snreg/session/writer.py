@@ -155,7 +155,9 @@ def write_calibration(h5: h5py.File, kind: str, data: dict) -> None:
 def write_preop(h5: h5py.File, data: dict) -> None:
     """``nodes/preop``: ids, labels, xyz (N, 3) mm, counts (N,) and ``cov_mm2`` (N, 3, 3, each hot spot's own error
     in the set's frame) when known; the frame as an attribute; the preop landmarks, when given, in
-    ``nodes/preop/landmarks`` (id = name, label, xyz (L, 3) mm, in the nodes' frame)."""
+    ``nodes/preop/landmarks`` (id = name, label, xyz (L, 3) mm, in the nodes' frame); when known what gives the down
+    in that frame (:class:`~snreg.preop.gravity.PreopDown`: attributes ``patient_position``, ``table_tilt_deg``,
+    ``tilt_entered``)."""
     del h5["nodes/preop"]
     group = h5.create_group("nodes/preop")
     _variable(group, "id", [str(v) for v in data["ids"]])
@@ -166,6 +168,8 @@ def write_preop(h5: h5py.File, data: dict) -> None:
     if data.get("cov") is not None:
         group.create_dataset("cov_mm2", data=np.asarray(data["cov"], dtype=float).reshape(-1, 3, 3), **CHECKED)
     group.attrs["frame"] = data["frame"]
+    for key, value in (data.get("down") or {}).items():     # PreopDown.to_json: patient position and table tilt
+        group.attrs[key] = value
     marks = data.get("landmarks")
     if marks is not None:
         landmarks = group.create_group("landmarks")

@@ -17,12 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from snreg.nodes import NodeSet, write_nodes
+from snreg.preop.gravity import PreopDown
 from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
 from snreg.registration.report_meta import ReportContext, sidecar_path
 from snreg.session import Session, SessionError
 from snreg.workflow.chain_change import mixed_calibration_note
+from snreg.workflow.registration_start import GravityStart
 
 # kind: (name, file dialog filter, suffix added when the chosen name ends in none of the accepted ones)
 EXPORTS = {"pairs": ("pairing CSV", "CSV (*.csv)", (".csv",)),
@@ -35,8 +37,11 @@ class RunRequest:
     """One registration as chosen in the panel; ``session`` set only when the result is to be stored.
 
     ``preop_landmarks``/``intraop_landmarks``: the landmarks to pair by name (ids = names; None: none), in the app the
-    preop landmarks read with the preop nodes (stored with them when ``store_preop``) and the session's
-    (:meth:`~snreg.session.Session.intraop_landmarks`); ``landmark_sd_mm`` their own error, sd per axis."""
+    preop landmarks read with the preop nodes (stored with them) and the session's
+    (:meth:`~snreg.session.Session.intraop_landmarks`); ``landmark_sd_mm`` their own error, sd per axis.
+    ``gravity``: start from the two downs (:func:`~snreg.workflow.registration_start.session_gravity`), searching every
+    heading, instead of ``initial`` (the typed angles, then ignored); ``preop_down``: what gives the preop nodes' down
+    (the SPECT's patient position and the table's tilt), stored with them."""
 
     preop: NodeSet
     intraop: NodeSet
@@ -49,6 +54,13 @@ class RunRequest:
     preop_landmarks: NodeSet | None = None
     intraop_landmarks: NodeSet | None = None
     landmark_sd_mm: float = 2.0
+    gravity: GravityStart | None = None
+    preop_down: PreopDown | None = None
+
+    @property
+    def start(self) -> str:
+        """The start in words: ``"start: gravity, table tilt 30 deg head down (default), heading searched"``."""
+        return self.gravity.words if self.gravity is not None else "start: the initial alignment entered"
 
 
 @dataclass(frozen=True)
@@ -66,6 +78,7 @@ class RunRecord:
     preop_landmarks: NodeSet | None = None
     intraop_landmarks: NodeSet | None = None
     weighing: str = ""
+    start: str = ""                     # where the search started, in words ("" for a stored result)
 
 
 def weighing_text(preop: NodeSet, intraop: NodeSet, method: str) -> str:
@@ -88,21 +101,31 @@ def weighing_text(preop: NodeSet, intraop: NodeSet, method: str) -> str:
     return text[0].upper() + text[1:] + "."
 
 
-def save_preop(session: Session, nodes: NodeSet, landmarks: NodeSet | None = None) -> str:
-    """Store ``nodes`` (and the preop ``landmarks`` read with them) as the session's preop set unless it holds exactly
-    them already (worker thread: an fsynced write). Returns "" when stored or already there, else one sentence saying
-    why it was not."""
+def save_preop(session: Session, nodes: NodeSet, landmarks: NodeSet | None = None,
+               down: PreopDown | None = None) -> str:
+    """Store ``nodes`` (and the preop ``landmarks`` read with them, and what gives their ``down``) as the session's
+    preop set unless it holds exactly them already (worker thread: an fsynced write). Returns "" when stored or already
+    there, else one sentence saying why it was not."""
     marks = landmarks if landmarks is not None and len(landmarks) else None
-    stored_marks = session.preop_landmarks() if session.preop_nodes() is not None else None
-    same_marks = (marks is None and (stored_marks is None or not len(stored_marks))) or \
-        (marks is not None and _same_set(stored_marks, marks))
-    if not session.writable or (_same_set(session.preop_nodes(), nodes) and same_marks):
+    if not session.writable or (_same_set(session.preop_nodes(), nodes) and _same_marks(session, marks)
+                                and _same_down(session.preop_down(), down)):
         return ""
     try:
-        session.set_preop_nodes(nodes, marks)
+        session.set_preop_nodes(nodes, marks, down=down)
     except (SessionError, OSError) as err:
         return f"The preop nodes could not be saved in the session ({getattr(err, 'strerror', None) or err})."
     return ""
+
+
+def _same_marks(session: Session, marks: NodeSet | None) -> bool:
+    stored = session.preop_landmarks() if session.preop_nodes() is not None else None
+    if marks is None:
+        return stored is None or not len(stored)
+    return _same_set(stored, marks)
+
+
+def _same_down(a: PreopDown | None, b: PreopDown | None) -> bool:
+    return a == b
 
 
 def _same_set(a: NodeSet | None, b: NodeSet) -> bool:
@@ -150,20 +173,23 @@ def _run(request: RunRequest) -> RunRecord:
     preop, intraop = request.preop, request.intraop
     labels = (preop.labels, intraop.labels) if request.use_labels else (None, None)
     marks = [None if m is None or not len(m) else m for m in (request.preop_landmarks, request.intraop_landmarks)]
+    gravity = request.gravity
     result = register(preop.xyz, intraop.xyz, method=request.method, preop_labels=labels[0],
-                      intraop_labels=labels[1], initial=request.initial,
+                      intraop_labels=labels[1], initial=request.initial if gravity is None else None,
                       max_rotation_deg=request.max_rotation_deg, max_translation_mm=request.max_translation_mm,
                       intraop_cov=intraop.known_cov, preop_cov=preop.known_cov,
-                      preop_landmarks=marks[0], intraop_landmarks=marks[1], landmark_sd_mm=request.landmark_sd_mm)
+                      preop_landmarks=marks[0], intraop_landmarks=marks[1], landmark_sd_mm=request.landmark_sd_mm,
+                      down=None if gravity is None else gravity.down)
     record = RunRecord(preop, intraop, result, preop_landmarks=request.preop_landmarks,
                        intraop_landmarks=request.intraop_landmarks,
-                       weighing=weighing_text(preop, intraop, request.method))
+                       weighing=weighing_text(preop, intraop, request.method), start=request.start)
     if request.session is None:
         return record
     if not request.session.writable:
         return replace(record, note="Review session: the result is shown but not stored (the file is open for reading).")
     try:
-        problem = save_preop(request.session, preop, request.preop_landmarks)   # the registration names its preop ids
+        problem = save_preop(request.session, preop, request.preop_landmarks,
+                             request.preop_down)   # the registration names its preop ids
         if problem:
             return replace(record, note=f"{problem} The result is shown but not stored; export it instead.")
         n = request.session.add_registration(result, preop.ids, intraop.ids)
