@@ -46,7 +46,10 @@ def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     target = tmp_path / "pairs.mrk.json"
     monkeypatch.setattr(QFileDialog, "getSaveFileName", lambda *a, **k: (str(target), ""))
     qtbot.mouseClick(panel.export_buttons["slicer"], Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(lambda: panel.message.text() == f"Written {target}.", timeout=10_000)
+    def written():
+        assert panel.message.text() == f"Written {target}.", panel.message.text()     # on a timeout: what it said
+
+    qtbot.waitUntil(written, timeout=10_000)
     assert len(read_nodes(target)) == 4
     path = session.path
     window.shutdown()

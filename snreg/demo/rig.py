@@ -53,8 +53,9 @@ DEMO_FPS = 30.0
 CAMERAS = ("still", "surgery")
 SURGERY_REST_FRAMES = 180      # the surgery demo's rests by default: 6 s
 IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
-IMU_HOLD_S = 3.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (3 s
-                               # and the first rest) before the camera first moves
+IMU_HOLD_S = 5.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (its
+                               # 3 s start-up, then 2 s at its normal gain to settle from level to the tilted patient's
+                               # pose: 0.4 deg left after 3 s) before the camera first moves
 
 
 class DemoRig:

@@ -180,7 +180,13 @@ class ReviewScreen(QWidget):
             self.status.setText(f"{self._path}: {nodes} stored node{'' if nodes == 1 else 's'}, "
                                 f"{registrations} registration{'' if registrations == 1 else 's'} (as read at "
                                 f"{time.strftime('%H:%M:%S')}; Refresh reads it again)")
-            self.loaded.emit(self._path)
+            self.scrubber.when_opened(lambda path=self._path: self._announce(path))
+
+    def _announce(self, path: str) -> None:
+        """Everything is shown and the file closed (the video's index read too): ``loaded``, unless another load
+        began meanwhile."""
+        if self._pending is None and path == self._path:
+            self.loaded.emit(path)
 
     def _clear(self) -> None:
         self.header.setText("")

@@ -30,6 +30,7 @@ class VideoScrubber(QObject):
         self._worker: Worker | None = None
         self._wanted: float | None = None
         self._opening = False
+        self._then: list = []                        # what waits for the video being opened (when_opened)
 
     def load(self, path: str, t0_ns: int) -> None:
         """Open the session's video (in a worker); a frame asked for meanwhile is shown once it is open."""
@@ -43,9 +44,21 @@ class VideoScrubber(QObject):
         if self._worker is None:
             self._next()
 
+    def when_opened(self, then) -> None:
+        """Call ``then()`` once the video being opened is open (its file closed again); now when none is opening."""
+        if not self._opening:
+            return then()
+        self._then.append(then)
+
     def _opened(self, video) -> None:
         self.video, self._opening = video, False
         self.available.emit(video is not None)
+        self._call_waiting()
+
+    def _call_waiting(self) -> None:
+        waiting, self._then = self._then, []
+        for then in waiting:
+            then()
 
     def _next(self) -> None:
         if self._wanted is None or self.video is None or self._opening:
@@ -68,7 +81,9 @@ class VideoScrubber(QObject):
         if worker is not self._worker:               # one that :meth:`close` already waited for
             return
         worker.wait()
-        self._worker, self._opening = None, False
+        opening, self._worker, self._opening = self._opening, None, False
+        if opening:                                  # the open failed: nothing more will come of it
+            self._call_waiting()
         self._next()
 
     def close(self) -> None:
@@ -79,4 +94,4 @@ class VideoScrubber(QObject):
         if self.video is not None:
             self.video.close()
             self.video = None
-        self._wanted = None
+        self._wanted, self._opening, self._then = None, False, []     # a load superseded announces nothing
