@@ -102,7 +102,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self.options.switched.connect(self._option_switched)
         self.registration.registered.connect(
             lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
-        self.registration.preop_box.nodes_changed.connect(self.live_link.set_preop_nodes)
+        self.registration.preop_box.nodes_changed.connect(self._preop_changed)
         room = self.screen().availableGeometry()                  # never larger than the screen (1024 x 700)
         self.resize(min(1500, room.width()), min(900, room.height()))
         self._restore_layout()
@@ -217,7 +217,8 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         limits = self.options.limits()
         self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm,
                                              self.options.untracked_text(self.rig), self.error_sources)
-        self.acquisition.set_nodes(self.session.intraop_records())
+        self.acquisition.set_nodes(self.session.intraop_records(kind=None))      # the landmarks too, marked
+        self.acquisition.set_landmark_names(self.registration.preop_box.landmarks)
         self._show_in_acquisition_tab(self.acquisition)
         kept = self._kept_insertion
         self.worker = AcquisitionWorker(self.rig.frame_source, self.rig.calibration, self.rig.probe, self.rig.chain,
@@ -276,13 +277,19 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
             self._registration_stale = False
             self.registration.refresh_intraop()
 
+    def _preop_changed(self, nodes) -> None:
+        """Preop nodes and their landmarks to the live link; the landmarks' names first in Store landmark's list."""
+        self.live_link.set_preop_nodes(nodes)
+        self.live_link.set_preop_landmarks(self.registration.preop_box.landmarks)
+        if self.acquisition is not None:
+            self.acquisition.set_landmark_names(self.registration.preop_box.landmarks)
+
     def _link_state(self) -> tuple:
-        """What a live-link client sees first: the stored nodes, the preop nodes, the registration shown (with its
-        pairs line; None without one)."""
-        records = self.session.intraop_records() if self.session is not None else []
-        result = self.registration.last_result
-        return records, self.registration.preop_box.nodes, None if result is None else (result,
-                                                                                      self.registration.pairs_line())
+        """What a live-link client sees first: the stored nodes and landmarks, the preop nodes and landmarks, the
+        registration shown (with its pairs line; None without one)."""
+        records = self.session.intraop_records(kind=None) if self.session is not None else []
+        result, box = self.registration.last_result, self.registration.preop_box
+        return records, box.nodes, box.landmarks, None if result is None else (result, self.registration.pairs_line())
 
     def _stop_acquisition(self) -> None:
         self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say

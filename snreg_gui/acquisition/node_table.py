@@ -1,7 +1,8 @@
 """The acquisition screen's table of stored nodes: id, label, trocar x/y/z, own expected error, spread, gamma counts.
 
 Why: the technician checks each node as it is stored, in a side column about 350 px wide at 1024x700; every column
-must stay readable there: the label takes the room left, the numbers fit their contents.
+must stay readable there: the label takes the room left, the numbers fit their contents. A stored anatomical landmark
+is listed too, its name as its id and "landmark" as its label (in italics), never taken for a node.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import math
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem
 
+from snreg.landmarks import LANDMARK
 from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP, error_text
 
 NODE_COLUMNS = ("id", "label", "x", "y", "z", ERROR_CAPTION, "spread", "counts")
@@ -41,13 +43,21 @@ class StoredNodes(QTableWidget):
         row = self.rowCount()
         self.insertRow(row)
         counts = "" if node.counts is None or math.isnan(node.counts) else f"{node.counts:g}"
-        cells = (node.id, node.label, *(f"{v:.1f}" for v in node.xyz_trocar), error_text(node.cov_trocar_mm2),
+        landmark = getattr(node, "kind", "") == LANDMARK
+        cells = (node.id, "landmark" if landmark else node.label, *(f"{v:.1f}" for v in node.xyz_trocar),
+                 error_text(node.cov_trocar_mm2),
                  f"{node.spread_mm:.2f}", counts)
         for column, text in enumerate(cells):
             item = QTableWidgetItem(text)
             if column >= NODE_COLUMNS.index("x"):
                 item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+            if landmark:
+                font = item.font()
+                font.setItalic(True)
+                item.setFont(font)
             self.setItem(row, column, item)
+        if landmark:
+            self.item(row, 0).setToolTip(f"anatomical landmark {node.id!r}: paired by name, never a node")
         self.item(row, NODE_COLUMNS.index("spread")).setToolTip(f"over {node.n_frames} fixes")
         self.scrollToBottom()
 

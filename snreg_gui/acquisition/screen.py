@@ -15,7 +15,8 @@ stored node asks first, naming it; a refusal the operator may override (the came
 moved) asks whether to store anyway, and the override goes on record. Auto-store never overrides. Beside the IMU
 angles, the camera's insertion (:mod:`snreg_gui.acquisition.insertion_line`). Below Store SN (so that its buttons
 never move when they come and go), the SPECT nodes not found yet with their expected errors if registered now, and
-which error source to improve (:mod:`snreg_gui.acquisition.expected`).
+which error source to improve (:mod:`snreg_gui.acquisition.expected`). Beside Store SN, Store landmark with its name
+picker (:mod:`snreg_gui.acquisition.landmark_store`), through the same guards and questions.
 While a calibration wizard holds the cameras the screen says "paused for calibration", not that the feed died.
 """
 
@@ -35,6 +36,7 @@ from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE, StoreLimits
 from snreg_gui.acquisition.expected import ExpectedErrors
 from snreg_gui.acquisition.health import camera_health, imu_health
 from snreg_gui.acquisition.insertion_line import InsertionLine
+from snreg_gui.acquisition.landmark_store import LandmarkPicker, LandmarkStoring, is_landmark, near_title, store_what
 from snreg_gui.acquisition.live_view import LiveView
 from snreg_gui.acquisition.node_table import StoredNodes
 from snreg_gui.acquisition.orientation_plot import ANGLE_COLOURS, OrientationPlot
@@ -63,7 +65,7 @@ def _row(*parts) -> QHBoxLayout:
     return row
 
 
-class AcquisitionScreen(QWidget):
+class AcquisitionScreen(LandmarkStoring, QWidget):
     """Emits ``store_requested(StoreRequest)``, ``undo_requested()``, ``fixes_per_node_changed(int)`` and
     ``max_spread_changed(float)``; fed by :meth:`show_result`, :meth:`add_node`, :meth:`remove_node`,
     :meth:`show_store_problem`, :meth:`ask_to_confirm`, :meth:`offer_override` and :meth:`set_paused`.
@@ -109,7 +111,8 @@ class AcquisitionScreen(QWidget):
         self.undo_button = QPushButton("Undo last")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
-        self.auto_store = QCheckBox("auto-store when the probe is held still")
+        self.auto_store = QCheckBox("auto-store")      # beside the fixes: the row Store landmark took fits 700 px
+        self.auto_store.setToolTip("auto-store when the probe is held still, away from every stored node")
         self.label_edit = QLineEdit()
         self.label_edit.setPlaceholderText(LABEL_HINT)
         self.label_edit.setToolTip("the station of the next node; cleared after each store")
@@ -123,7 +126,9 @@ class AcquisitionScreen(QWidget):
         self.spread_spin.setValue(max_spread_mm)
         self.spread_spin.setToolTip("a store whose fixes spread more than this is refused (the probe moved)")
         self.nodes = StoredNodes()
+        self.landmark_picker = LandmarkPicker()
         self._layout()
+        self.landmark_picker.requested.connect(self.request_landmark)
         self.store_button.clicked.connect(lambda: self.request_store("button"))
         for key in STORE_SHORTCUTS:
             QShortcut(QKeySequence(key), self, activated=lambda key=key: self.request_store(key))
@@ -187,9 +192,9 @@ class AcquisitionScreen(QWidget):
         form.setVerticalSpacing(4)
         form.addRow("label", _row((self.label_edit, 3), QLabel(" counts"), (self.counts_edit, 2)))
         form.addRow("spread", _row(self.spread_value, 1, QLabel("limit"), self.spread_spin))
-        form.addRow("fixes per node", _row(self.fixes_spin, 1))
-        form.addRow(self.auto_store)
+        form.addRow("fixes per node", _row(self.fixes_spin, 1, self.auto_store))
         form.addRow(_row((self.store_button, 2), (self.undo_button, 1)))
+        form.addRow("landmark", self.landmark_picker)
         form.addRow(self.store_reason)
         form.addRow(self.store_status)
         return box
@@ -259,6 +264,8 @@ class AcquisitionScreen(QWidget):
     def add_node(self, node) -> None:
         """Append a stored node (an :class:`~snreg.session.IntraopNode`) to the table; the label and counts typed for
         it are cleared (the next node is another station), and the empty field says what the last one was."""
+        if is_landmark(node):
+            return self._add_landmark(node)
         self._store_pending = False
         self.nodes.append(node)
         self.expected.set_node_ids(self._node_ids())
@@ -298,7 +305,7 @@ class AcquisitionScreen(QWidget):
         """A store near a stored node: ask (the question names it); yes sends the request again, confirmed."""
         self._store_pending = False
         self._update_store_state()
-        box = near_node_box(self, question)
+        box = near_node_box(self, question, near_title(request))
         box.finished.connect(lambda answer: self._answered(answer == QMessageBox.StandardButton.Yes, request.confirm(),
                                                            "a node so close to a stored one"))
         self.confirm_box = box
@@ -308,7 +315,7 @@ class AcquisitionScreen(QWidget):
         """A refusal the operator may override (the camera's insertion lost after the camera moved): said in red with
         a beep, then asked; "Store anyway" sends the request again, overriding (the core keeps it on record)."""
         self.show_store_problem(f"Refused ({request.trigger}): the camera's insertion is lost; store anyway or not?")
-        box, store_anyway = override_box(self, refusal, request.trigger)
+        box, store_anyway = override_box(self, refusal, request.trigger, store_what(request))
         box.finished.connect(lambda _: self._answered(box.clickedButton() is store_anyway, request.overriding(),
                                                       "while the camera's insertion is lost"))
         self.confirm_box = box
@@ -370,6 +377,7 @@ class AcquisitionScreen(QWidget):
 
     def _set_store_enabled(self, enabled: bool, reason: str, style: str = "") -> None:
         self.store_button.setEnabled(enabled)
+        self.landmark_picker.button.setEnabled(enabled)
         self.store_button.setToolTip(reason)
         self.store_reason.setText(reason)
         self.store_reason.setToolTip(reason)

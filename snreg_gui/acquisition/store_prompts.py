@@ -53,18 +53,20 @@ def ready_line(outcome: FrameOutcome | None, needed: int, *, paused: bool = Fals
                            f"({state}){ask}", GOOD)
 
 
-def near_node_box(parent: QWidget, question: str) -> QMessageBox:
-    """Store near a stored node? (the question names it); No is the default."""
-    box = QMessageBox(QMessageBox.Icon.Question, "Store SN near a stored node", question,
+def near_node_box(parent: QWidget, question: str, title: str = "Store SN near a stored node") -> QMessageBox:
+    """Store near a stored node? (the question names it; a landmark's: replace the stored one of its name?); No is
+    the default."""
+    box = QMessageBox(QMessageBox.Icon.Question, title, question,
                       QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, parent)
     box.setDefaultButton(QMessageBox.StandardButton.No)
     return box
 
 
-def override_box(parent: QWidget, refusal: str, trigger: str) -> tuple[QMessageBox, QPushButton]:
+def override_box(parent: QWidget, refusal: str, trigger: str,
+                 what: str = "Store SN") -> tuple[QMessageBox, QPushButton]:
     """Store although the guard refused (``refusal``, overridable: it says the override goes on record)? The box and
-    its "Store anyway" button; "Don't store" is the default."""
-    box = QMessageBox(QMessageBox.Icon.Warning, "Store SN refused: the camera's insertion is lost",
+    its "Store anyway" button; "Don't store" is the default. ``what``: "Store SN" or "Store landmark"."""
+    box = QMessageBox(QMessageBox.Icon.Warning, f"{what} refused: the camera's insertion is lost",
                       f"Refused ({trigger}): {refusal}.", parent=parent)
     box.setInformativeText("Store anyway only if you know the camera has not slid since it was last tracked: the "
                            "node is then mapped at the insertion tracked last.")

@@ -2,7 +2,7 @@
 
 Why: capture, tracking and session writes must never run on the GUI thread (DESIGN.md §5). The worker
 lives in its own QThread, paced by a timer there; every frame ends as one :class:`FrameResult` signal,
-and "Store SN" and undo requests arrive as queued slot calls between frames, so a node is the median
+and "Store SN" (or Store landmark) and undo requests arrive as queued slot calls between frames, so a node is the median
 of fixes this worker itself kept. The core decides whether a store is refused (said in ``store_failed``) or
 must be confirmed first (``store_confirm``: the question naming the near node, and the request to send back with
 ``confirmed=True``). A refusal the operator may override (the camera's insertion lost after the camera moved) is
@@ -65,13 +65,16 @@ class FrameResult:
 class StoreRequest:
     """Store SN as asked for on screen; the id is the session's next free ``SN<k>``. ``trigger``: what asked
     ("button", "Space", "F5", "auto"), kept on record with a refusal; ``confirmed``: the technician said yes to
-    storing near a stored node; ``override``: the technician chose "Store anyway" over an overridable refusal."""
+    storing near a stored node (a landmark: to replacing the stored one of its name); ``override``: the technician
+    chose "Store anyway" over an overridable refusal. ``landmark``: Store landmark of that name instead (the same
+    guards; ``label`` and ``counts`` unused)."""
 
     label: str
     counts: float = float("nan")
     trigger: str = "button"
     confirmed: bool = False
     override: bool = False
+    landmark: str = ""
 
     def confirm(self) -> "StoreRequest":
         return replace(self, confirmed=True)
@@ -190,14 +193,16 @@ class AcquisitionWorker(QObject):
 
     @Slot(object)
     def store_node(self, request: StoreRequest) -> None:
-        """Median and spread of the store window into the session (durable on return), with the last frame as
-        snapshots; or the refusal in words, or the question to confirm."""
+        """Median and spread of the store window into the session (durable on return), as a node or (``request.
+        landmark``) a landmark, with the last frame as snapshots; or the refusal in words, or the question to
+        confirm."""
         left, right = (self._last_frame.left, self._last_frame.right) if self._last_frame is not None else (b"", b"")
+        asked = dict(left_jpeg=left, right_jpeg=right, confirmed=request.confirmed, trigger=request.trigger,
+                     override=request.override)
         try:
-            node = self.acquisition.store(self.acquisition.session.next_node_id(), request.label,
-                                          counts=request.counts, left_jpeg=left, right_jpeg=right,
-                                          confirmed=request.confirmed, trigger=request.trigger,
-                                          override=request.override)
+            node = (self.acquisition.store_landmark(request.landmark, **asked) if request.landmark else
+                    self.acquisition.store(self.acquisition.session.next_node_id(), request.label,
+                                           counts=request.counts, **asked))
         except StoreNeedsConfirmation as err:
             self.store_confirm.emit(str(err), request)
             return
@@ -218,7 +223,7 @@ class AcquisitionWorker(QObject):
 
     @Slot()
     def undo(self) -> None:
-        """Take back the node stored last."""
+        """Take back the node or landmark stored last."""
         try:
             node = self.acquisition.undo()
         except (StoreError, SessionError, OSError) as err:

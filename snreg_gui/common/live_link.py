@@ -23,8 +23,9 @@ ENABLED_KEY, PORT_KEY = "live_link/enabled", "live_link/port"
 
 class LiveLinkControl(QObject):
     """Owns the link while it is on. ``state_changed(str)``: one line for the stream-health area ("" when off);
-    ``failed(str)``: why it could not start. ``current_state()`` gives (stored nodes, preop NodeSet, (registration
-    result, its pairs line) or None) for a client's first look, whenever the link starts or the session changes."""
+    ``failed(str)``: why it could not start. ``current_state()`` gives (stored nodes and landmarks, preop NodeSet, preop
+    landmarks NodeSet or None, (registration result, its pairs line) or None) for a client's first look, whenever the
+    link starts or the session changes."""
 
     state_changed = Signal(str)
     failed = Signal(str)
@@ -86,9 +87,10 @@ class LiveLinkControl(QObject):
         """Send the whole current state again (after a session change)."""
         if self.link is None:
             return
-        records, preop, registration = self._current_state()
+        records, preop, preop_landmarks, registration = self._current_state()
         self.link.set_intraop_nodes(records)
         self.link.set_preop_nodes(preop)
+        self.link.set_preop_landmarks(preop_landmarks)
         if registration is not None:
             self.link.set_registration(*registration)
 
@@ -109,6 +111,11 @@ class LiveLinkControl(QObject):
     def set_preop_nodes(self, nodes) -> None:
         if self.link is not None:
             self.link.set_preop_nodes(nodes)
+
+    def set_preop_landmarks(self, landmarks) -> None:
+        """The preop landmarks (patient LPS, ids = names; None: none), sent as ``PreopLandmarks``."""
+        if self.link is not None:
+            self.link.set_preop_landmarks(landmarks)
 
     def set_registration(self, result, pairs: str = "") -> None:
         if self.link is not None:

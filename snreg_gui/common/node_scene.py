@@ -15,9 +15,12 @@ from snreg.nodes import NodeSet
 from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
 
-__all__ = ["NodeScene", "legend_html", "label_font", "xyz_of", "MISSING_COLOUR", "ELLIPSE_ALPHA"]
+__all__ = ["NodeScene", "legend_html", "label_font", "xyz_of", "MISSING_COLOUR", "ELLIPSE_ALPHA", "LANDMARK_COLOUR",
+           "SUSPECT_COLOUR"]
 
 MISSING_COLOUR = "#ff7f0e"          # a preop node with no intraop partner yet (not found, or not removed yet)
+LANDMARK_COLOUR = "#2ca02c"         # anatomical landmarks, both sides (CT: hollow diamond, touched: filled)
+SUSPECT_COLOUR = "#9400d3"          # a landmark the registration left out as contradicting the rest
 ELLIPSE_ALPHA = 0.45                # each node's 90 % ellipsoid is drawn in its node's colour, this opaque (0-1)
 
 
@@ -29,12 +32,18 @@ class NodeScene:
     pairs yet.
     ``missing`` is one flag per preop node: left unpaired by the registration (drawn apart); None: not known.
     Each set's covariances (``NodeSet.cov``, in the view's frame) are drawn as 90 % error ellipsoids.
+    ``preop_landmarks`` (in the intraop frame, as the preop nodes) and ``intraop_landmarks``: anatomical landmarks, ids
+    = names, drawn with a marker of their own and named, never as nodes; ``suspects``: the names the registration
+    left out as contradicting the rest (named so on the view).
     """
 
     preop: NodeSet | None = None
     intraop: NodeSet | None = None
     pairing: np.ndarray | None = None
     missing: np.ndarray | None = None
+    preop_landmarks: NodeSet | None = None
+    intraop_landmarks: NodeSet | None = None
+    suspects: tuple = ()
 
     def pair_segments(self) -> np.ndarray:
         """(2K, 3) mm: intraop node, then its preop node, for each of the K paired intraop nodes."""
@@ -67,18 +76,39 @@ class NodeScene:
         return preop, intraop
 
 
+    def landmark_texts(self) -> tuple[list[str], list[str]]:
+        """(CT, touched) landmark label texts: the names, a suspect one marked "(suspect)"."""
+        def named(marks):
+            return [] if marks is None else [f"{n} (suspect)" if n in self.suspects else n for n in marks.ids]
+        return named(self.preop_landmarks), named(self.intraop_landmarks)
+
+    def landmark_colours(self) -> tuple[list[str], list[str]]:
+        """(CT, touched) label colours: :data:`SUSPECT_COLOUR` for a suspect, else :data:`LANDMARK_COLOUR`."""
+        def coloured(marks):
+            return [] if marks is None else [SUSPECT_COLOUR if n in self.suspects else LANDMARK_COLOUR
+                                             for n in marks.ids]
+        return coloured(self.preop_landmarks), coloured(self.intraop_landmarks)
+
+    @property
+    def has_landmarks(self) -> bool:
+        return any(m is not None and len(m) for m in (self.preop_landmarks, self.intraop_landmarks))
+
+
 def xyz_of(nodes: NodeSet | None) -> np.ndarray:
     """The set's positions (N, 3) mm; none for no set."""
     return np.zeros((0, 3)) if nodes is None else nodes.xyz
 
 
-def legend_html() -> str:
-    """One line naming what each mark means, in the marks' colours (both views show it above the nodes)."""
+def legend_html(landmarks: bool = False) -> str:
+    """One line naming what each mark means, in the marks' colours (both views show it above the nodes); the
+    landmarks' marks only when there are landmarks."""
+    marks = (f" &nbsp; <span style='color:{LANDMARK_COLOUR}'>&#9671; landmark (CT) &#9670; landmark (touched)</span>"
+             if landmarks else "")
     return (f"<span style='color:{PREOP_COLOUR}'>&#9675; preop (mapped)</span> &nbsp; "
             f"<span style='color:{MISSING_COLOUR}'>&#9675; preop, not found yet</span> &nbsp; "
             f"<span style='color:{INTRAOP_COLOUR}'>&#10005; intraop (stored)</span> &nbsp; "
             f"<span style='color:{PAIR_COLOUR}'>&#8212; paired</span> &nbsp; "
-            f"<span style='color:{PAIR_COLOUR}'>&#9711; 90 % error of each node, in its colour</span>")
+            f"<span style='color:{PAIR_COLOUR}'>&#9711; 90 % error of each node, in its colour</span>" + marks)
 
 
 def label_font() -> QFont:

@@ -18,7 +18,8 @@ from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
 from snreg_gui.common.ellipses import ellipsoid_rings
 from snreg_gui.common.label_layout import fit_camera, place_labels
-from snreg_gui.common.node_scene import ELLIPSE_ALPHA, MISSING_COLOUR, NodeScene, label_font, legend_html, xyz_of
+from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
+                                        legend_html, xyz_of)
 
 __all__ = ["NodeView3D", "LabelOverlay"]
 
@@ -59,10 +60,13 @@ class NodeView3D(QWidget):
         self.preop_dots = gl.GLScatterPlotItem(color=pg.mkColor(PREOP_COLOUR).getRgbF(), size=14, pxMode=True)
         self.missing_dots = gl.GLScatterPlotItem(color=pg.mkColor(MISSING_COLOUR).getRgbF(), size=14, pxMode=True)
         self.intraop_dots = gl.GLScatterPlotItem(color=pg.mkColor(INTRAOP_COLOUR).getRgbF(), size=9, pxMode=True)
+        self.landmark_dots = (gl.GLScatterPlotItem(color=_faint(LANDMARK_COLOUR), size=16, pxMode=True),    # CT
+                              gl.GLScatterPlotItem(color=pg.mkColor(LANDMARK_COLOUR).getRgbF(), size=9, pxMode=True))
         self.ellipsoids = {side: gl.GLLinePlotItem(mode="lines", color=_faint(colour), width=1.0, antialias=True)
                            for side, colour in (("preop", PREOP_COLOUR), ("missing", MISSING_COLOUR),
                                                 ("intraop", INTRAOP_COLOUR))}
-        for item in (*self.ellipsoids.values(), self.pair_lines, self.preop_dots, self.missing_dots, self.intraop_dots):
+        for item in (*self.ellipsoids.values(), self.pair_lines, self.preop_dots, self.missing_dots, self.intraop_dots,
+                     *self.landmark_dots):
             item.setGLOptions("translucent")
             self.view.addItem(item)
         self.labels = LabelOverlay(self.view)
@@ -77,7 +81,11 @@ class NodeView3D(QWidget):
 
     def show_scene(self, scene: NodeScene) -> None:
         self.scene_shown = scene
+        self.legend.setText(legend_html(scene.has_landmarks))
         preop, intraop, segments = xyz_of(scene.preop), xyz_of(scene.intraop), scene.pair_segments()
+        marks = np.vstack([xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks)])
+        for item, xyz in zip(self.landmark_dots, (xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks))):
+            item.setData(pos=xyz)
         missing = scene.missing_mask()
         self.preop_dots.setData(pos=preop[~missing])
         self.missing_dots.setData(pos=preop[missing])
@@ -90,10 +98,11 @@ class NodeView3D(QWidget):
                 ("intraop", intraop_centres, intraop_cov)):
             _set_lines(self.ellipsoids[side], ellipsoid_rings(centres, covariances))
         preop_texts, intraop_texts = scene.texts()
-        self.labels.set_labels(np.vstack([preop, intraop]), preop_texts + intraop_texts,
+        self.labels.set_labels(np.vstack([preop, intraop, marks]),
+                               preop_texts + intraop_texts + sum(scene.landmark_texts(), []),
                                [MISSING_COLOUR if m else PREOP_COLOUR for m in missing]
-                               + [INTRAOP_COLOUR] * len(intraop_texts))
-        points = np.vstack([preop, intraop])
+                               + [INTRAOP_COLOUR] * len(intraop_texts) + sum(scene.landmark_colours(), []))
+        points = np.vstack([preop, intraop, marks])
         bounds = (points.min(axis=0).round(1).tolist(), points.max(axis=0).round(1).tolist()) if len(points) else None
         if bounds != self._bounds:      # refit when the extent changes, not on every run: the user may have turned it
             self._bounds = bounds
@@ -103,7 +112,8 @@ class NodeView3D(QWidget):
         """Centre the camera on the nodes' bounding box, far enough that every node is in view; the grid under
         them, as wide as they spread."""
         scene = self.scene_shown
-        points = np.vstack([xyz_of(scene.preop), xyz_of(scene.intraop)])
+        points = np.vstack([xyz_of(scene.preop), xyz_of(scene.intraop), xyz_of(scene.preop_landmarks),
+                            xyz_of(scene.intraop_landmarks)])
         if not len(points):
             return
         centre, distance = fit_camera(points, fov_deg=self.view.opts["fov"], width=self.view.width(),

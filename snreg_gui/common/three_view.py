@@ -14,7 +14,8 @@ from PySide6.QtCore import QPointF, Qt
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR, VIEWS
 from snreg_gui.common.ellipses import ellipse_shadows
 from snreg_gui.common.label_layout import place_labels
-from snreg_gui.common.node_scene import ELLIPSE_ALPHA, MISSING_COLOUR, NodeScene, label_font, legend_html, xyz_of
+from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
+                                        legend_html, xyz_of)
 
 __all__ = ["ThreeViewPlot"]
 
@@ -28,8 +29,9 @@ def _faint(colour: str) -> pg.QtGui.QPen:
 
 class ThreeViewPlot(pg.GraphicsLayoutWidget):
     """Three projections of the trocar frame (along z: x-y, along y: x-z, along x: y-z): preop as blue rings (orange
-    when not found yet), intraop as red crosses, each node's 90 % error ellipsoid as its shadow (faint, in the node's
-    colour), a legend above; labels beside their markers, moved apart so none covers another."""
+    when not found yet), intraop as red crosses, landmarks as green diamonds (hollow: CT, filled: touched), each node's
+    90 % error ellipsoid as its shadow (faint, in the node's colour), a legend above; labels beside their markers,
+    moved apart so none covers another."""
 
     kind = "three-view"
 
@@ -39,8 +41,9 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         self.scene_shown = NodeScene()
         self.legend = self.addLabel(legend_html(), row=0, col=0, colspan=len(VIEWS))
         self.plots, self.preop_dots, self.missing_dots, self.intraop_dots, self.pair_lines = [], [], [], [], []
+        self.landmark_dots: list[tuple[pg.ScatterPlotItem, pg.ScatterPlotItem]] = []    # per projection: CT, touched
         self.ellipses: list[dict[str, pg.PlotDataItem]] = []       # per projection: "preop", "missing", "intraop"
-        self._labels: list[tuple[list[pg.TextItem], list[pg.TextItem]]] = []
+        self._labels: list[tuple[list[pg.TextItem], list[pg.TextItem], list[pg.TextItem]]] = []   # + landmarks
         self._anchors: list[np.ndarray] = []
         for column, (name, h, v) in enumerate(VIEWS):
             plot = self.addPlot(row=1, col=column, title=f"{name} ({'xyz'[h]}-{'xyz'[v]})")
@@ -55,20 +58,26 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             missing = pg.ScatterPlotItem(symbol="o", size=13, brush=None,
                                          pen=pg.mkPen(MISSING_COLOUR, width=2.5, style=Qt.PenStyle.DashLine))
             intraop = pg.ScatterPlotItem(symbol="x", size=12, brush=pg.mkBrush(INTRAOP_COLOUR), pen=None)
-            for item in (preop, missing, intraop):
+            marks = (pg.ScatterPlotItem(symbol="d", size=14, brush=None, pen=pg.mkPen(LANDMARK_COLOUR, width=2.5)),
+                     pg.ScatterPlotItem(symbol="d", size=9, brush=pg.mkBrush(LANDMARK_COLOUR), pen=None))
+            for item in (preop, missing, intraop, *marks):
                 plot.addItem(item)
+            self.landmark_dots.append(marks)
             self.plots.append(plot)
             self.pair_lines.append(lines)
             self.preop_dots.append(preop)
             self.missing_dots.append(missing)
             self.intraop_dots.append(intraop)
-            self._labels.append(([], []))
+            self._labels.append(([], [], []))
             self._anchors.append(np.zeros((0, 2)))
             plot.vb.sigTransformChanged.connect(lambda _=None, k=column: self._place_labels(k))
 
     def show_scene(self, scene: NodeScene) -> None:
         self.scene_shown = scene
+        self.legend.setText(legend_html(scene.has_landmarks))
         preop, intraop, segments = xyz_of(scene.preop), xyz_of(scene.intraop), scene.pair_segments()
+        marks_ct, marks_touched = xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks)
+        mark_texts, mark_colours = sum(scene.landmark_texts(), []), sum(scene.landmark_colours(), [])
         missing = scene.missing_mask()
         preop_texts, intraop_texts = scene.texts()
         (preop_centres, preop_cov), intraop_ellipsoids = scene.ellipsoids()
@@ -85,11 +94,15 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             self.missing_dots[k].setData(x=preop[missing, h], y=preop[missing, v])
             self.intraop_dots[k].setData(x=intraop[:, h], y=intraop[:, v])
             self.pair_lines[k].setData(x=segments[:, h], y=segments[:, v], connect="pairs")
-            preop_labels, intraop_labels = self._labels[k]
+            for item, xyz in zip(self.landmark_dots[k], (marks_ct, marks_touched)):
+                item.setData(x=xyz[:, h], y=xyz[:, v])
+            preop_labels, intraop_labels, mark_labels = self._labels[k]
             colours = [MISSING_COLOUR if m else PREOP_COLOUR for m in missing]
             self._sync_labels(self.plots[k], preop_labels, preop_texts, colours)
             self._sync_labels(self.plots[k], intraop_labels, intraop_texts, [INTRAOP_COLOUR] * len(intraop_texts))
-            self._anchors[k] = np.vstack([preop[:, [h, v]], intraop[:, [h, v]]])
+            self._sync_labels(self.plots[k], mark_labels, mark_texts, mark_colours)
+            self._anchors[k] = np.vstack([preop[:, [h, v]], intraop[:, [h, v]], marks_ct[:, [h, v]],
+                                          marks_touched[:, [h, v]]])
             self._fit(self.plots[k], np.vstack([self._anchors[k]] + outlines))
             self._place_labels(k)
 
@@ -119,8 +132,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
     def _place_labels(self, k: int) -> None:
         """Put projection ``k``'s labels beside their markers (in pixels, none covering another), after every
         change of its range or size."""
-        preop_labels, intraop_labels = self._labels[k]
-        items = preop_labels + intraop_labels
+        preop_labels, intraop_labels, mark_labels = self._labels[k]
+        items = preop_labels + intraop_labels + mark_labels
         anchors = self._anchors[k]
         if not items or len(items) != len(anchors):
             return
@@ -135,11 +148,16 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
 
     def label_texts(self, view: int = 0) -> tuple[list[str], list[str]]:
         """The (preop, intraop) label texts drawn in projection ``view``."""
-        preop, intraop = self._labels[view]
+        preop, intraop, _ = self._labels[view]
         return [item.toPlainText() for item in preop], [item.toPlainText() for item in intraop]
 
+    def landmark_texts(self, view: int = 0) -> list[str]:
+        """The landmark label texts drawn in projection ``view`` (CT ones first, then the touched ones)."""
+        return [item.toPlainText() for item in self._labels[view][2]]
+
     def label_boxes(self, view: int = 0) -> np.ndarray:
-        """(N, 4) scene rectangles (left, top, right, bottom, px) of projection ``view``'s labels, preop first."""
-        preop, intraop = self._labels[view]
-        rects = [item.sceneBoundingRect() for item in preop + intraop]
+        """(N, 4) scene rectangles (left, top, right, bottom, px) of projection ``view``'s labels, preop first, then
+        intraop, then landmarks."""
+        preop, intraop, marks = self._labels[view]
+        rects = [item.sceneBoundingRect() for item in preop + intraop + marks]
         return np.array([[r.left(), r.top(), r.right(), r.bottom()] for r in rects]).reshape(-1, 4)

@@ -10,7 +10,9 @@ The initial alignment puts the preop centroid on the intraop centroid, turns the
 (:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
 result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error ellipsoid. Runs (Run,
 the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop set loaded into a
-writable session is saved in it at once (in a worker), so the session holds what the technician loaded.
+writable session is saved in it at once (in a worker), so the session holds what the technician loaded. Anatomical
+landmarks (read with the preop nodes, stored in surgery) are listed apart from the hot spots, drawn in the view and
+given to each run (:mod:`snreg_gui.registration.landmarks`).
 
 >>> panel = RegistrationPanel()
 >>> panel.set_session(session)                 # intraop (and stored preop) nodes from the session
@@ -23,12 +25,13 @@ writable session is saved in it at once (in a worker), so the session holds what
 
 from __future__ import annotations
 
+import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QMessageBox, QProgressBar, QProgressDialog, QPushButton, QScrollArea, QSplitter,
                                QVBoxLayout, QWidget)
 
-from snreg.nodes import NodeSet, read_nodes
+from snreg.nodes import NodeSet, read_node_file
 from snreg.registration import METHOD_HELP, METHODS
 from snreg.registration.naming import marked_missing, marked_rows, pairs_line
 from snreg.registration.report import (mapped_preop, missing_nodes, node_warnings, pair_expected_mm, pair_rows,
@@ -42,6 +45,7 @@ from snreg_gui.common.splitters import first_width
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
 from snreg_gui.registration.exports import PanelExports
+from snreg_gui.registration.landmarks import LandmarkTable, PanelLandmarks
 from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, without
 from snreg_gui.registration.preop import PreopSourceBox
 from snreg_gui.registration.runs import PanelRuns
@@ -58,7 +62,7 @@ def _shown_rows(record: RunRecord) -> list:
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
-class RegistrationPanel(PanelRuns, PanelExports, QWidget):
+class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
@@ -105,6 +109,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.summary = QLabel("no registration yet")
         self.summary.setWordWrap(True)
         self.pairing_table = PairingTable()
+        self.landmark_table = LandmarkTable()         # apart from the hot spots; hidden without landmarks
         self.missing_label = QLabel("")
         self.missing_label.setWordWrap(True)
         self.exclude_button = QPushButton("Exclude selected and re-run")
@@ -177,6 +182,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         results_layout.addWidget(self.summary)
         two_line_headers(self.pairing_table)
         results_layout.addWidget(self.pairing_table)
+        results_layout.addWidget(self.landmark_table)
         exclusion = QHBoxLayout()
         exclusion.addWidget(self.exclude_button)
         exclusion.addWidget(self.include_button)
@@ -190,7 +196,11 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         results_layout.addLayout(exports)
         right = self.view_splitter = QSplitter(Qt.Orientation.Vertical)
         right.addWidget(self.view)
-        right.addWidget(results)
+        results_scroll = QScrollArea()              # warnings and the landmark table scroll, never clipped
+        results_scroll.setWidgetResizable(True)
+        results_scroll.setFrameShape(QScrollArea.Shape.NoFrame)
+        results_scroll.setWidget(results)
+        right.addWidget(results_scroll)
         right.setChildrenCollapsible(False)
         self.view.setMinimumHeight(250)            # a GL view hints no size: without this the splitter hides it
         right.setStretchFactor(0, 3)
@@ -224,18 +234,22 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         """Intraop nodes, and the stored preop set and latest registration if any, from ``session``; None clears."""
         self._session = self.preop_box.session = session
         if session is None:
+            self.set_intraop_landmarks(None)
             self._set_intraop(None, "no intraop nodes: open a session or a node file")
             self._show_record(None)
             self.refresh_stored()
             return
         preop = session.preop_nodes()
         if preop is not None:
-            self.preop_box.set_nodes(preop, f"session {session.case_id}")
+            self.preop_box.set_nodes(preop, f"session {session.case_id}", session.preop_landmarks())
         self.refresh_intraop()
         stored = session.registrations()
         latest = stored[-1] if stored else None
         if latest is not None and preop is not None and made_from(latest, preop, self._intraop):
-            self._show_record(RunRecord(preop, self._intraop, latest.result, f"Registration {latest.n} from the session."))
+            self._show_record(RunRecord(preop, self._intraop, latest.result,
+                                        f"Registration {latest.n} from the session.",
+                                        preop_landmarks=self.preop_box.landmarks,
+                                        intraop_landmarks=self._intraop_landmarks))
         self.refresh_stored()
 
     def refresh_intraop(self, *_) -> None:
@@ -243,7 +257,10 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         if self._session is not None:
             nodes = self._session.intraop_nodes()
             mixed = mixed_calibration_note(self._session.intraop_records())
-            self._set_intraop(nodes, f"{count_text(nodes)} from session {self._session.case_id}"
+            self.set_intraop_landmarks(self._session.intraop_landmarks())
+            marks = len(self._intraop_landmarks or ())
+            and_marks = f" and {marks} landmark{'s' * (marks != 1)}" if marks else ""
+            self._set_intraop(nodes, f"{count_text(nodes)}{and_marks} from session {self._session.case_id}"
                                      + (" - MAPPED WITH MIXED CALIBRATIONS" if mixed else ""))
             self.intraop_source.setToolTip(mixed)
 
@@ -277,14 +294,15 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         """New preop nodes: saved in a writable session at once (a worker; nothing is written when the session holds
         them already, e.g. its own set shown again), and the result shown no longer answers the inputs."""
         if self._session is not None and self._session.writable and has_nodes(nodes):
-            self._tasks.start(save_preop, self._session, nodes, returned=lambda problem: problem and self._say(problem),
+            self._tasks.start(save_preop, self._session, nodes, self.preop_box.landmarks,
+                              returned=lambda problem: problem and self._say(problem),
                               errored=self._say_problem)
         self._inputs_changed()
 
     def _choose_intraop_file(self) -> None:
         path = file_places.choose_file(self, "Intraop node file", self._session, "Node files (*.csv *.mrk.json *.json)")
         if path:
-            self._tasks.start(read_nodes, path, returned=self.set_intraop_nodes, errored=self._say_problem)
+            self._tasks.start(read_node_file, path, returned=self._intraop_file_read, errored=self._say_problem)
 
     def _inputs_changed(self, *_) -> None:
         """Preop, intraop, alignment, method, labels or bounds changed: the result shown no longer answers them, so
@@ -307,13 +325,14 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         record = self._record
         if record is not None and self._record_current:
             scene = NodeScene(mapped_preop(record.preop, record.result), record.intraop, record.result.pairing,
-                              record.result.missing)
+                              record.result.missing, **self._landmark_scene(record, record.result.transform))
         else:
             preop, intraop = self.preop_box.nodes, self._intraop
             kept = without(intraop, self._excluded) if has_nodes(intraop) else None
-            moved = preop.moved(self.alignment.transform(preop.xyz, None if kept is None else kept.xyz)) \
-                if has_nodes(preop) else None
-            scene = NodeScene(moved, intraop)
+            initial = (self.alignment.transform(preop.xyz, None if kept is None else kept.xyz) if has_nodes(preop)
+                       else None)
+            moved = preop.moved(initial) if has_nodes(preop) else None
+            scene = NodeScene(moved, intraop, **self._landmark_scene(None, np.eye(4) if initial is None else initial))
         self.view.show_scene(scene)
 
     # -- results -----------------------------------------------------------------
@@ -333,6 +352,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.summary.setText("no registration yet" if record is None else "\n".join(
             [summary_line(record.result, rows)] + [record.weighing] * bool(record.weighing)
             + [f"WARNING: {text}" for text in node_warnings(rows)]))
+        self._landmark_summary(record)
         missing = [] if record is None or not current else marked_missing(
             missing_nodes(record.preop, record.result), record.intraop.ids, record.preop.ids)
         self.missing_label.setText("Not found yet (trocar frame):\n" + targets_text(missing) if missing else "")

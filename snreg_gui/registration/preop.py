@@ -4,7 +4,8 @@ Why: the threshold that separates sentinel nodes from higher echelons is a judge
 technician moves a slider and sees how many nodes it gives. The volume is read once; each slider or
 node-count change re-segments it in a worker after a short pause (debounce), and a result made for an older
 file or older settings is dropped. Same threshold meaning as ``snreg preop --threshold`` (fraction of the
-maximum activity).
+maximum activity). A node file's landmarks (a CSV's rows of ``kind`` landmark, a markups file's landmark points) come
+in apart, as ``box.landmarks`` (ids = names; None from a SPECT): they are never hot spots.
 
 >>> box = PreopSourceBox()
 >>> box.nodes_changed.connect(panel_slot)      # NodeSet, LPS mm for a SPECT
@@ -19,7 +20,7 @@ from pathlib import Path
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSlider, QSpinBox
 
-from snreg.nodes import NodeSet, read_nodes
+from snreg.nodes import NodeSet, read_node_file
 from snreg.preop import Volume, load_volume, segment_nodes
 from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet, sentence
@@ -32,12 +33,14 @@ NODE_FILE_SUFFIXES = (".csv", ".json", ".txt")
 
 @dataclass(frozen=True)
 class PreopRead:
-    """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file)."""
+    """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file), the node
+    file's landmarks (None for a SPECT or a file without any)."""
 
     generation: int
     nodes: NodeSet
     volume: Volume | None
     source: str
+    landmarks: NodeSet | None = None
 
 
 def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None) -> PreopRead:
@@ -46,7 +49,8 @@ def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None
     if not location.exists():
         raise ValueError(f"{location}: no such file or folder; choose a node file or a SPECT DICOM file or folder")
     if location.is_file() and location.name.lower().endswith(NODE_FILE_SUFFIXES):
-        return PreopRead(generation, read_nodes(location), None, location.name)
+        read = read_node_file(location)
+        return PreopRead(generation, read.nodes, None, location.name, read.landmarks if len(read.landmarks) else None)
     volume = load_volume(location, modality="NM")
     return segment(generation, volume, threshold, n_nodes, location.name)
 
@@ -68,6 +72,7 @@ class PreopSourceBox(QGroupBox):
     def __init__(self, parent=None):
         super().__init__("Preop nodes (SPECT)", parent)
         self.nodes: NodeSet | None = None
+        self.landmarks: NodeSet | None = None     # read with the nodes from a node file (ids = names); None: none
         self.session = None                  # the panel's session: its folder is where the file dialogs start
         self._volume: Volume | None = None
         self._source = ""
@@ -135,13 +140,14 @@ class PreopSourceBox(QGroupBox):
         self._tasks.start(read_preop, self._generation, str(path), self.threshold, self.n_nodes,
                           returned=self._read_done, errored=self._failed)
 
-    def set_nodes(self, nodes: NodeSet | None, source: str) -> None:
-        """Show nodes given directly (e.g. a session's stored preop set); no volume to re-segment."""
+    def set_nodes(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None) -> None:
+        """Show nodes given directly (e.g. a session's stored preop set, with its ``landmarks``); no volume to
+        re-segment."""
         self._generation += 1
         self._volume, self._loading, self._pending = None, False, False
         self._timer.stop()
         self._set_spect_controls(False)
-        self._show(nodes, source)
+        self._show(nodes, source, landmarks)
 
     def shutdown(self) -> None:
         self._timer.stop()
@@ -193,7 +199,7 @@ class PreopSourceBox(QGroupBox):
         self._loading = False
         self._volume = read.volume
         self._set_spect_controls(read.volume is not None)
-        self._show(read.nodes, read.source)
+        self._show(read.nodes, read.source, read.landmarks)
 
     def _segment_done(self, read: PreopRead) -> None:
         self._segmenting = False
@@ -210,14 +216,17 @@ class PreopSourceBox(QGroupBox):
             self._pending = False
             self._resegment()
 
-    def _show(self, nodes: NodeSet | None, source: str) -> None:
+    def _show(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None) -> None:
         self.nodes, self._source = nodes, source
+        self.landmarks = landmarks if landmarks is not None and len(landmarks) else None
         self.table.show_nodes(nodes)
         n = 0 if nodes is None else len(nodes)
+        k = 0 if self.landmarks is None else len(self.landmarks)
+        marks = f" and {k} landmark{'s' * (k != 1)}" if k else ""
         if self._volume is not None:
             self.status.setText(f"{n} node{'s' * (n != 1)} above {self.threshold:.2f} x maximum in {source}")
         else:
-            self.status.setText(f"{n} node{'s' * (n != 1)} from {source}" if nodes is not None
+            self.status.setText(f"{n} node{'s' * (n != 1)}{marks} from {source}" if nodes is not None
                                 else "no preop nodes: open a node file or a SPECT")
         self.nodes_changed.emit(nodes)
 

@@ -12,17 +12,26 @@ panel, using its widgets (``run_button``, ``busy_bar``, ``auto_rerun``, ``alignm
 from __future__ import annotations
 
 from snreg.workflow.registration_run import RunRecord, RunRequest, run_registration
+from snreg_gui.registration.landmarks import needed_nodes
 from snreg_gui.registration.node_sets import has_nodes, same_nodes, without
 
-MIN_PAIRS = 3       # intraop nodes a registration needs (DESIGN §4; the panel offers no landmarks to make up the 3)
+MIN_PAIRS = 3       # points a registration needs: nodes, and landmark pairs making up the 3 with 1 node at least (§4)
+POINTS = "3 points (nodes, and landmarks named on both sides; 1 node at least)"
 
 
-def too_few_text(kept: int, left_out: list[str]) -> str:
-    """Why a registration of ``kept`` intraop nodes cannot run, and what to do: store more, or (when ``left_out``
-    ids were excluded) include some; "" when there are enough."""
-    if kept >= MIN_PAIRS:
+def too_few_text(kept: int, left_out: list[str], pairs: int = 0) -> str:
+    """Why a registration of ``kept`` intraop nodes (beside ``pairs`` landmark pairs) cannot run, and what to do:
+    store more, or (when ``left_out`` ids were excluded) include some; "" when there are enough."""
+    needed = needed_nodes(pairs)
+    if kept >= needed:
         return ""
     nodes = f"{kept} intraop node{'s' * (kept != 1)}"
+    if pairs:
+        beside = f"{nodes} beside {pairs} landmark pair{'s' * (pairs != 1)}"
+        if left_out:
+            return (f"Only {beside} once {', '.join(left_out)} {'is' if len(left_out) == 1 else 'are'} left out; "
+                    f"registration needs {POINTS}: include some (Include all) or store more.")
+        return f"Only {beside} so far; registration needs {POINTS}: store {needed - kept} more node or landmark."
     if not left_out:
         return (f"Only {nodes} so far; registration needs at least {MIN_PAIRS}: store {MIN_PAIRS - kept} more "
                 "(or open a node file with more).")
@@ -44,7 +53,7 @@ class PanelRuns:
         counts)."""
         self.refresh_intraop()
         if not (self.auto_rerun.isChecked() and has_nodes(self.preop_box.nodes) and self._intraop is not None
-                and len(self._intraop) >= MIN_PAIRS):
+                and len(self._intraop) >= needed_nodes(len(self.landmark_pairs()))):
             return
         if self._registering:
             self._auto_pending = True
@@ -61,11 +70,13 @@ class PanelRuns:
             return self._say("Load the preop nodes first: a node file or a SPECT.")
         if not has_nodes(intraop):
             return self._say("There are no intraop nodes yet: store nodes or open an intraop node file.")
-        if len(preop) < MIN_PAIRS:
+        pairs = len(self.landmark_pairs())
+        if len(preop) < needed_nodes(pairs):
+            with_pairs = f" points with {pairs} landmark pair{'s' * (pairs != 1)}" if pairs else ""
             return self._say(f"Only {len(preop)} preop node{'s' * (len(preop) != 1)}; registration needs at least "
-                             f"{MIN_PAIRS}: lower the SPECT threshold or open another node file.")
+                             f"{MIN_PAIRS}{with_pairs}: lower the SPECT threshold or open another node file.")
         kept = without(intraop, self._excluded)
-        problem = too_few_text(len(kept), [i for i in intraop.ids if i in self._excluded])
+        problem = too_few_text(len(kept), [i for i in intraop.ids if i in self._excluded], pairs)
         if problem:
             return self._say(problem)
         store = not automatic and self._session is not None and same_nodes(
@@ -73,6 +84,7 @@ class PanelRuns:
         request = RunRequest(preop, kept, self.method_combo.currentText(), self.labels_check.isChecked(),
                              self.alignment.transform(preop.xyz, kept.xyz), self.rotation_bound.value(),
                              self.translation_bound.value(), self._session if store else None)
+        request = self._with_landmarks(request)
         self._registering = True
         self.run_button.setEnabled(automatic)
         self.busy_bar.setVisible(True)
