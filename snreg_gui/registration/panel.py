@@ -6,8 +6,10 @@ and must see whether each pairing can be trusted before telling the surgeon. The
 makes the exports. With a writable session the preop set and each result are stored in it; with a session
 opened for reading (review) the stored preop set and latest registration are shown and nothing is written.
 
-The initial alignment puts the preop centroid on the intraop centroid, turns the set about it and shifts it
-(:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
+The search starts from gravity by default (:mod:`snreg_gui.registration.start`: the SPECT's patient position and the
+table's tilt, the IMU through the session's chain), or from the typed initial alignment when the operator touches it or
+gravity is unknown (said in one sentence); that alignment puts the preop centroid on the intraop centroid, turns the
+set about it and shifts it (:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
 result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error ellipsoid. Runs (Run,
 the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop set loaded into a
 writable session is saved in it at once (in a worker), so the session holds what the technician loaded.
@@ -35,7 +37,7 @@ from snreg.registration.report import (mapped_preop, missing_nodes, node_warning
                                        summary_line)
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import EXPORTS, RunRecord, save_preop
+from snreg.workflow.registration_run import EXPORTS, RunRecord
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
@@ -45,6 +47,7 @@ from snreg_gui.registration.exports import PanelExports
 from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, without
 from snreg_gui.registration.preop import PreopSourceBox
 from snreg_gui.registration.runs import PanelRuns
+from snreg_gui.registration.start import PanelStart, StartBox
 from snreg_gui.registration.stored import StoredList
 from snreg_gui.registration.tables import NodeTable, PairingTable, two_line_headers
 
@@ -58,7 +61,7 @@ def _shown_rows(record: RunRecord) -> list:
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
-class RegistrationPanel(PanelRuns, PanelExports, QWidget):
+class RegistrationPanel(PanelRuns, PanelStart, PanelExports, QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
@@ -70,6 +73,8 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.missing_nodes: list = []              # MissingNode of the result shown
         self._session = None
         self._intraop: NodeSet | None = None
+        self._intraop_from_session = False          # the intraop nodes are the session's (its chain gives their down)
+        self._saving_preop = self._save_again = False
         self._record: RunRecord | None = None       # the result shown, with its node sets
         self._record_current = False                 # do the inputs still match it?
         self._registering = False
@@ -94,6 +99,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.labels_check = QCheckBox("use labels (left/right, station)")
         self.rotation_bound = self._bound_spin(1.0, 180.0, 60.0, " deg")
         self.translation_bound = self._bound_spin(1.0, 500.0, 60.0, " mm")
+        self.start_box = StartBox()                  # gravity or the typed alignment, and the table's tilt
         self.alignment = AlignmentBox()
         self.run_button = QPushButton("Run registration")
         self.busy_bar = QProgressBar()
@@ -123,6 +129,8 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.preop_box.nodes_changed.connect(self._preop_changed)
         self.intraop_open_button.clicked.connect(self._choose_intraop_file)
         self.alignment.changed.connect(self._inputs_changed)
+        self.alignment.edited.connect(self.start_box.use_typed)       # typed angles override gravity
+        self.start_box.changed.connect(self._start_changed)
         self.method_combo.currentTextChanged.connect(self._inputs_changed)
         self.labels_check.toggled.connect(self._inputs_changed)
         self.rotation_bound.valueChanged.connect(self._inputs_changed)
@@ -133,6 +141,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.include_button.clicked.connect(self._include_all)
         for kind, button in self.export_buttons.items():
             button.clicked.connect(lambda _=False, k=kind: self._choose_export(k))
+        self._show_start()
 
     @staticmethod
     def _bound_spin(low: float, high: float, value: float, suffix: str) -> QDoubleSpinBox:
@@ -159,7 +168,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         form.addRow(self.auto_rerun)
         controls = QWidget()
         column = QVBoxLayout(controls)
-        for widget in (self.preop_box, intraop, settings, self.alignment, self.stored):
+        for widget in (self.preop_box, intraop, settings, self.start_box, self.alignment, self.stored):
             column.addWidget(widget)
         column.addStretch(1)
         scroll = QScrollArea()
@@ -224,13 +233,14 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         """Intraop nodes, and the stored preop set and latest registration if any, from ``session``; None clears."""
         self._session = self.preop_box.session = session
         if session is None:
+            self._intraop_from_session = False
             self._set_intraop(None, "no intraop nodes: open a session or a node file")
             self._show_record(None)
             self.refresh_stored()
             return
         preop = session.preop_nodes()
         if preop is not None:
-            self.preop_box.set_nodes(preop, f"session {session.case_id}")
+            self.preop_box.set_nodes(preop, f"session {session.case_id}", session.preop_down())
         self.refresh_intraop()
         stored = session.registrations()
         latest = stored[-1] if stored else None
@@ -242,13 +252,15 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""
         if self._session is not None:
             nodes = self._session.intraop_nodes()
+            self._intraop_from_session = True
             mixed = mixed_calibration_note(self._session.intraop_records())
             self._set_intraop(nodes, f"{count_text(nodes)} from session {self._session.case_id}"
                                      + (" - MAPPED WITH MIXED CALIBRATIONS" if mixed else ""))
             self.intraop_source.setToolTip(mixed)
 
     def set_intraop_nodes(self, nodes: NodeSet) -> None:
-        """Use these intraop nodes (trocar frame, mm)."""
+        """Use these intraop nodes (trocar frame, mm); a node file carries no down, so no start from gravity."""
+        self._intraop_from_session = False
         self._set_intraop(nodes, count_text(nodes) + (f" ({nodes.frame} frame)" if nodes.frame else ""))
 
     def load_preop(self, path) -> None:
@@ -274,11 +286,11 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self._inputs_changed()
 
     def _preop_changed(self, nodes: NodeSet | None) -> None:
-        """New preop nodes: saved in a writable session at once (a worker; nothing is written when the session holds
-        them already, e.g. its own set shown again), and the result shown no longer answers the inputs."""
-        if self._session is not None and self._session.writable and has_nodes(nodes):
-            self._tasks.start(save_preop, self._session, nodes, returned=lambda problem: problem and self._say(problem),
-                              errored=self._say_problem)
+        """New preop nodes: saved with their down in a writable session at once (a worker; nothing is written when the
+        session holds them already, e.g. its own set shown again), and the result shown no longer answers the inputs.
+        A tilt that came entered with them is shown."""
+        self.start_box.take_tilt(self.preop_box.down)
+        self._save_preop(nodes)
         self._inputs_changed()
 
     def _choose_intraop_file(self) -> None:
@@ -297,6 +309,7 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
                                  f"(was {summary_line(record.result, _shown_rows(record))})")
         self.pairing_table.setEnabled(False)
         self._update_exports()
+        self._show_start()
         if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
             self.missing_nodes = []
             self.missing_label.setText("")
@@ -331,7 +344,8 @@ class RegistrationPanel(PanelRuns, PanelExports, QWidget):
         self.pairing_table.show_rows(rows, [] if record is None else pair_expected_mm(record.intraop, record.result))
         self.pairing_table.setEnabled(record is not None)
         self.summary.setText("no registration yet" if record is None else "\n".join(
-            [summary_line(record.result, rows)] + [record.weighing] * bool(record.weighing)
+            [summary_line(record.result, rows)] + [record.start] * bool(record.start)
+            + [record.weighing] * bool(record.weighing)
             + [f"WARNING: {text}" for text in node_warnings(rows)]))
         missing = [] if record is None or not current else marked_missing(
             missing_nodes(record.preop, record.result), record.intraop.ids, record.preop.ids)

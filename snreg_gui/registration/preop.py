@@ -21,6 +21,7 @@ from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, 
 
 from snreg.nodes import NodeSet, read_nodes
 from snreg.preop import Volume, load_volume, segment_nodes
+from snreg.preop.gravity import PreopDown, volume_down
 from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.tables import NodeTable
@@ -32,12 +33,14 @@ NODE_FILE_SUFFIXES = (".csv", ".json", ".txt")
 
 @dataclass(frozen=True)
 class PreopRead:
-    """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file)."""
+    """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file), and what
+    gives their down: the SPECT's patient position, or the one a node file's comments record (None: none recorded)."""
 
     generation: int
     nodes: NodeSet
     volume: Volume | None
     source: str
+    down: PreopDown | None = None
 
 
 def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None) -> PreopRead:
@@ -46,21 +49,24 @@ def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None
     if not location.exists():
         raise ValueError(f"{location}: no such file or folder; choose a node file or a SPECT DICOM file or folder")
     if location.is_file() and location.name.lower().endswith(NODE_FILE_SUFFIXES):
-        return PreopRead(generation, read_nodes(location), None, location.name)
+        nodes = read_nodes(location)
+        return PreopRead(generation, nodes, None, location.name, PreopDown.from_comments(nodes.comments, location.name))
     volume = load_volume(location, modality="NM")
     return segment(generation, volume, threshold, n_nodes, location.name)
 
 
 def segment(generation: int, volume: Volume, threshold: float, n_nodes: int | None, source: str) -> PreopRead:
-    """Segment an already loaded volume (worker thread)."""
-    return PreopRead(generation, segment_nodes(volume, threshold=threshold, n_nodes=n_nodes).nodes, volume, source)
+    """Segment an already loaded volume (worker thread); its down from its Patient Position (snreg's default tilt)."""
+    return PreopRead(generation, segment_nodes(volume, threshold=threshold, n_nodes=n_nodes).nodes, volume, source,
+                     volume_down(volume))
 
 
 class PreopSourceBox(QGroupBox):
     """Open buttons, threshold slider, node-count box, status line and the table of preop nodes.
 
     Emits ``nodes_changed(NodeSet)`` whenever the preop nodes change (file read, re-segmented, or
-    :meth:`set_nodes`). ``status`` says how many nodes were found, or what went wrong, in one sentence.
+    :meth:`set_nodes`); ``down`` is then what gives their down as read (:class:`PreopDown`, None when the source
+    records none). ``status`` says how many nodes were found, or what went wrong, in one sentence.
     """
 
     nodes_changed = Signal(object)
@@ -68,6 +74,7 @@ class PreopSourceBox(QGroupBox):
     def __init__(self, parent=None):
         super().__init__("Preop nodes (SPECT)", parent)
         self.nodes: NodeSet | None = None
+        self.down: PreopDown | None = None
         self.session = None                  # the panel's session: its folder is where the file dialogs start
         self._volume: Volume | None = None
         self._source = ""
@@ -135,13 +142,14 @@ class PreopSourceBox(QGroupBox):
         self._tasks.start(read_preop, self._generation, str(path), self.threshold, self.n_nodes,
                           returned=self._read_done, errored=self._failed)
 
-    def set_nodes(self, nodes: NodeSet | None, source: str) -> None:
-        """Show nodes given directly (e.g. a session's stored preop set); no volume to re-segment."""
+    def set_nodes(self, nodes: NodeSet | None, source: str, down: PreopDown | None = None) -> None:
+        """Show nodes given directly (e.g. a session's stored preop set, with the down stored with them); no volume
+        to re-segment."""
         self._generation += 1
         self._volume, self._loading, self._pending = None, False, False
         self._timer.stop()
         self._set_spect_controls(False)
-        self._show(nodes, source)
+        self._show(nodes, source, down)
 
     def shutdown(self) -> None:
         self._timer.stop()
@@ -193,12 +201,12 @@ class PreopSourceBox(QGroupBox):
         self._loading = False
         self._volume = read.volume
         self._set_spect_controls(read.volume is not None)
-        self._show(read.nodes, read.source)
+        self._show(read.nodes, read.source, read.down)
 
     def _segment_done(self, read: PreopRead) -> None:
         self._segmenting = False
         if read.generation == self._generation:
-            self._show(read.nodes, read.source)
+            self._show(read.nodes, read.source, read.down)
         if self._pending:
             self._pending = False
             self._resegment()
@@ -210,8 +218,8 @@ class PreopSourceBox(QGroupBox):
             self._pending = False
             self._resegment()
 
-    def _show(self, nodes: NodeSet | None, source: str) -> None:
-        self.nodes, self._source = nodes, source
+    def _show(self, nodes: NodeSet | None, source: str, down: PreopDown | None) -> None:
+        self.nodes, self._source, self.down = nodes, source, down
         self.table.show_nodes(nodes)
         n = 0 if nodes is None else len(nodes)
         if self._volume is not None:
