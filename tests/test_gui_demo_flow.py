@@ -32,7 +32,7 @@ def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     assert window.session.preop_down() == PreopDown("HFS")         # with its down: supine, default tilt
     assert panel.alignment.angles_deg == (0.0, 0.0, 0.0)            # nothing pre-filled from the simulator's truth
     gravity = "start: gravity, table tilt 30 deg head down (default), heading searched"
-    assert panel.start_box.status.text().startswith("Start: gravity, table tilt 30 deg")
+    assert panel.start_box.status.text().startswith("Next run's start: gravity, table tilt 30 deg")
     qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
     # an automatic run after the last store may still be under way: Run then runs again when it ends (and stores)
     qtbot.waitUntil(lambda: panel.message.text() == "Stored in the session as registration 0." and not panel.busy,

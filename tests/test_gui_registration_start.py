@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from snreg import geometry
 from snreg.chain import ChainCalibration
+from snreg.cli import main
 from snreg.demo.spect import THESIS_VOXEL_MM, spect_of_nodes, write_nm
 from snreg.errors import PreopError
 from snreg.nodes import NodeSet, write_nodes
@@ -86,7 +87,7 @@ def test_gravity_is_the_default_start_and_the_result_says_so(qtbot, panel, pelvi
         panel.set_session(session)
         load_preop_csv(qtbot, panel, tmp_path / "p.csv", xyz, labels)
         assert panel.start_box.use_gravity and panel.start_box.tilt_spin.value() == 30.0
-        assert panel.start_box.status.text() == f"S{GRAVITY_DEFAULT[1:]}: no angle to type."
+        assert panel.start_box.status.text() == f"Next run's {GRAVITY_DEFAULT}."
         result = click_run(qtbot, panel)
         assert np.array_equal(result.pairing, truth) and result.rms_mm < 4.0
         assert GRAVITY_DEFAULT in panel.summary.text().splitlines()
@@ -136,8 +137,8 @@ def test_a_preop_without_a_patient_position_falls_back_with_a_sentence(qtbot, pa
         assert panel.preop_box.down is None and panel.start_box.use_gravity      # still chosen, not usable
         status = panel.start_box.status.text()
         assert status == ("Gravity cannot give the start: the preop nodes carry no patient position (a SPECT without "
-                          "one, or a node file not written from a SPECT by snreg preop); the typed alignment below is "
-                          "used (centroids matched, or the angles you type).")
+                          "one, or a node file not written from a SPECT by snreg preop); the typed alignment is used "
+                          "(centroids matched, or the angles you type).")
         result = click_run(qtbot, panel)
         assert np.array_equal(result.pairing, truth)
         start = [line for line in panel.summary.text().splitlines() if line.startswith("start:")]
@@ -168,7 +169,7 @@ def test_every_reason_gravity_is_unknown_is_said(qtbot, panel, pelvic_nodes, tmp
                                         "side (Patient Position HFDR)")
         panel.load_preop(write_nm(counts, origin, THESIS_VOXEL_MM, tmp_path / "hfs.dcm")[0])     # supine: gravity
         qtbot.waitUntil(lambda: not panel.busy and panel.preop_box.down.patient_position == "HFS", timeout=TIMEOUT_MS)
-        assert status.text().startswith("Start: gravity, table tilt 30 deg head down (default)")
+        assert status.text().startswith("Next run's start: gravity, table tilt 30 deg head down (default)")
         qtbot.waitUntil(lambda: session.preop_down() == PreopDown("HFS"), timeout=TIMEOUT_MS)
 
 
@@ -186,7 +187,7 @@ def test_a_tilt_outside_0_to_60_degrees_is_refused(qtbot, panel):
             PreopDown("HFS", tilt)
 
 
-def test_the_down_is_saved_in_the_session_with_the_tilts_source(qtbot, panel, pelvic_nodes, tmp_path):
+def test_the_down_is_saved_in_the_session_with_the_tilts_source(qtbot, panel, pelvic_nodes, tmp_path, capsys):
     xyz, labels = pelvic_nodes
     session, truth = far_case(tmp_path / "case.h5", xyz, labels)
     with session:
@@ -199,7 +200,8 @@ def test_the_down_is_saved_in_the_session_with_the_tilts_source(qtbot, panel, pe
         type_into(qtbot, panel.start_box.tilt_spin, "26")         # the team's table as it really is
         qtbot.waitUntil(lambda: not panel.busy and session.preop_down() == PreopDown("HFS", 26.0, True),
                         timeout=TIMEOUT_MS)
-        assert panel.start_box.status.text().startswith("Start: gravity, table tilt 26 deg head down (entered)")
+        assert panel.start_box.status.text() == "Next run's start: gravity, table tilt 26 deg head down (entered), " \
+                                                "heading searched."
         result = click_run(qtbot, panel)
         assert np.array_equal(result.pairing, truth)
         assert "start: gravity, table tilt 26 deg head down (entered), heading searched" in panel.summary.text()
@@ -211,3 +213,6 @@ def test_the_down_is_saved_in_the_session_with_the_tilts_source(qtbot, panel, pe
         assert other.start_box.tilt_spin.value() == 26.0 and other.start_box.tilt_entered
         assert other.preop_box.down == PreopDown("HFS", 26.0, True)
         other.shutdown()
+    assert main(["session", "info", str(tmp_path / "case.h5")]) == 0
+    assert ("preop down: DICOM HFS (supine, head first), table tilt 26 deg head down (entered)"
+            in capsys.readouterr().out.splitlines())

@@ -56,7 +56,7 @@ class AlignmentBox(QGroupBox):
     edited = Signal()
 
     def __init__(self, parent=None):
-        super().__init__("Typed initial alignment (overrides gravity when touched)", parent)
+        super().__init__("Typed alignment (overrides gravity)", parent)
         self.angle_spins = {}
         for name, _, limit in ANGLES:
             spin = _spin(limit, " deg", 5.0)

@@ -9,10 +9,11 @@ opened for reading (review) the stored preop set and latest registration are sho
 The search starts from gravity by default (:mod:`snreg_gui.registration.start`: the SPECT's patient position and the
 table's tilt, the IMU through the session's chain), or from the typed initial alignment when the operator touches it or
 gravity is unknown (said in one sentence); that alignment puts the preop centroid on the intraop centroid, turns the
-set about it and shifts it (:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
-result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error ellipsoid. Runs (Run,
-the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop set loaded into a
-writable session is saved in it at once (in a worker), so the session holds what the technician loaded.
+set about it and shifts it (:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that
+alignment until a result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error
+ellipsoid. Runs (Run, the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop
+set loaded into a writable session is saved in it at once (in a worker), with its down, so the session holds what the
+technician loaded.
 
 >>> panel = RegistrationPanel()
 >>> panel.set_session(session)                 # intraop (and stored preop) nodes from the session
@@ -179,7 +180,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, QWidget):
         left_layout = QVBoxLayout(left)                  # Run stays visible below the scrolling settings
         left_layout.setContentsMargins(0, 0, 0, 0)
         left_layout.addWidget(scroll, 1)
-        for widget in (self.run_button, self.busy_bar, self.message):
+        for widget in (self.start_box.status, self.run_button, self.busy_bar, self.message):
             left_layout.addWidget(widget)
         results = QWidget()
         results_layout = QVBoxLayout(results)

@@ -50,11 +50,12 @@ class StartChoice:
     def status(self) -> str:
         """One sentence for the panel: the start, or why not gravity and what is used instead."""
         if self.problem:
-            return (f"Gravity cannot give the start: {self.problem}; the typed alignment below is used "
+            return (f"Gravity cannot give the start: {self.problem}; the typed alignment is used "
                     "(centroids matched, or the angles you type).")
         if self.gravity is None:
-            return "Your typed angles override gravity: the alignment below is the start (choose gravity to go back)."
-        return f"{self.words[0].upper()}{self.words[1:]}: no angle to type."
+            return ("Your typed angles override gravity: the next run starts from the typed alignment (choose "
+                    "gravity to go back).")
+        return f"Next run's {self.words}."
 
 
 def choose_start(use_gravity: bool, preop_down: PreopDown | None, session, intraop_is_session: bool) -> StartChoice:
@@ -85,8 +86,9 @@ def run_from(request: RunRequest, words: str) -> RunRecord:
 
 
 class StartBox(QGroupBox):
-    """Start from gravity or the typed alignment, the table's head-down tilt (0 to 60 deg), and a line saying which
-    start the next run uses; ``changed`` when the choice or the tilt changes."""
+    """Start from gravity or the typed alignment, the table's head-down tilt (0 to 60 deg), and ``status``: a line
+    saying which start the next run uses (the panel shows it beside Run); ``changed`` when the choice or the tilt
+    changes."""
 
     changed = Signal()
 
@@ -97,7 +99,8 @@ class StartBox(QGroupBox):
         self.gravity_radio.setToolTip("down in the SPECT (its patient position turned by the table's tilt) matched to "
                                       "down in the trocar frame (the IMU through the chain); every heading searched")
         self.typed_radio = QRadioButton("typed alignment (below)")
-        self.typed_radio.setToolTip("start from the angles and shift typed below (the centroids matched when untouched)")
+        self.typed_radio.setToolTip("start from the angles and shift typed below (the centroids matched when "
+                                    "untouched)")
         self.gravity_radio.setChecked(True)
         group = QButtonGroup(self)
         group.addButton(self.gravity_radio)
@@ -111,15 +114,15 @@ class StartBox(QGroupBox):
         self.tilt_spin.setKeyboardTracking(False)
         self.tilt_spin.setToolTip(f"the operating table's head-down (Trendelenburg) tilt as the team set it, 0 to "
                                   f"{MAX_TILT_DEG:g} deg; snreg's default {TABLE_TILT_DEG:g} until you change it")
-        self.status = QLabel("")
+        self.status = QLabel("")          # laid out by the panel above Run, where it is always in sight
         self.status.setWordWrap(True)
+        self.status.setToolTip("the start the next Run uses (the Start box in the settings column chooses it)")
         grid = QGridLayout(self)
-        grid.addWidget(self.gravity_radio, 0, 0, 1, 2)
-        grid.addWidget(self.typed_radio, 1, 0, 1, 2)
+        grid.addWidget(self.gravity_radio, 0, 0, 1, 3)
+        grid.addWidget(self.typed_radio, 1, 0, 1, 3)
         grid.addWidget(QLabel("Table tilt (head down)"), 2, 0)
         grid.addWidget(self.tilt_spin, 2, 1)
-        grid.addWidget(self.status, 3, 0, 1, 2)
-        grid.setColumnStretch(0, 1)
+        grid.setColumnStretch(2, 1)                 # the tilt stays beside its label in a narrow column
         self.gravity_radio.toggled.connect(self.changed)
         self.tilt_spin.valueChanged.connect(self._tilt_edited)
 
