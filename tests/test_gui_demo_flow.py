@@ -1,7 +1,7 @@
 """The demo end to end in the app, offscreen (issue 6 "store nodes in the demo, register, export"): the four phantom
-nodes auto-stored from the rendered feeds, the phantom SPECT segmented in the registration panel, the nominal
-set-up alignment, registered on the first Run (the alignment starts from the centroids: issue 28), paired as the
-phantom truth says, and exported."""
+nodes auto-stored from the rendered feeds, the phantom SPECT segmented in the registration panel, registered on the
+first Run from gravity with no angle typed (issue 30: the SPECT's patient position HFS, the table tilted 27 degrees
+while the panel assumes the default 30, the IMU through the chain), paired as the phantom truth says, and exported."""
 
 import numpy as np
 from PySide6.QtCore import Qt
@@ -10,6 +10,7 @@ from PySide6.QtWidgets import QFileDialog
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
 from snreg.nodes import read_nodes
+from snreg.preop.gravity import PreopDown
 from snreg.session import Session
 from snreg_gui.app import MainWindow
 
@@ -28,10 +29,17 @@ def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     window.tabs.setCurrentWidget(panel)
     qtbot.waitUntil(lambda: panel.intraop_table.rowCount() == 4, timeout=5_000)    # the panel follows the stored nodes
     qtbot.waitUntil(lambda: window.session.preop_nodes() is not None, timeout=5_000)  # saved when loaded, before a Run
-    with qtbot.waitSignal(panel.registered, timeout=30_000) as registered:
-        qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
-    result = registered.args[0]
+    assert window.session.preop_down() == PreopDown("HFS")         # with its down: supine, default tilt
+    assert panel.alignment.angles_deg == (0.0, 0.0, 0.0)            # nothing pre-filled from the simulator's truth
+    gravity = "start: gravity, table tilt 30 deg head down (default), heading searched"
+    assert panel.start_box.status.text().startswith("Next run's start: gravity, table tilt 30 deg")
+    qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    # an automatic run after the last store may still be under way: Run then runs again when it ends (and stores)
+    qtbot.waitUntil(lambda: panel.message.text() == "Stored in the session as registration 0." and not panel.busy,
+                    timeout=30_000)
+    result = panel.last_result
     assert result.rms_mm <= 3.0 and np.all(result.pairing >= 0)
+    assert gravity in panel.summary.text().splitlines()
 
     # truth: each stored node pairs with the segmented node nearest to its own source
     session = window.session

@@ -61,6 +61,8 @@ def cmd_info(args) -> int:
         names = ", ".join(node["id"] for node in info["landmarks"])
         print(f"landmarks: {info['intraop_landmarks']} stored in surgery{f' ({names})' if names else ''}, "
               f"{info['preop_landmarks']} on the CT")
+    down = info.get("preop_down")
+    print(f"preop down: {down['source'] if down else 'unknown (no patient position stored with the preop nodes)'}")
     camera = info["camera"]
     if camera["tracked"] or camera["lost"] or any(node["trocar_camera_mm"] is not None for node in info["nodes"]):
         mapped = ", ".join(f"{node['id']} " + ("untracked" if node["trocar_camera_mm"] is None else

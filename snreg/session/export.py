@@ -25,7 +25,9 @@ def session_info(path: str | Path) -> dict:
     label, the insertion it was mapped with (``trocar_camera_mm``, null when untracked) and its own error's covariance
     (``cov_trocar_mm2``, 3x3 mm^2 in the trocar frame, null when unknown), the stored landmarks apart (``landmarks``,
     the same fields, id = name; ``intraop_landmarks`` and ``preop_landmarks`` their counts), the camera stream's
-    tracked and lost pairs, calibration, registrations, events by kind (e.g. ``store_refused``), the recorded videos;
+    tracked and lost pairs, what gives the preop nodes' down (``preop_down``: patient position, table tilt, whether it
+    was entered, and ``source`` in words; null when unknown), calibration, registrations, events by kind (e.g.
+    ``store_refused``), the recorded videos;
     ``damaged`` also when a dataset fails its checksum or digest (``damage`` names them; the videos' SHA-256 is left
     to ``snreg session verify``)."""
     with Session.open(path) as session:                 # refuses what is not a session, in one sentence
@@ -39,6 +41,8 @@ def session_info(path: str | Path) -> dict:
                 "intraop_nodes": len(session.intraop_records()), "preop_nodes": 0 if preop is None else len(preop),
                 "intraop_landmarks": len(session.intraop_records(LANDMARK)),
                 "preop_landmarks": len(session.preop_landmarks()),
+                "preop_down": None if session.preop_down() is None else {**session.preop_down().to_json(),
+                                                                           "source": session.preop_down().source},
                 "streams": {name: int(session.stream(name).shape[0]) for name in STREAM_DTYPES},
                 "nodes": [_point_info(node) for node in session.intraop_records()],
                 "landmarks": [_point_info(node) for node in session.intraop_records(LANDMARK)],

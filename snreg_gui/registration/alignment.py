@@ -9,7 +9,8 @@ The preop (SPECT, patient LPS) and intraop (trocar) frames are unrelated in ever
 from the centroids: the preop centroid ``c`` lands on the intraop centroid ``d``, turned about itself and then
 shifted: ``p' = R (p - c) + d + t`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (DESIGN §3). Untouched (all zero), it
 is the centroids matched, so a first Run registers without any manual step; the shift ``t`` is the operator's
-correction from there. Without intraop nodes ``d = c``.
+correction from there. Without intraop nodes ``d = c``. It is the start only when the operator touches it (``edited``)
+or chooses it, or when gravity cannot give one (:mod:`snreg_gui.registration.start`).
 
 >>> box = AlignmentBox()
 >>> box.changed.connect(redraw)
@@ -49,12 +50,13 @@ def _spin(limit: float, suffix: str, step: float) -> QDoubleSpinBox:
 
 class AlignmentBox(QGroupBox):
     """Yaw, pitch, roll (deg) about the preop centroid and x, y, z shift (mm) from the intraop centroid; emits
-    ``changed`` on every edit."""
+    ``changed`` on every change, ``edited`` only when the operator changes a value (not :meth:`set_values`)."""
 
     changed = Signal()
+    edited = Signal()
 
     def __init__(self, parent=None):
-        super().__init__("Initial alignment (optional)", parent)
+        super().__init__("Typed alignment (overrides gravity)", parent)
         self.angle_spins = {}
         for name, _, limit in ANGLES:
             spin = _spin(limit, " deg", 5.0)
@@ -74,6 +76,7 @@ class AlignmentBox(QGroupBox):
         grid.addWidget(note, 3, 0, 1, 3)
         grid.addWidget(self.reset_button, 3, 3)
         for spin in self._spins():
+            spin.valueChanged.connect(self.edited)
             spin.valueChanged.connect(self.changed)
         self.reset_button.clicked.connect(self.reset)
 

@@ -1,22 +1,21 @@
 """The demo's preoperative side: the phantom's SPECT written beside the session and loaded into the registration
-panel, with the operator's nominal set-up rotation already in the initial alignment.
+panel, nothing typed.
 
 Why: in ``snreg-gui --demo`` the operator should meet the real preop path (NM DICOM read, segmented with the
-threshold slider) and only have to store the nodes and register (the alignment starts from the centroids).
+threshold slider) and only have to store the nodes and press Run. As in a real case the start comes from gravity
+(:mod:`snreg_gui.registration.start`): the SPECT says the patient lay supine (Patient Position HFS), the simulated
+table is tilted 27 degrees head down (:data:`snreg.demo.phantom.TABLE_TILT_DEG`) while the panel assumes snreg's
+default 30, and the IMU gives down in the trocar frame. No angle is pre-filled from the simulator's truth.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from snreg import geometry
 from snreg.demo.headless import spect_path_for
-from snreg.demo.phantom import NOMINAL_TILT_DEG, setup_patient_from_trocar
 from snreg_gui.common.workers import Worker
 
 
 class DemoSpect:
-    """Writes the SPECT in a worker, then loads it into ``window.registration`` and sets the nominal rotation."""
+    """Writes the SPECT in a worker, then loads it into ``window.registration``."""
 
     def __init__(self, window):
         self._window = window
@@ -28,7 +27,4 @@ class DemoSpect:
         self.worker.start()
 
     def _written(self, path) -> None:
-        panel = self._window.registration
-        panel.load_preop(str(path))
-        rotation = geometry.invert(setup_patient_from_trocar(NOMINAL_TILT_DEG))[:3, :3]
-        panel.alignment.set_values(geometry.euler_from_rotation(rotation), np.zeros(3))
+        self._window.registration.load_preop(str(path))

@@ -6,13 +6,15 @@ and must see whether each pairing can be trusted before telling the surgeon. The
 makes the exports. With a writable session the preop set and each result are stored in it; with a session
 opened for reading (review) the stored preop set and latest registration are shown and nothing is written.
 
-The initial alignment puts the preop centroid on the intraop centroid, turns the set about it and shifts it
-(:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that alignment until a
-result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error ellipsoid. Runs (Run,
-the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop set loaded into a
-writable session is saved in it at once (in a worker), so the session holds what the technician loaded. Anatomical
-landmarks (read with the preop nodes, stored in surgery) are listed apart from the hot spots, drawn in the view and
-given to each run (:mod:`snreg_gui.registration.landmarks`).
+The search starts from gravity by default (:mod:`snreg_gui.registration.start`: the SPECT's patient position and the
+table's tilt, the IMU through the session's chain), or from the typed initial alignment when the operator touches it or
+gravity is unknown (said in one sentence); that alignment puts the preop centroid on the intraop centroid, turns the
+set about it and shifts it (:mod:`snreg_gui.registration.alignment`); the view shows the preop nodes under that
+alignment until a result exists, then under the result's ``intraop_from_preop``, each node with its 90 % error
+ellipsoid. Runs (Run, the automatic run after each store, exclusions) are :mod:`snreg_gui.registration.runs`. A preop
+set loaded into a writable session is saved in it at once (in a worker), with its landmarks and its down, so the
+session holds what the technician loaded. Anatomical landmarks (read with the preop nodes, stored in surgery) are
+listed apart from the hot spots, drawn in the view and given to each run (:mod:`snreg_gui.registration.landmarks`).
 
 >>> panel = RegistrationPanel()
 >>> panel.set_session(session)                 # intraop (and stored preop) nodes from the session
@@ -38,7 +40,7 @@ from snreg.registration.report import (mapped_preop, missing_nodes, node_warning
                                        summary_line)
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.registration_run import EXPORTS, RunRecord, save_preop
+from snreg.workflow.registration_run import EXPORTS, RunRecord
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
@@ -49,6 +51,7 @@ from snreg_gui.registration.landmarks import LandmarkTable, PanelLandmarks
 from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, without
 from snreg_gui.registration.preop import PreopSourceBox
 from snreg_gui.registration.runs import PanelRuns
+from snreg_gui.registration.start import PanelStart, StartBox
 from snreg_gui.registration.stored import StoredList
 from snreg_gui.registration.tables import NodeTable, PairingTable, two_line_headers
 
@@ -62,7 +65,7 @@ def _shown_rows(record: RunRecord) -> list:
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
-class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
+class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
@@ -74,6 +77,8 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self.missing_nodes: list = []              # MissingNode of the result shown
         self._session = None
         self._intraop: NodeSet | None = None
+        self._intraop_from_session = False          # the intraop nodes are the session's (its chain gives their down)
+        self._saving_preop = self._save_again = False
         self._record: RunRecord | None = None       # the result shown, with its node sets
         self._record_current = False                 # do the inputs still match it?
         self._registering = False
@@ -98,6 +103,7 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self.labels_check = QCheckBox("use labels (left/right, station)")
         self.rotation_bound = self._bound_spin(1.0, 180.0, 60.0, " deg")
         self.translation_bound = self._bound_spin(1.0, 500.0, 60.0, " mm")
+        self.start_box = StartBox()                  # gravity or the typed alignment, and the table's tilt
         self.alignment = AlignmentBox()
         self.run_button = QPushButton("Run registration")
         self.busy_bar = QProgressBar()
@@ -128,6 +134,8 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self.preop_box.nodes_changed.connect(self._preop_changed)
         self.intraop_open_button.clicked.connect(self._choose_intraop_file)
         self.alignment.changed.connect(self._inputs_changed)
+        self.alignment.edited.connect(self.start_box.use_typed)       # typed angles override gravity
+        self.start_box.changed.connect(self._start_changed)
         self.method_combo.currentTextChanged.connect(self._inputs_changed)
         self.labels_check.toggled.connect(self._inputs_changed)
         self.rotation_bound.valueChanged.connect(self._inputs_changed)
@@ -138,6 +146,7 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self.include_button.clicked.connect(self._include_all)
         for kind, button in self.export_buttons.items():
             button.clicked.connect(lambda _=False, k=kind: self._choose_export(k))
+        self._show_start()
 
     @staticmethod
     def _bound_spin(low: float, high: float, value: float, suffix: str) -> QDoubleSpinBox:
@@ -164,7 +173,7 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         form.addRow(self.auto_rerun)
         controls = QWidget()
         column = QVBoxLayout(controls)
-        for widget in (self.preop_box, intraop, settings, self.alignment, self.stored):
+        for widget in (self.preop_box, intraop, settings, self.start_box, self.alignment, self.stored):
             column.addWidget(widget)
         column.addStretch(1)
         scroll = QScrollArea()
@@ -175,7 +184,7 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         left_layout = QVBoxLayout(left)                  # Run stays visible below the scrolling settings
         left_layout.setContentsMargins(0, 0, 0, 0)
         left_layout.addWidget(scroll, 1)
-        for widget in (self.run_button, self.busy_bar, self.message):
+        for widget in (self.start_box.status, self.run_button, self.busy_bar, self.message):
             left_layout.addWidget(widget)
         results = QWidget()
         results_layout = QVBoxLayout(results)
@@ -235,13 +244,15 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self._session = self.preop_box.session = session
         if session is None:
             self.set_intraop_landmarks(None)
+            self._intraop_from_session = False
             self._set_intraop(None, "no intraop nodes: open a session or a node file")
             self._show_record(None)
             self.refresh_stored()
             return
         preop = session.preop_nodes()
         if preop is not None:
-            self.preop_box.set_nodes(preop, f"session {session.case_id}", session.preop_landmarks())
+            self.preop_box.set_nodes(preop, f"session {session.case_id}", session.preop_landmarks(),
+                                     session.preop_down())
         self.refresh_intraop()
         stored = session.registrations()
         latest = stored[-1] if stored else None
@@ -256,6 +267,7 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         """Re-read the intraop nodes from the session (connect to "node stored"); no-op without a session."""
         if self._session is not None:
             nodes = self._session.intraop_nodes()
+            self._intraop_from_session = True
             mixed = mixed_calibration_note(self._session.intraop_records())
             self.set_intraop_landmarks(self._session.intraop_landmarks())
             marks = len(self._intraop_landmarks or ())
@@ -265,7 +277,8 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
             self.intraop_source.setToolTip(mixed)
 
     def set_intraop_nodes(self, nodes: NodeSet) -> None:
-        """Use these intraop nodes (trocar frame, mm)."""
+        """Use these intraop nodes (trocar frame, mm); a node file carries no down, so no start from gravity."""
+        self._intraop_from_session = False
         self._set_intraop(nodes, count_text(nodes) + (f" ({nodes.frame} frame)" if nodes.frame else ""))
 
     def load_preop(self, path) -> None:
@@ -291,12 +304,11 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self._inputs_changed()
 
     def _preop_changed(self, nodes: NodeSet | None) -> None:
-        """New preop nodes: saved in a writable session at once (a worker; nothing is written when the session holds
-        them already, e.g. its own set shown again), and the result shown no longer answers the inputs."""
-        if self._session is not None and self._session.writable and has_nodes(nodes):
-            self._tasks.start(save_preop, self._session, nodes, self.preop_box.landmarks,
-                              returned=lambda problem: problem and self._say(problem),
-                              errored=self._say_problem)
+        """New preop nodes: saved with their down in a writable session at once (a worker; nothing is written when the
+        session holds them already, e.g. its own set shown again), and the result shown no longer answers the inputs.
+        A tilt that came entered with them is shown."""
+        self.start_box.take_tilt(self.preop_box.down)
+        self._save_preop(nodes)
         self._inputs_changed()
 
     def _choose_intraop_file(self) -> None:
@@ -315,6 +327,7 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
                                  f"(was {summary_line(record.result, _shown_rows(record))})")
         self.pairing_table.setEnabled(False)
         self._update_exports()
+        self._show_start()
         if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
             self.missing_nodes = []
             self.missing_label.setText("")
@@ -350,7 +363,8 @@ class RegistrationPanel(PanelRuns, PanelExports, PanelLandmarks, QWidget):
         self.pairing_table.show_rows(rows, [] if record is None else pair_expected_mm(record.intraop, record.result))
         self.pairing_table.setEnabled(record is not None)
         self.summary.setText("no registration yet" if record is None else "\n".join(
-            [summary_line(record.result, rows)] + [record.weighing] * bool(record.weighing)
+            [summary_line(record.result, rows)] + [record.start] * bool(record.start)
+            + [record.weighing] * bool(record.weighing)
             + [f"WARNING: {text}" for text in node_warnings(rows)]))
         self._landmark_summary(record)
         missing = [] if record is None or not current else marked_missing(

@@ -22,6 +22,7 @@ from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, 
 
 from snreg.nodes import NodeSet, read_node_file
 from snreg.preop import Volume, load_volume, segment_nodes
+from snreg.preop.gravity import PreopDown, volume_down
 from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.tables import NodeTable
@@ -34,13 +35,15 @@ NODE_FILE_SUFFIXES = (".csv", ".json", ".txt")
 @dataclass(frozen=True)
 class PreopRead:
     """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file), the node
-    file's landmarks (None for a SPECT or a file without any)."""
+    file's landmarks (None for a SPECT or a file without any), and what gives their down: the SPECT's patient position,
+    or the one a node file's comments record (None: none recorded)."""
 
     generation: int
     nodes: NodeSet
     volume: Volume | None
     source: str
     landmarks: NodeSet | None = None
+    down: PreopDown | None = None
 
 
 def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None) -> PreopRead:
@@ -50,21 +53,25 @@ def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None
         raise ValueError(f"{location}: no such file or folder; choose a node file or a SPECT DICOM file or folder")
     if location.is_file() and location.name.lower().endswith(NODE_FILE_SUFFIXES):
         read = read_node_file(location)
-        return PreopRead(generation, read.nodes, None, location.name, read.landmarks if len(read.landmarks) else None)
+        return PreopRead(generation, read.nodes, None, location.name,
+                         read.landmarks if len(read.landmarks) else None,
+                         PreopDown.from_comments(read.nodes.comments, location.name))
     volume = load_volume(location, modality="NM")
     return segment(generation, volume, threshold, n_nodes, location.name)
 
 
 def segment(generation: int, volume: Volume, threshold: float, n_nodes: int | None, source: str) -> PreopRead:
-    """Segment an already loaded volume (worker thread)."""
-    return PreopRead(generation, segment_nodes(volume, threshold=threshold, n_nodes=n_nodes).nodes, volume, source)
+    """Segment an already loaded volume (worker thread); its down from its Patient Position (snreg's default tilt)."""
+    return PreopRead(generation, segment_nodes(volume, threshold=threshold, n_nodes=n_nodes).nodes, volume, source,
+                     down=volume_down(volume))
 
 
 class PreopSourceBox(QGroupBox):
     """Open buttons, threshold slider, node-count box, status line and the table of preop nodes.
 
     Emits ``nodes_changed(NodeSet)`` whenever the preop nodes change (file read, re-segmented, or
-    :meth:`set_nodes`). ``status`` says how many nodes were found, or what went wrong, in one sentence.
+    :meth:`set_nodes`); ``down`` is then what gives their down as read (:class:`PreopDown`, None when the source
+    records none). ``status`` says how many nodes were found, or what went wrong, in one sentence.
     """
 
     nodes_changed = Signal(object)
@@ -73,6 +80,7 @@ class PreopSourceBox(QGroupBox):
         super().__init__("Preop nodes (SPECT)", parent)
         self.nodes: NodeSet | None = None
         self.landmarks: NodeSet | None = None     # read with the nodes from a node file (ids = names); None: none
+        self.down: PreopDown | None = None
         self.session = None                  # the panel's session: its folder is where the file dialogs start
         self._volume: Volume | None = None
         self._source = ""
@@ -140,14 +148,15 @@ class PreopSourceBox(QGroupBox):
         self._tasks.start(read_preop, self._generation, str(path), self.threshold, self.n_nodes,
                           returned=self._read_done, errored=self._failed)
 
-    def set_nodes(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None) -> None:
-        """Show nodes given directly (e.g. a session's stored preop set, with its ``landmarks``); no volume to
-        re-segment."""
+    def set_nodes(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None,
+                  down: PreopDown | None = None) -> None:
+        """Show nodes given directly (e.g. a session's stored preop set, with its ``landmarks`` and the down stored
+        with them); no volume to re-segment."""
         self._generation += 1
         self._volume, self._loading, self._pending = None, False, False
         self._timer.stop()
         self._set_spect_controls(False)
-        self._show(nodes, source, landmarks)
+        self._show(nodes, source, landmarks, down)
 
     def shutdown(self) -> None:
         self._timer.stop()
@@ -199,12 +208,12 @@ class PreopSourceBox(QGroupBox):
         self._loading = False
         self._volume = read.volume
         self._set_spect_controls(read.volume is not None)
-        self._show(read.nodes, read.source, read.landmarks)
+        self._show(read.nodes, read.source, read.landmarks, read.down)
 
     def _segment_done(self, read: PreopRead) -> None:
         self._segmenting = False
         if read.generation == self._generation:
-            self._show(read.nodes, read.source)
+            self._show(read.nodes, read.source, read.landmarks, read.down)
         if self._pending:
             self._pending = False
             self._resegment()
@@ -216,8 +225,9 @@ class PreopSourceBox(QGroupBox):
             self._pending = False
             self._resegment()
 
-    def _show(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None) -> None:
-        self.nodes, self._source = nodes, source
+    def _show(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None,
+              down: PreopDown | None = None) -> None:
+        self.nodes, self._source, self.down = nodes, source, down
         self.landmarks = landmarks if landmarks is not None and len(landmarks) else None
         self.table.show_nodes(nodes)
         n = 0 if nodes is None else len(nodes)

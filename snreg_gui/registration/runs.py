@@ -5,15 +5,17 @@ decides when a registration runs and with what (:class:`~snreg.workflow.registra
 worker and hands the outcome back. The automatic run after a store is what keeps "if registered now" true on the
 acquisition screen: the SPECT nodes not found yet and their expected errors (``missing_changed``). A mixin of the
 panel, using its widgets (``run_button``, ``busy_bar``, ``auto_rerun``, ``alignment``, ``method_combo``, bounds,
+the start (``_start_choice``: gravity or the typed alignment, and why),
 ``pairing_table``, ``include_button``) and state (``_session``, ``_intraop``, ``_excluded``, ``_registering``,
 ``_rerun_pending``, ``_auto_pending``, ``_tasks``).
 """
 
 from __future__ import annotations
 
-from snreg.workflow.registration_run import RunRecord, RunRequest, run_registration
+from snreg.workflow.registration_run import RunRecord, RunRequest
 from snreg_gui.registration.landmarks import needed_nodes
 from snreg_gui.registration.node_sets import has_nodes, same_nodes, without
+from snreg_gui.registration.start import run_from
 
 MIN_PAIRS = 3       # points a registration needs: nodes, and landmark pairs making up the 3 with 1 node at least (§4)
 POINTS = "3 points (nodes, and landmarks named on both sides; 1 node at least)"
@@ -81,16 +83,18 @@ class PanelRuns:
             return self._say(problem)
         store = not automatic and self._session is not None and same_nodes(
             kept, without(self._session.intraop_nodes(), self._excluded))
+        start = self._start_choice(kept)
         request = RunRequest(preop, kept, self.method_combo.currentText(), self.labels_check.isChecked(),
                              self.alignment.transform(preop.xyz, kept.xyz), self.rotation_bound.value(),
-                             self.translation_bound.value(), self._session if store else None)
+                             self.translation_bound.value(), self._session if store else None,
+                             gravity=start.gravity, preop_down=self._preop_down())
         request = self._with_landmarks(request)
         self._registering = True
         self.run_button.setEnabled(automatic)
         self.busy_bar.setVisible(True)
         left_out = f", without {', '.join(sorted(self._excluded))}" if self._excluded else ""
         self._say(f"Registering {len(preop)} preop to {len(kept)} intraop nodes ({request.method}{left_out})...")
-        self._tasks.start(run_registration, request,
+        self._tasks.start(run_from, request, start.words,
                           returned=self._registration_done, errored=self._registration_failed)
 
     def _registration_done(self, record: RunRecord) -> None:
