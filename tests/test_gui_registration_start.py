@@ -216,3 +216,20 @@ def test_the_down_is_saved_in_the_session_with_the_tilts_source(qtbot, panel, pe
     assert main(["session", "info", str(tmp_path / "case.h5")]) == 0
     assert ("preop down: DICOM HFS (supine, head first), table tilt 26 deg head down (entered)"
             in capsys.readouterr().out.splitlines())
+
+
+def test_a_session_with_no_node_stored_yet_already_starts_from_gravity(qtbot, panel, pelvic_nodes, tmp_path):
+    """Before the first store the session's chain gives the down: the line above Run says gravity, not "a node file"
+    (what it said while the session held no node)."""
+    xyz, labels = pelvic_nodes
+    session = Session.create(tmp_path / "empty.h5", case_id="gui-start-02")
+    session.set_calibration(chain=ChainCalibration.manual().with_reference(IMU_AT_REFERENCE))
+    try:
+        panel.set_session(session)
+        load_preop_csv(qtbot, panel, tmp_path / "p.csv", xyz, labels)
+        assert panel.start_box.status.text() == f"Next run's {GRAVITY_DEFAULT}."
+        session.add_intraop_node("SN1", "", xyz[0])
+        panel.refresh_intraop()
+        assert panel.start_box.status.text() == f"Next run's {GRAVITY_DEFAULT}."
+    finally:
+        session.close()

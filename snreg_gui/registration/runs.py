@@ -83,7 +83,7 @@ class PanelRuns:
             return self._say(problem)
         store = not automatic and self._session is not None and same_nodes(
             kept, without(self._session.intraop_nodes(), self._excluded))
-        start = self._start_choice(kept)
+        start = self._start_choice()
         request = RunRequest(preop, kept, self.method_combo.currentText(), self.labels_check.isChecked(),
                              self.alignment.transform(preop.xyz, kept.xyz), self.rotation_bound.value(),
                              self.translation_bound.value(), self._session if store else None,

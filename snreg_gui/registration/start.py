@@ -166,14 +166,14 @@ class PanelStart:
     def _preop_down(self) -> PreopDown | None:
         return self.start_box.preop_down(self.preop_box.down)
 
-    def _start_choice(self, intraop) -> StartChoice:
-        """The start for a run on ``intraop`` (the kept intraop nodes): gravity's intraop down is the session's only
-        when the intraop nodes are the session's (not a node file opened beside it)."""
-        from_session = self._intraop_from_session and has_nodes(intraop)
-        return choose_start(self.start_box.use_gravity, self._preop_down(), self._session, from_session)
+    def _start_choice(self) -> StartChoice:
+        """The start for the next run: gravity's intraop down is the session's only when the intraop nodes are the
+        session's (not a node file opened beside it; none stored yet counts as the
+        session's: its chain gives the down)."""
+        return choose_start(self.start_box.use_gravity, self._preop_down(), self._session, self._intraop_from_session)
 
     def _show_start(self) -> None:
-        self.start_box.show_choice(self._start_choice(self._intraop))
+        self.start_box.show_choice(self._start_choice())
 
     def _start_changed(self) -> None:
         """Choice or tilt changed: the tilt (with its source) is kept with the preop nodes in the session."""
