@@ -103,6 +103,8 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         self.registration.registered.connect(
             lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
         self.registration.preop_box.nodes_changed.connect(self._preop_changed)
+        self.registration.preop_box.landmarks_changed.connect(      # a landmark file: the live link's PreopLandmarks
+            lambda _: self._preop_changed(self.registration.preop_box.nodes))
         room = self.screen().availableGeometry()                  # never larger than the screen (1024 x 700)
         self.resize(min(1500, room.width()), min(900, room.height()))
         self._restore_layout()

@@ -34,6 +34,18 @@ def test_the_name_list_offers_the_preop_landmarks_first_then_the_vocabulary(qtbo
     assert picker.name() == "left internal iliac origin"
 
 
+def test_a_landmark_file_read_in_the_preop_box_reaches_the_name_list_and_the_live_link(qtbot, open_window, scene,
+                                                                                      tmp_path, monkeypatch):
+    window = open_window(FakeRig(scene, on_node(0), FakeImu()))
+    sent = []
+    monkeypatch.setattr(window.live_link, "set_preop_landmarks", sent.append)
+    path = tmp_path / "ct.csv"
+    path.write_text("id,label,x,y,z,kind\nsacral promontory,,0,100,60,landmark\n")
+    window.registration.preop_box.load_landmarks(path)
+    qtbot.waitUntil(lambda: window.acquisition.landmark_picker.offered()[0] == "sacral promontory", timeout=TIMEOUT_MS)
+    assert sent and sent[-1].ids == ["sacral promontory"]
+
+
 def test_store_landmark_stores_a_landmark_apart_asks_before_replacing_and_undoes(qtbot, open_window, scene):
     window = open_window(FakeRig(scene, on_node(1), FakeImu()))
     screen = window.acquisition

@@ -79,6 +79,14 @@ def test_landmarks_from_a_file_of_their_own_and_unpaired_ones_said(files, capsys
     assert "landmark 'aortic bifurcation' is in the node file too; give each landmark once" in capsys.readouterr().err
 
 
+def test_preop_landmarks_in_another_frame_are_refused_as_the_app_refuses_them(files, capsys):
+    write_nodes(NodeSet(["P1", "P2"], ["", ""], PREOP, frame="LPS"), files / "nodes.csv")
+    (files / "touched.csv").write_text("# frame: trocar\nid,label,x,y,z,kind\n" + "".join(
+        f"{name},,{x},{y},{z},landmark\n" for name, (x, y, z) in zip(NAMES, PREOP_MARKS)))
+    assert main(["register", str(files / "nodes.csv"), str(files / "intraop.mrk.json"), "--preop-landmarks",
+                 str(files / "touched.csv")]) == 2
+    assert "its points are in the trocar frame; preop landmarks are placed on the CT" in capsys.readouterr().err
+
 def test_a_session_registers_with_its_landmarks(tmp_path, capsys):
     rng = np.random.default_rng(SEED)
     path = tmp_path / "s.h5"

@@ -125,7 +125,8 @@ def _inputs(args) -> Inputs:
         else:
             intraop = read_node_file(args.intraop)
             down, unknown = None, f"{args.intraop} is a node file, which carries no down"
-    return Inputs(_with_landmarks(preop, args.preop_landmarks), _with_landmarks(intraop, args.intraop_landmarks),
+    return Inputs(_with_landmarks(preop, args.preop_landmarks, preop=True),
+                  _with_landmarks(intraop, args.intraop_landmarks),
                   initial, preop_down, down, unknown)
 
 
@@ -208,13 +209,16 @@ def _unit(vector):
     return vector / np.linalg.norm(vector)
 
 
-def _with_landmarks(read, path: str | None):
-    """``read`` (a NodeFile) with the landmarks of the file at ``path`` added; ValueError for a name given twice."""
+def _with_landmarks(read, path: str | None, preop: bool = False):
+    """``read`` (a NodeFile) with the landmarks of the file at ``path`` added; ValueError for a name given twice. A
+    ``preop`` file is read as the app's "Landmarks..." reads it (:func:`~snreg.workflow.preop_landmarks.
+    read_preop_landmarks`: in patient LPS, a RAS CSV turned, another frame refused)."""
     from snreg.nodes import NodeFile, NodeSet, read_landmarks
+    from snreg.workflow.preop_landmarks import read_preop_landmarks
 
     if path is None:
         return read
-    more = read_landmarks(path)
+    more = read_preop_landmarks(path) if preop else read_landmarks(path)
     twice = sorted(set(more.ids) & set(read.landmarks.ids))
     if twice:
         raise ValueError(f"{path}: landmark {twice[0]!r} is in the node file too; give each landmark once")

@@ -8,6 +8,7 @@ All times are seconds on the host clock (``time.perf_counter_ns``, DESIGN.md §3
 origin ``t0_ns``: the first sample of any stream (the first node when there are no streams).
 
 >>> review = load_review("s.h5")      # SessionError in one sentence when the file cannot be read
+>>> review.nodes, review.landmarks    # the stored nodes and, apart, the stored anatomical landmarks (kind "landmark")
 >>> euler = fuse_imu(review.imu)      # (N, 3) yaw, pitch, roll in degrees, as the live filter computed them
 """
 
@@ -23,6 +24,7 @@ import numpy as np
 
 from snreg.imu.fusion import Fusion
 from snreg.imu.protocol import DEFAULT_ODR_HZ
+from snreg.landmarks import LANDMARK, NODE
 from snreg.registration.report import PairRow, pair_table
 from snreg.session import Session, SessionError, StoredRegistration
 from snreg.session.reader import readable_rows
@@ -88,7 +90,8 @@ class FrameSeries:
 class ReviewNode:
     """A stored node: positions mm (trocar, left camera), time s from the origin, snapshots RGB (H, W, 3) or None,
     the insertion it was mapped with (mm, NaN when untracked) and its own error's covariance (3, 3) mm^2, trocar frame
-    (NaN when not stored)."""
+    (NaN when not stored). ``kind``: ``"node"``, or ``"landmark"`` for an anatomical landmark touched and stored with
+    Store landmark (``id`` = its name), never a node."""
 
     id: str
     label: str
@@ -102,6 +105,11 @@ class ReviewNode:
     right_rgb: np.ndarray | None
     trocar_camera_mm: float = float("nan")
     cov_trocar_mm2: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    kind: str = NODE
+
+    @property
+    def is_landmark(self) -> bool:
+        return self.kind == LANDMARK
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,7 +149,9 @@ class ReviewRegistration:
 @dataclass(frozen=True, eq=False)
 class SessionReview:
     """What a session holds, in memory. ``stereo_rms_px``/``imu_trocar_mm``/``trocar_camera_mm`` are None when
-    that calibration was not stored; ``damaged``: the HDF5 file was unreadable and the journal was read instead."""
+    that calibration was not stored; ``damaged``: the HDF5 file was unreadable and the journal was read instead.
+    ``nodes`` are the stored nodes alone (what is counted and paired), ``landmarks`` the stored anatomical landmarks;
+    ``stored`` both, in the order stored."""
 
     path: str
     case_id: str
@@ -160,6 +170,12 @@ class SessionReview:
     registrations: list[ReviewRegistration]
     problems: tuple[str, ...] = ()          # what could not be read, in words (Session.problems)
     camera: CameraSeries = field(default_factory=CameraSeries.empty)
+    landmarks: list[ReviewNode] = field(default_factory=list)
+
+    @property
+    def stored(self) -> list[ReviewNode]:
+        """Nodes and landmarks in the order stored (by time; a node before a landmark of the same time)."""
+        return sorted(self.nodes + self.landmarks, key=lambda point: point.t_s)
 
 
 def load_review(path: str | Path) -> SessionReview:
@@ -168,6 +184,7 @@ def load_review(path: str | Path) -> SessionReview:
         with Session.open(path) as session:
             streams = {name: _rows(session.stream(name)) for name in ("imu", "probe", "frames", "camera")}
             records = session.intraop_records()
+            landmarks = session.intraop_records(LANDMARK)
             preop = session.preop_nodes()
             registrations = session.registrations()
             calibration = session.calibration()
@@ -177,7 +194,7 @@ def load_review(path: str | Path) -> SessionReview:
     except (OSError, ValueError, KeyError, RuntimeError) as err:
         raise SessionError(f"{path}: the session could not be read ({err}); check the file or run "
                            "'snreg session recover'") from None
-    t0_ns = _origin(streams, [r.time_ns for r in records])
+    t0_ns = _origin(streams, [r.time_ns for r in records + landmarks])
     imu, probe, frames, camera = streams["imu"], streams["probe"], streams["frames"], streams["camera"]
     stereo, chain = calibration.get("stereo"), calibration.get("chain")
     node_ids = [r.id for r in records]
@@ -191,14 +208,20 @@ def load_review(path: str | Path) -> SessionReview:
         ProbeSeries(_seconds(probe["t_host_ns"], t0_ns), np.ascontiguousarray(probe["tip_mm"], dtype=float),
                     np.ascontiguousarray(probe["quality"], dtype=float)),
         frame_series(_seconds(frames["t_host_ns"], t0_ns)),
-        [ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
-                    np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
-                    _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg), float(r.trocar_camera_mm),
-                    np.asarray(r.cov_trocar_mm2, dtype=float)) for r in records],
+        [_review_node(r, t0_ns) for r in records],
         [_registration(stored, node_ids, None if preop is None else preop.ids) for stored in registrations], problems,
         CameraSeries(_seconds(camera["t_host_ns"], t0_ns), np.asarray(camera["trocar_camera_mm"], dtype=float),
                      np.asarray(camera["state"]) == CAMERA_STATES.index("tracked"),
-                     np.asarray(camera["quality"], dtype=float), np.asarray(camera["residual_mm"], dtype=float)))
+                     np.asarray(camera["quality"], dtype=float), np.asarray(camera["residual_mm"], dtype=float)),
+        [_review_node(r, t0_ns) for r in landmarks])
+
+
+def _review_node(r, t0_ns: int) -> ReviewNode:
+    """A stored intraop point (node or landmark, by its ``kind``) as the review shows it."""
+    return ReviewNode(r.id, r.label, (r.time_ns - t0_ns) / 1e9, np.asarray(r.xyz_trocar, dtype=float),
+                      np.asarray(r.xyz_camera, dtype=float), r.spread_mm, r.n_frames, r.counts,
+                      _decode_rgb(r.left_jpeg), _decode_rgb(r.right_jpeg), float(r.trocar_camera_mm),
+                      np.asarray(r.cov_trocar_mm2, dtype=float), r.kind)
 
 
 def frame_series(t_s: np.ndarray) -> FrameSeries:

@@ -143,6 +143,12 @@ class PanelLandmarks:
         """Use these intraop landmarks (trocar frame, mm; ids = names; None or empty: none)."""
         self._intraop_landmarks = landmarks if landmarks is not None and len(landmarks) else None
 
+    def _preop_landmarks_changed(self, _landmarks) -> None:
+        """A landmark file read or the landmarks cleared in the preop box: the preop set saved with them in a writable
+        session (as new preop nodes are), and the result shown no longer answers the inputs."""
+        self._save_preop(self.preop_box.nodes)
+        self._inputs_changed()
+
     def _intraop_file_read(self, read: NodeFile) -> None:
         """An intraop node file read: its landmarks apart, its nodes as the intraop nodes."""
         self.set_intraop_landmarks(read.landmarks)

@@ -132,6 +132,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
         self._layout()
         self._set_exports_enabled(False)
         self.preop_box.nodes_changed.connect(self._preop_changed)
+        self.preop_box.landmarks_changed.connect(self._preop_landmarks_changed)
         self.intraop_open_button.clicked.connect(self._choose_intraop_file)
         self.alignment.changed.connect(self._inputs_changed)
         self.alignment.edited.connect(self.start_box.use_typed)       # typed angles override gravity

@@ -5,11 +5,13 @@ technician moves a slider and sees how many nodes it gives. The volume is read o
 node-count change re-segments it in a worker after a short pause (debounce), and a result made for an older
 file or older settings is dropped. Same threshold meaning as ``snreg preop --threshold`` (fraction of the
 maximum activity). A node file's landmarks (a CSV's rows of ``kind`` landmark, a markups file's landmark points) come
-in apart, as ``box.landmarks`` (ids = names; None from a SPECT): they are never hot spots.
+in apart, as ``box.landmarks`` (ids = names; none from a SPECT): they are never hot spots. "Landmarks..." reads them
+from a file of their own, "clear" forgets them (:mod:`snreg_gui.registration.preop_marks`: which source replaces which).
 
 >>> box = PreopSourceBox()
 >>> box.nodes_changed.connect(panel_slot)      # NodeSet, LPS mm for a SPECT
 >>> box.load("spect_folder")                   # or a .csv / .mrk.json node file
+>>> box.load_landmarks("ct_landmarks.mrk.json")  # RAS or LPS; box.landmarks in LPS, landmarks_changed emitted
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from snreg.preop import Volume, load_volume, segment_nodes
 from snreg.preop.gravity import PreopDown, volume_down
 from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet, sentence
+from snreg_gui.registration.preop_marks import BoxLandmarks, plural
 from snreg_gui.registration.tables import NodeTable
 
 DEFAULT_THRESHOLD_PERCENT = 30          # snreg preop's default, 0.3 x maximum
@@ -66,20 +69,23 @@ def segment(generation: int, volume: Volume, threshold: float, n_nodes: int | No
                      down=volume_down(volume))
 
 
-class PreopSourceBox(QGroupBox):
+class PreopSourceBox(BoxLandmarks, QGroupBox):
     """Open buttons, threshold slider, node-count box, status line and the table of preop nodes.
 
     Emits ``nodes_changed(NodeSet)`` whenever the preop nodes change (file read, re-segmented, or
     :meth:`set_nodes`); ``down`` is then what gives their down as read (:class:`PreopDown`, None when the source
-    records none). ``status`` says how many nodes were found, or what went wrong, in one sentence.
+    records none). ``status`` says how many nodes were found, or what went wrong, in one sentence. Emits
+    ``landmarks_changed(NodeSet or None)`` when a landmark file is read or the landmarks cleared (with nodes, the
+    landmarks read with them come with ``nodes_changed``).
     """
 
     nodes_changed = Signal(object)
+    landmarks_changed = Signal(object)
 
     def __init__(self, parent=None):
         super().__init__("Preop nodes (SPECT)", parent)
         self.nodes: NodeSet | None = None
-        self.landmarks: NodeSet | None = None     # read with the nodes from a node file (ids = names); None: none
+        self.landmarks: NodeSet | None = None     # ids = names, LPS mm; None: none (BoxLandmarks)
         self.down: PreopDown | None = None
         self.session = None                  # the panel's session: its folder is where the file dialogs start
         self._volume: Volume | None = None
@@ -121,6 +127,7 @@ class PreopSourceBox(QGroupBox):
         threshold.addWidget(self.threshold_label)
         form = QFormLayout(self)
         form.addRow(buttons)
+        form.addRow("landmarks", self._landmark_controls())
         form.addRow("threshold", threshold)
         form.addRow("nodes", self.count_spin)
         form.addRow(self.status)
@@ -137,7 +144,7 @@ class PreopSourceBox(QGroupBox):
 
     @property
     def busy(self) -> bool:
-        return self._loading or self._segmenting or self._timer.isActive()
+        return self._loading or self._segmenting or self.marks_reading or self._timer.isActive()
 
     def load(self, path) -> None:
         """Read a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker."""
@@ -156,7 +163,7 @@ class PreopSourceBox(QGroupBox):
         self._volume, self._loading, self._pending = None, False, False
         self._timer.stop()
         self._set_spect_controls(False)
-        self._show(nodes, source, landmarks, down)
+        self._show(nodes, source, landmarks, down, replace_marks=True)
 
     def shutdown(self) -> None:
         self._timer.stop()
@@ -226,17 +233,24 @@ class PreopSourceBox(QGroupBox):
             self._resegment()
 
     def _show(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None,
-              down: PreopDown | None = None) -> None:
+              down: PreopDown | None = None, replace_marks: bool = False) -> None:
+        """Show ``nodes`` from ``source``; ``landmarks`` read with them replace those shown, none keep them unless
+        ``replace_marks`` (:meth:`set_nodes`)."""
         self.nodes, self._source, self.down = nodes, source, down
-        self.landmarks = landmarks if landmarks is not None and len(landmarks) else None
         self.table.show_nodes(nodes)
-        n = 0 if nodes is None else len(nodes)
-        k = 0 if self.landmarks is None else len(self.landmarks)
-        marks = f" and {k} landmark{'s' * (k != 1)}" if k else ""
-        if self._volume is not None:
-            self.status.setText(f"{n} node{'s' * (n != 1)} above {self.threshold:.2f} x maximum in {source}")
-        else:
-            self.status.setText(f"{n} node{'s' * (n != 1)}{marks} from {source}" if nodes is not None
-                                else "no preop nodes: open a node file or a SPECT")
+        self._take_landmarks(landmarks, source, replace_marks)
         self.nodes_changed.emit(nodes)
 
+    def _show_status(self) -> None:
+        """"4 nodes above 0.30 x maximum in X; 3 landmarks from Y", "4 nodes and 3 landmarks from Z", ..."""
+        nodes, source = self.nodes, self._source
+        count = plural(0 if nodes is None else len(nodes), "node")
+        marks = self._landmark_text(source)
+        if self._volume is not None:
+            text = f"{count} above {self.threshold:.2f} x maximum in {source}"
+        elif nodes is None:
+            text = "no preop nodes: open a node file or a SPECT"
+        else:
+            own = f" and {plural(len(self.landmarks), 'landmark')}" if self.landmarks is not None and not marks else ""
+            text = f"{count}{own} from {source}"
+        self.status.setText(text + marks + (f" (replacing the {self._replaced})" if self._replaced else ""))

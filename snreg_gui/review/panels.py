@@ -3,7 +3,7 @@
 Why: each shows one part of a :class:`~snreg.session.timeline.SessionReview` that is already in memory;
 nothing here reads files or computes more than a format string.
 
->>> header.setText(header_text(review)); fill_node_table(table, review.nodes)
+>>> header.setText(header_text(review)); fill_node_table(table, review.stored)    # nodes and landmarks
 >>> snapshots.show_pair(node.left_rgb, node.right_rgb)
 >>> registrations.show_registrations(review.registrations)
 """
@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel, QPushButton, QTableWidget,
                                QTableWidgetItem, QVBoxLayout, QWidget)
 
@@ -29,6 +29,9 @@ NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", f"{ERROR_CAPTI
                 "insertion (mm)", "spread (mm)", "frames", "counts")
 INSERTION_TIP = ("the camera's insertion (pivot to camera) the node was mapped with, tracked from the video; "
                  "empty: not tracked, the chain's distance")
+LANDMARK_MARK = "landmark: "
+LANDMARK_TIP = ("an anatomical landmark touched with the probe (Store landmark): not a node, never counted or paired "
+                "as one")
 REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
 PAIRING_COLUMNS = ("intraop -> hot spot", "distance (mm)", "confidence")
 
@@ -84,9 +87,25 @@ def fill_table(table: QTableWidget, rows: Sequence[Sequence[str]]) -> None:
 
 
 def node_rows(nodes: Sequence[ReviewNode]) -> list[list[str]]:
-    return [[n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar), error_text(n.cov_trocar_mm2), _xyz(n.xyz_camera),
+    """One row per stored point; a landmark's id cell says so ("landmark: aortic bifurcation")."""
+    return [[f"{LANDMARK_MARK}{n.id}" if n.is_landmark else n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar),
+             error_text(n.cov_trocar_mm2), _xyz(n.xyz_camera),
              _number(n.trocar_camera_mm, 1), _number(n.spread_mm, 2), str(n.n_frames), _number(n.counts, 0)]
             for n in nodes]
+
+
+def fill_node_table(table: QTableWidget, points: Sequence[ReviewNode]) -> None:
+    """The stored nodes and landmarks in the order stored; a landmark's row in italics with a tooltip (an anatomical
+    point touched with the probe, never a node: not counted, never paired as a hot spot's)."""
+    fill_table(table, node_rows(points))
+    for row, point in enumerate(points):
+        if point.is_landmark:
+            for column in range(table.columnCount()):
+                item = table.item(row, column)
+                font = item.font()
+                font.setItalic(True)
+                item.setFont(font)
+                item.setData(Qt.ItemDataRole.ToolTipRole, LANDMARK_TIP)
 
 
 def _xyz(v: np.ndarray) -> str:

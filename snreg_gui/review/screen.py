@@ -27,7 +27,7 @@ from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
 from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP
 from snreg_gui.common.workers import Worker
 from snreg_gui.review.panels import (INSERTION_TIP, NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table,
-                                     header_text, node_rows, read_only_table)
+                                     fill_node_table, header_text, read_only_table)
 from snreg_gui.review.timelines import TimelinePlots
 from snreg_gui.review.video_view import VideoScrubber
 
@@ -37,7 +37,8 @@ class ReviewScreen(QWidget):
 
     Signals: ``loaded(path)`` once everything is shown, ``failed(sentence)`` when the file cannot be read
     (the sentence is also shown in the screen). A :meth:`load` while another is running supersedes it.
-    ``node_table`` lists the stored nodes; selecting one puts the cursor at its time, shades its store window and shows
+    ``node_table`` lists the stored nodes and, in italics as "landmark: <name>", the stored landmarks (never counted as
+    nodes), in the order stored; selecting one puts the cursor at its time, shades its store window and shows
     the recorded pair there (its snapshots when the session has no video); dragging the cursor or clicking a plot
     shows the pair of that moment with the probe overlay as tracked then.
     """
@@ -143,7 +144,7 @@ class ReviewScreen(QWidget):
             return
         self._review = review
         self.header.setText(header_text(review))
-        fill_table(self.node_table, node_rows(review.nodes))
+        fill_node_table(self.node_table, review.stored)
         self.registrations.show_registrations(review.registrations)
         self.timelines.show_review(review)
         self.scrubber.load(review.path, review.t0_ns)
@@ -177,7 +178,9 @@ class ReviewScreen(QWidget):
             self._run(Worker(fuse_imu_blocks, self._review.imu), yielded=self._add_imu_block)
         elif not self._failed:
             nodes, registrations = len(self._review.nodes), len(self._review.registrations)
-            self.status.setText(f"{self._path}: {nodes} stored node{'' if nodes == 1 else 's'}, "
+            marks = len(self._review.landmarks)
+            landmarks = f"{marks} landmark{'' if marks == 1 else 's'}, " if marks else ""
+            self.status.setText(f"{self._path}: {nodes} stored node{'' if nodes == 1 else 's'}, {landmarks}"
                                 f"{registrations} registration{'' if registrations == 1 else 's'} (as read at "
                                 f"{time.strftime('%H:%M:%S')}; Refresh reads it again)")
             self.scrubber.when_opened(lambda path=self._path: self._announce(path))
@@ -221,7 +224,7 @@ class ReviewScreen(QWidget):
         rows = self.node_table.selectionModel().selectedRows()
         if not rows or self._review is None:
             return
-        node = self._review.nodes[rows[0].row()]
+        node = self._review.stored[rows[0].row()]
         self.timelines.set_cursor(node.t_s)
         window = self._store_window(node)
         self.timelines.show_window(*window)

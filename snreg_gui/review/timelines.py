@@ -6,7 +6,8 @@ hour of IMU is 750k points per curve, so every curve is made once, drawn with py
 downsampling clipped to the view, and only fed with ``setData``; the IMU angles arrive in blocks while
 the fusion runs in a worker (:meth:`TimelinePlots.add_imu_block`). The insertion (issue 27) is drawn where it was
 tracked; where it was lost the curve breaks and a red bar shows the insertion those pairs were mapped at (the last
-tracked), and each node's insertion is a ring at its store.
+tracked), and each node's insertion is a ring at its store. A stored anatomical landmark has a marker of its own
+(green, dotted, labelled with a diamond and its name), never one of the node markers.
 
 >>> plots = TimelinePlots()
 >>> plots.show_review(review)            # a snreg.session.timeline.SessionReview
@@ -20,6 +21,7 @@ import numpy as np
 import pyqtgraph as pg
 
 from snreg.session.timeline import SessionReview, gap_after, lost_stretches, with_gaps
+from snreg_gui.common.node_scene import LANDMARK_COLOUR     # green, as the node views draw landmarks
 
 _XYZ_COLOURS = ("#e6550d", "#31a354", "#3182bd")        # yaw/x, pitch/y, roll/z
 _MARKER_PEN = pg.mkPen("#bbbbbb", width=1, style=pg.QtCore.Qt.PenStyle.DashLine)
@@ -27,6 +29,8 @@ _CURSOR_PEN = pg.mkPen("#ffd700", width=2)
 _GAP_PEN = pg.mkPen("#de2d26", width=6)
 _LOST_PEN = pg.mkPen("#de2d26", width=4)
 _NODE_RING = "#ffd700"          # a node's insertion, at its store
+_LANDMARK_PEN = pg.mkPen(LANDMARK_COLOUR, width=1, style=pg.QtCore.Qt.PenStyle.DotLine)
+LANDMARK_LABEL = "\u25c6 "        # a diamond before a landmark's name on its marker
 PROGRESS_POINTS = 20_000       # IMU points per curve drawn while the fusion is still running
 LABEL_GAP = 0.06               # node labels closer than this fraction of the time span go on different rows
 LABEL_TOP, LABEL_STEP, LABEL_ROWS = 0.95, 0.12, 6     # label rows, as fractions of the top plot's height
@@ -60,7 +64,8 @@ def _colour_key() -> str:
 class TimelinePlots(pg.GraphicsLayoutWidget):
     """Five stacked plots with linked x (seconds from the first sample); node markers and a cursor on each.
 
-    ``node_markers`` maps a node id to its vertical lines (one per plot, labelled on the top plot). The cursor is
+    ``node_markers`` maps a node id to its vertical lines (one per plot, labelled on the top plot),
+    ``landmark_markers`` a stored landmark's name to its own (green, dotted, "\u25c6 name"). The cursor is
     dragged, or put where a plot is clicked: ``cursor_moved(t_s)`` says where (the review shows the video there);
     :meth:`show_window` shades a node's store window.
     """
@@ -103,6 +108,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
             window.hide()
         self.scene().sigMouseClicked.connect(self._clicked)
         self.node_markers: dict[str, list[pg.InfiniteLine]] = {}
+        self.landmark_markers: dict[str, list[pg.InfiniteLine]] = {}
         self._imu_t = np.zeros(0)
         self._imu_rows = np.zeros(0, dtype=int)
         self._euler = np.zeros((0, 3))
@@ -155,12 +161,18 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self._imu_rows = samples + np.searchsorted(imu_gaps, samples, side="left")   # each sample's row after the NaNs
         self._euler = np.full((len(self._imu_t), 3), np.nan)
         ends = [t[[0, -1]] for t in (review.imu.t_s, review.probe.t_s, frames.t_s, review.camera.t_s) if len(t)]
-        ends.append(np.array([node.t_s for node in review.nodes]))
+        stored = review.stored                             # nodes and landmarks: their labels share the rows
+        ends.append(np.array([point.t_s for point in stored]))
         span = np.concatenate(ends)
         width = float(np.ptp(span)) if len(span) else 0.0
-        rows = label_rows([node.t_s for node in review.nodes], LABEL_GAP * width)
-        for node, row in zip(review.nodes, rows):
-            self._add_marker(node.id, node.t_s, LABEL_TOP - LABEL_STEP * row)
+        rows = label_rows([point.t_s for point in stored], LABEL_GAP * width)
+        for point, row in zip(stored, rows):
+            if point.is_landmark:
+                self.landmark_markers[point.id] = self._add_marker(LANDMARK_LABEL + point.id, point.t_s,
+                                                                   LABEL_TOP - LABEL_STEP * row, _LANDMARK_PEN,
+                                                                   LANDMARK_COLOUR)
+            else:
+                self.node_markers[point.id] = self._add_marker(point.id, point.t_s, LABEL_TOP - LABEL_STEP * row)
         if len(span):
             self.angles.setXRange(float(span.min()), float(span.max()), padding=0.02)
 
@@ -221,20 +233,20 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
                 self._dragged(plot.vb.mapSceneToView(event.scenePos()).x())
                 return
 
-    def _add_marker(self, node_id: str, t_s: float, label_position: float = LABEL_TOP) -> None:
-        """A dashed line at ``t_s`` on every plot, labelled on the top plot at ``label_position`` (fraction of its
-        height)."""
-        escaped = node_id.replace("{", "{{").replace("}", "}}")         # InfiniteLine labels are format strings
-        lines = [pg.InfiniteLine(t_s, angle=90, pen=_MARKER_PEN, label=escaped if plot is self.angles else None,
-                                 labelOpts={"position": label_position, "color": "#dddddd",
-                                            "fill": (0, 0, 0, 160)})
+    def _add_marker(self, text: str, t_s: float, label_position: float = LABEL_TOP, pen=_MARKER_PEN,
+                    colour: str = "#dddddd") -> list[pg.InfiniteLine]:
+        """A line at ``t_s`` on every plot (dashed grey for a node), labelled ``text`` on the top plot at
+        ``label_position`` (fraction of its height)."""
+        escaped = text.replace("{", "{{").replace("}", "}}")         # InfiniteLine labels are format strings
+        lines = [pg.InfiniteLine(t_s, angle=90, pen=pen, label=escaped if plot is self.angles else None,
+                                 labelOpts={"position": label_position, "color": colour, "fill": (0, 0, 0, 160)})
                  for plot in self.plots]
         for plot, line in zip(self.plots, lines):
             plot.addItem(line, ignoreBounds=True)
-        self.node_markers[node_id] = lines
+        return lines
 
     def _remove_markers(self) -> None:
-        for lines in self.node_markers.values():
+        for lines in [*self.node_markers.values(), *self.landmark_markers.values()]:
             for plot, line in zip(self.plots, lines):
                 plot.removeItem(line)
-        self.node_markers = {}
+        self.node_markers, self.landmark_markers = {}, {}
