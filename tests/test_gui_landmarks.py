@@ -93,6 +93,7 @@ def test_one_node_and_three_landmarks_register_and_are_listed_with_their_residua
     table = panel.landmark_table
     assert table.column("surgery") == ["yes"] * 3
     assert all(0 <= float(mm) < 10 for mm in table.column("dist (mm)")) and "SUSPECT" not in panel.summary.text()
+    assert sorted(text for text in panel.view.landmark_texts(0) if text) == sorted(THREE)   # each name drawn once
 
 
 def test_a_swapped_landmark_name_is_said_suspect_in_words(qtbot, panel, tmp_path):

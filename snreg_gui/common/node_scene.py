@@ -77,10 +77,14 @@ class NodeScene:
 
 
     def landmark_texts(self) -> tuple[list[str], list[str]]:
-        """(CT, touched) landmark label texts: the names, a suspect one marked "(suspect)"."""
-        def named(marks):
-            return [] if marks is None else [f"{n} (suspect)" if n in self.suspects else n for n in marks.ids]
-        return named(self.preop_landmarks), named(self.intraop_landmarks)
+        """(CT, touched) landmark label texts: the names, a suspect one marked "(suspect)"; a CT landmark also touched
+        is named once, at the touched one (the names are long: two of each crowd the view)."""
+        touched = set(() if self.intraop_landmarks is None else self.intraop_landmarks.ids)
+
+        def named(marks, skip=frozenset()):
+            return [] if marks is None else ["" if n in skip else f"{n} (suspect)" if n in self.suspects else n
+                                             for n in marks.ids]
+        return named(self.preop_landmarks, touched), named(self.intraop_landmarks)
 
     def landmark_colours(self) -> tuple[list[str], list[str]]:
         """(CT, touched) label colours: :data:`SUSPECT_COLOUR` for a suspect, else :data:`LANDMARK_COLOUR`."""
