@@ -237,8 +237,8 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
     # -- public API ------------------------------------------------------------
     @property
     def busy(self) -> bool:
-        """True while a registration, export, preop read or segmentation is under way."""
-        return self._registering or self._exporting > 0 or self.preop_box.busy
+        """True while a registration, export, preop read, segmentation or save of the preop set is under way."""
+        return self._registering or self._exporting > 0 or self.preop_box.busy or self._saving_preop
 
     def set_session(self, session) -> None:
         """Intraop nodes, and the stored preop set and latest registration if any, from ``session``; None clears."""
