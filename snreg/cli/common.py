@@ -298,6 +298,19 @@ def progress(label: str, always: bool = False) -> Callable[[int, int], None]:
     return report
 
 
+def folder_pairs(source, label: str):
+    """The (left, right) images of an opened-on-use image folder ``source`` (:class:`~snreg.sources.ImageFolderSource`),
+    in order, with a progress line ``label``; a pair that cannot be read ends it with a one-sentence UserError."""
+    report = progress(label)
+    with source:
+        for k in range(len(source)):
+            frame = source.read()
+            if frame is None:
+                raise UserError(source.problem or f"pair {k} could not be read")
+            report(k + 1, len(source))
+            yield frame.left, frame.right
+
+
 def read_orientations(path: str, count: int, per: str):
     """``earth_from_imu`` per ``per`` (image, pair: ``count`` of them) as a scipy ``Rotation`` from a CSV with
     ``yaw``, ``pitch``, ``roll`` columns (degrees, DESIGN.md §3's ZYX; ``#`` lines skipped); ValueError in one

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import sys
 
-from snreg.cli.common import progress, read_orientations
+from snreg.cli.common import folder_pairs, read_orientations
 from snreg.errors import UserError
 
 __all__ = ["add_track_camera_parser", "cmd_track_camera"]
@@ -54,20 +54,11 @@ def cmd_track_camera(args) -> int:
         orientations = read_orientations(args.imu_csv, len(source), "pair")
     except (CalibrationFileError, SourceError, ValueError) as err:
         raise UserError(str(err)) from None
-    report = progress("track-camera: pairs")
-
-    def pairs():
-        with source:
-            for k in range(len(source)):
-                frame = source.read()
-                if frame is None:
-                    raise UserError(source.problem or f"pair {k} could not be read")
-                report(k + 1, len(source))
-                yield frame.left, frame.right
 
     frames = []
     try:
-        for estimate in follow_insertion(pairs(), orientations.as_matrix(), calibration, chain, probe):
+        pairs = folder_pairs(source, "track-camera: pairs")
+        for estimate in follow_insertion(pairs, orientations.as_matrix(), calibration, chain, probe):
             frames.append(estimate)
     except ValueError as err:
         raise UserError(f"pair {len(frames)}: {err}") from None

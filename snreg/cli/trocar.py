@@ -23,7 +23,8 @@ import argparse
 import json
 from pathlib import Path
 
-from snreg.cli.common import check_output_file, finite_float, positive_float, progress, read_orientations, write_text
+from snreg.cli.common import (check_output_file, finite_float, folder_pairs, positive_float, progress,
+                              read_orientations, write_text)
 from snreg.errors import UserError
 
 __all__ = ["add_trocar_parser"]
@@ -187,20 +188,10 @@ def cmd_trocar_tissue(args) -> int:
         imu = read_orientations(args.imu_csv, len(source), "pair") if args.imu_csv else None
     except (CalibrationFileError, SourceError, ValueError) as err:
         raise UserError(str(err)) from None
-    report = progress("tissue: pairs followed")
-
-    def pairs():
-        with source:
-            for k in range(len(source)):
-                frame = source.read()
-                if frame is None:
-                    raise UserError(source.problem or f"pair {k} could not be read")
-                report(k + 1, len(source))
-                yield frame.left, frame.right
 
     followed = []
     try:
-        for pose in follow_tissue(pairs(), calibration, probe):
+        for pose in follow_tissue(folder_pairs(source, "tissue: pairs followed"), calibration, probe):
             followed.append(pose)
     except ValueError as err:
         raise UserError(f"pair {len(followed)}: {err}") from None

@@ -24,14 +24,13 @@ from snreg.camera import StereoCalibration
 from snreg.geometry import rotation_distance_deg
 from snreg.odometry.poses import TissuePose, TissuePoseFollower
 from snreg.probe import ProbeModel
-from snreg.sources import FrameSource, SourceState
+from snreg.sources import FrameSource
 from snreg.tracking import StereoTracker, TrackingError
 from snreg.workflow.display import display_rgb
-from snreg.workflow.trocar_capture import MAX_FRAME_RATE_HZ, MIN_SAMPLE_TURN_DEG
+from snreg.workflow.trocar_capture import MIN_SAMPLE_TURN_DEG, paced_frames
 
 __all__ = ["TissueSample", "TissueFrame", "Restarts", "capture_tissue_samples", "follow_tissue"]
 
-_WAIT_FOR_FRAME_S = 0.005
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,14 +90,7 @@ def capture_tissue_samples(make_source: Callable[[], FrameSource], imu, calibrat
     tracker = StereoTracker(calibration, probe) if probe is not None else None
     start, follower, last_pose = None, None, None
     try:
-        while True:
-            began = time.perf_counter()
-            frame = source.read()
-            if frame is None:
-                if source.state is not SourceState.OPEN:
-                    return source.problem
-                time.sleep(_WAIT_FOR_FRAME_S)
-                continue
+        for frame in paced_frames(source):
             snapshot, t_host_ns = imu.snapshot(), time.perf_counter_ns()
             if start != restarts.count:
                 start, last_pose = restarts.count, None
@@ -117,7 +109,7 @@ def capture_tissue_samples(make_source: Callable[[], FrameSource], imu, calibrat
                     note = (f"turned {turned:.1f} of {MIN_SAMPLE_TURN_DEG:g} degrees since the last sample: "
                             "keep turning")
             yield TissueFrame(frame.index, display_rgb(frame.left), euler, pose.tracked, sample, note)
-            time.sleep(max(0.0, 1.0 / MAX_FRAME_RATE_HZ - (time.perf_counter() - began)))
+        return source.problem
     finally:
         source.close()
 

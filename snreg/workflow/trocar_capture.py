@@ -72,14 +72,7 @@ def capture_samples(make_source: Callable[[], FrameSource], imu, calibration: St
     source = make_source()
     try:
         last_pose = None
-        while True:
-            started = time.perf_counter()
-            frame = source.read()
-            if frame is None:
-                if source.state is not SourceState.OPEN:
-                    return source.problem
-                time.sleep(_WAIT_FOR_FRAME_S)
-                continue
+        for frame in paced_frames(source):
             snapshot, t_host_ns = imu.snapshot(), time.perf_counter_ns()
             euler = tuple(float(a) for a in snapshot.euler_deg)
             corners = find_corners(frame.left, board)
@@ -95,9 +88,24 @@ def capture_samples(make_source: Callable[[], FrameSource], imu, calibration: St
                     note = (f"turned {turned:.1f} of {MIN_SAMPLE_TURN_DEG:g} degrees since the last sample: "
                             "keep pivoting")
             yield BoardFrame(frame.index, _display(frame.left, corners, board), euler, pose is not None, sample, note)
-            time.sleep(max(0.0, 1.0 / MAX_FRAME_RATE_HZ - (time.perf_counter() - started)))
+        return source.problem
     finally:
         source.close()
+
+
+def paced_frames(source: FrameSource):
+    """The frames of ``source`` as they come, until it is no longer open (its ``problem`` then says why), each
+    handed on no sooner than ``1 / MAX_FRAME_RATE_HZ`` after the one before (what the caller did with it included)."""
+    while True:
+        began = time.perf_counter()
+        frame = source.read()
+        if frame is None:
+            if source.state is not SourceState.OPEN:
+                return
+            time.sleep(_WAIT_FOR_FRAME_S)
+            continue
+        yield frame
+        time.sleep(max(0.0, 1.0 / MAX_FRAME_RATE_HZ - (time.perf_counter() - began)))
 
 
 def _pose(corners: np.ndarray | None, board: Board, calibration: StereoCalibration) -> np.ndarray | None:
