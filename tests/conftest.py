@@ -24,6 +24,17 @@ def _own_settings_per_test(tmp_path_factory):
 
 
 @pytest.fixture
+def panel(qtbot):
+    """The registration panel (offscreen), its workers waited for at the end; a test file may define its own."""
+    from snreg_gui.registration.panel import RegistrationPanel
+
+    widget = RegistrationPanel()
+    qtbot.addWidget(widget)
+    yield widget
+    widget.shutdown()
+
+
+@pytest.fixture
 def rng():
     return np.random.default_rng(12345)
 

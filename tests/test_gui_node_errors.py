@@ -28,14 +28,6 @@ SCALE_90 = 2.5003           # sqrt of the 3-dof chi-square 90 % quantile: a 90 %
 ELONGATED = np.diag([1.0, 4.0, 16.0])      # sds 1, 2 and 4 mm: a 90 % radius of 10.0 mm
 
 
-@pytest.fixture
-def panel(qtbot):
-    widget = RegistrationPanel()
-    qtbot.addWidget(widget)
-    yield widget
-    widget.shutdown()
-
-
 class LevelImu:
     def snapshot(self):
         return ImuSnapshot("streaming", "", 208.0, 0.0, (0.0, 0.0, 0.0), np.eye(3), 1, 0)

@@ -13,7 +13,6 @@ from snreg.nodes import NodeSet, write_nodes
 from snreg.session import Session
 from snreg.workflow.preop_landmarks import read_preop_landmarks
 from snreg_gui.common import file_places
-from snreg_gui.registration.panel import RegistrationPanel
 
 TIMEOUT_MS = 15_000
 THREE = ("aortic bifurcation", "right common iliac bifurcation", "left common iliac bifurcation")
@@ -34,14 +33,6 @@ def slicer_points(path, names, xyz, system: str):
 
 def ras(lps):
     return np.asarray(lps) * [-1.0, -1.0, 1.0]
-
-
-@pytest.fixture
-def panel(qtbot):
-    widget = RegistrationPanel()
-    qtbot.addWidget(widget)
-    yield widget
-    widget.shutdown()
 
 
 @pytest.fixture

@@ -41,14 +41,6 @@ def moved_case(pelvic_nodes, yaw_deg: float, seed: int = 7):
     return preop, intraop, order
 
 
-@pytest.fixture
-def panel(qtbot):
-    widget = RegistrationPanel()
-    qtbot.addWidget(widget)
-    yield widget
-    widget.shutdown()
-
-
 def load_preop(qtbot, panel, nodes: NodeSet, path):
     write_nodes(nodes, path)
     panel.load_preop(path)

@@ -25,14 +25,6 @@ IMU_AT_REFERENCE = Rotation.from_euler("ZYX", [0.0, 8.0, -95.0], degrees=True).a
 GRAVITY_DEFAULT = "start: gravity, table tilt 30 deg head down (default), heading searched"
 
 
-@pytest.fixture
-def panel(qtbot):
-    widget = RegistrationPanel()
-    qtbot.addWidget(widget)
-    yield widget
-    widget.shutdown()
-
-
 def far_case(path, xyz, labels, *, heading_deg=140.0, seed=3, chain=True, stored_down=None):
     """A writable session at ``path``: the nodes stored in the trocar frame of a chain referenced at
     ``IMU_AT_REFERENCE`` (none when ``chain`` is False), the patient supine on a table tilted ``TRUE_TILT_DEG`` head
