@@ -23,6 +23,63 @@ def _own_settings_per_test(tmp_path_factory):
     yield
 
 
+DEADLINE_FLOOR_MS = 30_000   # a wait's deadline only names a hang; it never measures speed (the suite runs loaded)
+
+
+def holds(predicate) -> bool:
+    """``predicate()`` as a plain bool, False while it cannot be evaluated yet (None indexed, a list still empty):
+    a wait's predicate never throws, so a race can only make a wait longer, never fail it."""
+    try:
+        return bool(predicate())
+    except Exception:
+        return False
+
+
+def poll(predicate, timeout_s: float = 30.0, interval_s: float = 0.01) -> bool:
+    """Poll ``predicate`` (see ``holds``) until it holds or ``timeout_s`` passes; its last answer."""
+    import time
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if holds(predicate):
+            return True
+        time.sleep(interval_s)
+    return holds(predicate)
+
+
+@pytest.fixture
+def qtbot(qtbot):
+    """pytest-qt's qtbot whose waits cannot be failed by a race: ``waitUntil``'s callback may only fail by
+    AssertionError (anything else it raises counts as "not yet", chained to the timeout that names it), a predicate's
+    answer counts as a bool, and every wait's deadline is at least DEADLINE_FLOOR_MS."""
+    wait_until, wait_signal, wait_signals = qtbot.waitUntil, qtbot.waitSignal, qtbot.waitSignals
+
+    def not_yet_unless_asserting(callback):
+        def checked():
+            try:
+                answer = callback()
+            except AssertionError:
+                raise
+            except Exception as error:
+                raise AssertionError(f"not yet: {type(error).__name__}: {error}") from error
+            return None if answer is None else bool(answer)
+        return checked
+
+    def waitUntil(callback, *, timeout: int = 5000):
+        __tracebackhide__ = True
+        return wait_until(not_yet_unless_asserting(callback), timeout=max(timeout, DEADLINE_FLOOR_MS))
+
+    def waitSignal(signal=None, *, timeout: int = 5000, **kwargs):
+        return wait_signal(signal, timeout=max(timeout, DEADLINE_FLOOR_MS), **kwargs)
+
+    def waitSignals(signals=None, *, timeout: int = 5000, **kwargs):
+        return wait_signals(signals, timeout=max(timeout, DEADLINE_FLOOR_MS), **kwargs)
+
+    qtbot.waitUntil = qtbot.wait_until = waitUntil
+    qtbot.waitSignal = qtbot.wait_signal = waitSignal
+    qtbot.waitSignals = qtbot.wait_signals = waitSignals
+    return qtbot
+
+
 @pytest.fixture
 def panel(qtbot):
     """The registration panel (offscreen), its workers waited for at the end; a test file may define its own."""
@@ -77,15 +134,10 @@ class RecordingIgtlClient:
     def messages(self, device: str) -> list:
         return [m for m in list(self.log) if m.device_name == device]
 
-    def wait_for(self, condition, timeout_s: float = 20.0) -> bool:
-        """Poll ``condition(self)`` until true or ``timeout_s`` has passed (a deadline, never a timed assertion)."""
-        import time
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if condition(self):
-                return True
-            time.sleep(0.02)
-        return condition(self)
+    def wait_for(self, condition, timeout_s: float = 30.0) -> bool:
+        """Poll ``condition(self)`` (see ``poll``) until it holds or ``timeout_s`` has passed (a deadline, never a timed
+        assertion)."""
+        return poll(lambda: condition(self), timeout_s, interval_s=0.02)
 
     def stop(self) -> None:
         self._client.stop()

@@ -44,8 +44,8 @@ def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, s
     with qtbot.waitExposed(first):
         first.show()
     assert "no session" in first.windowTitle()
-    first.open_for_review(str(path))
-    qtbot.waitSignal(first.review.loaded, timeout=10_000)
+    with qtbot.waitSignal(first.review.loaded, timeout=10_000):
+        first.open_for_review(str(path))
     assert first.tabs.currentWidget() is first.review
     assert first.windowTitle().endswith("reviewing old.h5") and "no session" not in first.windowTitle()
     assert first.tabs.tabText(first.tabs.indexOf(first.review)) == "Review: old.h5"

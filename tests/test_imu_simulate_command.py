@@ -8,16 +8,9 @@ from pathlib import Path
 
 import serial
 
+from conftest import poll
+
 from snreg.imu.protocol import StreamDecoder
-
-
-def wait_for(predicate, timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def ended(pid: int) -> bool:
@@ -40,7 +33,7 @@ def test_the_still_simulator_streams_level_samples_and_stops_when_its_parent_end
         time.sleep(float(sys.stdin.readline()))
     """)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     child_pid = int(parent.stdout.readline())
-    assert wait_for(link.exists, 30.0)
+    assert poll(link.exists)
     with serial.Serial(str(link), 230400, timeout=0.2) as port:
         decoder = StreamDecoder()
         samples = []
@@ -50,7 +43,7 @@ def test_the_still_simulator_streams_level_samples_and_stops_when_its_parent_end
     assert len(samples) >= 20
     assert all(abs(s.accel_g[2] - 1.0) < 0.05 and max(abs(s.gyro_dps)) < 1.0 for s in samples)   # level and still
     parent.communicate("0\n", timeout=10)                      # the "app" ends
-    assert wait_for(lambda: ended(child_pid), 10.0)
+    assert poll(lambda: ended(child_pid))
     assert not link.exists()                                   # it cleaned up as on Ctrl-C
 
 
@@ -63,7 +56,7 @@ def test_the_still_simulator_holds_the_attitude_it_is_given(tmp_path):
     child = subprocess.Popen([sys.executable, "-m", "snreg.cli", "imu", "simulate", "--still", "--attitude=0,8,-95",
                               "--port-link", str(link)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        assert wait_for(link.exists, 30.0)
+        assert poll(link.exists)
         with serial.Serial(str(link), 230400, timeout=0.2) as port:
             decoder, samples, end = StreamDecoder(), [], time.monotonic() + 15.0
             while time.monotonic() < end and len(samples) < 20:

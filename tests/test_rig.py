@@ -1,12 +1,13 @@
 """The hardware rig on rendered frames (image folders, video files standing in for cameras), a simulated IMU on a pty."""
 
 import json
-import time
 from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
+
+from conftest import poll
 
 from snreg.calibration.checkerboard import THESIS_BOARD, find_corners
 from snreg.camera import CalibrationFileError, save_calibration, thesis_calibration
@@ -73,15 +74,6 @@ def imu_port(tmp_path):
     port.stop()
 
 
-def wait_until(predicate, timeout=10.0) -> bool:
-    end = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.01)
-    return True
-
-
 def test_folder_rig_reads_the_recorded_pairs_and_the_imu_streams(recording, imu_port):
     root, pairs, _ = recording
     rig = HardwareRig(folder_config(root, serial_port=imu_port.port))
@@ -96,7 +88,7 @@ def test_folder_rig_reads_the_recorded_pairs_and_the_imu_streams(recording, imu_
             np.testing.assert_array_equal(frame.left, left)
             np.testing.assert_array_equal(frame.right, right)
         assert [f.t_left_ns for f in frames] == [round(k * 1e9 / 25.0) for k in range(N_PAIRS)]
-        assert wait_until(lambda: rig.imu.snapshot().samples >= 50)
+        assert poll(lambda: rig.imu.snapshot().samples >= 50)
         snapshot = rig.imu.snapshot()
         assert snapshot.state == "streaming" and snapshot.corrupt == 0
         assert np.degrees(np.arccos(np.clip(snapshot.earth_from_imu[2, 2], -1, 1))) < 2.0     # level: z up
