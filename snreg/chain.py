@@ -38,13 +38,16 @@ from scipy.spatial.transform import Rotation
 from snreg.files import read_text_file
 from snreg.geometry import apply, make_transform
 
-__all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "EARTH_DOWN", "ChainCalibration", "reference_rotation",
+__all__ = ["THESIS_IMU_TROCAR_MM", "THESIS_TROCAR_CAMERA_MM", "THESIS_TROCAR_CAMERA_SD_MM", "EARTH_DOWN", "ChainCalibration", "reference_rotation",
            "trocar_from_imu", "trocar_from_camera", "camera_from_probe", "trocar_from_probe", "camera_to_trocar",
            "read_chain_file"]
 
 # thesis §4.1: the IMU-trocar distance measured by hand, and the trocar-camera distance it measured (mm)
 THESIS_IMU_TROCAR_MM = 460.0
 THESIS_TROCAR_CAMERA_MM = 158.0
+# the trocar-camera distance's own error (thesis Table 3: interquartile 157-158 mm over orientations, so a robust sd of
+# 1 / 1.349 mm): the sd of the insertion the trocar calibration gives, where insertion tracking starts
+THESIS_TROCAR_CAMERA_SD_MM = 0.74
 EARTH_DOWN = np.array([0.0, 0.0, -1.0])     # gravity in the IMU's earth frame (z up: at rest the accelerometer reads +1 g)
 
 _TRANSFORMS = ("imu_from_camera", "trocar_from_earth")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from surgery_frames import NODE_A, NODE_B, START_MM, SlidingWorld, slide_then_rest
 
-from snreg.chain import camera_to_trocar
+from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, camera_to_trocar
 from snreg.errors import StoreRefused
 from snreg.odometry import InsertionTracker
 from snreg.session import Session
@@ -75,7 +75,9 @@ def test_each_pair_is_mapped_at_its_tracked_insertion_and_each_node_records_its_
     np.testing.assert_array_equal(camera["t_host_ns"], [p.frame.t_left_ns for p in sliding])
     np.testing.assert_array_equal(camera["t_device_ns"], [p.frame.t_right_ns for p in sliding])
     np.testing.assert_allclose(camera["trocar_camera_mm"], [o.insertion.estimate.trocar_camera_mm for o in outcomes])
-    assert set(camera["state"]) == {1} and np.all(camera["quality"] > 0.5) and np.all(camera["sd_mm"] < 0.5)
+    assert set(camera["state"]) == {1} and np.all(camera["quality"] > 0.5) and np.all(camera["sd_mm"] < 0.8)
+    # each row's sd is the insertion's own: the trocar calibration's at the start, with the change's since added
+    assert camera["sd_mm"][0] == pytest.approx(THESIS_TROCAR_CAMERA_SD_MM) and np.all(camera["sd_mm"] >= 0.7399)
     with Session.open(tmp_path / "tracked.h5") as session:                       # on disk, HDF5 and journal
         stored = {node.id: node.trocar_camera_mm for node in session.intraop_records()}
         assert stored == {"SN1": first.trocar_camera_mm, "SN2": second.trocar_camera_mm}
@@ -112,9 +114,12 @@ def test_a_store_while_lost_after_a_turn_is_refused_in_words_and_the_override_is
         assert outcome.insertion_text.startswith("camera LOST (no tissue texture in view")
         check = outcome.store_check
         assert check.overridable and not outcome.auto_store_due                    # auto-store never overrides
+        held_sd = outcome.insertion.sd_mm                                          # grown by the 3.2 degrees
+        assert held_sd > 2.0
         assert check.refusal == ("the camera's insertion is lost (no tissue texture in view (covered, dark, smoke or "
-                                 "inside the trocar)) and the camera turned 3.2 degrees since it was last tracked: "
-                                 "show the tissue to the camera, or store anyway (the override is kept on record)")
+                                 "inside the trocar)) and the camera turned 3.2 degrees since it was last tracked (the "
+                                 f"insertion held is now uncertain by {held_sd:.1f} mm): show the tissue to the camera, "
+                                 "or store anyway (the override is kept on record)")
         with pytest.raises(StoreRefused, match=r"turned 3\.2 degrees") as refused:
             acq.store("SN1", "OBT R", trigger="F5")
         assert refused.value.overridable and session.intraop_records() == []
@@ -142,8 +147,8 @@ def test_lost_without_moving_stores_and_lost_for_over_two_seconds_is_refused(wor
         outcome = acq.process(*pair_args(world.pair(WINDOW + 1, START_MM, covered=True,
                                                    t_ns=tracked_ns + 2_600_000_000)))
         assert outcome.store_check.refusal.startswith("the camera's insertion is lost (no tissue texture")
-        assert "it has been lost for 2.6 s, long enough for an unseen slide: show the tissue to the camera" in \
-            outcome.store_check.refusal
+        assert "it has been lost for 2.6 s, long enough for an unseen slide (the insertion held is now uncertain by " \
+            in outcome.store_check.refusal
         # the tissue back in view: tracked again, nothing to refuse
         fill_on_node(world, acq, first_index=WINDOW + 2)
 

@@ -6,6 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from snreg.camera import thesis_calibration
+from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM
 from snreg.demo.camera_path import CameraPath, still_path, surgery_path
 from snreg.demo.renderer import RenderOptions
 from snreg.demo.surgery_video import SurgeryVideo, VideoOptions, surgery_chain
@@ -100,7 +101,9 @@ def test_a_slide_along_the_shaft_is_followed(rig):
     estimates, video, _ = track(rig, path)
     assert all(e.tracked for e in estimates), [e.reason for e in estimates if not e.tracked]
     assert np.abs(errors(estimates, video)).max() < 0.3
-    assert all(0.5 < e.quality <= 1.0 and e.sd_mm < 0.3 for e in estimates)
+    assert all(0.5 < e.quality <= 1.0 and e.change_sd_mm < 0.3 for e in estimates)
+    # the insertion's own sd: the change's and the start's (the trocar calibration's) together
+    assert all(e.sd_mm == pytest.approx(np.hypot(e.change_sd_mm, THESIS_TROCAR_CAMERA_SD_MM)) for e in estimates)
 
 
 def test_turns_about_the_pivot_leave_the_insertion_where_it_is(rig):

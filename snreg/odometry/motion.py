@@ -15,6 +15,11 @@ camera is from where the pivot and the IMU put it (:func:`pivot_departure_mm`) s
 that is off. Both minimise the reprojection error in both eyes (normalised image coordinates, scaled to pixels),
 robustly (Huber, then a cut), by Gauss-Newton; the free fit uses the left eye alone (``cv2.solvePnP``): it only
 measures the departure.
+
+A fit that fails says so in words (:attr:`MotionFit.failure`) instead of returning whatever its last step left: the
+pivot fit when its last phase has not settled within its steps or its system is singular or ill-conditioned (the
+insertion not determined by the points: too few, or all too far away to show a slide), the free fit when solvePnP
+finds no pose.
 """
 
 from __future__ import annotations
@@ -30,6 +35,10 @@ _PHASES = (4.0, 1.0, None)    # Huber thresholds (px): wide (a poor start), narr
 _PHASE_STEPS = 4              # Gauss-Newton steps per phase at most
 _INLIER_PX = 2.0              # a point whose worse eye is farther than this (at the working scale) is an outlier
 _CONVERGED = 1e-7
+# the last phase has settled when its last step moved the rotation less than this (rad) and the insertion less than
+# this (mm): far below the fit's own errors (0.5 deg prior, tracked insertions to 0.05-0.3 mm)
+_SETTLED_RAD, _SETTLED_MM = 1e-4, 1e-3
+_MAX_CONDITION = 1e10         # a normal matrix less well conditioned than this: the motion is not determined
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,7 +61,8 @@ class Observations:
 class MotionFit:
     """``rotation`` (3, 3) current_from_keyframe; ``translation`` (3,) mm of the same; ``insertion_mm``: the pivot
     model's ``d`` (NaN for a free fit); ``inliers`` (N,) bool; ``sd_mm`` the insertion's standard error (NaN for a
-    free fit); ``rms_px`` of the inliers at the working scale."""
+    free fit); ``rms_px`` of the inliers at the working scale; ``failure``: why the fit failed, in words ("" when
+    it did not; a failed fit's numbers are not a measurement)."""
 
     rotation: np.ndarray
     translation: np.ndarray
@@ -60,6 +70,7 @@ class MotionFit:
     inliers: np.ndarray
     sd_mm: float
     rms_px: float
+    failure: str = ""
 
     @property
     def n_inliers(self) -> int:
@@ -78,7 +89,7 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
     rotation, insertion = rotation_imu.copy(), float(guess_mm)
     right_rotation, right_translation = obs.right_from_left[:3, :3], obs.right_from_left[:3, 3]
     keep = np.ones(len(obs), bool)
-    phase, steps = 0, 0
+    phase, steps, failure = 0, 0, ""
     while phase < len(_PHASES):
         turned = lever @ rotation.T
         q = turned - insertion * shaft
@@ -92,33 +103,43 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
         gradient = rows.T @ (values * weights)
         normal[:3, :3] += prior_weight**2 * np.eye(3)
         gradient[:3] += prior_weight**2 * tilt
-        try:
-            step = -np.linalg.solve(normal, gradient)
-        except np.linalg.LinAlgError:
+        condition = np.linalg.cond(normal)
+        if not condition < _MAX_CONDITION:
+            failure = (f"the motion is not determined by the tissue points (condition number {condition:.1e}: too few "
+                       "points, or too far to show a slide)")
             break
+        step = -np.linalg.solve(normal, gradient)
         rotation = _rotation(step[:3]) @ rotation
         insertion += step[3]
         steps += 1
         if np.abs(step).max() < _CONVERGED or steps == _PHASE_STEPS:      # this phase settled: the next one
+            if phase == len(_PHASES) - 1 and not (np.abs(step[:3]).max() < _SETTLED_RAD and abs(step[3]) < _SETTLED_MM):
+                failure = (f"the motion fit did not settle in {_PHASE_STEPS} steps (its last step moved the insertion "
+                           f"{abs(step[3]):.3f} mm)")
             phase, steps = phase + 1, 0
     n = int(keep.sum())
     sigma2 = float((values**2 * (weights > 0)).sum()) / max(4 * n - 4, 1)
-    try:
-        sd = float(np.sqrt(np.linalg.inv(normal)[3, 3] * sigma2)) if n else float("inf")
-    except np.linalg.LinAlgError:
-        sd = float("inf")
+    sd = float(np.sqrt(np.linalg.inv(normal)[3, 3] * sigma2)) if n and not failure else float("inf")
     translation = keyframe_mm * (rotation @ shaft) - insertion * shaft
-    return MotionFit(rotation, translation, insertion, keep, sd, _rms(error, keep))
+    return MotionFit(rotation, translation, insertion, keep, sd, _rms(error, keep), failure)
 
 
 def fit_free(obs: Observations, rotation: np.ndarray, translation: np.ndarray,
              inliers: np.ndarray | None = None) -> MotionFit:
     """Rotation (3, 3) and translation (3,) mm current_from_keyframe with no model of the motion, from a start: the
-    left eye's view of the keyframe's points (``cv2.solvePnP``), the ``inliers`` (N,) alone when given."""
+    left eye's view of the keyframe's points (``cv2.solvePnP``), the ``inliers`` (N,) alone when given. When solvePnP
+    fails the fit says so (``failure``) and keeps the start."""
     use = np.ones(len(obs), bool) if inliers is None else np.asarray(inliers, bool)
     rvec, tvec = _rotvec(np.asarray(rotation, float)).reshape(3, 1), np.asarray(translation, float).reshape(3, 1)
-    ok, rvec, tvec = cv2.solvePnP(obs.points[use].reshape(-1, 1, 3), obs.left[use].reshape(-1, 1, 2), np.eye(3), None,
-                                  rvec, tvec, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(obs.points[use].reshape(-1, 1, 3), obs.left[use].reshape(-1, 1, 2), np.eye(3),
+                                      None, rvec, tvec, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+    except cv2.error:          # too few points for it, or a degenerate set
+        ok = False
+    if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        nan = float("nan")
+        return MotionFit(np.asarray(rotation, float), np.asarray(translation, float), nan, np.zeros(len(obs), bool),
+                         nan, float("inf"), f"solvePnP found no camera pose from {int(use.sum())} tissue points")
     rotation, translation = _rotation(rvec.ravel()), tvec.ravel()
     q = obs.points @ rotation.T + translation
     error = obs.focal_px * np.hypot(q[:, 0] / q[:, 2] - obs.left[:, 0], q[:, 1] / q[:, 2] - obs.left[:, 1])

@@ -12,8 +12,12 @@ a new keyframe is made when none is fresh. The comparison starts from the insert
 pairs; when it fails, the insertion is searched for (:mod:`snreg.odometry.search`) near the prediction, then, as after
 a lost view, along every keyframe of a similar turn. Each pair is ``tracked`` with a
 quality (the share of followed tissue points that agree with the motion) and a standard error, or ``lost`` with
-the reason in words: never a guess. The first pair with tissue in view becomes the first keyframe at the start
-insertion (the trocar calibration's distance, or the caller's).
+the reason in words: never a guess (a motion fit that fails, :attr:`~snreg.odometry.motion.MotionFit.failure`,
+loses the pair too). The first pair with tissue in view becomes the first keyframe at the start insertion (the trocar
+calibration's distance, or the caller's): tracked with the start's own sd and saying it is the start
+(:data:`START_REASON`). Every tracked insertion's sd is the start's and the change's since together (the change's
+alone: ``change_sd_mm``, what the node covariance adds to the trocar calibration's own term). While lost, the
+insertion held from the last tracked pair grows uncertain as :mod:`snreg.odometry.held` says.
 """
 
 from __future__ import annotations
@@ -23,16 +27,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from snreg.camera import StereoCalibration
-from snreg.chain import ChainCalibration
+from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, ChainCalibration
 from snreg.geometry import rotation_angle_deg
 from snreg.odometry.motion import Observations, fit_free, fit_pivot, pivot_departure_mm
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography, search_insertion
 from snreg.odometry.views import EyePair, Keyframe, OdometryParams, View, follow, inside, make_keyframe
 from snreg.probe import ProbeModel
 
-__all__ = ["TRACKED", "LOST", "InsertionEstimate", "InsertionTracker"]
+__all__ = ["TRACKED", "LOST", "START_REASON", "InsertionEstimate", "InsertionTracker"]
 
 TRACKED, LOST = "tracked", "lost"
+START_REASON = "start: the trocar calibration's insertion"      # the first pair's word: assumed, not measured
 _MAX_PREDICTED_MM = 10.0     # the prediction never runs further from the last insertion
 _SEARCH_STEP = 0.015         # candidate insertions this share of the tissue's depth apart
 _NEAR_STEPS = 8              # candidates on each side of the prediction
@@ -47,8 +52,10 @@ _SD_INFLATION = 2.0
 class InsertionEstimate:
     """The camera's distance from the pivot at one pair (``trocar_camera_mm``, NaN when lost), its ``state``
     ("tracked" | "lost"), ``quality`` (share of the followed tissue points that agree, 0 when lost), ``sd_mm`` (its
-    standard error), ``residual_mm`` (the free fit's distance from the pivot model: a moved pivot or an IMU that
-    is off), ``reason`` (why lost, in words), the points that agreed and the keyframe followed (-1: none)."""
+    standard error: the start's and the change's since together; NaN when lost), ``residual_mm`` (the free fit's
+    distance from the pivot model: a moved pivot or an IMU that is off), ``reason`` (why lost, in words; the first
+    pair's :data:`START_REASON`), the points that agreed, the keyframe followed (-1: none) and ``change_sd_mm`` (the
+    standard error of the change since the start alone: 0 at the start)."""
 
     index: int
     state: str
@@ -59,6 +66,7 @@ class InsertionEstimate:
     reason: str = ""
     points: int = 0
     keyframe: int = -1
+    change_sd_mm: float = float("nan")
 
     @property
     def tracked(self) -> bool:
@@ -70,7 +78,7 @@ class InsertionEstimate:
             return round(float(value), digits) if np.isfinite(value) else None
         return {"index": self.index, "trocar_camera_mm": number(self.trocar_camera_mm, 3), "state": self.state,
                 "quality": round(float(self.quality), 3), "residual_mm": number(self.residual_mm, 3),
-                "sd_mm": number(self.sd_mm, 3), "reason": self.reason}
+                "sd_mm": number(self.sd_mm, 3), "change_sd_mm": number(self.change_sd_mm, 3), "reason": self.reason}
 
 
 @dataclass(frozen=True)
@@ -89,12 +97,14 @@ class _Step:
 class InsertionTracker:
     """Follow the insertion of the camera of ``calibration`` on the trocar chain ``chain`` over consecutive pairs.
 
-    ``start_mm``: the insertion at the first pair with tissue in view (default: the chain's ``trocar_camera_mm``);
+    ``start_mm``: the insertion at the first pair with tissue in view (default: the chain's ``trocar_camera_mm``),
+    ``start_sd_mm`` its standard error (default: the thesis' trocar calibration's, Table 3);
     ``probe``: the probe model, to leave the probe out of the tissue when :meth:`update` is given its fix.
     """
 
     def __init__(self, calibration: StereoCalibration, chain: ChainCalibration, *, start_mm: float | None = None,
-                 probe: ProbeModel | None = None, params: OdometryParams = OdometryParams()):
+                 start_sd_mm: float = THESIS_TROCAR_CAMERA_SD_MM, probe: ProbeModel | None = None,
+                 params: OdometryParams = OdometryParams()):
         self.params, self.probe = params, probe
         self.pair = EyePair(calibration, params.work_width)
         self.shaft = chain.shaft_camera
@@ -103,6 +113,10 @@ class InsertionTracker:
         self.start_mm = float(chain.trocar_camera_mm if start_mm is None else start_mm)
         if not np.isfinite(self.start_mm) or self.start_mm <= 0:
             raise ValueError(f"the start insertion must be a positive distance in mm, got {start_mm}")
+        self.start_sd_mm = float(start_sd_mm)
+        if not (np.isfinite(self.start_sd_mm) and self.start_sd_mm >= 0):
+            raise ValueError(f"the start insertion's standard error must be a number of mm of at least 0, got "
+                             f"{start_sd_mm}")
         self.keyframes: list[Keyframe] = []
         self._index = -1
         self._last: _Step | None = None          # the last tracked pair's step
@@ -132,8 +146,9 @@ class InsertionTracker:
             self._velocity = 0.0
         self._last, self._last_index = step, self._index
         self._renew(view, rotation, step)
-        return InsertionEstimate(self._index, TRACKED, step.insertion_mm, step.quality, step.sd_mm, step.residual_mm,
-                                 "", step.points, step.keyframe.number)
+        return InsertionEstimate(self._index, TRACKED, step.insertion_mm, step.quality,
+                                 float(np.hypot(step.sd_mm, self.start_sd_mm)), step.residual_mm, "", step.points,
+                                 step.keyframe.number, step.sd_mm)
 
     # -- steps ---------------------------------------------------------------
     def _first(self, view: View, rotation: np.ndarray) -> InsertionEstimate:
@@ -142,8 +157,8 @@ class InsertionTracker:
             return self._lost("too few tissue features to start from")
         self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe)
         self._last_index = self._index
-        return InsertionEstimate(self._index, TRACKED, self.start_mm, 1.0, 0.0, 0.0, "", len(keyframe.points),
-                                 keyframe.number)
+        return InsertionEstimate(self._index, TRACKED, self.start_mm, 1.0, self.start_sd_mm, 0.0, START_REASON,
+                                 len(keyframe.points), keyframe.number, 0.0)
 
     def _follow(self, view: View, rotation: np.ndarray) -> tuple[_Step | None, str]:
         """This pair against the best usable keyframes from the predicted insertion; else the insertion searched for
@@ -228,6 +243,8 @@ class InsertionTracker:
                            self.pair.normalise(right_px[found], 1), self.pair.right_from_left, self.pair.focal_px)
         fit = fit_pivot(obs, rotation_imu, self.shaft, keyframe.insertion_mm, guess_mm,
                         rotation_sd_deg=p.rotation_sd_deg, noise_px=p.noise_px)
+        if fit.failure:
+            return None, fit.failure
         share = fit.n_inliers / len(obs)
         if fit.n_inliers < p.min_points or share < p.min_agreeing_share:
             return None, (f"only {fit.n_inliers} of {len(obs)} tissue points agree with the camera's motion "
@@ -236,6 +253,8 @@ class InsertionTracker:
         if not sd <= p.max_sd_mm:
             return None, f"the insertion is uncertain (standard error {sd:.1f} mm)"
         free = fit_free(obs, fit.rotation, fit.translation, fit.inliers)
+        if free.failure:
+            return None, f"{free.failure}, so the camera's departure from the pivot model is unknown"
         residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
         now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
         return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe), ""

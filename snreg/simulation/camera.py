@@ -77,7 +77,7 @@ def run_camera_trial(seed: int, *, pairs: int = 100, scale: float = 1.0, hidden:
     return CameraTrial(seed, errors[tracked & ~hidden_pairs], int((~hidden_pairs).sum()),
                        int((~tracked & ~hidden_pairs).sum()), int(hidden_pairs.sum()),
                        int((~tracked & hidden_pairs).sum()), float(errors[-1]) if tracked[-1] else float("nan"),
-                       np.array([e.sd_mm for e in estimates])[tracked & ~hidden_pairs])
+                       np.array([e.change_sd_mm for e in estimates])[tracked & ~hidden_pairs])
 
 
 def summary(trials: list[CameraTrial]) -> dict:

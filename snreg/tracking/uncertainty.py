@@ -40,7 +40,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from snreg.camera import StereoCalibration
-from snreg.chain import ChainCalibration, reference_rotation, trocar_from_camera
+from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, ChainCalibration, reference_rotation, trocar_from_camera
 from snreg.probe import ProbeModel
 
 __all__ = ["NodeUncertainty", "node_covariance", "node_covariance_parts", "node_covariance_sources", "summed_covariance",
@@ -85,8 +85,8 @@ class NodeUncertainty:
     pointing_axial_mm: float = 5.0
     imu_deg: float = 0.48
     imu_camera_deg: float = 0.0
-    trocar_camera_sd_mm: float = 0.74
-    insertion_sd_mm: float = 0.74
+    trocar_camera_sd_mm: float = THESIS_TROCAR_CAMERA_SD_MM
+    insertion_sd_mm: float = THESIS_TROCAR_CAMERA_SD_MM
 
     def __post_init__(self):
         for name, value in vars(self).items():

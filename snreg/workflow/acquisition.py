@@ -123,7 +123,7 @@ class _Fix:
     grabbed_ns: int        # its frame's (left) grab time: the stream rows' clock
     seen_ns: int           # host time it was computed
     insertion_mm: float    # the camera's insertion it was mapped with (NaN: the chain's own, tracking off)
-    insertion_sd_mm: float  # that insertion's sd (the tracker's; a held one's unseen change; NaN: tracking off)
+    insertion_sd_mm: float  # that insertion's change's sd since the start (tracked or held; NaN: tracking off)
 
 
 class Acquisition:
@@ -194,9 +194,9 @@ class Acquisition:
             tip_trocar = camera_to_trocar(chain, imu.earth_from_imu, fix.tip)
             pose = trocar_from_probe(chain, imu.earth_from_imu, camera_from_probe(fix.tip, fix.axis))
             quat = Rotation.from_matrix(imu.earth_from_imu).as_quat()
-            # the insertion's sd: the tracker's when tracked, the unseen change's when held from an earlier pair
-            slide = float("nan") if step is None else float(step.estimate.sd_mm if step.estimate.tracked
-                                                            else self.uncertainty.insertion_sd_mm)
+            # the insertion's change since the start (the trocar calibration's own error is a term of its own): the
+            # tracker's when tracked, grown with the time lost and the turn since when held (snreg.odometry.held)
+            slide = float("nan") if step is None else step.change_sd_mm
             self._fixes.append(_Fix(fix.tip, fix.axis, tip_trocar, quat, float(imu.gap_s), imu.state, frame.t_left_ns,
                                     self._clock(), float("nan") if step is None else step.used_mm, slide))
             self.session.append_probe(frame.t_left_ns, frame.t_right_ns, fix.tip, fix.centre, fix.axis, fix.quality)

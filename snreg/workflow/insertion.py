@@ -7,10 +7,11 @@ through the chain at that pair's insertion (DESIGN.md §1).
 
 During acquisition (:class:`CameraInsertion`): each pair is mapped with the insertion tracked at it; a lost pair
 with the last one tracked (before any, the tracker's start: the trocar calibration's distance), and says so. The
-IMU sees every turn of the camera but not a pure slide, so while the insertion is lost the store guard refuses
-(:meth:`CameraInsertion.store_refusal`) once the camera may have moved since it was last tracked: the IMU turned
-more than :data:`MOVED_TURN_DEG` since that pair, or the insertion has been lost for more than
-:data:`MOVED_AFTER_S` (long enough for an unseen slide).
+IMU sees every turn of the camera but not a pure slide, so while the insertion is lost the held insertion's sd grows
+with the time lost and the turn since it was last tracked (:mod:`snreg.odometry.held`: each step's ``sd_mm``, what
+the node covariance uses), and the store guard refuses (:meth:`CameraInsertion.store_refusal`) once that growth says
+the camera may have moved: turned more than :data:`MOVED_TURN_DEG`, lost for more than :data:`MOVED_AFTER_S` (long
+enough for an unseen slide), or a mix of both.
 """
 
 from __future__ import annotations
@@ -24,14 +25,13 @@ from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
 from snreg.geometry import rotation_angle_deg
 from snreg.odometry import InsertionEstimate, InsertionTracker
+from snreg.odometry.held import MOVED_AFTER_S, MOVED_TURN_DEG, held_sd_mm, may_have_moved
 from snreg.probe import ProbeModel
 from snreg.tracking import StereoTracker, TrackingError
 
 __all__ = ["follow_insertion", "CameraInsertion", "InsertionStep", "MOVED_TURN_DEG", "MOVED_AFTER_S",
            "LARGE_RESIDUAL_MM", "insertion_text", "residual_text"]
 
-MOVED_TURN_DEG = 1.0     # the IMU turned more than this since the last tracked pair: the camera moved
-MOVED_AFTER_S = 2.0      # lost for longer than this: it may have slid unseen
 # the camera this far off the pivot model is worth a word: a tracked pair's residual stays below 0.1 mm on rendered
 # slides and turns, and an IMU 1 degree off gives about 1.5 mm (tests/surgery_frames.py, tissue about 80 mm ahead)
 LARGE_RESIDUAL_MM = 1.0
@@ -40,11 +40,16 @@ LARGE_RESIDUAL_MM = 1.0
 @dataclass(frozen=True, eq=False)
 class InsertionStep:
     """One pair's insertion: the tracker's ``estimate``, the insertion the pair is mapped with (``used_mm``: the
-    estimate's when tracked, else the last tracked, or the start) and the chain at that insertion."""
+    estimate's when tracked, else the last tracked, or the start), the chain at that insertion, and that insertion's
+    standard error: ``sd_mm`` (the start's and the change's since together: the estimate's when tracked, grown with the
+    time lost and the turn since when held) and ``change_sd_mm`` (the change since the start alone, what a node's
+    covariance adds to the trocar calibration's own term)."""
 
     estimate: InsertionEstimate
     used_mm: float
     chain: ChainCalibration
+    sd_mm: float = float("nan")
+    change_sd_mm: float = float("nan")
 
     @property
     def held(self) -> bool:
@@ -62,6 +67,7 @@ class CameraInsertion:
         self.last: InsertionStep | None = None
         self._known_ns: int | None = None          # grab time of the last tracked pair (the first pair before any)
         self._known_orientation: np.ndarray | None = None
+        self._known_change_sd = 0.0                # the change's sd at the last tracked pair (the start's: 0)
         self._now_ns = 0
         self._now_orientation = np.eye(3)
         self._chain_at = (self.start_mm, chain.with_insertion(self.start_mm))
@@ -75,28 +81,37 @@ class CameraInsertion:
         self._now_ns, self._now_orientation = int(t_ns), orientation
         if estimate.tracked or self._known_ns is None:
             self._known_ns, self._known_orientation = int(t_ns), orientation
+        if estimate.tracked:
+            self._known_change_sd = float(estimate.change_sd_mm)
         used = estimate.trocar_camera_mm if estimate.tracked else (self.last.used_mm if self.last else self.start_mm)
         if used != self._chain_at[0]:
             self._chain_at = (used, self.chain.with_insertion(used))
-        self.last = InsertionStep(estimate, float(used), self._chain_at[1])
+        change = self._known_change_sd if estimate.tracked else held_sd_mm(self._known_change_sd, *self._since_known())
+        self.last = InsertionStep(estimate, float(used), self._chain_at[1],
+                                  float(np.hypot(change, self.tracker.start_sd_mm)), float(change))
         return self.last
+
+    def _since_known(self) -> tuple[float, float]:
+        """(seconds, degrees of the IMU's turn) since the last tracked pair (the first pair before any)."""
+        return ((self._now_ns - self._known_ns) / 1e9,
+                float(rotation_angle_deg(self._known_orientation.T @ self._now_orientation)))
 
     def store_refusal(self) -> str:
         """Why a store must wait for the insertion, in words ("" when it need not): it is lost now and the camera may
         have moved since it was last tracked (module docstring)."""
         if self.last is None or self.last.estimate.tracked:
             return ""
-        reason = f" ({self.last.estimate.reason})" if self.last.estimate.reason else ""
-        turned = float(rotation_angle_deg(self._known_orientation.T @ self._now_orientation))
-        lost_s = (self._now_ns - self._known_ns) / 1e9
-        if turned > MOVED_TURN_DEG:
-            moved = f"the camera turned {turned:.1f} degrees since it was last tracked"
-        elif lost_s > MOVED_AFTER_S:
-            moved = f"it has been lost for {lost_s:.1f} s, long enough for an unseen slide"
-        else:
+        lost_s, turned = self._since_known()
+        if not may_have_moved(lost_s, turned):
             return ""
-        return (f"the camera's insertion is lost{reason} and {moved}: show the tissue to the camera, or store anyway "
-                "(the override is kept on record)")
+        reason = f" ({self.last.estimate.reason})" if self.last.estimate.reason else ""
+        if turned / MOVED_TURN_DEG >= lost_s / MOVED_AFTER_S:
+            moved = f"the camera turned {turned:.1f} degrees since it was last tracked"
+        else:
+            moved = f"it has been lost for {lost_s:.1f} s, long enough for an unseen slide"
+        return (f"the camera's insertion is lost{reason} and {moved} (the insertion held is now uncertain by "
+                f"{self.last.sd_mm:.1f} mm): show the tissue to the camera, or store anyway (the override is kept on "
+                "record)")
 
 
 def insertion_text(step: InsertionStep | None, start_mm: float) -> str:

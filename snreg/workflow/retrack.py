@@ -36,7 +36,9 @@ import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration, camera_to_trocar
+from snreg.geometry import rotation_angle_deg
 from snreg.odometry import InsertionTracker
+from snreg.odometry.held import held_sd_mm
 from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, SessionError, calibration_version
 from snreg.session.pose_streams import orientations_at
@@ -91,7 +93,8 @@ class RetrackedNode:
 @dataclass(frozen=True, eq=False)
 class VideoInsertion:
     """The insertion over the recorded video: per ``streams/frames`` row the insertion it is mapped with (``used_mm``,
-    the start before any pair was tracked) and its sd (the tracker's; a held one's unseen change), whether that row's
+    the start before any pair was tracked) and the sd of its change since the start (the tracker's; a held one's
+    grown with the time lost and the IMU's turn since, :mod:`snreg.odometry.held`), whether that row's
     own pair was tracked, and whether any pair up to it was (``known``); how the orientations were got, in words."""
 
     used_mm: np.ndarray
@@ -206,6 +209,7 @@ def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu
     used, sd = np.full(n_rows, follower.start_mm), np.full(n_rows, NodeUncertainty.insertion_sd_mm)
     tracked, known = np.zeros(n_rows, bool), np.zeros(n_rows, bool)
     fixes, read, last, seen = {}, set(), follower.start_mm, False
+    known_ns, known_orientation, known_sd = 0, np.eye(3), 0.0     # the last tracked pair's time, IMU and change sd
     for k, row in enumerate(recorded):
         pair = _pair(readers, row)
         if pair is None:
@@ -218,7 +222,11 @@ def _follow(readers: RecordedPairs, path, segments, frame_times: np.ndarray, imu
                 fixes[int(row)] = own
         estimate = follower.update(*pair, orientations[k], probe_fix=fix)
         if estimate.tracked:
-            last, seen, tracked[row], sd[row] = estimate.trocar_camera_mm, True, True, estimate.sd_mm
+            last, seen, tracked[row], sd[row] = estimate.trocar_camera_mm, True, True, estimate.change_sd_mm
+            known_ns, known_orientation, known_sd = int(frame_times[row]), orientations[k], estimate.change_sd_mm
+        elif seen:
+            sd[row] = held_sd_mm(known_sd, (int(frame_times[row]) - known_ns) / 1e9,
+                                 float(rotation_angle_deg(np.asarray(known_orientation).T @ orientations[k])))
         used[row], known[row] = last, seen
     return VideoInsertion(used, tracked, known, len(recorded), source, sd), fixes, read
 
