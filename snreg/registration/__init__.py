@@ -24,6 +24,7 @@ import numpy as np
 
 from snreg import geometry
 from snreg.errors import NoFitError
+from snreg.registration._covariance import IllConditionedWarning
 from snreg.registration._landmark_fit import checkable
 from snreg.registration._methods import METHOD_TABLE, nearest_claimants
 from snreg.registration._model import source_posterior, squared_distances
@@ -32,7 +33,8 @@ from snreg.registration.confidence import claim_confidence, posterior_weights, s
 from snreg.registration.pairing import RULES, pair, shared
 from snreg.registration.target import target_error_bound
 
-__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "METHODS", "METHOD_HELP", "PAIRING_RULE", "CONFIDENT"]
+__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "IllConditionedWarning", "METHODS",
+           "METHOD_HELP", "PAIRING_RULE", "CONFIDENT"]
 
 METHODS = ("icp", "cpd", "chamfer", "global")
 # One sentence per method for an operator (tooltips): what it does and when it suits.
