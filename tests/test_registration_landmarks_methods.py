@@ -160,3 +160,18 @@ def test_an_ill_conditioned_covariance_fit_warns_in_words():
     singular[0, 2, 2] = 1e-9                           # the turn about one axis not determined (collinear pairs)
     with pytest.warns(IllConditionedWarning, match="lie nearly on one line"):
         _check_conditioning(singular)
+
+
+def test_the_live_links_status_says_a_small_set_cannot_be_checked(igtl_client):
+    from snreg.workflow.live_link import LiveLink
+
+    preop, intraop, marks, touched = small_case()
+    result = register(preop, intraop, preop_landmarks=marks, intraop_landmarks=touched)
+    with LiveLink(0, stall_drop_s=60.0) as link:
+        client = igtl_client(link.port)
+        link.set_registration(result, "SN1 -> P1")
+        link.flush()
+        assert client.wait_for(lambda c: any("would not show" in m.string for m in c.messages("Status")))
+        [said] = [m.string for m in client.messages("Status") if "would not show" in m.string][-1:]
+        assert ("registered with global" in said and "3 points in all: a wrong landmark would not show; touch another "
+                "landmark or store another node to check them" in said and said.endswith("SN1 -> P1"))
