@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["LANDMARKS", "KINDS", "NODE", "LANDMARK", "MAX_NAME_LENGTH", "landmark_name", "in_vocabulary", "kind_of"]
+__all__ = ["LANDMARKS", "KINDS", "NODE", "LANDMARK", "MAX_NAME_LENGTH", "landmark_name", "landmark_key", "in_vocabulary",
+           "kind_of"]
 
 # Found on the CT and touched with the probe in surgery (thesis §6: the pelvic arteries deform less than 2.1 mm): the
 # names offered in the app and the command line; any other name may be used.
@@ -21,7 +22,15 @@ NODE, LANDMARK = "node", "landmark"
 KINDS = (NODE, LANDMARK)          # a node file's ``kind`` column, a stored intraop point's ``kind``
 MAX_NAME_LENGTH = 64
 _SNREG_ID = re.compile(r"(P|SN)\d+", re.IGNORECASE)        # the ids snreg gives preop and intraop nodes
-_VOCABULARY = {name.casefold(): name for name in LANDMARKS}
+
+
+def landmark_key(name) -> str:
+    """What two spellings of one landmark share: case folded, inner whitespace collapsed, surrounding spaces dropped
+    ("Aortic  Bifurcation " and "aortic bifurcation" are one key); landmarks pair by it."""
+    return " ".join(str(name).split()).casefold()
+
+
+_VOCABULARY = {landmark_key(name): name for name in LANDMARKS}
 
 
 def landmark_name(name) -> str:
@@ -41,12 +50,12 @@ def landmark_name(name) -> str:
     if _SNREG_ID.fullmatch(text):
         raise ValueError(f"{text!r} looks like a node id, not a landmark name; name the landmark anatomically, e.g. "
                          "'aortic bifurcation'")
-    return _VOCABULARY.get(text.casefold(), text)
+    return _VOCABULARY.get(landmark_key(text), text)
 
 
 def in_vocabulary(name: str) -> bool:
     """Whether ``name`` is one of :data:`LANDMARKS` (any case and spacing)."""
-    return " ".join(str(name).split()).casefold() in _VOCABULARY
+    return landmark_key(name) in _VOCABULARY
 
 
 def kind_of(value, default: str = NODE) -> str:

@@ -267,7 +267,7 @@ def cmd_register(args) -> int:
            "missing": [node.as_json() for node in missing],
            "warnings": node_warnings(rows) + landmark_notes(result, marks[0].ids, marks[1].ids),
            "landmark_sd_mm": args.landmark_sd, "landmarks": [row.as_json() for row in landmark_rows(result)],
-           "landmarks_suspect": list(result.landmarks_suspect),
+           "landmarks_suspect": list(result.landmarks_suspect), "landmarks_checkable": result.landmarks_checkable,
            "landmarks_unpaired": unpaired_landmarks(marks[0].ids, marks[1].ids)}
     if args.output:
         write_text(args.output, json.dumps(doc, indent=2), "result")

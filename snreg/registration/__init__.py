@@ -24,20 +24,17 @@ import numpy as np
 
 from snreg import geometry
 from snreg.errors import NoFitError
-from snreg.registration._bounded import fit_within_bounds
-from snreg.registration._chamfer import solve_chamfer
-from snreg.registration._cpd import solve_cpd
-from snreg.registration._global import local_moves, solve_global
-from snreg.registration._landmark_fit import landmark_residuals, trusted_landmarks
-from snreg.registration._icp import solve_icp
-from snreg.registration._model import (MIN_PAIRS, Candidate, assign, evaluate, fit_pairs, source_posterior,
-                                       squared_distances, unmodelled_grid)
+from snreg.registration._covariance import IllConditionedWarning
+from snreg.registration._landmark_fit import checkable
+from snreg.registration._methods import METHOD_TABLE, nearest_claimants
+from snreg.registration._model import source_posterior, squared_distances
 from snreg.registration._problem import make_problem
 from snreg.registration.confidence import claim_confidence, posterior_weights, source_probabilities
 from snreg.registration.pairing import RULES, pair, shared
 from snreg.registration.target import target_error_bound
 
-__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "METHODS", "METHOD_HELP", "PAIRING_RULE", "CONFIDENT"]
+__all__ = ["register", "solve_transform", "RegistrationResult", "NoFitError", "IllConditionedWarning", "METHODS",
+           "METHOD_HELP", "PAIRING_RULE", "CONFIDENT"]
 
 METHODS = ("icp", "cpd", "chamfer", "global")
 # One sentence per method for an operator (tooltips): what it does and when it suits.
@@ -51,7 +48,7 @@ METHOD_HELP = {
     "global": "Global search (default): tries every way of laying three preop nodes on three intraop nodes within "
               "the bounds, allowing missing and extra nodes, and keeps the best; the most reliable, and slower.",
 }
-PAIRING_RULE = {"icp": "nearest", "cpd": "nearest", "chamfer": "nearest", "global": "hot_spot"}
+PAIRING_RULE = {name: method.rule for name, method in METHOD_TABLE.items()}
 CONFIDENT = 0.95
 
 
@@ -87,6 +84,13 @@ class RegistrationResult:
         return shared(self.pairing)
 
     @property
+    def landmarks_checkable(self) -> bool:
+        """False when the points cannot reveal a wrong landmark: no landmark pair's leave-one-out fit is determined
+        (e.g. 1 node and 2 landmarks, 3 points in all); True without landmark pairs. Screens say it in words
+        (:func:`~snreg.registration.landmark_report.landmark_notes`)."""
+        return checkable(self.landmark_leave_one_out_mm)
+
+    @property
     def confident(self) -> np.ndarray:
         """Per intraop node: is its claim confident enough to act on (>= ``CONFIDENT``)?"""
         return self.confidence >= CONFIDENT
@@ -108,11 +112,13 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     the method's solver (e.g. ``w`` for cpd, ``form`` for chamfer). ``intraop_cov`` (M, 3, 3) and
     ``preop_cov`` (N, 3, 3) are each node's own error covariance in mm^2 (or one sd in mm for all): ``global``, the
     confidence, the target-error bounds and leave-one-out weigh every node by it (a stereo fix is uncertain mostly
-    along its viewing ray); icp, cpd and chamfer fit as without it. None keeps the isotropic model exactly.
+    along its viewing ray); icp, cpd and chamfer take only its mean size, to weigh landmark pairs against the nodes.
+    None keeps the isotropic model exactly.
     ``preop_landmarks``/``intraop_landmarks`` ({name: (3,) mm}, or node sets whose ids are the names) are paired by
-    name and enter the fit with their correspondence known and ``landmark_sd_mm`` of error per axis; with them one or
-    two nodes register (3 points in all, 1 intraop node at least, ``global`` only); a pair that contradicts the rest
-    is left out and named in ``landmarks_suspect``. ``down`` (down in the preop frame, down in the intraop frame)
+    name (after :func:`~snreg.landmarks.landmark_key`: case and spaces aside) and enter every method's fit with their
+    correspondence known and ``landmark_sd_mm`` of error per axis; with them one or two nodes register (3 points in
+    all, 1 intraop node at least, ``global`` only); a pair that contradicts the rest is left out and named in
+    ``landmarks_suspect``; ``landmarks_checkable`` is False when too few points remain to reveal a wrong one. ``down`` (down in the preop frame, down in the intraop frame)
     is the gravity prior: without ``initial`` the search starts from the two downs aligned and the centroids
     matched, covers every heading about the vertical and tilts within a few ``down_sd_deg`` (the tilt's prior sd),
     and bounds the centroids' displacement by ``max_translation_mm``; ``initial`` still overrides it.
@@ -128,29 +134,14 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
                            max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
                            preop_cov=preop_cov, preop_landmarks=preop_landmarks, intraop_landmarks=intraop_landmarks,
                            landmark_sd_mm=landmark_sd_mm, down=down, down_sd_deg=down_sd_deg)
-    every, suspects = problem.landmarks, ()
-    if method != "global" and min(len(problem.preop), len(problem.intraop)) < MIN_PAIRS:
-        raise ValueError(f"{method} needs at least {MIN_PAIRS} nodes on each side; with fewer, landmarks and the "
-                         "global method register them")
-    if problem.n_landmarks and method == "global":
-        problem, candidates, suspects = trusted_landmarks(problem, lambda trial: solve_global(trial, **options))
-        correction = candidates[0].correction
-    else:
-        correction, candidates = _solve(problem, method, options)
-    if method == "global":
-        base = candidates[0]
-    else:
-        if not problem.within_bounds(correction):
-            correction = _fitted_within_bounds(problem, method, correction)
-        base = _candidate_at(problem, correction)
-        # The confidence weighs this pairing against the global search's hypotheses; when the nodes fit far better
-        # beyond the bounds, that search refuses, and this method's fit inside them is refused the same way.
-        candidates = [base] + solve_global(problem) + local_moves(problem, base)
+    every = problem.landmarks
+    fit = METHOD_TABLE[method].fit(problem, options)
+    problem, correction, base, candidates = fit.problem, fit.correction, fit.base, fit.candidates
 
     ranked, weights = posterior_weights(candidates)
     sources, extra = source_probabilities(problem, ranked)
     # global names the most probable source over its candidates; the others label at their own transform
-    own_sources = sources if method == "global" else source_posterior(problem, base)
+    own_sources = sources if fit.sources_over_candidates else source_posterior(problem, base)
     pairings = {r: pair(r, problem, correction, own_sources) for r in RULES}
     pairing = pairings[rule]
     confidence = claim_confidence(pairing, sources, extra)
@@ -158,77 +149,17 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     d2 = squared_distances(moved, problem.intraop)
     # a node from no hot spot: its distance to the nearest mapped hot spot, a remark for screens, not a pairing
     distances = np.sqrt(np.where(pairing >= 0, d2[np.maximum(pairing, 0), np.arange(len(pairing))], d2.min(axis=0)))
-    nearest = _nearest_claimants(pairing, distances)
+    nearest = nearest_claimants(pairing, distances)
     rms = float(np.sqrt(np.mean(distances[nearest] ** 2))) if nearest.any() else float("nan")
-    residual, loo = landmark_residuals(problem, base, correction, every) if every is not None and len(every) else ({}, {})
+    residual, loo = METHOD_TABLE[method].residuals(fit, every)
     return RegistrationResult(method=method, transform=correction @ problem.initial, pairing=pairing,
                               distances_mm=distances, rms_mm=rms, confidence=confidence, pairing_rule=rule,
                               pairings=pairings, score=base.score, initial=problem.initial,
                               target_error_mm=target_error_bound(problem, correction, ranked, weights),
                               missing=~np.isin(np.arange(len(problem.preop)), pairing),
-                              leave_one_out_mm=_leave_one_out(problem, pairing, nearest, base),
+                              leave_one_out_mm=METHOD_TABLE[method].leave_one_out(fit, pairing, nearest),
                               landmark_residual_mm=residual, landmark_leave_one_out_mm=loo,
-                              landmarks_suspect=list(suspects))
-
-
-def _candidate_at(problem, correction: np.ndarray) -> Candidate:
-    """The model's pairing at another method's correction (sigma from its nearest-neighbour residual), scored."""
-    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
-    k = min(len(problem.preop), len(problem.intraop))
-    sigma = float(np.sqrt(max(np.sort(d2.min(axis=0))[:k].sum() / max(3 * k - 6, 1), 1.0)))
-    assignment = assign(problem, correction, sigma)
-    if np.sum(assignment >= 0) < MIN_PAIRS:           # the nearest pairs then, one-to-one
-        assignment = pair("one_to_one", problem, correction, None)
-    return evaluate(problem, assignment)
-
-
-def _fitted_within_bounds(problem, method: str, correction: np.ndarray) -> np.ndarray:
-    """The fit within the bounds of the pairing ``method``'s correction makes by the nearest rule (each hot spot by
-    its nearest node), for a method whose own fit leans past them; NoFitError when that pairing has fewer than 3."""
-    d2 = squared_distances(geometry.apply(correction, problem.preop), problem.intraop)
-    partner = np.argmin(d2, axis=0)
-    fit = _nearest_claimants(partner, d2[partner, np.arange(len(partner))])
-    if fit.sum() < MIN_PAIRS:
-        angle, shift = problem.correction_size(correction)
-        raise NoFitError(f"{method} moved {float(angle):.0f} degrees and {float(shift):.0f} mm from the initial "
-                         f"alignment, beyond the bounds ({problem.max_rotation_deg:g} degrees, "
-                         f"{problem.max_translation_mm:g} mm): give an initial alignment closer to the truth, "
-                         "use the anatomical labels, or use the global method")
-    return fit_within_bounds(problem, problem.preop[partner[fit]], problem.intraop[fit])
-
-
-def _nearest_claimants(pairing: np.ndarray, distances: np.ndarray) -> np.ndarray:
-    """(M,) bool: the node nearest its hot spot among those that claim it; one per hot spot found. The RMS and the
-    leave-one-out fits count these: a shared hot spot's other nodes lie beside it by anatomy, not by error."""
-    order = np.lexsort((distances, pairing))
-    first = np.ones(len(order), bool)
-    first[1:] = pairing[order][1:] != pairing[order][:-1]
-    chosen = np.zeros(len(pairing), bool)
-    chosen[order[first]] = True
-    return chosen & (pairing >= 0)
-
-
-def _leave_one_out(problem, pairing: np.ndarray, nearest: np.ndarray, base: Candidate) -> np.ndarray:
-    """(M,) per intraop node from a hot spot: its distance from it when the other hot spots' nearest nodes alone fit
-    the correction (NaN for a node from none, and when fewer than 3 other hot spots remain); with covariances the
-    weighted fit at the unmodelled error the best candidate makes most likely."""
-    out = np.full(len(pairing), np.nan)
-    sigma = None
-    if problem.weighted and base.fit_weights is not None:
-        sigma = float(unmodelled_grid(problem)[int(np.argmax(base.fit_weights))])
-    for j in np.flatnonzero(pairing >= 0):
-        rest = np.flatnonzero(nearest & (pairing != pairing[j]))
-        if len(rest) < problem.min_pairs:
-            continue
-        if problem.weighted:
-            assignment = np.full(len(pairing), -1)
-            assignment[rest] = pairing[rest]
-            correction = fit_pairs(problem, assignment, sigma)
-        else:
-            correction = geometry.kabsch(problem.preop[pairing[rest]], problem.intraop[rest])
-        out[j] = float(np.linalg.norm(geometry.apply(correction, problem.preop[pairing[j]][None])[0]
-                                      - problem.intraop[j]))
-    return out
+                              landmarks_suspect=list(fit.suspects))
 
 
 def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None, intraop_labels=None,
@@ -241,27 +172,16 @@ def solve_transform(preop, intraop, method: str = "global", *, preop_labels=None
                            initial=initial, max_rotation_deg=max_rotation_deg,
                            max_translation_mm=max_translation_mm, seed=seed, intraop_cov=intraop_cov,
                            preop_cov=preop_cov, down=down, down_sd_deg=down_sd_deg)
-    return _solve(problem, method, options)[0] @ problem.initial
-
-
-_SOLVERS = {"icp": solve_icp, "cpd": solve_cpd, "chamfer": solve_chamfer, "global": solve_global}
+    return METHOD_TABLE[method].solve(problem, options) @ problem.initial
 
 
 def _check_method(method: str, options: dict) -> None:
     """ValueError for a method that does not exist or an option its solver does not take."""
     if method not in METHODS:
         raise ValueError(f"unknown registration method {method!r}; choose one of {', '.join(METHODS)}")
-    known = [name for name, parameter in inspect.signature(_SOLVERS[method]).parameters.items()
+    known = [name for name, parameter in inspect.signature(METHOD_TABLE[method].solver).parameters.items()
              if parameter.kind is inspect.Parameter.KEYWORD_ONLY]
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} for method "
                          f"{method!r}; its options are {', '.join(known)}")
-
-
-def _solve(problem, method: str, options: dict):
-    """(correction, candidates) of ``method``: the global search's refined candidates best first, else None."""
-    if method == "global":
-        candidates = solve_global(problem, **options)
-        return candidates[0].correction, candidates
-    return _SOLVERS[method](problem, **options), None

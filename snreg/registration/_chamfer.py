@@ -9,7 +9,8 @@ initial alignment, coarse to fine over a resolution pyramid.
 
 ``form="volume"`` is the thesis' voxel method. ``form="exact"`` evaluates the same
 template points against the exact distance to the nearest reference sphere,
-``max(0, |x - c| - r)``, with no grid (see README for the measured equivalence/speed).
+``max(0, |x - c| - r)``, with no grid (see README for the measured equivalence/speed). Landmark pairs add their
+distances, weighed against the nodes' by :func:`~snreg.registration._landmarks.landmark_weight`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from snreg import geometry
+from snreg.registration._landmarks import landmark_weight
+from snreg.registration._model import squared_distances
 from snreg.registration._problem import Problem, option_number
 
 __all__ = ["solve_chamfer", "NODE_DIAMETER_MM", "DEFAULT_PYRAMID_MM", "DEFAULT_FORM"]
@@ -77,6 +80,23 @@ def _corrections(params: np.ndarray, centre: np.ndarray) -> np.ndarray:
     return geometry.make_transform(rotation, translation)
 
 
+def _landmark_cost(problem: Problem, correction: np.ndarray):
+    """The landmark pairs' part of the chamfer cost, a function of corrections (K, 4, 4): each pair's distance in mm,
+    scaled to a node's by the square root of :func:`~snreg.registration._landmarks.landmark_weight` (distances, not
+    squares, as the chamfer's are) and shared over the nodes as the mean over the template is; the nodes' variance
+    is their nearest-neighbour residual at ``correction`` (the pyramid level's start). Zero without landmarks."""
+    if not problem.n_landmarks:
+        return lambda corr: 0.0
+    marks = problem.landmarks
+    nearest = squared_distances(geometry.apply(correction, problem.preop), problem.intraop).min(axis=1)
+    scale = np.sqrt(landmark_weight(problem, float(nearest.mean()) / 3.0)) / len(problem.preop)
+
+    def cost(corr: np.ndarray) -> np.ndarray:
+        moved = marks.preop @ np.swapaxes(corr[:, :3, :3], 1, 2) + corr[:, None, :3, 3]
+        return scale * np.linalg.norm(moved - marks.intraop, axis=-1).sum(axis=1)
+    return cost
+
+
 def solve_chamfer(problem: Problem, *, form: str = DEFAULT_FORM, pyramid_mm=DEFAULT_PYRAMID_MM,
                   diameter_mm: float = NODE_DIAMETER_MM) -> np.ndarray:
     """The correction (4, 4) in the initial-aligned frame."""
@@ -93,10 +113,12 @@ def solve_chamfer(problem: Problem, *, form: str = DEFAULT_FORM, pyramid_mm=DEFA
         field = _DistanceVolume(problem.intraop, voxel, radius) if form == "volume" else _ExactDistance(problem.intraop, radius)
         template = (problem.preop[:, None, :] + _ball_offsets(voxel, radius)[None]).reshape(-1, 3)
 
+        marks_cost = _landmark_cost(problem, _corrections(params[None], centre)[0])
+
         def cost(candidates: np.ndarray) -> np.ndarray:
             corr = _corrections(candidates, centre)
             moved = template @ np.swapaxes(corr[:, :3, :3], 1, 2) + corr[:, None, :3, 3]
-            return field(moved).mean(axis=1)
+            return field(moved).mean(axis=1) + marks_cost(corr)
 
         best = float(cost(params[None])[0])
         step, min_step = 2.0 * voxel, voxel / 4.0

@@ -22,17 +22,24 @@ With ``S = 0`` this is the isotropic model's fit term and Occam factor exactly. 
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from snreg import geometry
 
 __all__ = ["S_GRID_MM", "covariances", "given_covariance", "fit_corrections", "fit_nats", "pair_nats_given",
-           "blur_sigmas", "correction_covariances"]
+           "blur_sigmas", "correction_covariances", "IllConditionedWarning", "CONDITION_LIMIT"]
 
 S_GRID_MM = np.geomspace(0.25, 40.0, 40)    # support of the log-uniform prior on the unmodelled isotropic error
 MAX_SD_MM = 1e3                             # a node's sd beyond a metre is a unit error
 _LOG_2PI = np.log(2.0 * np.pi)
 _GAUSS_NEWTON_STEPS = 4
+CONDITION_LIMIT = 1e12                      # a fit's Hessian beyond this is not inverted silently
+
+
+class IllConditionedWarning(UserWarning):
+    """A fit whose pairs do not determine the correction in every direction (nearly collinear points)."""
 
 
 def covariances(name: str, value, count: int) -> np.ndarray | None:
@@ -202,9 +209,24 @@ def correction_covariances(problem, assignment: np.ndarray, correction: np.ndarr
     inverse = paired[0][None, :, None] / (eigen[0][None] + s2)
     rotated_j = np.einsum("mki,mkp->mip", vectors[0], jac[0])
     hessian = np.einsum("mip,smi,miq->spq", rotated_j, inverse, rotated_j)
+    _check_conditioning(hessian)
     covariance = np.linalg.pinv(hessian)
     target_jac = _jacobians(np.asarray(targets, float)[None], centre)[0]                    # (T, 3, 6)
     return np.einsum("tip,spq,tjq->stij", target_jac, covariance, target_jac)
+
+
+def _check_conditioning(hessian: np.ndarray) -> None:
+    """Warn (:class:`IllConditionedWarning`, one sentence) when a fit's Hessian (S, 6, 6) is too ill-conditioned to
+    invert: its pairs (nodes and landmarks) lie nearly on a line, so a turn about that line is not determined and the
+    pseudo-inverse would report it as exactly known. The turn block is in mm^2 per radian^2 and the shift block in
+    1, so a well-posed fit's condition number stays below the squared spread (about 1e5 mm^2); ``CONDITION_LIMIT``
+    lies far beyond it."""
+    condition = float(np.max(np.linalg.cond(hessian)))
+    if not np.isfinite(condition) or condition > CONDITION_LIMIT:
+        warnings.warn(IllConditionedWarning(
+            f"the paired nodes and landmarks lie nearly on one line (condition number {condition:.1e}): the turn "
+            "about that line is not determined and the target-error bounds understate it; store a node or touch a "
+            "landmark away from that line"), stacklevel=3)
 
 
 def _rotations(rotvecs: np.ndarray) -> np.ndarray:

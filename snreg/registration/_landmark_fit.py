@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from itertools import combinations
+from typing import TypeVar
 
 import numpy as np
 
@@ -22,12 +23,13 @@ from snreg.registration._landmarks import Landmarks
 from snreg.registration._model import Candidate, fit_pairs, unmodelled_grid
 from snreg.registration._problem import Problem
 
-__all__ = ["trusted_landmarks", "landmark_residuals", "WRONG_PRIOR"]
+__all__ = ["trusted_landmarks", "landmark_residuals", "checkable", "WRONG_PRIOR"]
 
 WRONG_PRIOR = 0.05                 # a landmark pair is wrong (name, or the vessel moved)
 _MAX_LEFT_OUT = 2
 _WRONG_NATS = float(np.log(EXTRA_VOLUME_MM3) - np.log(WRONG_PRIOR))      # a wrong pair: anywhere, and its prior
 _RIGHT_NATS = float(-np.log(1.0 - WRONG_PRIOR))
+_Fit = TypeVar("_Fit")
 
 
 def _without(problem: Problem, left_out: tuple[int, ...]) -> Problem:
@@ -38,26 +40,28 @@ def _without(problem: Problem, left_out: tuple[int, ...]) -> Problem:
                                                 marks.intraop[keep], marks.sd_mm, marks.unpaired))
 
 
-def trusted_landmarks(problem: Problem, solve: Callable[[Problem], list[Candidate]]) -> tuple[Problem, list[Candidate],
-                                                                                               tuple[str, ...]]:
-    """The problem with the landmark pairs the nodes and the other pairs most probably say are right, its candidates
-    (``solve``'s, best first), and the names left out (the suspects). ``solve`` raises ValueError for a set too small
-    to register; such sets are skipped."""
+def trusted_landmarks(problem: Problem, solve: Callable[[Problem], _Fit]) -> tuple[_Fit, tuple[str, ...]]:
+    """The fit (``solve``'s, of a problem with some landmark pairs left out; it carries its ``score`` in nats) of the
+    landmark pairs the nodes and the other pairs most probably say are right, and the names left out (the suspects).
+    ``solve`` raises ValueError for a set too small to register; such sets are skipped. Without landmark pairs, the
+    problem's own fit."""
     marks = problem.landmarks
+    if not problem.n_landmarks:
+        return solve(problem), ()
     best = None
     for size in range(0, min(_MAX_LEFT_OUT, len(marks)) + 1):
         for left_out in combinations(range(len(marks)), size):
             trial = _without(problem, left_out) if left_out else problem
             try:
-                candidates = solve(trial)
+                fit = solve(trial)
             except ValueError:
                 continue
-            total = candidates[0].score + size * _WRONG_NATS + (len(marks) - size) * _RIGHT_NATS
+            total = fit.score + size * _WRONG_NATS + (len(marks) - size) * _RIGHT_NATS
             if best is None or total < best[0]:
-                best = (total, trial, candidates, tuple(marks.names[k] for k in left_out))
+                best = (total, fit, tuple(marks.names[k] for k in left_out))
     if best is None:                    # every set too small or refused: the full set says why
-        return problem, solve(problem), ()
-    return best[1], best[2], best[3]
+        return solve(problem), ()
+    return best[1], best[2]
 
 
 def landmark_residuals(problem: Problem, base: Candidate, correction: np.ndarray,
@@ -78,3 +82,9 @@ def landmark_residuals(problem: Problem, base: Candidate, correction: np.ndarray
         fitted = fit_pairs(alone, base.assignment, sigma)
         loo[name] = float(np.linalg.norm(geometry.apply(fitted, every.preop[k][None])[0] - every.intraop[k]))
     return residual, loo
+
+
+def checkable(leave_one_out_mm: dict[str, float]) -> bool:
+    """Whether the points can reveal a wrong landmark: some landmark pair's leave-one-out fit is determined (3 points
+    remain without it). False for, e.g., 1 node and 2 landmarks (3 points in all); True without landmark pairs."""
+    return not leave_one_out_mm or any(np.isfinite(list(leave_one_out_mm.values())))

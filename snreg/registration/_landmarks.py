@@ -14,10 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Landmarks", "landmark_pairs", "SUSPECT_QUANTILE"]
+from snreg.landmarks import landmark_key, landmark_name
+from snreg.registration._covariance import blur_sigmas
+
+__all__ = ["Landmarks", "landmark_pairs", "landmark_weight", "SUSPECT_QUANTILE"]
 
 SUSPECT_QUANTILE = 0.999      # a landmark whose leave-one-out residual lies beyond this quantile is suspect
 MAX_LANDMARKS = 20
+MIN_NODE_SD_MM = 1.0          # a node is never weighed as more exact than this against a landmark pair
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,8 +39,10 @@ class Landmarks:
         return len(self.names)
 
 
-def _points(side: str, value) -> dict[str, np.ndarray]:
-    """{name: (3,) mm} from a mapping or a node set whose ids are the names; ValueError in one sentence otherwise."""
+def _points(side: str, value) -> dict[str, tuple[str, np.ndarray]]:
+    """{key: (name, (3,) mm)} from a mapping or a node set whose ids are the names, each name as
+    :func:`~snreg.landmarks.landmark_name` keeps it and keyed by :func:`~snreg.landmarks.landmark_key` (the file
+    readers' rule, so "Aortic  Bifurcation" pairs with "aortic bifurcation"); ValueError in one sentence otherwise."""
     if value is None:
         return {}
     if isinstance(value, Mapping):
@@ -48,25 +54,26 @@ def _points(side: str, value) -> dict[str, np.ndarray]:
                          "whose ids are the names")
     points = {}
     for name, xyz in items:
-        name = str(name).strip()
-        if not name:
-            raise ValueError(f"{side}_landmarks: every landmark needs a name (e.g. 'aortic bifurcation')")
+        try:
+            name = landmark_name(name)
+        except ValueError as error:
+            raise ValueError(f"{side}_landmarks: {error}") from None
         try:
             point = np.asarray(xyz, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             point = np.zeros(0)
         if point.shape != (3,) or not np.all(np.isfinite(point)):
             raise ValueError(f"{side}_landmarks: {name!r} needs a finite (3,) position in mm")
-        if name in points:
+        if landmark_key(name) in points:
             raise ValueError(f"{side}_landmarks: {name!r} is given twice; each landmark name once")
-        points[name] = point
+        points[landmark_key(name)] = (name, point)
     if len(points) > MAX_LANDMARKS:
         raise ValueError(f"{side}_landmarks: at most {MAX_LANDMARKS} landmarks, got {len(points)}")
     return points
 
 
 def landmark_pairs(preop_landmarks, intraop_landmarks, sd_mm: float, initial: np.ndarray) -> Landmarks | None:
-    """The landmarks named on both sides, in name order, the preop ones moved by ``initial``; None when none pair."""
+    """The landmarks named on both sides (names as the preop side spells them), in name order, the preop ones moved by ``initial``; None when none pair."""
     preop, intraop = _points("preop", preop_landmarks), _points("intraop", intraop_landmarks)
     if not preop and not intraop:
         return None
@@ -76,9 +83,19 @@ def landmark_pairs(preop_landmarks, intraop_landmarks, sd_mm: float, initial: np
         sd = float("nan")
     if not (np.isfinite(sd) and 0.0 < sd <= 100.0):
         raise ValueError(f"landmark_sd_mm must be a number of mm above 0 and at most 100, got {sd_mm!r}")
-    names = tuple(sorted(set(preop) & set(intraop)))
-    unpaired = tuple(sorted(set(preop) ^ set(intraop)))
-    if not names:
+    keys = sorted(set(preop) & set(intraop))
+    unpaired = tuple(sorted([preop[k][0] for k in set(preop) - set(intraop)]
+                            + [intraop[k][0] for k in set(intraop) - set(preop)]))
+    if not keys:
         return Landmarks((), np.zeros((0, 3)), np.zeros((0, 3)), sd, unpaired)
-    moved = np.array([preop[n] for n in names]) @ initial[:3, :3].T + initial[:3, 3]
-    return Landmarks(names, moved, np.array([intraop[n] for n in names]), sd, unpaired)
+    moved = np.array([preop[k][1] for k in keys]) @ initial[:3, :3].T + initial[:3, 3]
+    return Landmarks(tuple(preop[k][0] for k in keys), moved, np.array([intraop[k][1] for k in keys]), sd, unpaired)
+
+
+def landmark_weight(problem, node_variance_mm2: float) -> float:
+    """A landmark pair's weight beside a node's (weight 1) in the fits of icp, cpd and chamfer: the nodes' error
+    variance per axis over the pair's own (``landmark_sd_mm`` squared), as the global model weighs them. The nodes'
+    variance is the solver's own estimate at its current fit, at least their given covariances' mean variance and
+    ``MIN_NODE_SD_MM`` squared (a fit that happens to pass through the nodes does not make the landmarks vanish)."""
+    given = float(blur_sigmas(problem, 0.0)) ** 2
+    return max(float(node_variance_mm2), given, MIN_NODE_SD_MM**2) / problem.landmarks.sd_mm**2

@@ -14,7 +14,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["LandmarkRow", "landmark_rows", "unpaired_landmarks", "landmark_notes"]
+import numpy as np
+
+__all__ = ["LandmarkRow", "landmark_rows", "unpaired_landmarks", "unchecked_note", "landmark_notes"]
 
 
 @dataclass(frozen=True)
@@ -49,9 +51,23 @@ def unpaired_landmarks(preop_names, intraop_names) -> dict[str, list[str]]:
     return {"preop": sorted(preop - intraop), "intraop": sorted(intraop - preop)}
 
 
+def unchecked_note(result) -> str | None:
+    """The sentence for a registration whose points cannot reveal a wrong landmark (``landmarks_checkable`` False,
+    e.g. 1 node and 2 landmarks), saying what to do; None when they can or when no landmark pair took part."""
+    if not getattr(result, "landmark_residual_mm", None) or result.landmarks_checkable:
+        return None
+    pairing = np.asarray(result.pairing)
+    points = len(set(pairing[pairing >= 0].tolist())) + len(result.landmark_residual_mm)
+    return (f"{points} points in all: a wrong landmark would not show; touch another landmark or store another node "
+            "to check them")
+
+
 def landmark_notes(result, preop_names=(), intraop_names=()) -> list[str]:
-    """One sentence per suspect pair and per landmark that took no part, saying what to check."""
-    notes = [f"landmark {row.name!r} contradicts the nodes and the other landmarks ({row.residual_mm:.1f} mm off): "
+    """One sentence per suspect pair, for landmarks the points cannot check (:func:`unchecked_note`), and per landmark
+    that took no part, saying what to check."""
+    unchecked = unchecked_note(result)
+    notes = [unchecked] if unchecked else []
+    notes += [f"landmark {row.name!r} contradicts the nodes and the other landmarks ({row.residual_mm:.1f} mm off): "
              "a wrong name, or a vessel that moved; it was left out of the fit, check it on the CT and in surgery"
              for row in landmark_rows(result) if row.suspect]
     unpaired = unpaired_landmarks(preop_names, intraop_names)

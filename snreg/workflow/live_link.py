@@ -36,6 +36,7 @@ import numpy as np
 
 from snreg.errors import LiveLinkError
 from snreg.landmarks import LANDMARK, NODE
+from snreg.registration.landmark_report import unchecked_note
 from snreg.workflow import live_messages as msg
 from snreg.workflow.live_client import Client, LinkStats
 from snreg.workflow.live_door import MAX_CLIENTS, Door
@@ -166,8 +167,12 @@ class LiveLink:
     def set_registration(self, result, pairs: str = "") -> None:
         """A registration done (a :class:`~snreg.registration.RegistrationResult`): ``TrocarToRas`` from its transform,
         and the status says which hot spot each node came from (``pairs``:
-        :func:`~snreg.registration.naming.pairs_line`)."""
+        :func:`~snreg.registration.naming.pairs_line`) and, with landmarks the points cannot check, that a wrong one
+        would not show."""
         said = f"registered with {result.method}, RMS {float(result.rms_mm):.2f} mm"
+        unchecked = unchecked_note(result)
+        if unchecked:
+            said += f" ({unchecked})"
         self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float), f"{said}: {pairs}" if pairs else said)
 
     # -- waiting and closing ------------------------------------------------------------

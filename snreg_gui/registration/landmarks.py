@@ -20,7 +20,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QTableWidget, QTableWidgetItem
 
 from snreg.nodes import NodeFile, NodeSet
-from snreg.registration.landmark_report import landmark_notes, landmark_rows
+from snreg.registration.landmark_report import landmark_notes, landmark_rows, unchecked_note
 from snreg.workflow.registration_run import RunRecord, RunRequest
 
 MIN_POINTS = 3          # nodes plus landmark pairs a registration needs, at least one of them a node (DESIGN §4)
@@ -79,10 +79,11 @@ def landmark_lines(preop: NodeSet | None, intraop: NodeSet | None, result=None) 
 
 
 def landmark_warnings(record: RunRecord) -> list[str]:
-    """The result's landmark sentences (:func:`~snreg.registration.landmark_report.landmark_notes`), a suspect pair
-    first and marked WARNING."""
+    """The result's landmark sentences (:func:`~snreg.registration.landmark_report.landmark_notes`), a suspect pair and
+    landmarks the points cannot check marked WARNING."""
     notes = landmark_notes(record.result, names(record.preop_landmarks), names(record.intraop_landmarks))
-    return [f"WARNING: {text[0].upper()}{text[1:]}." if "contradicts" in text else f"{text[0].upper()}{text[1:]}."
+    warned = {unchecked_note(record.result)} | {text for text in notes if "contradicts" in text}
+    return [f"WARNING: {text[0].upper()}{text[1:]}." if text in warned else f"{text[0].upper()}{text[1:]}."
             for text in notes]
 
 
