@@ -40,7 +40,8 @@ def test_a_nodes_covariance_is_in_the_file_the_journal_session_info_and_the_node
         nodes = session.intraop_nodes()
     np.testing.assert_array_equal(first.cov_trocar_mm2, COV)
     assert np.isnan(second.cov_trocar_mm2).all()
-    np.testing.assert_array_equal(nodes.cov[0], COV) and nodes.known_cov is None
+    np.testing.assert_array_equal(nodes.cov[0], COV)
+    assert np.isnan(nodes.cov[1]).all() and nodes.known_cov is None
     with h5py.File(path) as h5:
         assert h5["nodes/intraop/cov_trocar_mm2"].fletcher32
     info = session_info(path)
@@ -51,7 +52,8 @@ def test_a_nodes_covariance_is_in_the_file_the_journal_session_info_and_the_node
         capsys.readouterr().out
     assert main(["session", "export", str(path), "--format", "csv", "-o", str(tmp_path / "n.csv")]) == 0
     exported = read_nodes(tmp_path / "n.csv")
-    np.testing.assert_array_equal(exported.cov[0], COV) and np.isnan(exported.cov[1]).all()
+    np.testing.assert_array_equal(exported.cov[0], COV)
+    assert np.isnan(exported.cov[1]).all()
     path.unlink()                                               # the journal alone holds it too
     with Session.open(path) as session:
         first, second = session.intraop_records()
@@ -190,7 +192,8 @@ def test_node_files_carry_the_covariance_in_six_columns():
     text = nodes.to_csv()
     assert text.splitlines()[0] == "id,label,x,y,z,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz"
     back = NodeSet.from_csv(text)
-    np.testing.assert_array_equal(back.cov[0], COV) and np.isnan(back.cov[1]).all()
+    np.testing.assert_array_equal(back.cov[0], COV)
+    assert np.isnan(back.cov[1]).all()
     with pytest.raises(NodeFileError, match="all six columns"):
         NodeSet.from_csv("id,label,x,y,z,cov_xx\nP1,,0,0,0,1\n")
     with pytest.raises(NodeFileError, match="not a number"):
