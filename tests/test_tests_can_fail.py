@@ -19,6 +19,9 @@ NUMPY_CHECKS = {"assert_allclose", "assert_almost_equal", "assert_approx_equal",
 # calls whose only use is the truth value they return: as a bare statement they check nothing
 BOOLEAN_CALLS = {"allclose", "array_equal", "array_equiv", "isclose", "all", "any", "isfinite", "isnan", "approx"}
 _ALWAYS_EQUAL = (ast.Eq, ast.Is, ast.LtE, ast.GtE)            # x op x holds for any x but NaN
+# pytest-qt's context managers: called as a bare statement they neither wait nor check anything
+CONTEXT_CHECKS = {"waitSignal", "wait_signal", "waitSignals", "wait_signals", "assertNotEmitted", "assert_not_emitted",
+                  "waitCallback", "wait_callback", "captureExceptions", "capture_exceptions"}
 
 
 def _dotted(node):
@@ -118,6 +121,9 @@ def problems(source, filename="<snippet>"):
                 flag(node, "a comparison whose result is thrown away: it asserts nothing")
             elif isinstance(value, ast.Call) and _returns_truth(value):
                 flag(node, "a truth test (allclose, all, ...) whose result is thrown away: it asserts nothing")
+            elif isinstance(value, ast.Call) and isinstance(value.func, ast.Attribute) \
+                    and value.func.attr in CONTEXT_CHECKS:
+                flag(node, f"{value.func.attr} called outside `with`: it neither waits nor checks")
     return sorted(set(found), key=lambda line: (line.split(":")[0], int(line.split(":")[1])))
 
 
@@ -141,6 +147,7 @@ BAD = {
     "same_attribute": "assert result.rms >= result.rms\n",
     "thrown_away_comparison": "x == 1\n",
     "thrown_away_allclose": "import numpy as np\nnp.allclose(a, b)\n",
+    "wait_without_with": "window.open(path)\nqtbot.waitSignal(window.loaded, timeout=10_000)\n",
 }
 
 CLEAN = """
@@ -159,6 +166,9 @@ def test_clean(a, b, c):
     flag = a and b
     ok = np.allclose(a, b)
     assert ok
+    with qtbot.waitSignal(window.loaded, timeout=10_000):
+        window.open(a)
+    blocker = qtbot.waitSignal(window.loaded)
 """
 
 
