@@ -100,3 +100,12 @@ def test_the_interactive_demo_rests_leave_seconds_to_press_store_sn_and_the_head
     # the headless demo's rests stay what they were: twice (three times moving) the window, plus a second
     for camera, factor in (("still", 2), ("surgery", 3)):
         assert headless.rest_frames_for(camera, THESIS_FIXES_PER_NODE) == factor * THESIS_FIXES_PER_NODE + 30
+
+
+def test_a_rests_frames_pair_every_left_exposure_with_every_right_one():
+    from snreg.demo.rest_exposures import RestExposures
+
+    bank = RestExposures((np.zeros(1), np.zeros(1)), lambda radiance, seed: (seed, -seed), 4, seed=10)
+    assert bank.lefts == [10, 11, 12, 13] and bank.rights == [-10, -11, -12, -13]
+    assert sorted(bank.choice(i) for i in range(16)) == [(a, b) for a in range(4) for b in range(4)]
+    assert len({bank.pair(i) for i in range(100, 116)}) == 16                   # wherever the window starts
