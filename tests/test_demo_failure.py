@@ -25,11 +25,11 @@ def _outcome(spread: float, fix: bool = True):
 def test_the_rest_log_names_each_unstored_nodes_best_spread_on_every_rest():
     log = RestLog()
     for rest in range(3):                       # node 0 stored on the first rest; node 1 never still; node 2 never full
-        for spread in (np.nan, 3.0, 1.7 + 0.1 * rest, 2.5):
-            log.add(1, _outcome(spread))
+        for spread in (0.1, 3.0, 1.7 + 0.1 * rest, 2.5):         # the first window still holds the move
+            log.add(1, _outcome(spread), window=2)
         log.add(None, _outcome(np.nan))
         for _ in range(4):
-            log.add(2, _outcome(np.nan, fix=rest > 0))
+            log.add(2, _outcome(5.0, fix=rest > 0), window=5)     # spreads of windows holding the move
         log.add(None, _outcome(np.nan))
         log.add(0, _outcome(0.4), stored=rest == 0)
         log.add(None, _outcome(np.nan))
@@ -37,8 +37,9 @@ def test_the_rest_log_names_each_unstored_nodes_best_spread_on_every_rest():
     assert log.visits[0].best_spread_mm == pytest.approx(1.7) and log.visits[2].stored
     why = log.why_missing({0}, ("A", "B", "C", "D"), fixes_per_node=60, still_mm=1.0)
     assert why == ("node B: its best window spread on 3 rests was 1.70, 1.80, 1.90 mm; auto-store needs 1.00 mm or "
-                   "less; node C: the store window never filled on 3 rests (at most 4 valid fixes of 60 while resting: "
-                   "the live feed skipped frames or lost the probe); node D was never reached")
+                   "less; node C: the store window never filled on 3 rests (at most 4 valid fixes of 60 in 4 frames "
+                   "processed while resting: the live feed skips frames when tracking falls behind; a loaded computer "
+                   "processes too few); node D was never reached")
     assert log.why_missing({0, 1, 2, 3}, ("A", "B", "C", "D"), fixes_per_node=60, still_mm=1.0) == ""
 
 
@@ -70,7 +71,7 @@ def test_a_failed_demo_names_each_rests_best_spread_and_the_same_command_runs_ag
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "only 0 of 4 nodes were stored" in err and "was closed" not in err
-    assert "node EXT L: its best window spread on 1 rest was " in err and "auto-store needs 0.00 mm or less" in err
+    assert "node EXT R: its best window spread on 1 rest was " in err and "auto-store needs 0.00 mm or less" in err
     assert err.count("best window spread") == 4
     assert "was not written, so the same command can run again" in err
     assert not path.exists() and not Path(f"{path}.journal").exists()

@@ -193,7 +193,7 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
                 feed("add_node", acquisition.store(session.next_node_id(), PHANTOM_LABELS[node], left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
                 stored_at.append(node)
-            rests.add(node, outcome, stored=due)
+            rests.add(node, outcome, stored=due, window=fixes_per_node)
             if len(session.intraop_records()) == N_NODES:
                 tail += 1                            # a second more on record: a replay meets the last rest whole
                 if tail > _tail_frames(rig):

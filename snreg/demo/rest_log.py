@@ -17,8 +17,9 @@ __all__ = ["RestLog", "RestVisit"]
 
 @dataclass
 class RestVisit:
-    """One rest of the probe on ``node``: frames read during it, valid fixes among them, the best full-window spread
-    (mm, NaN when the window never filled in the rest) and whether a node was stored in it."""
+    """One rest of the probe on ``node``: frames read during it, valid fixes among them, the best spread of a store
+    window holding this rest's fixes alone (mm, NaN when the rest gave fewer fixes than the window) and whether a node
+    was stored in it."""
 
     node: int
     frames: int = 0
@@ -34,9 +35,11 @@ class RestLog:
         self.visits: list[RestVisit] = []
         self._resting: int | None = None
 
-    def add(self, node: int | None, outcome, stored: bool = False) -> None:
+    def add(self, node: int | None, outcome, stored: bool = False, window: int = 1) -> None:
         """One processed frame: ``node`` the probe rests on (None while it moves), ``outcome`` the acquisition's
-        :class:`~snreg.workflow.acquisition.FrameOutcome`, ``stored`` whether a node was stored at it."""
+        :class:`~snreg.workflow.acquisition.FrameOutcome`, ``stored`` whether a node was stored at it. A spread counts
+        once the rest has given ``window`` valid fixes (the store window holds this rest's fixes alone, none taken
+        while the probe moved)."""
         if node is None:
             self._resting = None
             return
@@ -46,7 +49,7 @@ class RestLog:
         visit = self.visits[-1]
         visit.frames += 1
         visit.fixes += outcome.fix is not None
-        spread = float(outcome.window_spread_mm)
+        spread = float(outcome.window_spread_mm) if visit.fixes >= window else math.nan
         if not math.isnan(spread) and not spread >= visit.best_spread_mm:
             visit.best_spread_mm = spread
         visit.stored |= stored
@@ -66,8 +69,10 @@ class RestLog:
             rests = f"{len(visits)} rest{'' if len(visits) == 1 else 's'}"
             if not spreads:
                 most = max(v.fixes for v in visits)
+                frames = max(v.frames for v in visits)
                 clauses.append(f"node {name}: the store window never filled on {rests} (at most {most} valid fixes "
-                               f"of {fixes_per_node} while resting: the live feed skipped frames or lost the probe)")
+                               f"of {fixes_per_node} in {frames} frames processed while resting: the live feed skips "
+                               "frames when tracking falls behind; a loaded computer processes too few)")
             else:
                 each = ", ".join(f"{s:.2f}" for s in spreads)
                 clauses.append(f"node {name}: its best window spread on {rests} was {each} mm; auto-store needs "
