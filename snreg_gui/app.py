@@ -10,8 +10,8 @@ chain (a switch toggled, a wizard closed without a new calibration): the camera 
 stereo or trocar calibration starts it again from the new chain's distance.
 
 A calibration applied while nodes are stored is said plainly, with the offer to re-express them under it
-(:mod:`snreg.workflow.chain_change`); closing while recording asks first ("N nodes stored, all saved; end the
-session?"), as an accidental close would end a surgical session.
+(:mod:`snreg.workflow.chain_change`); the title names the session file in full and closing while recording asks first
+(:mod:`snreg_gui.window_closing`), as an accidental close would end a surgical session.
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ from PySide6.QtCore import QSettings, Qt, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QApplication, QLabel, QMainWindow, QMessageBox, QTabWidget, QVBoxLayout, QWidget
 
-from snreg import __version__
 from snreg.demo.rig import DemoRig
 from snreg.session import Session
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
@@ -41,6 +40,7 @@ from snreg_gui.registration.demo_spect import DemoSpect
 from snreg_gui.registration.panel import RegistrationPanel
 from snreg_gui.review.screen import ReviewScreen
 from snreg_gui.window_calibration import CalibrationApplying
+from snreg_gui.window_closing import WindowClosing
 from snreg_gui.window_sessions import SessionActions
 from snreg_gui.wizards.launcher import WizardLauncher
 
@@ -53,7 +53,7 @@ NO_RIG_TEXT = ("No cameras or IMU chosen yet.\n\nDevices > Select cameras and IM
                "or start with --demo for the simulated one.")
 
 
-class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
+class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow):
     """The app. ``demo``: the simulated rig and a new session (``session_path`` or a file in the temp folder).
     Without ``demo``, an existing ``session_path`` opens for review and a new one is created for recording.
     ``rig`` lets tests pass a rig with a shorter schedule; ``settings`` an isolated QSettings."""
@@ -119,7 +119,8 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
             self.set_session(self._create(path, "phantom-demo"))
             if self.session is not None:               # else the status bar says why the file was refused
                 self.demo_spect = DemoSpect(self)
-                self.statusBar().showMessage("demo mode: no hardware; rendering the phantom")
+                self.statusBar().showMessage(f"demo mode: no hardware; rendering the phantom; recording into "
+                                             f"{self.session.path}")
         elif session_path and Path(session_path).exists():
             self.open_for_review(session_path)
         elif session_path:
@@ -308,7 +309,7 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         if not self.demo:
             text = f"recording into {self.session.path}"
         elif self.rig.description.startswith("demo"):
-            text = "demo mode: no hardware"
+            text = f"demo mode: no hardware; recording into {self.session.path}"
         else:                                        # a replay: say what is replayed and where it goes
             text = f"{self.rig.description}: recording into {self.session.path.name}"
         self.statusBar().showMessage(text)
@@ -328,15 +329,6 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         layout.addWidget(widget)
 
     # -- window --------------------------------------------------------------
-    def _update_title(self) -> None:
-        """The window says what it records into (demo, a session file) and which file the review tab shows."""
-        reviewed = Path(self.review.path).name if self.review.path else ""
-        mode = (self.rig.description.split(":")[0] if self.demo else str(self.session.path) if self.session
-                else "" if reviewed else "no session")
-        parts = [f"snreg {__version__}"] + [mode] * bool(mode) + [f"reviewing {reviewed}"] * bool(reviewed)
-        self.setWindowTitle(" - ".join(parts))
-        self.tabs.setTabText(self.tabs.indexOf(self.review), f"Review: {reviewed}" if reviewed else "Review")
-
     def _restore_layout(self) -> None:
         geometry = self.settings.value("window/geometry")
         if geometry is not None:
@@ -345,42 +337,6 @@ class MainWindow(SessionActions, CalibrationApplying, QMainWindow):
         if state is not None:
             self.restoreState(state)
         self.tabs.setCurrentIndex(int(self.settings.value("window/tab", 0)))
-
-    def closeEvent(self, event) -> None:
-        """While recording, ask first (:attr:`close_prompt`); the window closes when the technician says yes."""
-        if self._recording() and not self._end_confirmed:
-            event.ignore()
-            self._ask_to_end()
-            return
-        self.shutdown()
-        super().closeEvent(event)
-
-    def quit_without_asking(self) -> None:
-        """End the app now, without the question on close (Ctrl-C, a kill signal, the bench): Qt 6's quit closes
-        the windows first, and a close the question holds back would cancel the quit."""
-        self._end_confirmed = True
-        QApplication.instance().quit()
-
-    def _recording(self) -> bool:
-        return self.session is not None and self.session.writable and self.rig is not None
-
-    def _ask_to_end(self) -> None:
-        if self.close_prompt is not None:
-            return
-        n = len(self.session.intraop_records())
-        box = QMessageBox(QMessageBox.Icon.Question, "End the session?",
-                          f"{n} node{'' if n == 1 else 's'} stored, all saved; end the session?", parent=self)
-        end = box.addButton("End the session", QMessageBox.ButtonRole.AcceptRole)
-        box.setDefaultButton(box.addButton("Keep recording", QMessageBox.ButtonRole.RejectRole))
-        box.finished.connect(lambda _: self._end_answered(box.clickedButton() is end))
-        self.close_prompt = box
-        box.open()
-
-    def _end_answered(self, end: bool) -> None:
-        self.close_prompt = None
-        if end:
-            self._end_confirmed = True
-            self.close()
 
     def shutdown(self) -> None:
         """Remember the layout, stop the worker, then the devices, and close the session file; safe to call twice."""

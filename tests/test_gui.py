@@ -5,6 +5,7 @@ from PySide6.QtWidgets import QLabel
 
 from snreg_gui.app import MainWindow
 from snreg_gui.common.feed_view import FeedView
+from snreg_gui.window_closing import end_question
 
 
 def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
@@ -12,8 +13,12 @@ def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
     qtbot.addWidget(window)
     with qtbot.waitExposed(window):
         window.show()
-    assert "demo" in window.windowTitle()
+    path = str(tmp_path / "demo.h5")
+    assert window.windowTitle().endswith(f" - demo - {path}")         # the session named in full (issue 35)
     assert window.statusBar().currentMessage().startswith("demo mode: no hardware")
+    assert window.statusBar().currentMessage().endswith(f"recording into {path}")
+    first_frame = f"demo mode: no hardware; recording into {path}"       # once the first frame is processed
+    qtbot.waitUntil(lambda: window.statusBar().currentMessage() == first_frame, timeout=60_000)
     assert window.acquisition.isVisible()
     window.shutdown()
 
@@ -79,3 +84,9 @@ def test_the_feed_view_paints_the_frame_and_its_layers(qtbot):
     assert pixel(20, 20)[2] > 200                             # an opaque cell covers its quarter of the frame
     view.clear("left: no snapshot")
     assert view.frame is None and view.title == "left: no snapshot" and pixel(80, 45) == (0, 0, 0)
+
+
+def test_the_question_on_close_names_nodes_landmarks_and_the_file():
+    assert end_question(4, 3, "/p/x.h5") == "4 nodes and 3 landmarks stored, all saved in /p/x.h5; end the session?"
+    assert end_question(1, 1, "/p/x.h5") == "1 node and 1 landmark stored, all saved in /p/x.h5; end the session?"
+    assert end_question(0, 0, "x.h5").startswith("0 nodes and 0 landmarks stored")

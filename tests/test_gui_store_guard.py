@@ -175,7 +175,7 @@ def test_paused_for_calibration_the_chain_change_prompt_and_the_question_on_clos
     assert "re-expressed SN1" in window.statusBar().currentMessage()
     window.restart_acquisition()
     window.close()
-    assert window.close_prompt.text() == "1 node stored, all saved; end the session?"
+    assert window.close_prompt.text() == f"1 node and 0 landmarks stored, all saved in {window.session.path}; end the session?"
     [keep] = [b for b in window.close_prompt.buttons() if b.text() == "Keep recording"]
     keep.click()
     assert window.session is not None and window.close_prompt is None

@@ -16,14 +16,16 @@ calls are counted, since a link that blocked would cost frames there.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from snreg.demo.phantom import PHANTOM_LABELS
+from snreg.demo.rest_log import RestLog
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
+from snreg.demo.staging import publish, staging_folder
 from snreg.odometry import InsertionTracker
 from snreg.preop.gravity import volume_down
 from snreg.preop.segment import segment_nodes
@@ -32,7 +34,7 @@ from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import pairs_line
 from snreg.registration.report import pair_table
 from snreg.session import Session
-from snreg.workflow.acquisition import Acquisition, ImuReading
+from snreg.workflow.acquisition import STILL_SPREAD_MM, Acquisition, ImuReading
 from snreg.workflow.registration_start import session_gravity
 
 N_NODES = len(NODE_CENTRES_MM)
@@ -113,12 +115,35 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
     beside the session; ``camera``: "still" or "surgery" (:class:`~snreg.demo.rig.DemoRig`); ``camera_tracking``:
     follow the insertion of a camera that moves (off: every node is mapped at the trocar calibration's distance, to
-    compare)."""
-    session_path = Path(session_path)
-    # the feed is live (frames skipped while tracking lags), so each rest lasts twice the frames a node needs, three
-    # times with the surgery camera (tracking its insertion costs time too)
-    rest_frames = (3 if camera == "surgery" else 2) * fixes_per_node + 30
-    rig = DemoRig(scale=scale, schedule=Schedule(rest_frames=rest_frames), seed=seed, errors=errors, camera=camera)
+    compare).
+
+    The run records into a hidden folder beside ``session_path`` (:mod:`snreg.demo.staging`) and its files (session,
+    journal, videos, SPECT) move there only when it completes: a run that fails leaves ``session_path`` free for the
+    retry, its recording kept in that folder (the :class:`DemoError` names it)."""
+    target = Path(session_path)
+    folder = staging_folder(target)
+    try:
+        run = _run(folder / target.name, seed=seed, fixes_per_node=fixes_per_node, scale=scale, link=link,
+                   errors=errors, video=video, camera=camera, camera_tracking=camera_tracking)
+    except DemoError as err:
+        raise DemoError(f"{err}; the recording so far is kept in {folder} to look at (delete it when done), and "
+                        f"{target.name} was not written, so the same command can run again") from None
+    publish(folder, target, replaceable=(spect_path_for(target).name,))
+    return replace(run, session_path=target, spect_path=spect_path_for(target))
+
+
+def rest_frames_for(camera: str, fixes_per_node: int) -> int:
+    """The headless demo's rests, in frames: nobody presses a key, so no longer than auto-store needs. The feed is live
+    (frames skipped while tracking lags), so each rest lasts twice the frames a node needs, three times with the
+    surgery camera (tracking its insertion costs time too), and a second more."""
+    return (3 if camera == "surgery" else 2) * fixes_per_node + 30
+
+
+def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, link, errors, video: bool, camera: str,
+         camera_tracking: bool) -> HeadlessResult:
+    """:func:`run_headless` into ``session_path`` as it is (the staging folder's)."""
+    schedule = Schedule(rest_frames=rest_frames_for(camera, fixes_per_node))
+    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
@@ -156,25 +181,30 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
     insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if tracking else None
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
                               video_fps=rig.fps if video else None, insertion=insertion)
-    limit, read, tail, stored_at = _TOURS * rig.scene.cycle, 0, 0, []
+    limit, read, tail, stored_at, rests, ended = _TOURS * rig.scene.cycle, 0, 0, [], RestLog(), ""
     with source:
         for frame in source:
             read += 1
             outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))
             feed("show_frame", outcome)
             node = rig.scene.resting_node(frame.index)
-            if outcome.auto_store_due and node is not None:
+            due = outcome.auto_store_due and node is not None
+            if due:
                 feed("add_node", acquisition.store(session.next_node_id(), PHANTOM_LABELS[node], left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
                 stored_at.append(node)
+            rests.add(node, outcome, stored=due, window=fixes_per_node)
             if len(session.intraop_records()) == N_NODES:
                 tail += 1                            # a second more on record: a replay meets the last rest whole
                 if tail > _tail_frames(rig):
                     return read, stored_at
             if frame.index >= limit:
                 break
-    raise DemoError(f"only {len(session.intraop_records())} of {N_NODES} nodes were stored in {limit} frames "
-                    f"({source.problem or 'the probe was never tracked still long enough'})")
+        else:                                        # the feed ended before the tours did: its reason, while it has one
+            ended = source.problem or "the frame source ended early"
+    why = rests.why_missing(set(stored_at), PHANTOM_LABELS, fixes_per_node=fixes_per_node, still_mm=STILL_SPREAD_MM)
+    raise DemoError(f"only {len(stored_at)} of {N_NODES} nodes were stored in {_TOURS} tour{'s' * (_TOURS > 1)} of "
+                    f"the nodes ({read} of {limit} frames processed): " + "; ".join(p for p in (ended, why) if p))
 
 
 def _tail_frames(rig: DemoRig) -> int:

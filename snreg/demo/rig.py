@@ -51,11 +51,20 @@ from snreg.sources import CallableSource, FrameSource
 
 DEMO_FPS = 30.0
 CAMERAS = ("still", "surgery")
-SURGERY_REST_FRAMES = 180      # the surgery demo's rests by default: 6 s
+# The interactive demo's rests (``snreg-gui --demo``, the rig's default schedule): long enough for a person to see the
+# readiness line turn green and press Store SN. The store window needs 60 fixes: 2 s of a full-rate feed, 4 s when the
+# live feed processes every other frame on a loaded computer, which leaves 11 s of "ready". The headless demo and the
+# tests pass their own, shorter schedules (nobody presses a key there).
+INTERACTIVE_REST_S = 15.0
 IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loaded machine
 IMU_HOLD_S = 5.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (its
                                # 3 s start-up, then 2 s at its normal gain to settle from level to the tilted patient's
                                # pose: 0.4 deg left after 3 s) before the camera first moves
+
+
+def interactive_schedule(fps: float = DEMO_FPS) -> Schedule:
+    """The rests of the demo a person drives (:data:`INTERACTIVE_REST_S` at ``fps``), either camera."""
+    return Schedule(rest_frames=round(INTERACTIVE_REST_S * fps))
 
 
 class DemoRig:
@@ -73,8 +82,8 @@ class DemoRig:
         """``errors``: an error model (:mod:`snreg.demo.errors`) the rig runs with, drawn under ``seed``
         (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model).
         ``camera``: "still" (the thesis' phantom) or "surgery" (the camera slides and turns between nodes).
-        ``schedule``: the probe's rests and moves (default: 3 s rests; 6 s with the surgery camera, whose insertion
-        tracking takes its share of each frame, so the live feed skips more)."""
+        ``schedule``: the probe's rests and moves (default: :func:`interactive_schedule`, rests a person can press
+        Store SN in)."""
         if camera not in CAMERAS:
             raise ValueError(f"the demo camera is 'still' or 'surgery', not {camera!r}")
         self.camera = camera
@@ -95,7 +104,7 @@ class DemoRig:
             self.true_chain = still_demo_chain(endoscope_orientation(self.setup_deg))
         self.chain = self.true_chain
         if schedule is None:
-            schedule = Schedule(rest_frames=SURGERY_REST_FRAMES) if self.moving_camera else Schedule()
+            schedule = interactive_schedule(fps)
         self.schedule, self.fps, self.seed = schedule, fps, seed
         self.scene: PhantomScene | SurgeryScene | None = None
         self._folder = tempfile.TemporaryDirectory(prefix="snreg-demo-imu-")

@@ -3,7 +3,8 @@
 Why: the acquisition screen needs a live feed with a known truth and no hardware. The probe rests on
 node k for ``rest_frames`` frames, then glides to node k+1 over ``move_frames`` frames, and the cycle
 repeats. Rendering costs ~0.15 s per pose at half resolution, so each pose is rendered once
-(a few sensor-noise exposures per resting pose, one per moving pose) and then replayed from memory;
+(sensor-noise exposures of each eye per resting pose, paired apart frame by frame by
+:class:`~snreg.demo.rest_exposures.RestExposures`; one per moving pose) and then replayed from memory;
 :meth:`PhantomScene.prerender` does it all before the feed starts, because rendering holds the GIL
 in bursts long enough to stall the GUI thread.
 """
@@ -16,6 +17,7 @@ import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.demo.renderer import ProbePose, RenderOptions, StereoRenderer
+from snreg.demo.rest_exposures import RestExposures
 from snreg.probe import ProbeModel
 
 _AXIS = np.array([1.0, -0.35, 0.4])        # probe pointing right, up and away: a side view the tracker reads
@@ -32,11 +34,12 @@ def phantom_tips(probe: ProbeModel) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Schedule:
-    """Frames spent resting on each node and moving to the next; ``noise_variants`` exposures per rest."""
+    """Frames spent resting on each node and moving to the next; ``noise_variants`` exposures of each eye per rest,
+    paired apart (:class:`~snreg.demo.rest_exposures.RestExposures`: ``noise_variants ** 2`` distinct pairs)."""
 
     rest_frames: int = 90
     move_frames: int = 5
-    noise_variants: int = 3
+    noise_variants: int = 16
 
     @property
     def cycle(self) -> int:
@@ -54,7 +57,8 @@ class PhantomScene:
         self.renderer = StereoRenderer(calibration, probe)
         tips = phantom_tips(probe) + (0.0 if tip_offsets_mm is None else np.asarray(tip_offsets_mm, float))
         self.node_poses = [ProbePose.make(tip, PROBE_AXIS) for tip in tips]
-        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}       # moving frames by frame in the cycle
+        self._rests: dict[int, RestExposures] = {}
 
     @property
     def cycle(self) -> int:
@@ -87,11 +91,21 @@ class PhantomScene:
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback)."""
-        cycle_index = index % self.schedule.cycle
         resting = self.resting_node(index)
-        key = (resting, index % self.schedule.noise_variants) if resting is not None else (-1, cycle_index)
-        if key not in self._cache:
-            options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
-                                    seed=self.seed + len(self._cache))
-            self._cache[key] = self.renderer.expose(self.renderer.radiance(self.pose(index), options), options)
-        return self._cache[key]
+        if resting is not None:
+            if resting not in self._rests:
+                seed = self.seed * 10**5 + (resting + 1) * 10**4
+                self._rests[resting] = RestExposures(self.renderer.radiance(self.pose(index), self._options(seed)),
+                                                     self._expose, self.schedule.noise_variants, seed)
+            return self._rests[resting].pair(index)
+        cycle_index = index % self.schedule.cycle
+        if cycle_index not in self._cache:
+            options = self._options(self.seed + cycle_index)
+            self._cache[cycle_index] = self.renderer.expose(self.renderer.radiance(self.pose(index), options), options)
+        return self._cache[cycle_index]
+
+    def _options(self, seed: int) -> RenderOptions:
+        return RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px, seed=seed)
+
+    def _expose(self, radiance, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.renderer.expose(radiance, self._options(seed))

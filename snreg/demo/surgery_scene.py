@@ -15,8 +15,9 @@ between rests it glides to the next node while the camera moves (:class:`~snreg.
 The chain is the thesis' manual one with the endoscope held as the phantom's set-up holds it (looking caudally
 34 degrees below the patient's coronal plane, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`, on a table tilted 27 degrees
 head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
-resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: ``noise_variants``
-exposures per rest, one per moving frame: about 145 pairs, 0.45 GB, 20-40 s) and replayed from memory.
+resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: one radiance and
+``noise_variants`` exposures of each eye per rest, paired apart frame by frame, one render per moving frame) and
+replayed from memory.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from snreg.chain import ChainCalibration
 from snreg.demo.camera_tour import CameraKey, CameraTour
 from snreg.demo.phantom import TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation
 from snreg.demo.renderer import ProbePose, RenderOptions
+from snreg.demo.rest_exposures import RestExposures
 from snreg.demo.scene import PROBE_AXIS, Schedule, phantom_tips
 from snreg.demo.tissue import TissueScene, TissueSurface
 from snreg.geometry import apply, invert, make_transform
@@ -90,7 +92,8 @@ class SurgeryScene:
         self._rest_axes = np.array([pose[:3, :3] @ PROBE_AXIS for pose in rests])
         surface = TissueSurface(**_TISSUE, anchors=tuple(tuple(float(v) for v in p) for p in self.nodes_trocar))
         self.tissue = TissueScene(calibration, probe, surface, probe_in_front=True)
-        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}       # moving frames by frame in the tour
+        self._rests: dict[int, RestExposures] = {}
 
     @property
     def cycle(self) -> int:
@@ -129,16 +132,23 @@ class SurgeryScene:
             self.render(index)
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback)."""
-        key = self._key(index)
+        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback): a rest's exposures paired
+        apart frame by frame (:class:`~snreg.demo.rest_exposures.RestExposures`), a moving frame as rendered."""
+        resting = self.resting_node(index)
+        if resting is not None:
+            if resting not in self._rests:
+                seed = self.seed * 10**7 + (resting + 1) * 10**6
+                radiance = self.tissue.radiance(self.trocar_from_camera(index), self.pose(index), self._options(seed))
+                self._rests[resting] = RestExposures(radiance, self._expose, self.schedule.noise_variants, seed)
+            return self._rests[resting].pair(index)
+        key = index % self.cycle
         if key not in self._cache:
-            options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
-                                    seed=self.seed * 10**7 + (key[0] + 1) * 10**6 + key[1])
-            self._cache[key] = self.tissue.render(self.trocar_from_camera(index), self.pose(index), options)
+            self._cache[key] = self.tissue.render(self.trocar_from_camera(index), self.pose(index),
+                                                  self._options(self.seed * 10**7 + key))
         return self._cache[key]
 
-    def _key(self, index: int) -> tuple[int, int]:
-        """Frames that look alike share a key: (node, noise exposure) while resting, (-1, frame in the tour) moving."""
-        resting = self.resting_node(index)
-        return (resting, index % self.schedule.noise_variants) if resting is not None else (-1, index % self.cycle)
+    def _options(self, seed: int) -> RenderOptions:
+        return RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px, seed=seed)
 
+    def _expose(self, radiance, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.tissue.renderer.expose(radiance, self._options(seed))
