@@ -49,9 +49,10 @@ def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, s
     assert first.tabs.currentWidget() is first.review
     assert first.windowTitle().endswith("reviewing old.h5") and "no session" not in first.windowTitle()
     assert first.tabs.tabText(first.tabs.indexOf(first.review)) == "Review: old.h5"
-    first.resize(first.minimumWidth(), 640)                 # within the offscreen screen (800x800) and a 1024x700 one
+    height = 690                                            # within the offscreen screen (800x800) and a 1024x700 one
+    first.resize(first.minimumWidth(), height)
     remembered = (first.width(), first.height())
-    assert remembered[1] == 640
+    assert remembered[1] == height                          # the loaded review fits a 1024x700 screen
     first.shutdown()
 
     second = MainWindow(settings=settings)
