@@ -50,7 +50,7 @@ def poll(predicate, timeout_s: float = 30.0, interval_s: float = 0.01) -> bool:
 def qtbot(qtbot):
     """pytest-qt's qtbot whose waits cannot be failed by a race: ``waitUntil``'s callback may only fail by
     AssertionError (anything else it raises counts as "not yet", chained to the timeout that names it), a predicate's
-    answer counts as a bool, and every wait's deadline is at least DEADLINE_FLOOR_MS."""
+    answer counts as a bool, and every wait that fails on its deadline waits at least DEADLINE_FLOOR_MS."""
     wait_until, wait_signal, wait_signals = qtbot.waitUntil, qtbot.waitSignal, qtbot.waitSignals
 
     def not_yet_unless_asserting(callback):
@@ -68,11 +68,16 @@ def qtbot(qtbot):
         __tracebackhide__ = True
         return wait_until(not_yet_unless_asserting(callback), timeout=max(timeout, DEADLINE_FLOOR_MS))
 
-    def waitSignal(signal=None, *, timeout: int = 5000, **kwargs):
-        return wait_signal(signal, timeout=max(timeout, DEADLINE_FLOOR_MS), **kwargs)
+    def deadline(timeout: int, raising) -> int:
+        # a wait that does not raise is a negative check (assertNotEmitted's "nothing within wait ms"): its time is
+        # its meaning, so only a raising wait gets the floor
+        return timeout if raising is False else max(timeout, DEADLINE_FLOOR_MS)
 
-    def waitSignals(signals=None, *, timeout: int = 5000, **kwargs):
-        return wait_signals(signals, timeout=max(timeout, DEADLINE_FLOOR_MS), **kwargs)
+    def waitSignal(signal=None, *, timeout: int = 5000, raising=None, **kwargs):
+        return wait_signal(signal, timeout=deadline(timeout, raising), raising=raising, **kwargs)
+
+    def waitSignals(signals=None, *, timeout: int = 5000, raising=None, **kwargs):
+        return wait_signals(signals, timeout=deadline(timeout, raising), raising=raising, **kwargs)
 
     qtbot.waitUntil = qtbot.wait_until = waitUntil
     qtbot.waitSignal = qtbot.wait_signal = waitSignal
