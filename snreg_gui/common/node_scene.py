@@ -26,7 +26,7 @@ ELLIPSE_ALPHA = 0.45                # each node's 90 % ellipsoid is drawn in its
 # the drawing does not show (an out-of-date result's pairs are not drawn over nodes placed otherwise).
 PREOP_MAPPED = "preop (mapped)"
 PREOP_UNREGISTERED = "preop, initial alignment (not registered yet)"
-PREOP_OUT_OF_DATE = "preop, initial alignment (the result is OUT OF DATE and not drawn: run again)"
+PREOP_OUT_OF_DATE = "preop, initial alignment (the result is OUT OF DATE: run again)"
 
 
 @dataclass(frozen=True)

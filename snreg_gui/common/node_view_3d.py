@@ -72,6 +72,7 @@ class NodeView3D(QWidget):
         self.labels = LabelOverlay(self.view)
         self.view.addItem(_projector_class()(self.labels))
         self.legend = QLabel(self.scene_shown.legend())
+        self.legend.setWordWrap(True)           # a long legend (landmarks, an out-of-date result) must not widen the panel
         self._bounds: tuple | None = None
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
