@@ -121,3 +121,18 @@ def test_review_follows_the_session_being_recorded(qtbot, tmp_path, settings):
     qtbot.waitUntil(lambda: review.node_table.rowCount() == 2, timeout=TIMEOUT_MS)
     assert "reviewing" not in window.windowTitle()       # the session recorded is not "reviewed"
     window.shutdown()
+
+
+def test_the_preop_line_says_when_the_session_holds_no_preop_set_or_no_down(tmp_path):
+    from snreg.session.timeline import load_review
+    from snreg_gui.review.panels import NO_PREOP, preop_rows, preop_text
+
+    with Session.create(tmp_path / "bare.h5", case_id="bare-01") as session:
+        session.add_intraop_node("SN1", "", [0.0, 0.0, 250.0])
+    review = load_review(tmp_path / "bare.h5")
+    assert review.preop is None and preop_text(review) == NO_PREOP and preop_rows(review) == []
+    with Session.create(tmp_path / "nodown.h5", case_id="nodown-01") as session:
+        session.set_preop_nodes(NodeSet.from_xyz(np.eye(3) * 10.0, ["", "", ""], prefix="P"))
+    review = load_review(tmp_path / "nodown.h5")
+    assert preop_text(review) == "3 preop nodes; down: not stored (no patient position)"
+    assert [row[0] for row in preop_rows(review)] == ["P1", "P2", "P3"]

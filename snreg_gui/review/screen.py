@@ -6,7 +6,12 @@ each node's snapshots, and the stored registrations. Reading and fusing run in w
 (:func:`snreg.session.timeline.load_review`, then :func:`~snreg.session.timeline.fuse_imu_blocks`,
 whose blocks are drawn as they come), so an hour-long session never blocks the GUI; the file is
 closed once read, so it can be opened elsewhere while it is shown. A session still being recorded (by this app
-or another) is readable while it is written: Refresh reads it again to show what was added since.
+or another) is readable while it is written: Refresh reads it again to show what was added since. The session this app
+records is followed (:meth:`ReviewScreen.follow`): shown read-only and read again after each store or registration
+(:meth:`ReviewScreen.live_changed`) while the tab is visible, else when it is next shown. The preop set stored with the
+session (nodes, landmarks, patient position and down) has a tab beside the stored nodes; a registration's pairs are
+shown only once one is chosen; ``session_read`` hands the session as read (closed) to whoever shows it elsewhere (the
+window's Registration tab, when nothing is recorded).
 
 >>> screen = ReviewScreen()
 >>> screen.loaded.connect(lambda path: ...)      # everything is shown
