@@ -94,10 +94,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self.wizards = WizardLauncher(self)
         self.live_link = LiveLinkControl(self.settings, self, self._link_state)
         self._menus()
-        self.review.recording_session = lambda: self.session
-        self.review.final_changed.connect(lambda _: self.registration.refresh_stored())
-        self.review.failed.connect(self.statusBar().showMessage)
-        self.review.loaded.connect(lambda path: self.statusBar().showMessage(f"reviewing {path}"))
+        self._wire_review()
         self.live_link.failed.connect(self.statusBar().showMessage)
         self.options.switched.connect(self._option_switched)
         self.registration.registered.connect(
@@ -179,6 +176,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
             stored = session.calibration()
             self.rig.chain = stored.get("chain", self.rig.chain)
         self.registration.set_session(session)
+        self.review.follow(session.path)
         self.live_link.reset_state()
         self.statusBar().showMessage(f"recording into {session.path} (case {session.case_id})")
         self._update_title()
@@ -267,7 +265,8 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
 
     def _nodes_changed(self, *_) -> None:
         """The registration panel follows the stored nodes: it registers again at once when it says so (the missing
-        nodes then update on the acquisition screen), else it is redrawn when next shown."""
+        nodes then update on the acquisition screen), else it is redrawn when next shown; so is the review of it."""
+        self.review.live_changed()
         if self.registration.auto_rerun.isChecked():
             self._registration_stale = False
             self.registration.rerun_after_store()

@@ -34,7 +34,7 @@ class WindowClosing:
     def _update_title(self) -> None:
         """The window says what it records into (demo and the session file's full path) and which file the review
         tab shows."""
-        reviewed = Path(self.review.path).name if self.review.path else ""
+        reviewed = Path(self.review.path).name if self.review.path and not self.review.following else ""
         recording = str(self.session.path) if self.session is not None else ""
         mode = self.rig.description.split(":")[0] if self.demo else ""
         parts = [f"snreg {__version__}", mode, recording, f"reviewing {reviewed}" if reviewed else ""]

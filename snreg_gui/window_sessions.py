@@ -1,5 +1,5 @@
 """The main window's session actions (File menu): a new session, continuing one after a restart, replaying a
-recorded one, opening one for review and the recent-files list.
+recorded one, opening one for review and the recent-files list; how the review tab is wired to the window.
 
 A mixin of :class:`snreg_gui.app.MainWindow`: it uses the window's ``session``, ``rig``, ``recent``, ``review``,
 ``tabs`` and status bar, and its ``set_session``/``set_rig``.
@@ -66,6 +66,26 @@ class SessionActions:
         self.set_rig(rig)
         self.set_session(self._create(target, case_id))
         self.statusBar().showMessage(f"replaying {Path(path).name} at {speed:g}x into {target.name}")
+
+    def _wire_review(self) -> None:
+        """The review tab: a final mark goes through the session being recorded when it is the file shown; it follows
+        that session (read again after each store and registration); the session it read of a saved file feeds the
+        Registration tab when none is recorded (its preop nodes, down, landmarks and registrations, read-only)."""
+        self.review.recording_session = lambda: self.session
+        self.review.final_changed.connect(lambda _: self.registration.refresh_stored())
+        self.review.failed.connect(self.statusBar().showMessage)
+        self.review.loaded.connect(self._review_loaded)
+        self.review.session_read.connect(self._reviewed_session_read)
+        self.registration.registered.connect(lambda _: self.review.live_changed())
+
+    def _review_loaded(self, path: str) -> None:
+        if not self.review.following:            # the session being recorded keeps saying so in the status bar
+            self.statusBar().showMessage(f"reviewing {path}")
+
+    def _reviewed_session_read(self, session) -> None:
+        """A session read for review (closed, read-only) to the Registration tab, unless one is being recorded."""
+        if self.session is None:
+            self.registration.set_session(session)
 
     def choose_review(self) -> None:
         path = file_places.choose_file(self, "Open session for review", self.session, "snreg sessions (*.h5)")

@@ -130,3 +130,29 @@ def test_a_session_keeps_its_preop_landmarks_and_gives_its_stored_ones(qtbot, pa
         assert set(result.landmark_residual_mm) == set(THREE)
         qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
         assert session.preop_landmarks().ids == list(THREE)
+
+
+def test_an_out_of_date_result_is_drawn_as_such(qtbot, panel, tmp_path, monkeypatch):
+    """Issue 35 item 11: after Landmarks... the result is out of date; the view then draws the preop nodes under the
+    initial alignment, with no pairs and a legend saying so, never the old pairs' legend over moved nodes."""
+    from snreg.registration.report import mapped_preop
+    from snreg_gui.common.node_scene import PREOP_MAPPED, PREOP_OUT_OF_DATE
+
+    preop, intraop, marks_pre, _ = case(5, 5, seed=5)
+    load(qtbot, panel, preop, None, tmp_path / "preop.csv")
+    panel.set_intraop_nodes(intraop)
+    result = click_run(qtbot, panel)
+    scene = panel.view.scene_shown
+    assert scene.pairing is not None and PREOP_MAPPED in panel.view.legend.text and "paired" in panel.view.legend.text
+    np.testing.assert_allclose(scene.preop.xyz, mapped_preop(preop, result).xyz)        # drawn where the result maps
+    write_nodes(NodeSet(list(THREE), [""] * 3, marks_pre.xyz), tmp_path / "marks.csv")
+    monkeypatch.setattr(file_places, "choose_file", lambda *_: str(tmp_path / "marks.csv"))
+    with qtbot.waitSignal(panel.preop_box.landmarks_changed, timeout=TIMEOUT_MS):
+        qtbot.mouseClick(panel.preop_box.landmarks_button, Qt.MouseButton.LeftButton)
+    assert panel.summary.text().startswith("OUT OF DATE") and not panel.pairing_table.isEnabled()
+    scene, legend = panel.view.scene_shown, panel.view.legend.text
+    initial = panel.alignment.transform(preop.xyz, intraop.xyz)
+    np.testing.assert_allclose(scene.preop.xyz, preop.moved(initial).xyz)               # the initial alignment ...
+    assert scene.pairing is None and len(scene.pair_segments()) == 0                     # ... with no pairs drawn
+    assert PREOP_OUT_OF_DATE in legend and PREOP_MAPPED not in legend and "paired" not in legend
+    assert not np.allclose(scene.preop.xyz, mapped_preop(preop, result).xyz)            # the case shows a difference

@@ -55,6 +55,8 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     assert regs.list.rowCount() == 1
     assert (regs.list.item(0, 1).text(), regs.list.item(0, 2).text()) == ("global", f"{truth.rms_mm:.2f}")
     assert regs.list.item(0, 3).text() == "3 of 3"
+    assert regs.pairs.rowCount() == 0                       # none chosen yet: no pairs (issue 35)
+    _click_row(qtbot, regs.list, 0)
     assert [regs.pairs.item(r, 0).text() for r in range(3)] == [f"{i} -> {p}" for i, p in zip(truth.node_ids,
                                                                                             PREOP_IDS)]
     with h5py.File(path, "r+"):            # the screen holds nothing open

@@ -25,6 +25,8 @@ import numpy as np
 from snreg.imu.fusion import Fusion
 from snreg.imu.protocol import DEFAULT_ODR_HZ
 from snreg.landmarks import LANDMARK, NODE
+from snreg.nodes import NodeSet
+from snreg.preop.gravity import PreopDown
 from snreg.registration.report import PairRow, pair_table
 from snreg.session import Session, SessionError, StoredRegistration
 from snreg.session.reader import readable_rows
@@ -151,7 +153,8 @@ class SessionReview:
     """What a session holds, in memory. ``stereo_rms_px``/``imu_trocar_mm``/``trocar_camera_mm`` are None when
     that calibration was not stored; ``damaged``: the HDF5 file was unreadable and the journal was read instead.
     ``nodes`` are the stored nodes alone (what is counted and paired), ``landmarks`` the stored anatomical landmarks;
-    ``stored`` both, in the order stored."""
+    ``stored`` both, in the order stored; ``preop``, ``preop_landmarks`` and ``preop_down`` the preop set stored with
+    the session (the SPECT's hot spots, the CT's landmarks, what gives their down)."""
 
     path: str
     case_id: str
@@ -171,6 +174,11 @@ class SessionReview:
     problems: tuple[str, ...] = ()          # what could not be read, in words (Session.problems)
     camera: CameraSeries = field(default_factory=CameraSeries.empty)
     landmarks: list[ReviewNode] = field(default_factory=list)
+    preop: NodeSet | None = None                 # the preop nodes stored with the session (None: none stored)
+    preop_landmarks: NodeSet | None = None       # the preop (CT) landmarks stored with them (empty: none)
+    preop_down: PreopDown | None = None          # their patient position and table tilt (None: not known)
+    session: Session | None = None               # the session as read, closed: all but its streams in memory, for a
+                                                 # registration panel to show it read-only
 
     @property
     def stored(self) -> list[ReviewNode]:
@@ -189,6 +197,7 @@ def load_review(path: str | Path) -> SessionReview:
             registrations = session.registrations()
             calibration = session.calibration()
             header, damaged, problems = dict(session.header), session.damaged, tuple(session.problems)
+            preop_down, preop_landmarks = session.preop_down(), session.preop_landmarks()
     except SessionError:
         raise
     except (OSError, ValueError, KeyError, RuntimeError) as err:
@@ -213,7 +222,7 @@ def load_review(path: str | Path) -> SessionReview:
         CameraSeries(_seconds(camera["t_host_ns"], t0_ns), np.asarray(camera["trocar_camera_mm"], dtype=float),
                      np.asarray(camera["state"]) == CAMERA_STATES.index("tracked"),
                      np.asarray(camera["quality"], dtype=float), np.asarray(camera["residual_mm"], dtype=float)),
-        [_review_node(r, t0_ns) for r in landmarks])
+        [_review_node(r, t0_ns) for r in landmarks], preop, preop_landmarks, preop_down, session)
 
 
 def _review_node(r, t0_ns: int) -> ReviewNode:

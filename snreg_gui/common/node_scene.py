@@ -16,12 +16,17 @@ from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
 
 __all__ = ["NodeScene", "legend_html", "label_font", "xyz_of", "MISSING_COLOUR", "ELLIPSE_ALPHA", "LANDMARK_COLOUR",
-           "SUSPECT_COLOUR"]
+           "SUSPECT_COLOUR", "PREOP_MAPPED", "PREOP_UNREGISTERED", "PREOP_OUT_OF_DATE"]
 
 MISSING_COLOUR = "#ff7f0e"          # a preop node with no intraop partner yet (not found, or not removed yet)
 LANDMARK_COLOUR = "#2ca02c"         # anatomical landmarks, both sides (CT: hollow diamond, touched: filled)
 SUSPECT_COLOUR = "#9400d3"          # a landmark the registration left out as contradicting the rest
 ELLIPSE_ALPHA = 0.45                # each node's 90 % ellipsoid is drawn in its node's colour, this opaque (0-1)
+# What the preop markers are, as the legend names them: the scene says which, so the legend never claims a mapping
+# the drawing does not show (an out-of-date result's pairs are not drawn over nodes placed otherwise).
+PREOP_MAPPED = "preop (mapped)"
+PREOP_UNREGISTERED = "preop, initial alignment (not registered yet)"
+PREOP_OUT_OF_DATE = "preop, initial alignment (the result is OUT OF DATE: run again)"
 
 
 @dataclass(frozen=True)
@@ -34,7 +39,9 @@ class NodeScene:
     Each set's covariances (``NodeSet.cov``, in the view's frame) are drawn as 90 % error ellipsoids.
     ``preop_landmarks`` (in the intraop frame, as the preop nodes) and ``intraop_landmarks``: anatomical landmarks, ids
     = names, drawn with a marker of their own and named, never as nodes; ``suspects``: the names the registration
-    left out as contradicting the rest (named so on the view).
+    left out as contradicting the rest (named so on the view). ``preop_caption``: what the preop markers are, as the
+    legend names them (None: :data:`PREOP_MAPPED` with a pairing, else :data:`PREOP_UNREGISTERED`; the panel says
+    :data:`PREOP_OUT_OF_DATE` when a result exists but no longer answers its inputs).
     """
 
     preop: NodeSet | None = None
@@ -44,6 +51,13 @@ class NodeScene:
     preop_landmarks: NodeSet | None = None
     intraop_landmarks: NodeSet | None = None
     suspects: tuple = ()
+    preop_caption: str | None = None
+
+    def legend(self) -> str:
+        """The legend for this scene (:func:`legend_html`): its preop caption, the result's marks only with pairs."""
+        result = self.pairing is not None
+        caption = self.preop_caption or (PREOP_MAPPED if result else PREOP_UNREGISTERED)
+        return legend_html(self.has_landmarks, preop=caption, result=result)
 
     def pair_segments(self) -> np.ndarray:
         """(2K, 3) mm: intraop node, then its preop node, for each of the K paired intraop nodes."""
@@ -103,15 +117,16 @@ def xyz_of(nodes: NodeSet | None) -> np.ndarray:
     return np.zeros((0, 3)) if nodes is None else nodes.xyz
 
 
-def legend_html(landmarks: bool = False) -> str:
-    """One line naming what each mark means, in the marks' colours (both views show it above the nodes); the
-    landmarks' marks only when there are landmarks."""
+def legend_html(landmarks: bool = False, *, preop: str = PREOP_MAPPED, result: bool = True) -> str:
+    """One line naming what each mark means, in the marks' colours (both views show it above the nodes): ``preop``
+    names the preop markers; "not found yet" and "paired" only with a ``result`` drawn; the landmarks' marks only when
+    there are landmarks."""
     marks = (f" &nbsp; <span style='color:{LANDMARK_COLOUR}'>&#9671; landmark (CT) &#9670; landmark (touched)</span>"
              if landmarks else "")
-    return (f"<span style='color:{PREOP_COLOUR}'>&#9675; preop (mapped)</span> &nbsp; "
-            f"<span style='color:{MISSING_COLOUR}'>&#9675; preop, not found yet</span> &nbsp; "
-            f"<span style='color:{INTRAOP_COLOUR}'>&#10005; intraop (stored)</span> &nbsp; "
-            f"<span style='color:{PAIR_COLOUR}'>&#8212; paired</span> &nbsp; "
+    found = (f"<span style='color:{MISSING_COLOUR}'>&#9675; preop, not found yet</span> &nbsp; " if result else "")
+    paired = f"<span style='color:{PAIR_COLOUR}'>&#8212; paired</span> &nbsp; " if result else ""
+    return (f"<span style='color:{PREOP_COLOUR}'>&#9675; {preop}</span> &nbsp; {found}"
+            f"<span style='color:{INTRAOP_COLOUR}'>&#10005; intraop (stored)</span> &nbsp; {paired}"
             f"<span style='color:{PAIR_COLOUR}'>&#9711; 90 % error of each node, in its colour</span>" + marks)
 
 

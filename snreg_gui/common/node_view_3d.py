@@ -19,7 +19,7 @@ from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
 from snreg_gui.common.ellipses import ellipsoid_rings
 from snreg_gui.common.label_layout import fit_camera, place_labels
 from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
-                                        legend_html, xyz_of)
+                                        xyz_of)
 
 __all__ = ["NodeView3D", "LabelOverlay"]
 
@@ -71,7 +71,8 @@ class NodeView3D(QWidget):
             self.view.addItem(item)
         self.labels = LabelOverlay(self.view)
         self.view.addItem(_projector_class()(self.labels))
-        self.legend = QLabel(legend_html())
+        self.legend = QLabel(self.scene_shown.legend())
+        self.legend.setWordWrap(True)           # a long legend (landmarks, an out-of-date result) must not widen the panel
         self._bounds: tuple | None = None
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -81,7 +82,7 @@ class NodeView3D(QWidget):
 
     def show_scene(self, scene: NodeScene) -> None:
         self.scene_shown = scene
-        self.legend.setText(legend_html(scene.has_landmarks))
+        self.legend.setText(scene.legend())
         preop, intraop, segments = xyz_of(scene.preop), xyz_of(scene.intraop), scene.pair_segments()
         marks = np.vstack([xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks)])
         for item, xyz in zip(self.landmark_dots, (xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks))):

@@ -19,12 +19,12 @@ import functools
 
 from PySide6.QtGui import QGuiApplication, QOffscreenSurface, QOpenGLContext
 
-from snreg_gui.common.node_scene import MISSING_COLOUR, NodeScene, legend_html
+from snreg_gui.common.node_scene import MISSING_COLOUR, PREOP_OUT_OF_DATE, NodeScene, legend_html
 from snreg_gui.common.node_view_3d import NodeView3D
 from snreg_gui.common.three_view import ThreeViewPlot
 
 __all__ = ["NodeScene", "ThreeViewPlot", "NodeView3D", "make_node_view", "opengl_available", "legend_html",
-           "MISSING_COLOUR"]
+           "MISSING_COLOUR", "PREOP_OUT_OF_DATE"]
 
 _NO_GL_PLATFORMS = ("offscreen", "minimal", "vnc")
 

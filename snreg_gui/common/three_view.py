@@ -15,7 +15,7 @@ from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR,
 from snreg_gui.common.ellipses import ellipse_shadows
 from snreg_gui.common.label_layout import place_labels
 from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
-                                        legend_html, xyz_of)
+                                        xyz_of)
 
 __all__ = ["ThreeViewPlot"]
 
@@ -39,7 +39,7 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         super().__init__(parent)
         self.setBackground("w")
         self.scene_shown = NodeScene()
-        self.legend = self.addLabel(legend_html(), row=0, col=0, colspan=len(VIEWS))
+        self.legend = self.addLabel(self.scene_shown.legend(), row=0, col=0, colspan=len(VIEWS))
         self.plots, self.preop_dots, self.missing_dots, self.intraop_dots, self.pair_lines = [], [], [], [], []
         self.landmark_dots: list[tuple[pg.ScatterPlotItem, pg.ScatterPlotItem]] = []    # per projection: CT, touched
         self.ellipses: list[dict[str, pg.PlotDataItem]] = []       # per projection: "preop", "missing", "intraop"
@@ -74,7 +74,7 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
 
     def show_scene(self, scene: NodeScene) -> None:
         self.scene_shown = scene
-        self.legend.setText(legend_html(scene.has_landmarks))
+        self.legend.setText(scene.legend())
         preop, intraop, segments = xyz_of(scene.preop), xyz_of(scene.intraop), scene.pair_segments()
         marks_ct, marks_touched = xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks)
         mark_texts, mark_colours = sum(scene.landmark_texts(), []), sum(scene.landmark_colours(), [])

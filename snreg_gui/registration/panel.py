@@ -42,7 +42,7 @@ from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
 from snreg.workflow.registration_run import EXPORTS, RunRecord
 from snreg_gui.common import file_places
-from snreg_gui.common.node_views import NodeScene, make_node_view
+from snreg_gui.common.node_views import PREOP_OUT_OF_DATE, NodeScene, make_node_view
 from snreg_gui.common.splitters import first_width
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
@@ -346,7 +346,8 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
             initial = (self.alignment.transform(preop.xyz, None if kept is None else kept.xyz) if has_nodes(preop)
                        else None)
             moved = preop.moved(initial) if has_nodes(preop) else None
-            scene = NodeScene(moved, intraop, **self._landmark_scene(None, np.eye(4) if initial is None else initial))
+            scene = NodeScene(moved, intraop, preop_caption=PREOP_OUT_OF_DATE if record is not None else None,
+                              **self._landmark_scene(None, np.eye(4) if initial is None else initial))
         self.view.show_scene(scene)
 
     # -- results -----------------------------------------------------------------

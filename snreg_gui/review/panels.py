@@ -1,11 +1,13 @@
-"""The review screen's panels: the header text, the stored-nodes table, the snapshot pair and the registrations.
+"""The review screen's panels: the header text, the stored-nodes and preop tables, the snapshot pair and the
+registrations.
 
 Why: each shows one part of a :class:`~snreg.session.timeline.SessionReview` that is already in memory;
 nothing here reads files or computes more than a format string.
 
 >>> header.setText(header_text(review)); fill_node_table(table, review.stored)    # nodes and landmarks
 >>> snapshots.show_pair(node.left_rgb, node.right_rgb)
->>> registrations.show_registrations(review.registrations)
+>>> registrations.show_registrations(review.registrations)   # none chosen: no pairs, "choose a registration"
+>>> caption.setText(preop_text(review)); fill_table(preop_table, preop_rows(review))
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ from dataclasses import replace
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
-from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel, QPushButton, QTableWidget,
-                               QTableWidgetItem, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLabel, QPushButton, QStackedWidget,
+                               QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
 from snreg.registration.naming import marked_rows, pair_text
 from snreg.registration.report import confidence_text
@@ -34,6 +36,37 @@ LANDMARK_TIP = ("an anatomical landmark touched with the probe (Store landmark):
                 "as one")
 REGISTRATION_COLUMNS = ("#", "method", "RMS (mm)", "paired", "final")
 PAIRING_COLUMNS = ("intraop -> hot spot", "distance (mm)", "confidence")
+PREOP_COLUMNS = ("id", "label", "x, y, z (mm)", "counts")
+CHOOSE_REGISTRATION = "choose a registration above to see its pairs"
+NO_PREOP = "no preop nodes stored in this session"
+
+
+def preop_text(review: SessionReview) -> str:
+    """The preop set in one line: how many nodes and landmarks, their frame, and what gives their down."""
+    preop = review.preop
+    if preop is None:
+        return NO_PREOP
+    marks = 0 if review.preop_landmarks is None else len(review.preop_landmarks)
+    and_marks = f" and {marks} landmark{'s' * (marks != 1)}" if marks else ""
+    frame = f" ({preop.frame})" if preop.frame else ""
+    down = review.preop_down
+    gravity = ("down: not stored (no patient position)" if down is None else
+               f"down from {down.source}" + (f"; {down.problem}" if down.problem else
+                                             ": " + ", ".join(f"{c:.3f}" for c in down.vector)))
+    return f"{len(preop)} preop node{'s' * (len(preop) != 1)}{and_marks}{frame}; {gravity}"
+
+
+def preop_rows(review: SessionReview) -> list[list[str]]:
+    """The preop nodes, then their landmarks (id cell "landmark: <name>")."""
+    preop = review.preop
+    if preop is None:
+        return []
+    counts = [math.nan] * len(preop) if preop.counts is None else preop.counts
+    marks = review.preop_landmarks
+    return ([[i, label, _xyz(xyz), _number(float(c), 0)] for i, label, xyz, c in
+             zip(preop.ids, preop.labels, preop.xyz, counts)]
+            + ([] if marks is None else [[f"{LANDMARK_MARK}{i}", label, _xyz(xyz), ""]
+                                         for i, label, xyz in zip(marks.ids, marks.labels, marks.xyz)]))
 
 
 def header_text(review: SessionReview) -> str:
@@ -156,6 +189,12 @@ class StoredRegistrations(QWidget):
         self.list = read_only_table(REGISTRATION_COLUMNS)
         self.pairs = read_only_table(PAIRING_COLUMNS)
         self.empty = QLabel("no registration stored")
+        self.choose_hint = QLabel(CHOOSE_REGISTRATION)       # in the pairs' place while none is chosen
+        self.choose_hint.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.choose_hint.setWordWrap(True)
+        self.pairs_place = QStackedWidget()                 # the hint or the pairs, never both; no taller than the table
+        self.pairs_place.addWidget(self.pairs)
+        self.pairs_place.addWidget(self.choose_hint)
         self.mark_button = QPushButton("Mark selected final")
         self.mark_button.setToolTip("keep the selected registration in the session file as the one that counts")
         self.unmark_button = QPushButton("Unmark final")
@@ -168,7 +207,7 @@ class StoredRegistrations(QWidget):
         for widget in (self.empty, self.list):
             layout.addWidget(widget)
         layout.addLayout(buttons)
-        layout.addWidget(self.pairs)
+        layout.addWidget(self.pairs_place)
         self._registrations: list[ReviewRegistration] = []
         self.list.itemSelectionChanged.connect(self._show_selected)
         self.mark_button.clicked.connect(self._mark)
@@ -176,15 +215,26 @@ class StoredRegistrations(QWidget):
         self._update_buttons()
 
     def show_registrations(self, registrations: Sequence[ReviewRegistration]) -> None:
-        """List ``registrations`` and select the last (the newest)."""
+        """List ``registrations``, none chosen: the pairs table stays empty until one is (a table of pairs beside
+        an unselected list passed for the newest one's without saying so)."""
         self._registrations = list(registrations)
+        self.list.clearSelection()
         fill_table(self.list, [[str(r.n), r.method, f"{r.rms_mm:.2f}", f"{r.n_paired} of {len(r.intraop_ids)}",
                                 "FINAL" if r.final else ""] for r in self._registrations])
         self.empty.setVisible(not self._registrations)
-        fill_table(self.pairs, [])
-        if self._registrations:
-            self.list.selectRow(len(self._registrations) - 1)
-        self._update_buttons()
+        self._show_selected()
+
+    @property
+    def chosen(self) -> int | None:
+        """The number of the registration chosen (None: none)."""
+        rows = self.list.selectionModel().selectedRows()
+        return self._registrations[rows[0].row()].n if rows else None
+
+    def choose(self, n: int) -> None:
+        """Choose registration ``n`` (its pairs shown); nothing when there is none of that number."""
+        rows = [k for k, reg in enumerate(self._registrations) if reg.n == n]
+        if rows:
+            self.list.selectRow(rows[0])
 
     def show_final(self, n: int | None) -> None:
         """Show ``n`` as the one marked final (None: none), keeping the selection."""
@@ -205,6 +255,7 @@ class StoredRegistrations(QWidget):
     def _show_selected(self) -> None:
         self._update_buttons()
         rows = self.list.selectionModel().selectedRows()
+        self.pairs_place.setCurrentWidget(self.choose_hint if self._registrations and not rows else self.pairs)
         if not rows:
             fill_table(self.pairs, [])
             return

@@ -6,7 +6,12 @@ each node's snapshots, and the stored registrations. Reading and fusing run in w
 (:func:`snreg.session.timeline.load_review`, then :func:`~snreg.session.timeline.fuse_imu_blocks`,
 whose blocks are drawn as they come), so an hour-long session never blocks the GUI; the file is
 closed once read, so it can be opened elsewhere while it is shown. A session still being recorded (by this app
-or another) is readable while it is written: Refresh reads it again to show what was added since.
+or another) is readable while it is written: Refresh reads it again to show what was added since. The session this app
+records is followed (:meth:`ReviewScreen.follow`): shown read-only and read again after each store or registration
+(:meth:`ReviewScreen.live_changed`) while the tab is visible, else when it is next shown. The preop set stored with the
+session (nodes, landmarks, patient position and down) has a tab beside the stored nodes; a registration's pairs are
+shown only once one is chosen; ``session_read`` hands the session as read (closed) to whoever shows it elsewhere (the
+window's Registration tab, when nothing is recorded).
 
 >>> screen = ReviewScreen()
 >>> screen.loaded.connect(lambda path: ...)      # everything is shown
@@ -20,14 +25,15 @@ import time
 from pathlib import Path
 
 from PySide6.QtCore import QCoreApplication, Qt, Signal
-from PySide6.QtWidgets import QGroupBox, QHBoxLayout, QLabel, QPushButton, QSplitter, QVBoxLayout, QWidget
+from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QLabel, QPushButton, QSplitter, QTabWidget, QVBoxLayout,
+                               QWidget)
 
 from snreg.session import SessionError, set_final_in_file
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
 from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP
 from snreg_gui.common.workers import Worker
-from snreg_gui.review.panels import (INSERTION_TIP, NODE_COLUMNS, SnapshotPair, StoredRegistrations, fill_table,
-                                     fill_node_table, header_text, read_only_table)
+from snreg_gui.review.panels import (INSERTION_TIP, NODE_COLUMNS, PREOP_COLUMNS, SnapshotPair, StoredRegistrations,
+                                     fill_node_table, fill_table, header_text, preop_rows, preop_text, read_only_table)
 from snreg_gui.review.timelines import TimelinePlots
 from snreg_gui.review.video_view import VideoScrubber
 
@@ -46,6 +52,7 @@ class ReviewScreen(QWidget):
     loaded = Signal(str)
     failed = Signal(str)
     final_changed = Signal(object)      # the registration now marked final in the file shown (None: none)
+    session_read = Signal(object)       # the session as read (closed, read-only), once its contents are shown
 
     def __init__(self, parent=None):
         super().__init__(parent)
@@ -62,6 +69,10 @@ class ReviewScreen(QWidget):
         self.node_table = read_only_table(NODE_COLUMNS)
         self.node_table.horizontalHeaderItem(NODE_COLUMNS.index("insertion (mm)")).setToolTip(INSERTION_TIP)
         self.node_table.horizontalHeaderItem(NODE_COLUMNS.index(f"{ERROR_CAPTION} (mm)")).setToolTip(ERROR_TIP)
+        self.preop_caption = QLabel("")
+        self.preop_caption.setWordWrap(True)
+        self.preop_table = read_only_table(PREOP_COLUMNS)
+        self.node_tabs = QTabWidget()
         self.snapshots = SnapshotPair()
         self.registrations = StoredRegistrations()
         self.timelines = TimelinePlots()
@@ -77,17 +88,26 @@ class ReviewScreen(QWidget):
         self._fuse_next = False
         self._failed = False
         self._stopped = False                       # closing: start nothing more
+        self._live = ""                             # the session being recorded, followed while it is the one shown
+        self._stale = False                         # the live session changed while the screen was hidden
+        self._chosen: int | None = None             # the registration chosen before the file was read again
         self.recording_session = lambda: None       # the window's session being recorded (marks go through it)
         self.registrations.final_requested.connect(self._mark_final)
         QCoreApplication.instance().aboutToQuit.connect(self.shutdown)
 
     def _layout(self) -> None:
-        nodes = QGroupBox("stored nodes")
-        QVBoxLayout(nodes).addWidget(self.node_table)
+        preop = QWidget()                             # beside the stored nodes, one tab each: no taller window
+        preop_layout = QVBoxLayout(preop)
+        preop_layout.setContentsMargins(0, 0, 0, 0)
+        self.preop_table.setMinimumHeight(40)        # with its caption, no taller than the stored nodes' table
+        preop_layout.addWidget(self.preop_caption)
+        preop_layout.addWidget(self.preop_table)
+        self.node_tabs.addTab(self.node_table, "stored nodes")
+        self.node_tabs.addTab(preop, "preop nodes")
         registrations = QGroupBox("registrations")
         QVBoxLayout(registrations).addWidget(self.registrations)
         side = QSplitter(Qt.Orientation.Vertical)
-        for widget in (nodes, self.snapshots, registrations):
+        for widget in (self.node_tabs, self.snapshots, registrations):
             side.addWidget(widget)
         side.setSizes([300, 300, 250])               # proportions; the user moves the handles
         body = QSplitter(Qt.Orientation.Horizontal)
@@ -120,10 +140,45 @@ class ReviewScreen(QWidget):
 
     def refresh(self) -> None:
         """Read the file shown again (a session still being recorded has more in it by now)."""
+        self._stale = False
         if self.path:
             self.load(self.path)
 
+    # -- the session being recorded ----------------------------------------------
+    def follow(self, path) -> None:
+        """Show the session being recorded at ``path`` (read-only), read again by :meth:`live_changed`; read now when
+        the screen is visible, else when it is next shown (reading an hour of streams costs the recording CPU)."""
+        self._live = str(path)
+        if self.isVisible() or self._worker is not None:
+            self.load(self._live)
+            return
+        self._path, self._review, self._stale = self._live, None, True
+        self._clear()
+        self.refresh_button.setEnabled(True)
+        self.status.setText(f"recording into {self._live}: shown, read-only, when this tab is opened")
+
+    def live_changed(self) -> None:
+        """The session being recorded changed (a node stored or removed, a registration stored): read it again when
+        it is the one shown, now if visible, else when next shown."""
+        if not self._live or self.path != self._live:
+            return
+        if self.isVisible():
+            self.refresh()
+        else:
+            self._stale = True
+
+    @property
+    def following(self) -> bool:
+        """The screen shows the session being recorded."""
+        return bool(self._live) and self.path == self._live
+
+    def showEvent(self, event) -> None:
+        super().showEvent(event)
+        if self._stale and self.following:
+            self.refresh()
+
     def _start_pending(self) -> None:
+        self._chosen = self.registrations.chosen if self._pending == self._path else None
         self._path, self._pending = self._pending, None
         self._failed, self._fuse_next, self._review = False, False, None
         self._clear()
@@ -145,7 +200,14 @@ class ReviewScreen(QWidget):
         self._review = review
         self.header.setText(header_text(review))
         fill_node_table(self.node_table, review.stored)
+        self.preop_caption.setText(preop_text(review))
+        fill_table(self.preop_table, preop_rows(review))
+        self.node_tabs.setTabText(1, f"preop nodes ({0 if review.preop is None else len(review.preop)})")
         self.registrations.show_registrations(review.registrations)
+        if self._chosen is not None:                  # read again (Refresh, the live session): the same one chosen
+            self.registrations.choose(self._chosen)
+        if review.session is not None:
+            self.session_read.emit(review.session)
         self.timelines.show_review(review)
         self.scrubber.load(review.path, review.t0_ns)
         self._fuse_next = len(review.imu.t_s) > 0
@@ -180,7 +242,9 @@ class ReviewScreen(QWidget):
             nodes, registrations = len(self._review.nodes), len(self._review.registrations)
             marks = len(self._review.landmarks)
             landmarks = f"{marks} landmark{'' if marks == 1 else 's'}, " if marks else ""
-            self.status.setText(f"{self._path}: {nodes} stored node{'' if nodes == 1 else 's'}, {landmarks}"
+            where = (f"{self._path} (being recorded: shown read-only, read again as nodes are stored)"
+                     if self.following else self._path)
+            self.status.setText(f"{where}: {nodes} stored node{'' if nodes == 1 else 's'}, {landmarks}"
                                 f"{registrations} registration{'' if registrations == 1 else 's'} (as read at "
                                 f"{time.strftime('%H:%M:%S')}; Refresh reads it again)")
             self.scrubber.when_opened(lambda path=self._path: self._announce(path))
@@ -194,6 +258,8 @@ class ReviewScreen(QWidget):
     def _clear(self) -> None:
         self.header.setText("")
         fill_table(self.node_table, [])
+        self.preop_caption.setText("")
+        fill_table(self.preop_table, [])
         self.snapshots.show_pair(None, None)
         self.scrubber.close()
         self.registrations.show_registrations([])
