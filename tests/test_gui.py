@@ -18,7 +18,10 @@ def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
     assert window.statusBar().currentMessage().startswith("demo mode: no hardware")
     assert window.statusBar().currentMessage().endswith(f"recording into {path}")
     first_frame = f"demo mode: no hardware; recording into {path}"       # once the first frame is processed
-    qtbot.waitUntil(lambda: window.statusBar().currentMessage() == first_frame, timeout=60_000)
+    def first_frame_processed():
+        assert window.statusBar().currentMessage() == first_frame            # on a timeout: what it said
+
+    qtbot.waitUntil(first_frame_processed, timeout=60_000)
     assert window.acquisition.isVisible()
     window.shutdown()
 
