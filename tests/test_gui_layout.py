@@ -6,11 +6,12 @@ import time
 
 import numpy as np
 import pytest
+from PySide6.QtCore import QPoint
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QPushButton, QScrollArea, QVBoxLayout, QWidget
 
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
-from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems
+from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems, overlaps
 from snreg_gui.tools.screenshots import SIZES
 
 LANDMARK_NAMES = ("left common iliac artery bifurcation", "right common iliac artery bifurcation",
@@ -25,6 +26,14 @@ CAMERA_LINE = ("camera: 29.8 fps, skew +0.4 ms, tracking 14 ms + insertion 9 ms 
 IMU_LINE = "IMU: stale, 0 Hz, 3 corrupt  STALE (no sample for 4.2 s: check the USB cable of the IMU and its port)"
 INSERTION_LINE = ("camera 171.0 mm, +13.0 mm since calibration, tracked\nthe camera is 7.4 mm off the pivot model: the "
                   "trocar moved or the IMU is off; check both, and calibrate the trocar again if one moved")
+
+
+class TurnedImu:
+    """An IMU stand-in: streaming, level."""
+
+    def snapshot(self):
+        from snreg.imu.monitor import ImuSnapshot
+        return ImuSnapshot("streaming", "", 208.0, 0.0, (12.3, -4.6, 0.0), np.eye(3), 1, 0)
 
 
 def wait(condition, timeout_s: float = 60.0) -> bool:
@@ -96,6 +105,7 @@ def demo(qapp, tmp_path_factory):
     from snreg_gui.app import MainWindow
     folder = tmp_path_factory.mktemp("layout")
     settings = QSettings(str(folder / "settings.ini"), QSettings.Format.IniFormat)
+    began = time.perf_counter_ns()                     # the recording starts with the window
     window = MainWindow(str(folder / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
                         settings=settings)
     window.resize(*SIZES[0])
@@ -106,15 +116,18 @@ def demo(qapp, tmp_path_factory):
     preop_path = folder / "preop.csv"
     write_nodes(NodeSet([f"P{k + 1}" for k in range(6)], list(LABELS), PREOP_XYZ), preop_path,
                 landmarks=NodeSet(list(LANDMARK_NAMES), [""] * 3, LANDMARK_XYZ))
+    span = time.perf_counter_ns() - began
+    stored = [began + round(k * span / 8) for k in range(9)]        # the nine stores spread over the recording
     rng = np.random.default_rng(4)
     shift = np.array([5.0, -3.0, 240.0])
     for k, (xyz, label) in enumerate(zip(PREOP_XYZ, LABELS)):
         node = window.session.add_intraop_node(f"SN{k + 1}", label, xyz + shift + rng.normal(0, 1.5, 3),
-                                               spread_mm=0.42, n_frames=60, counts=1520.0 + k,
+                                               spread_mm=0.42, n_frames=60, counts=1520.0 + k, time_ns=stored[k],
                                                cov_trocar_mm2=np.diag([1.0, 2.0, 9.0]))
         screen.add_node(node)
     for name, xyz in zip(LANDMARK_NAMES, LANDMARK_XYZ):
         node = window.session.add_intraop_node(name, "", xyz + shift, spread_mm=0.5, n_frames=60, kind=LANDMARK,
+                                               time_ns=stored[6 + LANDMARK_NAMES.index(name)],
                                                cov_trocar_mm2=np.eye(3))
         screen.add_node(node)
     panel.auto_rerun.setChecked(False)
@@ -140,4 +153,96 @@ def demo(qapp, tmp_path_factory):
 def test_the_acquisition_and_registration_tabs_show_every_text_whole_at_every_size(demo, tab):
     demo.tabs.setCurrentIndex(tab)
     problems = check_sizes(demo, demo.tabs.tabText(tab))
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("size", [SIZES[0], (1366, 768)])
+def test_the_insertion_warning_appears_without_moving_the_feeds_the_plot_or_the_angles(qtbot, size):
+    from snreg_gui.acquisition.screen import AcquisitionScreen
+    from snreg_gui.common.feed_view import FeedView
+    screen = AcquisitionScreen(TurnedImu())
+    qtbot.addWidget(screen)
+    screen.resize(*size)
+    screen.show()
+    qtbot.waitExposed(screen)
+    tracked = INSERTION_LINE.split("\n")[0]
+    screen.insertion_line.setText(tracked)
+    watched = [*screen.findChildren(FeedView), screen.orientation, screen.angles, screen.insertion_line]
+
+    def geometry():
+        return [(w.mapTo(screen, QPoint(0, 0)), w.size()) for w in watched]
+
+    assert wait(lambda: False, 0.3) is False
+    before = geometry()
+    screen.insertion_line.setText(INSERTION_LINE)              # the orange pivot warning appears
+    assert wait(lambda: False, 0.3) is False
+    assert geometry() == before
+    assert layout_problems(screen) == []
+    screen.insertion_line.setText(tracked)
+    assert wait(lambda: False, 0.3) is False
+    assert geometry() == before
+
+
+def page_problems(wizard, what: str) -> list[str]:
+    return check_sizes(wizard, f"{what} page {wizard.currentId()}")
+
+
+def test_the_device_dialog_and_the_wizard_pages_show_every_text_whole(demo):
+    from snreg_gui.wizards.device_dialog import DeviceDialog
+    dialog = DeviceDialog(None, parent=demo)
+    dialog.show()
+    assert wait(lambda: dialog.refresh_button.isEnabled(), 30)
+    problems = check_sizes(dialog, "device dialog")
+    dialog.reject()
+    demo.wizards.stereo()
+    wizard = demo.wizards.active
+    problems += page_problems(wizard, "stereo")            # setup
+    wizard.next()
+    problems += page_problems(wizard, "stereo")            # capture (calibrate and save need its views: not here)
+    wizard.reject()
+    assert wait(lambda: demo.wizards.active is None, 30)
+    demo.wizards.trocar()
+    wizard = demo.wizards.active
+    problems += page_problems(wizard, "trocar")            # method
+    method = wizard.method_page
+    for button, live in ((None, wizard.pivot_page), (method.tissue_button, wizard.tissue_page),
+                         (method.arc_button, None), (method.manual_button, None)):
+        if button is not None:
+            wizard.back()
+            button.setChecked(True)
+        wizard.next()
+        if live is not None:                               # its feed running (its rendered scene is made first)
+            assert wait(lambda: len(live.samples) >= 1, 240)
+        problems += page_problems(wizard, "trocar")        # pivot, tissue, arc, manual
+    wizard.next()
+    problems += page_problems(wizard, "trocar")            # summary
+    wizard.reject()
+    assert wait(lambda: demo.wizards.active is None, 30)
+    assert not problems, "\n".join(problems)
+
+
+def test_the_review_timeline_labels_lie_apart_at_every_size(demo):
+    """The labels of six nodes and three landmarks of long names, stored over the recording, never overlap."""
+    path = demo.session.path
+    demo.pause_acquisition()
+    demo.session.close()
+    demo.session = None
+    demo.open_for_review(path)
+    review = demo.review
+    demo.tabs.setCurrentWidget(review)
+    assert wait(lambda: review.node_table.rowCount() >= 9 and len(review.timelines.marker_labels()) == 9, 120)
+    problems = []
+    for size in (*SIZES, (1366, 768)):
+        settle(demo, size)
+        labels = [(label.toPlainText(), label.sceneBoundingRect()) for label in review.timelines.marker_labels()]
+        problems += [f"Review {size}: {overlap}" for overlap in overlaps(labels)]
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.xfail(strict=True, reason="the review's node table has columns past its right edge at every size: "
+                                       "review/panels.py belongs to the review issue, left to it")
+def test_the_review_tab_shows_every_text_whole_at_every_size(demo):
+    assert wait(lambda: demo.review.node_table.rowCount() >= 9, 120)      # after the test above opened it
+    demo.tabs.setCurrentWidget(demo.review)
+    problems = check_sizes(demo, "Review")
     assert not problems, "\n".join(problems)

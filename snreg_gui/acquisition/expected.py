@@ -34,7 +34,7 @@ class ExpectedErrors(QWidget):
         self.missing: list = []
         self._node_ids: list[str] = []
         self.missing_list = StatusLine("", 1)
-        self.guidance = StatusLine("", 2)        # live: two lines reserved, so it rarely relayouts
+        self.guidance = StatusLine("", 1)
         self.advice = StatusLine("", 1)
         self.advice.setToolTip("the error source that dominates the stored nodes' own error (their covariances), "
                                "and what lowers it")

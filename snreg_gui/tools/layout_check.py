@@ -116,8 +116,8 @@ def _table_problems(view: QAbstractItemView) -> list[str]:
         return problems
     header = view.horizontalHeader()
     if view.horizontalScrollBar().maximum() > 0:
-        problems.append(f"{_name(view)}: columns past its right edge (a horizontal scroll bar of "
-                        f"{view.horizontalScrollBar().maximum()} px)")
+        problems.append(f"{_name(view)}: columns past its right edge (a horizontal scroll bar, "
+                        f"{view.horizontalScrollBar().maximum()} steps)")
     padding = 2 * view.style().pixelMetric(QStyle.PixelMetric.PM_HeaderMargin) if header.isVisible() else 0
     for column in range(view.columnCount()):
         if view.isColumnHidden(column):
@@ -159,6 +159,18 @@ def _cell_problem(view: QTableWidget, cell, width: int, height: int) -> str | No
     return f"needs {high} px high, has {height}" if high > height + SLACK_PX else None
 
 
+def _list_problem(combo: QComboBox) -> str | None:
+    """A combo box item wider than the list it drops down (Qt elides it in the middle: "right comm...ifurcation")."""
+    texts = [combo.itemText(k) for k in range(combo.count())]
+    if not any(texts):
+        return None
+    view = combo.view()
+    padding = 2 * (combo.style().pixelMetric(QStyle.PixelMetric.PM_FocusFrameHMargin, None, view) + 1) + 8
+    need = max(view.fontMetrics().horizontalAdvance(text) for text in texts) + padding
+    has = max(combo.width(), view.minimumWidth()) - view.verticalScrollBar().sizeHint().width()
+    return f"its list needs {need} px, has {has}" if need > has + SLACK_PX else None
+
+
 def layout_problems(window: QWidget) -> list[str]:
     """Each cut text and each control outside the window's visible area, in words (see the module docstring)."""
     problems = []
@@ -180,6 +192,8 @@ def layout_problems(window: QWidget) -> list[str]:
             problem, text = _label_problem(widget), widget.text()
         elif isinstance(widget, QAbstractButton):
             problem, text = _button_problem(widget), widget.text()
+        elif isinstance(widget, QComboBox):
+            problem = _list_problem(widget)
         elif isinstance(widget, QGroupBox) and widget.title():
             need = _text_width(widget, widget.title()) + 16
             problem = f"title needs {need} px, has {widget.width()}" if need > widget.width() else None
@@ -194,3 +208,10 @@ def layout_problems(window: QWidget) -> list[str]:
         if isinstance(widget, QAbstractItemView) and not isinstance(widget, QHeaderView):
             problems.extend(_table_problems(widget))
     return problems
+
+
+def overlaps(items) -> list[str]:
+    """Each pair of ``items`` ((name, QRectF) in one coordinate system, e.g. scene rects of plot labels) that
+    overlap, in words."""
+    return [f"{a!r} overlaps {b!r}" for k, (a, ra) in enumerate(items) for b, rb in items[k + 1:]
+            if ra.intersected(rb).width() > SLACK_PX and ra.intersected(rb).height() > SLACK_PX]
