@@ -40,7 +40,8 @@ def label_rows(times_s, min_gap_s: float, widths_s=None, max_rows: int = LABEL_R
     """A row for each label (0 = top), so that labels do not overlap (they did as "SNSNSN4", and a landmark's long
     name ran over the next ones): label k, centred on ``times_s[k]``, is ``widths_s[k]`` wide (default 0) and keeps
     ``min_gap_s`` from its neighbours on its row. Each takes the highest row whose last label ends far enough before
-    it, in time order; past ``max_rows`` rows they start again at the top."""
+    it, in time order; when all ``max_rows`` rows are taken, the row whose last label ends first (the least
+    overlap)."""
     times = np.asarray(times_s, dtype=float)
     widths = np.zeros(len(times)) if widths_s is None else np.asarray(widths_s, dtype=float)
     rows = [0] * len(times)
@@ -48,10 +49,12 @@ def label_rows(times_s, min_gap_s: float, widths_s=None, max_rows: int = LABEL_R
     for k in np.argsort(times, kind="stable"):
         start = times[k] - widths[k] / 2
         row = next((r for r, end in enumerate(ends) if start - end >= min_gap_s), len(ends))
-        if row == len(ends):
+        if row == len(ends) and row >= max(max_rows, 1):
+            row = int(np.argmin(ends))
+        elif row == len(ends):
             ends.append(start)
-        ends[row] = times[k] + widths[k] / 2
-        rows[k] = row % max(max_rows, 1)
+        ends[row] = max(ends[row], times[k] + widths[k] / 2)
+        rows[k] = row
     return rows
 
 
