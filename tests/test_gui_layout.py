@@ -51,7 +51,9 @@ def settle(window, size) -> list[str]:
     window.resize(*size)
     for _ in range(5):
         wait(lambda: False, 0.05)
-    return layout_problems(window)
+    grew = [] if window.size().toTuple() == tuple(size) else [
+        f"the window is {window.width()}x{window.height()}: its contents' minimum does not fit the screen"]
+    return grew + layout_problems(window)
 
 
 def check_sizes(window, what: str) -> list[str]:

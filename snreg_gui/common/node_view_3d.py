@@ -72,6 +72,7 @@ class NodeView3D(QWidget):
         self.labels = LabelOverlay(self.view)
         self.view.addItem(_projector_class()(self.labels))
         self.legend = QLabel(legend_html())
+        self.legend.setWordWrap(True)          # on one line it made the registration panel wider than 1024 px
         self._bounds: tuple | None = None
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
