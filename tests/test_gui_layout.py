@@ -242,8 +242,7 @@ CROWDED = pytest.mark.xfail(strict=True, reason="the top plot has room for 3 lab
                                                 "landmark names among six nodes still overlap (left to do)")
 
 
-@pytest.mark.parametrize("size", [pytest.param(SIZES[0], marks=CROWDED), pytest.param((1366, 768), marks=CROWDED),
-                                  SIZES[1]])
+@pytest.mark.parametrize("size", [pytest.param(SIZES[0], marks=CROWDED), (1366, 768), SIZES[1]])
 def test_the_review_timeline_labels_lie_apart(demo, size):
     """The labels of six nodes and three landmarks of long names, stored over the recording, never overlap."""
     review = open_review(demo)
