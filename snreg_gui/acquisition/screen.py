@@ -2,7 +2,7 @@
 
 Why: the technician's one view while stored nodes are collected, read at a glance at 1024x700 as at 1920x1080: the
 tip position, the endoscope angles and the store spread are large numbers (the spread green within the store limit,
-red beyond), status lines are never cut unseen (:mod:`snreg_gui.acquisition.status`), the feeds keep the camera's
+red beyond), status lines word-wrap and are never cut (:mod:`snreg_gui.acquisition.status`), the feeds keep the camera's
 shape (:mod:`snreg_gui.acquisition.live_view`) and the side column is a splitter pane that scrolls rather than grow
 the window. The label and counts typed for a node are cleared once it is stored: the next node is another station. It only displays what the
 :class:`AcquisitionWorker` emits and forwards requests (store, undo, window size, spread limit) back to it; nothing
