@@ -33,9 +33,9 @@ class ExpectedErrors(QWidget):
         self.error_sources = {} if error_sources is None else error_sources
         self.missing: list = []
         self._node_ids: list[str] = []
-        self.missing_list = StatusLine("", 1, 12)
+        self.missing_list = StatusLine("", 1)
         self.guidance = StatusLine("", 1)
-        self.advice = StatusLine("", 1, 5)
+        self.advice = StatusLine("", 1)
         self.advice.setToolTip("the error source that dominates the stored nodes' own error (their covariances), "
                                "and what lowers it")
         layout = QVBoxLayout(self)

@@ -21,6 +21,7 @@ from snreg_gui.acquisition.status import GOOD
 from snreg_gui.acquisition.worker import StoreRequest
 
 NAME_HINT = "name"
+LIST_PADDING_PX = 10         # each side of a name in the drop-down list
 
 
 def is_landmark(node) -> bool:
@@ -77,6 +78,9 @@ class LandmarkPicker(QWidget):
         self.combo.addItems(rest)
         self.combo.setEditText(typed if typed else (first[0] if first else ""))
         self.combo.blockSignals(False)
+        view = self.combo.view()             # the list as wide as its longest name: never "right comm...ifurcation"
+        widest = max((view.fontMetrics().horizontalAdvance(name) for name in self.offered()), default=0)
+        view.setMinimumWidth(widest + 2 * LIST_PADDING_PX + view.verticalScrollBar().sizeHint().width())
 
     def offered(self) -> list[str]:
         """The names in the list, in order (separators left out)."""

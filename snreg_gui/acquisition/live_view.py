@@ -4,15 +4,16 @@ its numbers in the room they leave.
 Why: a feed pane of another shape than the camera's image shows black bands (at 1920x1080 they took a third of the
 feeds). Here the feeds are sized to the image itself, side by side or, when that gives clearly larger images (a
 narrow window), one above the other with the plot beside them; the plot takes whatever room is left, never less
-than its minimum. :func:`arrange` is the rule, a plain function of the pane's size.
+than its minimum. :func:`arrange` is the rule, a plain function of the pane's size; :func:`plot_pane` puts the
+angles and the insertion line beside the plot (the line once lay past the pane's edge at 1024x700).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from PySide6.QtCore import QRect, QSize, Signal
-from PySide6.QtWidgets import QBoxLayout, QWidget
+from PySide6.QtCore import QRect, QSize, Qt, Signal
+from PySide6.QtWidgets import QBoxLayout, QVBoxLayout, QWidget
 
 GAP = 6                     # px between the feeds and around the plot
 MIN_FEED_WIDTH = 160
@@ -46,6 +47,22 @@ def arrange(width: int, height: int, aspect: float, plot_min: QSize = PLOT_MIN, 
     x0 = max((width - 2 * feed_w - gap) // 2, 0)           # centred when the height is what limits them
     return Arrangement((x0, 0, feed_w, feed_h), (x0 + feed_w + gap, 0, feed_w, feed_h),
                        (0, feed_h + gap, width, max(height - feed_h - gap, 0)), False)
+
+
+def plot_pane(plot: QWidget, numbers: QWidget, line: QWidget) -> QWidget:
+    """The orientation ``plot`` with a column beside it (below it when the pane is tall): its ``numbers`` above the
+    insertion ``line``. The column is as wide as its minimum (the line's), the plot takes the rest; the line keeps its
+    height whatever it says, so nothing here moves when a warning appears."""
+    pane = QWidget()
+    box = QBoxLayout(QBoxLayout.Direction.LeftToRight, pane)
+    box.setContentsMargins(0, 0, 0, 0)
+    box.addWidget(plot, 1)
+    column = QVBoxLayout()
+    column.addWidget(numbers, 0, Qt.AlignmentFlag.AlignCenter)
+    column.addWidget(line)
+    column.addStretch(1)
+    box.addLayout(column)
+    return pane
 
 
 class LiveView(QWidget):

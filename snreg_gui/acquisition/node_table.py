@@ -1,8 +1,11 @@
 """The acquisition screen's table of stored nodes: id, label, trocar x/y/z, own expected error, spread, gamma counts.
 
 Why: the technician checks each node as it is stored, in a side column about 350 px wide at 1024x700; every column
-must stay readable there: the label takes the room left, the numbers fit their contents. A stored anatomical landmark
-is listed too, its name as its id and "landmark" as its label (in italics), never taken for a node.
+must stay readable there: the id column is as wide as the widest node id, the label takes the room left, the numbers
+fit their contents. A stored anatomical landmark is listed too, its name as its id and "landmark" as its label (in
+italics), never taken for a node; its name spans the id and label cells, word-wrapped over the lines it needs (a
+long name such as "left common iliac artery bifurcation" once widened the id column and pushed the label to "abe"
+and the numbers off the screen).
 """
 
 from __future__ import annotations
@@ -10,7 +13,7 @@ from __future__ import annotations
 import math
 
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem
+from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QStyle, QTableWidget, QTableWidgetItem
 
 from snreg.landmarks import LANDMARK
 from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP, error_text
@@ -36,8 +39,29 @@ class StoredNodes(QTableWidget):
         header.setMinimumSectionSize(24)
         header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         header.setSectionResizeMode(NODE_COLUMNS.index("label"), QHeaderView.ResizeMode.Stretch)
+        header.setSectionResizeMode(0, QHeaderView.ResizeMode.Fixed)      # the widest node id (_fit_ids)
+        self.setWordWrap(True)
         for column, tip in enumerate(NODE_TIPS):
             self.horizontalHeaderItem(column).setToolTip(tip)
+        self._fit_ids()
+
+    def _fit_ids(self) -> None:
+        """The id column as wide as the widest node id (landmark names span it and the label, wrapped)."""
+        ids = [self.item(row, 0).text() for row in range(self.rowCount()) if self.columnSpan(row, 0) == 1]
+        margin = 2 * self.style().pixelMetric(QStyle.PixelMetric.PM_HeaderMargin) + 8
+        width = max(self.fontMetrics().horizontalAdvance(text) for text in ["id", "SN88", *ids]) + margin
+        if self.horizontalHeader().sectionSize(0) != width:
+            self.horizontalHeader().resizeSection(0, width)
+
+    def _fit_rows(self) -> None:
+        """Landmark rows as high as their wrapped names; node rows one line."""
+        for row in range(self.rowCount()):
+            if self.columnSpan(row, 0) > 1:
+                self.resizeRowToContents(row)
+
+    def resizeEvent(self, event) -> None:                       # noqa: N802 (Qt's name)
+        super().resizeEvent(event)
+        self._fit_rows()
 
     def append(self, node) -> None:
         row = self.rowCount()
@@ -58,7 +82,10 @@ class StoredNodes(QTableWidget):
             self.setItem(row, column, item)
         if landmark:
             self.item(row, 0).setToolTip(f"anatomical landmark {node.id!r}: paired by name, never a node")
+            self.setSpan(row, 0, 1, 2)
         self.item(row, NODE_COLUMNS.index("spread")).setToolTip(f"over {node.n_frames} fixes")
+        self._fit_ids()
+        self._fit_rows()
         self.scrollToBottom()
 
     def remove(self, node_id: str) -> None:
@@ -66,4 +93,5 @@ class StoredNodes(QTableWidget):
         for row in range(self.rowCount()):
             if self.item(row, 0).text() == node_id:
                 self.removeRow(row)
+                self._fit_ids()
                 return

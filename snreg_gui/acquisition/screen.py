@@ -2,7 +2,7 @@
 
 Why: the technician's one view while stored nodes are collected, read at a glance at 1024x700 as at 1920x1080: the
 tip position, the endoscope angles and the store spread are large numbers (the spread green within the store limit,
-red beyond), status lines are never cut unseen (:mod:`snreg_gui.acquisition.status`), the feeds keep the camera's
+red beyond), status lines word-wrap and are never cut (:mod:`snreg_gui.acquisition.status`), the feeds keep the camera's
 shape (:mod:`snreg_gui.acquisition.live_view`) and the side column is a splitter pane that scrolls rather than grow
 the window. The label and counts typed for a node are cleared once it is stored: the next node is another station. It only displays what the
 :class:`AcquisitionWorker` emits and forwards requests (store, undo, window size, spread limit) back to it; nothing
@@ -27,7 +27,7 @@ import time
 
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
-from PySide6.QtWidgets import (QApplication, QBoxLayout, QCheckBox, QDoubleSpinBox, QFormLayout, QFrame, QGroupBox,
+from PySide6.QtWidgets import (QApplication, QCheckBox, QDoubleSpinBox, QFormLayout, QFrame, QGroupBox,
                                QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QScrollArea, QSpinBox,
                                QSplitter, QVBoxLayout, QWidget)
 
@@ -37,7 +37,7 @@ from snreg_gui.acquisition.expected import ExpectedErrors
 from snreg_gui.acquisition.health import camera_health, imu_health
 from snreg_gui.acquisition.insertion_line import InsertionLine
 from snreg_gui.acquisition.landmark_store import LandmarkPicker, LandmarkStoring, is_landmark, near_title, store_what
-from snreg_gui.acquisition.live_view import LiveView
+from snreg_gui.acquisition.live_view import LiveView, plot_pane
 from snreg_gui.acquisition.node_table import StoredNodes
 from snreg_gui.acquisition.orientation_plot import ANGLE_COLOURS, OrientationPlot
 from snreg_gui.acquisition.status import BAD, GOOD, WARN, BigNumber, StatusLine, ValueRow, set_style, spread_colour
@@ -95,19 +95,19 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         self.insertion_line = InsertionLine(untracked)
         self.tip_values = ValueRow(("x", "y", "z"), "-8888.8")
         self.tip_values.setToolTip("the probe tip in the trocar frame, mm")
-        self.tip_trocar = StatusLine("no fix yet", 1, 2)
+        self.tip_trocar = StatusLine("no fix yet", 1)
         self.spread_value = BigNumber("88.88")
         self.spread_value.setToolTip("how far the fixes of the store window spread about their median: within the "
                                      "spread limit (green) Store SN stores, beyond it (red) it refuses")
-        self.video_health, self.imu_health = StatusLine("camera: waiting", 2, 3), StatusLine("", 1, 3)
+        self.video_health, self.imu_health = StatusLine("camera: waiting", 2), StatusLine("", 1)
         self.link_health = StatusLine("", 1)            # the live link to 3D Slicer, shown while it is on
         self.link_health.setVisible(False)
         self.expected = ExpectedErrors(error_sources)
         self.missing_list, self.guidance = self.expected.missing_list, self.expected.guidance
         self.store_button = QPushButton("Store SN")
         self.store_button.setMinimumHeight(self.store_button.sizeHint().height() * 4 // 3)
-        self.store_reason = StatusLine("", 2, 6)      # the insertion's refusal runs long
-        self.store_status = StatusLine("", 2, 4)
+        self.store_reason = StatusLine("", 2)      # the insertion's refusal runs long: it takes more lines
+        self.store_status = StatusLine("", 2)
         self.undo_button = QPushButton("Undo last")
         self.undo_button.setEnabled(False)
         self.undo_button.setToolTip(f"take back the node stored last ({UNDO_SHORTCUT}); the journal keeps it on record")
@@ -147,12 +147,7 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         self._set_store_enabled(False, "waiting for the first frame")
 
     def _layout(self) -> None:
-        plot = QWidget()                       # the plot and the angles beside it (below it when the pane is tall)
-        plot_box = QBoxLayout(QBoxLayout.Direction.LeftToRight, plot)
-        plot_box.setContentsMargins(0, 0, 0, 0)
-        plot_box.addWidget(self.orientation, 1)
-        plot_box.addWidget(self.angles, 0, Qt.AlignmentFlag.AlignCenter)
-        plot_box.addWidget(self.insertion_line)
+        plot = plot_pane(self.orientation, self.angles, self.insertion_line)
         self.live = LiveView(self.left_feed, self.right_feed, plot)
         self.live.arranged.connect(lambda arrangement: self.angles.set_columns(0 if arrangement.stacked else 1))
         column_widget = QWidget()

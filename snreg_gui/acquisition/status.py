@@ -3,8 +3,8 @@
 Why: the technician reads the tip position, the endoscope angles and the store spread at a glance, from a step
 away, while the values change at video rate. A number sits in a label of fixed size (wide enough for its widest
 value), so a new value never relayouts the window (a relayout per frame would stall the GUI thread); a status line
-wraps over a fixed number of lines and, when its text needs more, ends the last line with an ellipsis and shows the
-whole text as its tooltip: cut text is never passed off as the whole.
+word-wraps over the lines it reserves and takes more when its text needs them: never cut, never elided (its advice
+at the end was once only in a tooltip at 1366x768).
 """
 
 from __future__ import annotations
@@ -12,10 +12,9 @@ from __future__ import annotations
 import math
 
 from PySide6.QtCore import QEvent, QRect, Qt
-from PySide6.QtGui import QFont, QFontDatabase, QFontMetrics, QPainter
+from PySide6.QtGui import QFont, QFontDatabase, QPainter
 from PySide6.QtWidgets import QGridLayout, QLabel, QSizePolicy, QWidget
 
-ELLIPSIS = "\u2026"
 NO_VALUE = "\u2014"            # an em dash: no value now (no fix, window not full)
 BIG_SCALE = 1.8                # the large numbers' size, times the application font's
 SPREAD_GOOD, SPREAD_BAD, SPREAD_NONE = "#1a7f1a", "#c00000", "#808080"
@@ -59,69 +58,48 @@ class BigNumber(QLabel):
         self.setText(NO_VALUE if missing else f"{round(value, decimals) + 0.0:.{decimals}f}")   # never "-0.0"
 
 
-def fitted_text(text: str, metrics: QFontMetrics, width: int, lines: int) -> str:
-    """``text`` word-wrapped at ``width`` px if it fits in ``lines`` lines, else cut to fit with an ellipsis at the
-    end (the longest such prefix)."""
-    if width <= 0 or not text:
-        return text
-    limit = lines * metrics.lineSpacing()
-
-    def fits(candidate: str) -> bool:
-        box = metrics.boundingRect(QRect(0, 0, width, 100 * limit), Qt.TextFlag.TextWordWrap, candidate)
-        return box.height() <= limit and box.width() <= width
-
-    if fits(text):
-        return text
-    low, high = 0, len(text)              # the longest prefix that fits with the ellipsis: text[:low]
-    while low < high:
-        middle = (low + high + 1) // 2
-        if fits(text[:middle].rstrip() + ELLIPSIS):
-            low = middle
-        else:
-            high = middle - 1
-    return text[:low].rstrip() + ELLIPSIS
-
-
 class StatusLine(QLabel):
-    """A status text, word-wrapped over ``lines`` lines, growing to ``max_lines`` for a longer text; beyond that its
-    end is an ellipsis and the tooltip holds it whole. ``text()`` is always the whole text; its width never drives
-    the layout, and its height changes only when a new text needs another number of lines (rare, so the layout is
-    not redone at video rate), or grows when the label is first given a width."""
+    """A status text, word-wrapped: at least ``lines`` lines high (reserved, so a usual text never moves what lies
+    below it), and as many more as its text needs at its width; never cut. ``reserve``: a text whose lines are
+    reserved too (the longest the line will say, e.g. a warning that may appear), so that it appears without a
+    relayout. Its width never drives the layout; its height changes only when a new text needs another number of
+    lines (rare, so the layout is not redone at video rate), or grows when the label is first given a width."""
 
-    def __init__(self, text: str = "", lines: int = 1, max_lines: int | None = None, min_width: int = 160):
+    def __init__(self, text: str = "", lines: int = 1, min_width: int = 160, reserve: str = ""):
         super().__init__(text)
-        self.lines, self.max_lines = lines, max(max_lines or lines, lines)
+        self.lines, self.reserve = lines, reserve
         # wrapped when painted: QLabel's own word wrap would give the layout a height-for-width, and a scroll area
         # around it would size to that
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
         self.setMinimumWidth(min_width)
+        self.setToolTip(text)
         self._set_lines(lines)
-
-    def shown_text(self) -> str:
-        """What is painted now: the text, or its beginning with an ellipsis."""
-        return fitted_text(self.text(), self.fontMetrics(), self.contentsRect().width(), self.shown_lines)
 
     def setText(self, text: str) -> None:                       # noqa: N802 (Qt's name)
         if text != self.text():
             super().setText(text)
             self.setToolTip(text)
-            self._set_lines(self._needed_lines())
+            self._set_lines(self.needed_lines())
 
     def resizeEvent(self, event) -> None:                       # noqa: N802
         super().resizeEvent(event)
-        self._set_lines(max(self.shown_lines, self._needed_lines()))     # only grows: no loop with a scroll bar
+        self._set_lines(max(self.shown_lines, self.needed_lines()))     # only grows: no loop with a scroll bar
 
     def changeEvent(self, event) -> None:                       # noqa: N802
         super().changeEvent(event)
         if event.type() == QEvent.Type.FontChange:               # e.g. a style made it bold: its text takes more room
-            self._set_lines(self._needed_lines())
+            self._set_lines(self.needed_lines())
 
-    def _needed_lines(self) -> int:
-        width = self.contentsRect().width()
-        if width <= 0 or self.max_lines == self.lines or not self.text():
+    def needed_lines(self, width: int | None = None) -> int:
+        """The lines its text (and the reserved text) take at ``width`` px (default: its own), at least ``lines``."""
+        width = self.contentsRect().width() if width is None else width
+        if width <= 0:
             return self.lines
-        box = self.fontMetrics().boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap, self.text())
-        return min(max(math.ceil(box.height() / self.fontMetrics().lineSpacing()), self.lines), self.max_lines)
+        spacing = self.fontMetrics().lineSpacing()
+        needed = [math.ceil(self.fontMetrics().boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap,
+                                                            text).height() / spacing)
+                  for text in (self.text(), self.reserve) if text]
+        return max([self.lines, *needed])
 
     def _set_lines(self, lines: int) -> None:
         self.shown_lines = lines
@@ -134,7 +112,7 @@ class StatusLine(QLabel):
         painter.setPen(self.palette().color(self.foregroundRole()))
         painter.setFont(self.font())
         painter.drawText(self.contentsRect(), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop
-                         | Qt.TextFlag.TextWordWrap, self.shown_text())
+                         | Qt.TextFlag.TextWordWrap, self.text())
         painter.end()
 
 

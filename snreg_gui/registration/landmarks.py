@@ -120,10 +120,19 @@ class LandmarkTable(QTableWidget):
                 if line.check.startswith("SUSPECT"):
                     item.setForeground(Qt.GlobalColor.red)
                 self.setItem(r, c, item)
-        rows = min(len(lines), 4)
-        self.setFixedHeight(self.horizontalHeader().sizeHint().height() + rows * self.verticalHeader()
-                            .defaultSectionSize() + 2 * self.frameWidth())
+        self._fit_height()
         self.setVisible(bool(lines))
+
+    def _fit_height(self) -> None:
+        """Rows as high as their word-wrapped names (a long name wraps in a narrow panel rather than be cut), the
+        table as high as its first four rows."""
+        self.resizeRowsToContents()
+        rows = sum(self.rowHeight(r) for r in range(min(self.rowCount(), 4)))
+        self.setFixedHeight(self.horizontalHeader().sizeHint().height() + rows + 2 * self.frameWidth())
+
+    def resizeEvent(self, event) -> None:                       # noqa: N802 (Qt's name)
+        super().resizeEvent(event)
+        self._fit_height()
 
     def column(self, name: str) -> list[str]:
         """The texts of column ``name`` (tests, screenshots)."""

@@ -57,7 +57,6 @@ from snreg_gui.registration.tables import NodeTable, PairingTable, two_line_head
 
 DEFAULT_METHOD = "global"
 VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
-LEFT_MIN_WIDTH = 280        # px: the settings column can be narrowed this far by its splitter
 
 
 def _shown_rows(record: RunRecord) -> list:
@@ -180,7 +179,8 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
         scroll = QScrollArea()
         scroll.setWidgetResizable(True)
         scroll.setWidget(controls)
-        scroll.setMinimumWidth(LEFT_MIN_WIDTH)               # narrower than its contents it scrolls sideways too
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)   # sideways it cut "SPEC"
+        scroll.setMinimumWidth(controls.minimumSizeHint().width() + scroll.verticalScrollBar().sizeHint().width())
         left = QWidget()
         left_layout = QVBoxLayout(left)                  # Run stays visible below the scrolling settings
         left_layout.setContentsMargins(0, 0, 0, 0)

@@ -16,6 +16,7 @@ from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QTableWidget, QTab
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT
 from snreg.registration.report import DOUBT_COLOUR, PairRow, confidence_text
+from snreg_gui.common.table_headers import two_line_headers  # noqa: F401 (the panel takes it from here)
 
 NODE_COLUMNS = ("id", "label", "x mm", "y mm", "z mm")
 PAIR_COLUMNS = ("intraop id", "intraop label", "hot spot", "hot spot label", "with", "distance mm", "expected mm",
@@ -96,15 +97,3 @@ def _configure(table: QTableWidget, columns) -> None:
     table.verticalHeader().setVisible(False)
     table.verticalHeader().setDefaultSectionSize(table.fontMetrics().height() + 6)
     table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
-
-
-def two_line_headers(table) -> None:
-    """Header captions over two lines ("leave-one-out mm" as "leave-one-out" over "mm"), each column as wide as its
-    contents, so no caption is cut in a narrow window; label columns take the room left."""
-    header = table.horizontalHeader()
-    for column in range(table.columnCount()):
-        item = table.horizontalHeaderItem(column)
-        words = item.text().rsplit(" ", 1)
-        item.setText("\n".join(words))
-        mode = QHeaderView.ResizeMode.Stretch if words[-1] == "label" else QHeaderView.ResizeMode.ResizeToContents
-        header.setSectionResizeMode(column, mode)

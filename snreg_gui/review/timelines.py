@@ -32,23 +32,29 @@ _NODE_RING = "#ffd700"          # a node's insertion, at its store
 _LANDMARK_PEN = pg.mkPen(LANDMARK_COLOUR, width=1, style=pg.QtCore.Qt.PenStyle.DotLine)
 LANDMARK_LABEL = "\u25c6 "        # a diamond before a landmark's name on its marker
 PROGRESS_POINTS = 20_000       # IMU points per curve drawn while the fusion is still running
-LABEL_GAP = 0.06               # node labels closer than this fraction of the time span go on different rows
-LABEL_TOP, LABEL_STEP, LABEL_ROWS = 0.95, 0.12, 6     # label rows, as fractions of the top plot's height
+LABEL_GAP_PX = 6               # between two labels on one row
+LABEL_ROWS = 6                 # at most, however high the top plot
 
 
-def label_rows(times_s, min_gap_s: float) -> list[int]:
-    """A row for each node label (0 = top), so that labels closer in time than ``min_gap_s`` are on different
-    rows (they overlapped as "SNSNSN4"): each takes the highest row whose last label is far enough behind it,
-    in time order; past :data:`LABEL_ROWS` rows they start again at the top."""
+def label_rows(times_s, min_gap_s: float, widths_s=None, max_rows: int = LABEL_ROWS) -> list[int]:
+    """A row for each label (0 = top), so that labels do not overlap (they did as "SNSNSN4", and a landmark's long
+    name ran over the next ones): label k, centred on ``times_s[k]``, is ``widths_s[k]`` wide (default 0) and keeps
+    ``min_gap_s`` from its neighbours on its row. Each takes the highest row whose last label ends far enough before
+    it, in time order; when all ``max_rows`` rows are taken, the row whose last label ends first (the least
+    overlap)."""
     times = np.asarray(times_s, dtype=float)
+    widths = np.zeros(len(times)) if widths_s is None else np.asarray(widths_s, dtype=float)
     rows = [0] * len(times)
-    last: list[float] = []                     # the time of the last label on each row
+    ends: list[float] = []                     # where the last label on each row ends
     for k in np.argsort(times, kind="stable"):
-        row = next((r for r, t in enumerate(last) if times[k] - t >= min_gap_s), len(last))
-        if row == len(last):
-            last.append(times[k])
-        last[row] = times[k]
-        rows[k] = row % LABEL_ROWS
+        start = times[k] - widths[k] / 2
+        row = next((r for r, end in enumerate(ends) if start - end >= min_gap_s), len(ends))
+        if row == len(ends) and row >= max(max_rows, 1):
+            row = int(np.argmin(ends))
+        elif row == len(ends):
+            ends.append(start)
+        ends[row] = max(ends[row], times[k] + widths[k] / 2)
+        rows[k] = row
     return rows
 
 
@@ -82,6 +88,8 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self.frame_rate = self._plot(4, "frames (1/s)")
         self.frame_rate.setLabel("bottom", "time since the first sample (s)")
         self.plots = (self.angles, self.tip, self.insertion, self.quality, self.frame_rate)
+        self.angles.vb.sigResized.connect(self._place_labels)
+        self.angles.vb.sigXRangeChanged.connect(self._place_labels)
         for plot in self.plots[1:]:
             plot.setXLink(self.angles)
         self.imu_curves = [self._curve(self.angles, colour, name)
@@ -165,16 +173,35 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         ends.append(np.array([point.t_s for point in stored]))
         span = np.concatenate(ends)
         width = float(np.ptp(span)) if len(span) else 0.0
-        rows = label_rows([point.t_s for point in stored], LABEL_GAP * width)
-        for point, row in zip(stored, rows):
+        for point in stored:
             if point.is_landmark:
                 self.landmark_markers[point.id] = self._add_marker(LANDMARK_LABEL + point.id, point.t_s,
-                                                                   LABEL_TOP - LABEL_STEP * row, _LANDMARK_PEN,
-                                                                   LANDMARK_COLOUR)
+                                                                   pen=_LANDMARK_PEN, colour=LANDMARK_COLOUR)
             else:
-                self.node_markers[point.id] = self._add_marker(point.id, point.t_s, LABEL_TOP - LABEL_STEP * row)
+                self.node_markers[point.id] = self._add_marker(point.id, point.t_s)
         if len(span):
             self.angles.setXRange(float(span.min()), float(span.max()), padding=0.02)
+        self._place_labels()
+
+    def marker_labels(self) -> list:
+        """The labels of the node and landmark markers (on the top plot)."""
+        return [lines[0].label for lines in [*self.node_markers.values(), *self.landmark_markers.values()]]
+
+    def _place_labels(self, *_) -> None:
+        """Each marker's label on the highest row where it covers no other, rows as high as a label from the top of
+        the top plot: measured in pixels, so again whenever the plot is resized or its time range changes."""
+        labels = self.marker_labels()
+        view = self.angles.vb
+        (x0, x1), width_px, height_px = view.viewRange()[0], view.width(), view.height()
+        if not labels or width_px <= 0 or height_px <= 0 or x1 <= x0:
+            return
+        s_per_px = (x1 - x0) / width_px
+        boxes = [label.boundingRect() for label in labels]          # a TextItem's box is in pixels
+        row_px = max(box.height() for box in boxes)
+        rows = label_rows([label.line.value() for label in labels], LABEL_GAP_PX * s_per_px,
+                          [box.width() * s_per_px for box in boxes], min(LABEL_ROWS, max(int(height_px // row_px), 1)))
+        for label, row in zip(labels, rows):
+            label.setPosition(1.0 - min(row * row_px + 2, height_px) / height_px)
 
     def _show_insertion(self, review: SessionReview, period_s: float | None) -> None:
         """The insertion where tracked (breaks where lost or not recorded), the lost stretches at the insertion held,
@@ -233,13 +260,13 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
                 self._dragged(plot.vb.mapSceneToView(event.scenePos()).x())
                 return
 
-    def _add_marker(self, text: str, t_s: float, label_position: float = LABEL_TOP, pen=_MARKER_PEN,
-                    colour: str = "#dddddd") -> list[pg.InfiniteLine]:
-        """A line at ``t_s`` on every plot (dashed grey for a node), labelled ``text`` on the top plot at
-        ``label_position`` (fraction of its height)."""
+    def _add_marker(self, text: str, t_s: float, pen=_MARKER_PEN, colour: str = "#dddddd") -> list[pg.InfiniteLine]:
+        """A line at ``t_s`` on every plot (dashed grey for a node), labelled ``text`` on the top plot (its row set
+        by :meth:`_place_labels`; the text's top at its place)."""
         escaped = text.replace("{", "{{").replace("}", "}}")         # InfiniteLine labels are format strings
         lines = [pg.InfiniteLine(t_s, angle=90, pen=pen, label=escaped if plot is self.angles else None,
-                                 labelOpts={"position": label_position, "color": colour, "fill": (0, 0, 0, 160)})
+                                 labelOpts={"position": 1.0, "color": colour, "fill": (0, 0, 0, 160),
+                                            "anchors": [(0.5, 0), (0.5, 0)]})
                  for plot in self.plots]
         for plot, line in zip(self.plots, lines):
             plot.addItem(line, ignoreBounds=True)

@@ -23,6 +23,7 @@ from snreg.geometry import euler_from_rotation
 from snreg.workflow.tissue_capture import Restarts, TissueSample
 from snreg.workflow.trocar_capture import MIN_SAMPLE_TURN_DEG, BoardFrame, PivotSample
 from snreg_gui.common.feed_view import FeedView
+from snreg_gui.common.table_headers import two_line_headers
 from snreg_gui.common.workers import FitRunner, LiveLoop
 from snreg_gui.wizards.trocar.pages import ChainChoice, PageId
 
@@ -53,6 +54,7 @@ class LivePage(QWizardPage):
         self.sample_count = QLabel("samples: 0")
         self.table = QTableWidget(0, len(_SAMPLE_COLUMNS))
         self.table.setHorizontalHeaderLabels(_SAMPLE_COLUMNS)
+        two_line_headers(self.table)            # all eight columns in the page's right column at 1024x700
         self.estimate = QLabel("")
         self.status = QLabel("")
         self.status.setWordWrap(True)
