@@ -8,7 +8,8 @@ import pytest
 from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, register
-from snreg.registration.report import confidence_text, mapped_preop, pair_expected_mm
+from snreg.registration.report import mapped_preop, pair_expected_mm
+from snreg.registration.wording import confidence_text
 from snreg.session import Session
 from snreg.tracking.uncertainty import ellipsoid_radius_mm
 from snreg.workflow.registration_run import RunRequest, run_registration, save_preop, weighing_text
