@@ -12,6 +12,7 @@ from snreg.simulation.landmarks import LANDMARK_POSITIONS_MM
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import ThreeViewPlot
 from snreg_gui.registration import panel as panel_module
+from snreg_gui.registration.landmarks import NO_CT_LANDMARKS, landmark_lines
 from snreg_gui.registration.panel import RegistrationPanel
 
 TIMEOUT_MS = 15_000
@@ -130,3 +131,15 @@ def test_a_session_keeps_its_preop_landmarks_and_gives_its_stored_ones(qtbot, pa
         assert set(result.landmark_residual_mm) == set(THREE)
         qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
         assert session.preop_landmarks().ids == list(THREE)
+
+
+def test_a_stored_landmark_with_no_ct_landmarks_loaded_says_so_and_how_to_load_them():
+    """Issue 35: not a typo in its name but no CT landmarks at all; with some loaded, an unknown name is checked."""
+    _, _, marks_pre, marks_in = case(4, 1)
+    alone = landmark_lines(None, marks_in)
+    assert [line.check for line in alone] == [NO_CT_LANDMARKS] * 3
+    assert "Landmarks..." in NO_CT_LANDMARKS and "check its name" not in NO_CT_LANDMARKS
+    renamed = NodeSet(["elsewhere"], [""], marks_pre.xyz[:1], frame="LPS")
+    checks = {line.name: line.check for line in landmark_lines(renamed, marks_in)}
+    assert checks == {"elsewhere": "CT only: touch it and store it",
+                      **{name: "not among the CT's landmarks: check its name" for name in THREE}}
