@@ -77,9 +77,10 @@ def cmd_demo(args) -> int:
     print(f"stored {len(out['nodes'])} nodes in {out['frames']} frames into {out['session']}; SPECT {out['spect']}")
     for node in out["nodes"]:
         off = math.dist(node["xyz_trocar"], node["truth_trocar"])
+        check = check_words(node["confidence"])
         print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'none':<4} "
-              f"{node['distance_mm']:6.2f} mm  confidence {confidence_text(node['confidence'])}  ({off:.2f} mm from the "
-              f"truth){'  ' + check_words(node['confidence']) if check_words(node['confidence']) else ''}")
+              f"{node['distance_mm']:6.2f} mm  confidence {confidence_text(node['confidence'])}  "
+              f"({off:.2f} mm from the truth)" + (f"  {check}" if check else ""))
     if out["camera"] == "surgery":
         print(f"the camera slid and turned between nodes; its insertion was "
               f"{'tracked' if out['camera_tracking'] else 'NOT tracked (each node mapped at the calibrated distance)'}")

@@ -74,7 +74,8 @@ class HeadlessResult:
         phantom, no covariances (``snreg register`` uses them by default: :data:`REPEAT_OPTIONS` repeats the demo)."""
         return used_inputs(self.result, labels=labels_given(self.intraop_labels), intraop_cov=False, preop_cov=False,
                            labels_why="none typed", landmarks_why="the phantom has none",
-                           cov_why="the demo registers without them; snreg register uses them unless given --no-covariances")
+                           cov_why="the demo registers without them; snreg register uses them unless given "
+                                   "--no-covariances")
 
     def to_json(self) -> dict:
         """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the

@@ -29,7 +29,8 @@ from snreg.registration.wording import confidence_text, confidence_value, rule_w
 from snreg.tracking.uncertainty import ELLIPSOID_SCALE
 
 __all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line",
-           "node_warnings", "pair_expected_mm", "write_pairs_csv", "registration_figure", "save_report_png", "NO_HOT_SPOT", "FAR_NODE_MM",
+           "node_warnings", "pair_expected_mm", "write_pairs_csv", "registration_figure", "save_report_png",
+           "NO_HOT_SPOT", "FAR_NODE_MM",
            "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
 
 NO_HOT_SPOT = "none"            # shown instead of a preop id for a node from no imaged hot spot (pairing -1)
@@ -147,7 +148,8 @@ def mapped_preop(preop: NodeSet, result: RegistrationResult) -> NodeSet:
 
 
 def pair_expected_mm(intraop: NodeSet, result: RegistrationResult, level: float = 0.9) -> np.ndarray:
-    """(M,) mm per intraop node: the ``level`` quantile (90 % bound; 0.5: its typical value) of its distance from its hot spot's mapped position, were its claim
+    """(M,) mm per intraop node: the ``level`` quantile (90 % bound; 0.5: its typical value) of its distance from its
+    hot spot's mapped position, were its claim
     right and the node left out of the fit (its leave-one-out distance is the figure to compare; its distance within
     the fit is smaller, the fit leaning towards it). The pair's error is modelled as the node's own covariance (when
     every stored node has one: the registration then weighed them by it) plus the hot spot's expected error, taken as

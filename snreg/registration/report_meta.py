@@ -50,7 +50,7 @@ class ReportContext:
     trocar_camera_mm: float | None = None
     chain_version: str = ""
     final_registration: int | None = None     # the session's registration number when it is the one marked final
-    used: str = ""                            # what the registration used, in words (wording.UsedInputs.text); "" unknown
+    used: str = ""                 # what the registration used, in words (wording.UsedInputs.text); "" unknown
     date_utc: str = field(default_factory=_now_utc)
 
     def calibration_line(self) -> str:

@@ -27,7 +27,8 @@ from decimal import ROUND_FLOOR, Decimal
 from snreg.registration import CONFIDENT
 
 __all__ = ["confidence_text", "confidence_value", "CHECK_WORDS", "check_words", "UsedInputs", "used_inputs",
-           "labels_given", "loo_text", "LOO_LEGEND", "PAIRING_RULE_WORDS", "rule_words", "down_words", "HOT_SPOT_LEGEND"]
+           "labels_given", "loo_text", "LOO_LEGEND", "PAIRING_RULE_WORDS", "rule_words", "down_words",
+           "HOT_SPOT_LEGEND"]
 
 CHECK_WORDS = f"below {CONFIDENT:g}: confirm this node's label or store it again"
 HOT_SPOT_LEGEND = ("hot spot: the SPECT node a removed node came from (several may share one: 'with'; none: from no "
@@ -98,7 +99,8 @@ class UsedInputs:
         if not (self.intraop_cov and self.preop_cov):
             whose = ("the hot spots'" if self.intraop_cov else "the stored nodes'" if self.preop_cov
                      else "the nodes' own errors")
-            unused.append(f"{whose} covariances ({self.cov_why})" if sides else f"{whose} (covariances: {self.cov_why})")
+            unused.append(f"{whose} covariances ({self.cov_why})" if sides
+                          else f"{whose} (covariances: {self.cov_why})")
         return used, unused
 
     def text(self) -> str:
@@ -108,7 +110,8 @@ class UsedInputs:
                                            f"not used: {', '.join(unused)}" if unused else "") if part)
 
     def as_json(self) -> dict:
-        return {"labels": self.labels, "landmark_pairs": self.landmark_pairs, "landmarks_suspect": self.landmarks_suspect,
+        return {"labels": self.labels, "landmark_pairs": self.landmark_pairs,
+                "landmarks_suspect": self.landmarks_suspect,
                 "intraop_covariances": self.intraop_cov, "preop_covariances": self.preop_cov, "words": self.text()}
 
 

@@ -104,7 +104,8 @@ def weighing_text(preop: NodeSet, intraop: NodeSet, method: str) -> str:
 
 
 def used_text(request: RunRequest, result: RegistrationResult) -> str:
-    """What a run used, in words (:class:`~snreg.registration.wording.UsedInputs`), saying how to use what it did not."""
+    """What a run used, in words (:class:`~snreg.registration.wording.UsedInputs`), saying how to use what it did
+    not."""
     preop, intraop = request.preop, request.intraop
     given = labels_given(preop.labels) and labels_given(intraop.labels)
     labels_why = ("tick 'use labels' to use them" if given else

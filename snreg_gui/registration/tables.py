@@ -2,9 +2,9 @@
 
 Why: both node sets and the pairing must be readable at a glance; a claim whose confidence is below
 ``CONFIDENT`` is shaded so the technician does not act on it, and its confidence is printed rounded down so the
-digits never say 0.95 on a shaded row, nor 1.00 below 1 (:func:`~snreg.registration.wording.confidence_text`). Each pair's expected
-distance (:func:`~snreg.registration.report.pair_expected_mm`) stands beside its distance. Rows come from the Qt-free
-:func:`snreg.registration.report.pair_rows`, the same rows the CSV and PNG exports use.
+digits never say 0.95 on a shaded row, nor 1.00 below 1 (:func:`~snreg.registration.wording.confidence_text`).
+Each pair's expected distance (:func:`~snreg.registration.report.pair_expected_mm`) stands beside its distance. Rows
+come from the Qt-free :func:`snreg.registration.report.pair_rows`, the same rows the CSV and PNG exports use.
 """
 
 from __future__ import annotations
