@@ -2,6 +2,7 @@
 was used said in every output; leave-one-out beside a right pair's; plain words for the internal terms."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,3 +120,27 @@ def test_a_stored_landmark_without_ct_landmarks_says_none_are_loaded_and_how_to_
                      "them"]
     assert "check its name" in landmark_notes(result, ["left iliac"], ["aortic bifurcation"])[-1]
     assert used_inputs(used, labels=False, intraop_cov=False, preop_cov=False).landmark_pairs == 0
+
+
+def test_the_demos_text_says_what_it_used_how_to_repeat_it_and_cuts_its_confidences(tmp_path, capsys, monkeypatch):
+    """The demo's printed output (its run replaced by a registration of the seeded case, labels typed, one claim made
+    doubtful): the used line, the snreg register options that repeat it, confidences cut, what to check."""
+    import snreg.demo.headless as headless
+
+    xyz, intraop, truth = _case()
+    labels = ["EXT R", "OBT R", "INT R", "EXT L", "OBT L", "SAC L"]
+    result = register(xyz, intraop, initial=truth, preop_labels=labels, intraop_labels=labels)
+    result.confidence = np.array([0.947, 0.9499, 0.95, 0.999, 0.99999, 1.0])
+
+    def fake_run(path, **_):
+        return headless.HeadlessResult(Path(path), Path(path).with_suffix(".dcm"), result, [f"SN{k + 1}" for k in
+                                       range(6)], labels, intraop, [f"P{k + 1}" for k in range(6)], True, 10, intraop)
+
+    monkeypatch.setattr(headless, "run_headless", fake_run)
+    assert main(["demo", "--headless", "-o", str(tmp_path / "d.h5")]) == 0
+    out = capsys.readouterr().out
+    shown = [line.split("confidence ")[1].split()[0] for line in out.splitlines() if "confidence " in line]
+    assert shown == ["0.94", "0.94", "0.95", "0.99", "0.99", "1.00"]
+    assert out.count(f"({CHECK_WORDS})") == 2
+    assert "used: labels (left/right, station)" in out and "the demo registers without them" in out
+    assert f"snreg register {tmp_path / 'd.h5'} --labels --no-covariances" in out
