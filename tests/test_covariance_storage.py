@@ -238,12 +238,14 @@ def test_register_weighs_both_sides_by_their_covariances_and_says_so(tmp_path, r
     assert [n["preop_id"] for n in used["nodes"]] == [f"P{k + 1}" for k in range(6)]
     assert used["rms_mm"] != without["rms_mm"]                    # the weighted fit is another fit
     assert main(["register", str(path)]) == 0
-    assert "covariances: each intraop and preop node weighed by its own" in capsys.readouterr().out
+    assert "used: each stored node's and each hot spot's own error (covariance)" in capsys.readouterr().out
     assert main(["register", str(path), "--no-covariances"]) == 0
-    assert "covariances: not used (--no-covariances)" in capsys.readouterr().out
+    assert "the nodes' own errors (covariances: --no-covariances)" in capsys.readouterr().out.split("not used:")[1]
     with Session.open(path) as session:
         session.preop_nodes().to_csv()
         (tmp_path / "p.csv").write_text(NodeSet(session.preop_nodes().ids, session.preop_nodes().labels,
                                                 session.preop_nodes().xyz).to_csv())
     assert main(["register", str(tmp_path / "p.csv"), str(path)]) == 0
-    assert "covariances: each intraop node weighed by its own (preop nodes have none)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "used: each stored node's own error (covariance)" in out
+    assert "the hot spots' covariances (the preop nodes have none)" in out.split("not used:")[1]

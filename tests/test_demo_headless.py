@@ -43,6 +43,13 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     registered = json.loads(capsys.readouterr().out)
     assert registered["start"]["kind"] == "gravity"
     assert {n["id"]: n["preop_id"] for n in registered["nodes"]} == {n["id"]: n["preop"] for n in out["nodes"]}
+    # issue 35: the two outputs say why their confidences differ, and the demo's options repeat the demo exactly
+    assert out["used"]["labels"] is True and not out["used"]["intraop_covariances"]
+    assert "add --labels" in registered["used"]["words"] and registered["used"]["intraop_covariances"] is True
+    assert out["repeat"] == f"snreg register {path} --labels --no-covariances"
+    assert main(["register", str(path), "--labels", "--no-covariances", "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert [n["confidence"] for n in again["nodes"]] == [n["confidence"] for n in out["nodes"]]
 
 
 def test_demo_refuses_without_headless_and_an_existing_session(tmp_path, capsys):

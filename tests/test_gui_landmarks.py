@@ -12,6 +12,7 @@ from snreg.simulation.landmarks import LANDMARK_POSITIONS_MM
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import ThreeViewPlot
 from snreg_gui.registration import panel as panel_module
+from snreg_gui.registration.landmarks import NO_CT_LANDMARKS, landmark_lines
 from snreg_gui.registration.panel import RegistrationPanel
 
 TIMEOUT_MS = 15_000
@@ -156,3 +157,15 @@ def test_an_out_of_date_result_is_drawn_as_such(qtbot, panel, tmp_path, monkeypa
     assert scene.pairing is None and len(scene.pair_segments()) == 0                     # ... with no pairs drawn
     assert PREOP_OUT_OF_DATE in legend and PREOP_MAPPED not in legend and "paired" not in legend
     assert not np.allclose(scene.preop.xyz, mapped_preop(preop, result).xyz)            # the case shows a difference
+
+
+def test_a_stored_landmark_with_no_ct_landmarks_loaded_says_so_and_how_to_load_them():
+    """Issue 35: not a typo in its name but no CT landmarks at all; with some loaded, an unknown name is checked."""
+    _, _, marks_pre, marks_in = case(4, 1)
+    alone = landmark_lines(None, marks_in)
+    assert [line.check for line in alone] == [NO_CT_LANDMARKS] * 3
+    assert "Landmarks..." in NO_CT_LANDMARKS and "check its name" not in NO_CT_LANDMARKS
+    renamed = NodeSet(["elsewhere"], [""], marks_pre.xyz[:1], frame="LPS")
+    checks = {line.name: line.check for line in landmark_lines(renamed, marks_in)}
+    assert checks == {"elsewhere": "CT only: touch it and store it",
+                      **{name: "not among the CT's landmarks: check its name" for name in THREE}}

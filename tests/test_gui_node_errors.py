@@ -156,6 +156,7 @@ def test_the_automatic_run_after_a_store_gives_the_missing_nodes_expected_errors
     assert [t.preop_index for t in missing.args[0]] == [k for k in range(6) if k not in found]
     assert all(0.0 < t.bound_mm < 60.0 for t in missing.args[0])
     assert "weighed by its own error" in panel.summary.text()
+    assert "\nUsed: " in panel.summary.text() and "not used: labels (" in panel.summary.text()   # issue 35
     assert len(session.registrations()) == 0                                       # automatic runs are not stored
     session.close()
 

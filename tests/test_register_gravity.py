@@ -72,7 +72,9 @@ def test_a_spect_and_a_session_register_from_gravity_with_no_angle_typed(tmp_pat
     status, out, _ = run(capsys, tmp_path / "p.csv", tmp_path / "s.h5")
     assert status == 0
     assert "start: gravity, table tilt 30 deg head down (default), heading searched" in out
-    assert "down intraop (trocar):" in out and "the IMU through the chain's reference" in out
+    assert "gravity at the endoscope (trocar frame):" in out
+    assert "as the IMU on the endoscope measures it, through the trocar calibration" in out
+    assert "chain's reference" not in out and "intraop (trocar)" not in out      # no internal terms (issue 35)
     status, out, _ = run(capsys, tmp_path / "p.csv", tmp_path / "s.h5", "--json")
     doc = json.loads(out)
     assert doc["start"]["kind"] == "gravity"

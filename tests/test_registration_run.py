@@ -8,10 +8,11 @@ import pytest
 from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, register
-from snreg.registration.report import confidence_text, mapped_preop, pair_expected_mm
+from snreg.registration.report import mapped_preop, pair_expected_mm
+from snreg.registration.report_meta import header_lines, read_report_metadata
 from snreg.session import Session
 from snreg.tracking.uncertainty import ellipsoid_radius_mm
-from snreg.workflow.registration_run import RunRequest, run_registration, save_preop, weighing_text
+from snreg.workflow.registration_run import RunRequest, export_file, run_registration, save_preop, weighing_text
 
 
 def ray_covariances(xyz: np.ndarray, along_sd: float, across_sd: float) -> np.ndarray:
@@ -129,8 +130,17 @@ def test_the_mapped_preop_nodes_carry_their_covariances_turned(case):
     assert ray @ turned.cov[0] @ ray == pytest.approx(25.0)
 
 
-@pytest.mark.parametrize("value, text", [(0.9496, "0.94"), (0.95, "0.95"), (0.9999, "0.99"), (1.0, "1.00"),
-                                         (0.29, "0.29"), (0.0, "0.00")])
-def test_a_confidence_is_printed_on_its_own_side_of_the_threshold(value, text):
-    assert confidence_text(value) == text
-    assert (float(confidence_text(value)) >= CONFIDENT) == (value >= CONFIDENT)
+def test_a_run_says_what_it_used_and_its_report_carries_it(case, tmp_path):
+    """Issue 35: every output names the labels, landmarks and covariances it used; the panel shows the record's words
+    and the PNG report's header and metadata carry them."""
+    preop, intraop, initial = case
+    labelled = run_registration(RunRequest(preop, intraop, "global", True, initial, 60.0, 60.0))
+    assert labelled.used == ("used: labels (left/right, station), each stored node's and each hot spot's own error "
+                             "(covariance); not used: landmarks (none named on both the CT and in surgery)")
+    plain = run_registration(RunRequest(NodeSet(preop.ids, preop.labels, preop.xyz), intraop, "global", False,
+                                        initial, 60.0, 60.0))
+    assert "labels (tick 'use labels' to use them)" in plain.used.split("not used:")[1]
+    assert "the hot spots' covariances (the SPECT nodes do not all carry one)" in plain.used
+    path = export_file("report", str(tmp_path / "r.png"), labelled)
+    meta = read_report_metadata(path)
+    assert meta["used"] == labelled.used and labelled.used in header_lines(meta)

@@ -46,6 +46,7 @@ def add_demo_parser(subparsers) -> None:
 
 def cmd_demo(args) -> int:
     from snreg.demo.headless import DemoError, run_headless, spect_path_for
+    from snreg.registration.wording import check_words, confidence_text
     from snreg.session import SessionError
 
     if not args.headless:
@@ -76,13 +77,16 @@ def cmd_demo(args) -> int:
     print(f"stored {len(out['nodes'])} nodes in {out['frames']} frames into {out['session']}; SPECT {out['spect']}")
     for node in out["nodes"]:
         off = math.dist(node["xyz_trocar"], node["truth_trocar"])
+        check = check_words(node["confidence"])
         print(f"  {node['id']:<4} {node['label']:<6} -> preop {node['preop'] or 'none':<4} "
-              f"{node['distance_mm']:6.2f} mm  confidence {node['confidence']:.3f}  ({off:.2f} mm from the truth)")
+              f"{node['distance_mm']:6.2f} mm  confidence {confidence_text(node['confidence'])}  "
+              f"({off:.2f} mm from the truth)" + (f"  {check}" if check else ""))
     if out["camera"] == "surgery":
         print(f"the camera slid and turned between nodes; its insertion was "
               f"{'tracked' if out['camera_tracking'] else 'NOT tracked (each node mapped at the calibrated distance)'}")
     print(f"{out['method']}: RMS after registration {out['rms_mm']:.2f} mm; "
           f"pairing {'matches' if out['pairing_correct'] else 'DOES NOT match'} the phantom's truth")
+    print(f"{out['used']['words']}\n(the same registration again: {out['repeat']})")
     return 0
 
 

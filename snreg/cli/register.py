@@ -3,7 +3,9 @@ intraop nodes and pair them; with a session alone, both node sets and the initia
 
 Each side's covariances (a stored node's own error, a hot spot's from the segmentation; a session's nodes or a CSV's
 ``cov_*`` columns) are given to ``register`` when every node of that side has one; ``--no-covariances`` registers
-without them, for comparison. The output says which were used.
+without them, for comparison. The output says what was used and what not, and why (labels, landmarks, covariances:
+:mod:`snreg.registration.wording`, the words and digits every screen shares): the headless demo registers with the
+labels and without covariances, so ``--labels --no-covariances`` repeats its confidences.
 
 Anatomical landmarks come with the nodes: a CSV's rows of ``kind`` landmark, a markups file's landmark points
 (:mod:`snreg.nodes`), a session's stored and preop landmarks; ``--preop-landmarks``/``--intraop-landmarks`` add a file
@@ -21,7 +23,7 @@ output says which start it used and why."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -56,8 +58,8 @@ def add_register_parser(subparsers) -> None:
                    help="gravity's direction in the preop frame (LPS), the table's tilt included (default: from the "
                         "SPECT's patient position and --tilt, as snreg preop records them)")
     p.add_argument("--down-intraop", type=down_vector, metavar="X,Y,Z",
-                   help="gravity's direction in the intraop (trocar) frame (default: the session's, from the IMU "
-                        "through the chain's reference)")
+                   help="gravity's direction in the intraop (trocar) frame (default: the session's, as the IMU on "
+                        "the endoscope measures it, through the trocar calibration)")
     p.add_argument("--tilt", type=float_range(0.0, MAX_TILT_DEG, "degrees", low_open=False), metavar="DEG",
                    help="the table's head-down tilt (Trendelenburg) that turns the SPECT's down (default: the one "
                         "recorded with the preop nodes: snreg preop's --tilt, else 30)")
@@ -232,7 +234,9 @@ def cmd_register(args) -> int:
     from snreg.registration import CONFIDENT, register
     from snreg.registration.naming import PREOP_MARK, ids_collide, marked_missing, marked_rows, pair_text
     from snreg.registration.landmark_report import landmark_notes, landmark_rows, unpaired_landmarks
-    from snreg.registration.report import missing_nodes, node_warnings, pair_rows
+    from snreg.registration.report import missing_nodes, node_warnings, pair_expected_mm, pair_rows
+    from snreg.registration.wording import (HOT_SPOT_LEGEND, LOO_LEGEND, check_words, confidence_text, down_words,
+                                            loo_text, rule_words)
 
     if args.output:
         check_output_file(args.output, "result")
@@ -259,11 +263,15 @@ def cmd_register(args) -> int:
         raise UserError(str(err)) from None
     rows = pair_rows(preop, intraop, result)
     missing = missing_nodes(preop, result)
+    used = _used(args, result, preop, intraop, covariances)
+    weighed = intraop if covariances["intraop"] is not None else replace(intraop, cov=None)
+    typical, bound = (pair_expected_mm(weighed, result, level) for level in (0.5, 0.9))
     doc = {"method": result.method, "pairing_rule": result.pairing_rule, "rms_mm": result.rms_mm,
            "confident_threshold": CONFIDENT, "intraop_from_preop": result.transform.tolist(),
-           "initial": result.initial.tolist(), "start": start.as_json(),
+           "initial": result.initial.tolist(), "start": start.as_json(), "used": used.as_json(),
            "covariances": {side: covariances[side] is not None for side in ("intraop", "preop")},
-           "nodes": [row.as_json() for row in rows],
+           "nodes": [{**row.as_json(), "leave_one_out_typical_mm": _mm(typical[k]), "leave_one_out_bound_mm":
+                      _mm(bound[k])} for k, row in enumerate(rows)],
            "missing": [node.as_json() for node in missing],
            "warnings": node_warnings(rows) + landmark_notes(result, marks[0].ids, marks[1].ids),
            "landmark_sd_mm": args.landmark_sd, "landmarks": [row.as_json() for row in landmark_rows(result)],
@@ -274,23 +282,25 @@ def cmd_register(args) -> int:
     if args.json:
         print(json.dumps(doc))
         return 0
-    print(f"method {result.method}, RMS {result.rms_mm:.2f} mm, pairing rule {result.pairing_rule}")
+    print(f"method {result.method}, RMS {result.rms_mm:.2f} mm; pairing: {rule_words(result.pairing_rule)}")
     print(start.words)
     if start.gravity is not None:
         for side, frame, down, source in (("preop", "LPS", start.gravity.preop, start.gravity.preop_source),
                                           ("intraop", "trocar", start.gravity.intraop, start.gravity.intraop_source)):
-            print(f"  down {side} ({frame}): {', '.join(f'{v:.3f}' for v in down)}, {source}")
-    print(_covariance_text(covariances, preop, intraop, args.no_covariances))
+            print(f"  {down_words(side)}: {', '.join(f'{v:.3f}' for v in down)}, {source}")
+    print(used.text())
     if ids_collide(preop.ids, intraop.ids):
         print(f"the preop ids repeat intraop ids: preop nodes are shown as {PREOP_MARK}<id>")
     shown = marked_rows(rows, preop.ids)
     width = max([len("intraop -> hot spot")] + [len(pair_text(row)) for row in shown])
-    print(f"{'intraop -> hot spot':<{width}} {'labels':<21} {'dist mm':>8} {'loo mm':>7} {'conf':>6}")
-    for row in shown:
-        mark = "" if row.confident else "  (check)"
+    loo = [loo_text(row.leave_one_out_mm, typical[k], bound[k]) for k, row in enumerate(shown)]
+    loo_width = max([len("loo mm")] + [len(text) for text in loo])
+    print(f"{'intraop -> hot spot':<{width}} {'labels':<21} {'dist mm':>8} {'loo mm':<{loo_width}} {'conf':>5}")
+    for row, loo_shown in zip(shown, loo):
         labels = f"{row.intraop_label or '-'} -> {row.preop_label or '-'}" if row.paired else row.intraop_label
-        print(f"{pair_text(row):<{width}} {labels:<21} "
-              f"{row.distance_mm:>8.1f} {row.leave_one_out_mm:>7.1f} {row.confidence:>6.2f}{mark}")
+        mark = check_words(row.confidence)
+        print(f"{pair_text(row):<{width}} {labels:<21} {row.distance_mm:>8.1f} {loo_shown:<{loo_width}} "
+              f"{confidence_text(row.confidence):>5}" + (f"  {mark}" if mark else ""))
     for node in marked_missing(missing, intraop.ids, preop.ids):
         x, y, z = node.mapped_xyz
         print(f"missing {node.preop_id} ({node.preop_label or 'no label'}): expected at ({x:.1f}, {y:.1f}, {z:.1f}) mm, "
@@ -298,10 +308,31 @@ def cmd_register(args) -> int:
     _print_landmarks(landmark_rows(result), args.landmark_sd)
     for text in node_warnings(shown) + landmark_notes(result, marks[0].ids, marks[1].ids):
         print(f"warning: {text}")
-    print("hot spot: the SPECT node a removed node came from (several may share one: 'with'; none: from no imaged "
-          "hot spot);\nloo: the node's distance when the other pairs alone register (a large value flags a suspect "
-          "node)")
+    print(f"{HOT_SPOT_LEGEND};\n{LOO_LEGEND}")
     return 0
+
+
+def _mm(value: float):
+    """mm for JSON: 3 decimals, NaN as null."""
+    return None if value != value else round(float(value), 3)
+
+
+def _used(args, result, preop, intraop, covariances: dict):
+    """What this registration used (:class:`~snreg.registration.wording.UsedInputs`), each absent input with why and
+    the option that would add it."""
+    from snreg.registration.wording import labels_given, used_inputs
+
+    lacking = [f"the {side} nodes carry none" for side, nodes in (("preop", preop), ("intraop", intraop))
+               if not labels_given(nodes.labels)]
+    labels_why = "; ".join(lacking) if lacking else "not asked for: add --labels to forbid left/right crossings"
+    if args.no_covariances:
+        cov_why = "--no-covariances"
+    else:
+        cov_why = "; ".join(f"the {side} nodes {'have none' if nodes.cov is None else 'lack some'}"
+                            for side, nodes in (("intraop", intraop), ("preop", preop)) if covariances[side] is None)
+    return used_inputs(result, labels=args.labels and not lacking, intraop_cov=covariances["intraop"] is not None,
+                       preop_cov=covariances["preop"] is not None, labels_why=labels_why, cov_why=cov_why,
+                       landmarks_why="none named on both sides; --preop-landmarks and --intraop-landmarks add them")
 
 
 def _no_fit_text(args, start: _Start) -> str:
@@ -335,15 +366,3 @@ def _covariances(preop, intraop, ignore: bool) -> dict:
     if ignore:
         return {"intraop": None, "preop": None}
     return {"intraop": intraop.known_cov, "preop": preop.known_cov}
-
-
-def _covariance_text(covariances: dict, preop, intraop, ignore: bool) -> str:
-    """One line: which sides' own covariances weighed the nodes, and why a side's did not."""
-    if ignore:
-        return "covariances: not used (--no-covariances); every node weighed alike"
-    used = [side for side in ("intraop", "preop") if covariances[side] is not None]
-    missing = [f"{side} nodes {'have none' if nodes.cov is None else 'lack some'}"
-               for side, nodes in (("intraop", intraop), ("preop", preop)) if covariances[side] is None]
-    text = f"covariances: each {' and '.join(used)} node weighed by its own" if used else \
-        "covariances: none used; every node weighed alike"
-    return f"{text} ({'; '.join(missing)})" if missing else text

@@ -33,11 +33,15 @@ from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import pairs_line
 from snreg.registration.report import pair_table
+from snreg.registration.wording import confidence_value, labels_given, used_inputs
 from snreg.session import Session
 from snreg.workflow.acquisition import STILL_SPREAD_MM, Acquisition, ImuReading
 from snreg.workflow.registration_start import session_gravity
 
 N_NODES = len(NODE_CENTRES_MM)
+# The demo registers with the labels typed on the phantom and without the nodes' covariances; ``snreg register`` with
+# these options repeats it (its defaults differ: each node's covariance, no labels), as the output says.
+REPEAT_OPTIONS = "--labels --no-covariances"
 _IMU_WAIT_S = 5.0
 _TOURS = 3                 # of the nodes at most, before giving up (a loaded computer skips frames: rests miss nodes)
 
@@ -67,6 +71,14 @@ class HeadlessResult:
     link_calls: int = 0
     intraop_cov: np.ndarray | None = None         # (M, 3, 3) each stored node's covariance, mm^2, trocar frame
 
+    def used(self):
+        """What the demo's registration used (:class:`~snreg.registration.wording.UsedInputs`): the labels typed on the
+        phantom, no covariances (``snreg register`` uses them by default: :data:`REPEAT_OPTIONS` repeats the demo)."""
+        return used_inputs(self.result, labels=labels_given(self.intraop_labels), intraop_cov=False, preop_cov=False,
+                           labels_why="none typed", landmarks_why="the phantom has none",
+                           cov_why="the demo registers without them; snreg register uses them unless given "
+                                   "--no-covariances")
+
     def to_json(self) -> dict:
         """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the
         API; each node with ``truth_trocar``, the simulator's truth."""
@@ -75,11 +87,12 @@ class HeadlessResult:
                   "xyz_trocar": [round(float(v), 3) for v in self.intraop_xyz[k]],
                   "truth_trocar": [round(float(v), 3) for v in self.truth_trocar[k]],
                   "preop": row.preop_id if row.paired else None, "distance_mm": round(row.distance_mm, 3),
-                  "confidence": round(row.confidence, 4),
+                  "confidence": confidence_value(row.confidence),
                   "cov_trocar_mm2": None if self.intraop_cov is None else np.round(self.intraop_cov[k], 4).tolist()}
                  for k, row in enumerate(rows)]
         return {"rms_mm": round(float(self.result.rms_mm), 3), "pairing": [int(v) for v in self.result.pairing],
                 "nodes": nodes, "method": self.result.method, "pairing_correct": self.pairing_correct,
+                "used": self.used().as_json(), "repeat": f"snreg register {self.session_path} {REPEAT_OPTIONS}",
                 "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames,
                 "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
                 "spect": str(self.spect_path)}

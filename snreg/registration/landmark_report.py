@@ -73,6 +73,12 @@ def landmark_notes(result, preop_names=(), intraop_names=()) -> list[str]:
     unpaired = unpaired_landmarks(preop_names, intraop_names)
     notes += [f"landmark {name!r} is on the CT only: touch it with the probe and store it to use it"
               for name in unpaired["preop"]]
-    notes += [f"landmark {name!r} was stored in surgery but is not among the CT's landmarks: check its name"
-              for name in unpaired["intraop"]]
+    if unpaired["intraop"] and not set(preop_names or ()):
+        stored = ", ".join(map(repr, unpaired["intraop"]))
+        notes.append(f"landmark{'s' * (len(unpaired['intraop']) > 1)} {stored} stored in surgery but no CT landmarks "
+                     "are loaded: load the CT's landmarks (a 3D Slicer point list, or a node file's landmark rows) "
+                     "with the preop nodes to use them")
+    else:
+        notes += [f"landmark {name!r} was stored in surgery but is not among the CT's landmarks: check its name"
+                  for name in unpaired["intraop"]]
     return notes

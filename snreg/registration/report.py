@@ -17,7 +17,6 @@ from __future__ import annotations
 import csv
 import json
 from dataclasses import dataclass
-from decimal import ROUND_FLOOR, Decimal
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +25,12 @@ from snreg import geometry
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT, RegistrationResult
 from snreg.registration.report_meta import ReportContext, header_lines, png_text_chunks, report_metadata, sidecar_path
+from snreg.registration.wording import confidence_text, confidence_value, rule_words
 from snreg.tracking.uncertainty import ELLIPSOID_SCALE
 
 __all__ = ["PairRow", "MissingNode", "missing_nodes", "pair_table", "pair_rows", "mapped_preop", "summary_line",
-           "node_warnings", "confidence_text", "pair_expected_mm", "write_pairs_csv", "registration_figure", "save_report_png", "NO_HOT_SPOT", "FAR_NODE_MM",
+           "node_warnings", "pair_expected_mm", "write_pairs_csv", "registration_figure", "save_report_png",
+           "NO_HOT_SPOT", "FAR_NODE_MM",
            "VIEWS", "REPORT_SIZE_IN", "REPORT_DPI"]
 
 NO_HOT_SPOT = "none"            # shown instead of a preop id for a node from no imaged hot spot (pairing -1)
@@ -77,7 +78,7 @@ class PairRow:
         return {"id": self.intraop_id, "label": self.intraop_label,
                 "preop_id": self.preop_id if self.paired else None, "preop_label": self.preop_label if self.paired else None,
                 "shared_with": list(self.shared_with),
-                "distance_mm": round(self.distance_mm, 3), "confidence": round(self.confidence, 4),
+                "distance_mm": round(self.distance_mm, 3), "confidence": confidence_value(self.confidence),
                 "confident": self.confident,
                 "leave_one_out_mm": None if np.isnan(self.leave_one_out_mm) else round(self.leave_one_out_mm, 3)}
 
@@ -146,21 +147,16 @@ def mapped_preop(preop: NodeSet, result: RegistrationResult) -> NodeSet:
                        [f"preop nodes mapped by a {result.method} registration (RMS {result.rms_mm:.2f} mm)"])
 
 
-def confidence_text(confidence: float) -> str:
-    """A claim's confidence with two decimals rounded down, so that what is printed lies on the same side of
-    ``CONFIDENT`` as the value itself: 0.9496 (not confident) reads 0.94, never a 0.95 shaded as doubtful."""
-    return str(Decimal(repr(float(confidence))).quantize(Decimal("0.01"), rounding=ROUND_FLOOR))
-
-
-def pair_expected_mm(intraop: NodeSet, result: RegistrationResult) -> np.ndarray:
-    """(M,) mm per intraop node: the 90 % bound on its distance from its hot spot's mapped position, were its claim
+def pair_expected_mm(intraop: NodeSet, result: RegistrationResult, level: float = 0.9) -> np.ndarray:
+    """(M,) mm per intraop node: the ``level`` quantile (90 % bound; 0.5: its typical value) of its distance from its
+    hot spot's mapped position, were its claim
     right and the node left out of the fit (its leave-one-out distance is the figure to compare; its distance within
     the fit is smaller, the fit leaning towards it). The pair's error is modelled as the node's own covariance (when
     every stored node has one: the registration then weighed them by it) plus the hot spot's expected error, taken as
     isotropic with the 90 % radius T of ``result.target_error_mm`` (the fit's error there, the hot spot's own and the
     unmodelled error: T / 2.50 per axis); the bound is the 90th percentile of that error's length. Without the nodes'
-    covariances it is T itself (T then holds the one error all nodes share). NaN for a node from no hot spot, or
-    without target errors."""
+    covariances it is T itself at 90 % (T then holds the one error all nodes share; another ``level``: that error's
+    quantile). NaN for a node from no hot spot, or without target errors."""
     expected = np.full(len(intraop), np.nan)
     if result.target_error_mm is None:
         return expected
@@ -168,7 +164,9 @@ def pair_expected_mm(intraop: NodeSet, result: RegistrationResult) -> np.ndarray
     for m, n in enumerate(np.asarray(result.pairing, dtype=int)[: len(intraop)]):
         if n >= 0:
             spot = (result.target_error_mm[n] / ELLIPSOID_SCALE) ** 2 * np.eye(3)
-            expected[m] = result.target_error_mm[n] if covariances is None else _length_quantile(covariances[m] + spot)
+            own = np.zeros((3, 3)) if covariances is None else covariances[m]
+            expected[m] = (result.target_error_mm[n] if covariances is None and level == 0.9
+                           else _length_quantile(own + spot, level))
     return expected
 
 
@@ -192,7 +190,7 @@ def write_pairs_csv(path, preop: NodeSet, intraop: NodeSet, result: Registration
         writer.writerow(_CSV_COLUMNS)
         for row in rows:
             writer.writerow([row.intraop_id, row.intraop_label, row.preop_id if row.paired else "", row.preop_label,
-                             " ".join(row.shared_with), f"{row.distance_mm:.3f}", f"{row.confidence:.4f}",
+                             " ".join(row.shared_with), f"{row.distance_mm:.3f}", confidence_text(row.confidence, 4),
                              int(row.confident)])
     return path
 
@@ -287,8 +285,8 @@ def registration_figure(preop: NodeSet, intraop: NodeSet, result: RegistrationRe
                                           "distance mm", "confidence"])
         table.auto_set_font_size(False)
         table.set_fontsize(9)
-    table_ax.set_title(f"method {result.method}, pairing rule {result.pairing_rule}, RMS {result.rms_mm:.2f} mm; "
-                       f"shaded: confidence below {CONFIDENT:g}", fontsize=9)
+    table_ax.set_title(f"method {result.method} ({rule_words(result.pairing_rule)}), RMS {result.rms_mm:.2f} mm; "
+                       f"shaded: confidence below {CONFIDENT:g}, printed rounded down", fontsize=9)
     for k, text in enumerate(warnings):
         figure.text(0.01, (notes_in - 0.1 - _HEADER_LINE_IN * (k + 0.8)) / height, f"WARNING: {text}",
                     fontsize=9, color=INTRAOP_COLOUR)

@@ -23,6 +23,7 @@ import numpy as np
 
 from snreg import __version__
 from snreg.registration import RegistrationResult
+from snreg.registration.wording import rule_words
 
 __all__ = ["ReportContext", "report_metadata", "header_lines", "png_text_chunks", "read_report_metadata",
            "sidecar_path", "REPORT_KEY", "REPORT_FORMAT"]
@@ -49,6 +50,7 @@ class ReportContext:
     trocar_camera_mm: float | None = None
     chain_version: str = ""
     final_registration: int | None = None     # the session's registration number when it is the one marked final
+    used: str = ""                 # what the registration used, in words (wording.UsedInputs.text); "" unknown
     date_utc: str = field(default_factory=_now_utc)
 
     def calibration_line(self) -> str:
@@ -77,7 +79,7 @@ def report_metadata(result: RegistrationResult, rows, missing, context: ReportCo
             "stereo_rms_px": context.stereo_rms_px, "stereo_views": context.stereo_views,
             "stereo_created_utc": context.stereo_created_utc, "stereo_version": context.stereo_version,
             "trocar_camera_mm": context.trocar_camera_mm, "chain_version": context.chain_version,
-            "final_registration": context.final_registration,
+            "final_registration": context.final_registration, "used": context.used,
             "method": result.method, "pairing_rule": result.pairing_rule, "rms_mm": round(float(result.rms_mm), 4),
             "n_intraop": len(rows), "n_paired": sum(row.paired for row in rows),
             "n_extra": sum(not row.paired for row in rows), "missing_preop_ids": [m.preop_id for m in missing],
@@ -92,10 +94,11 @@ def header_lines(meta: dict) -> list[str]:
             f"snreg {meta['snreg_version']}",
             f"session {meta['session_file'] or '(no session file)'}",
             f"calibration: {meta['calibration']}",
-            f"method {meta['method']} (pairing rule {meta['pairing_rule']}): RMS {meta['rms_mm']:.2f} mm, "
+            f"method {meta['method']} ({rule_words(meta['pairing_rule'])}): RMS {meta['rms_mm']:.2f} mm, "
             f"{meta['n_paired']} of {meta['n_intraop']} intraop nodes paired, {meta['n_extra']} extra, "
             f"{len(missing)} preop node{'' if len(missing) == 1 else 's'} missing"
-            + (f" ({', '.join(missing)})" if missing else "")]
+            + (f" ({', '.join(missing)})" if missing else ""),
+            meta.get("used") or "what the registration used (labels, landmarks, covariances) is not recorded"]
 
 
 def png_text_chunks(meta: dict) -> dict[str, str]:

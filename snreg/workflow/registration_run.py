@@ -22,6 +22,7 @@ from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import mapped_preop, save_report_png, write_pairs_csv
 from snreg.registration.report_meta import ReportContext, sidecar_path
+from snreg.registration.wording import labels_given, used_inputs
 from snreg.session import Session, SessionError
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.registration_start import GravityStart
@@ -79,6 +80,7 @@ class RunRecord:
     intraop_landmarks: NodeSet | None = None
     weighing: str = ""
     start: str = ""                     # where the search started, in words ("" for a stored result)
+    used: str = ""                      # labels, landmarks, covariances used, in words ("" for a stored result)
 
 
 def weighing_text(preop: NodeSet, intraop: NodeSet, method: str) -> str:
@@ -99,6 +101,21 @@ def weighing_text(preop: NodeSet, intraop: NodeSet, method: str) -> str:
     if method != "global" and (intraop_used or preop_used):
         text += f"; {method} fits without them, its confidence and expected errors use them"
     return text[0].upper() + text[1:] + "."
+
+
+def used_text(request: RunRequest, result: RegistrationResult) -> str:
+    """What a run used, in words (:class:`~snreg.registration.wording.UsedInputs`), saying how to use what it did
+    not."""
+    preop, intraop = request.preop, request.intraop
+    given = labels_given(preop.labels) and labels_given(intraop.labels)
+    labels_why = ("tick 'use labels' to use them" if given else
+                  "the " + " and the ".join(side for side, nodes in (("SPECT nodes", preop), ("stored nodes", intraop))
+                                            if not labels_given(nodes.labels)) + " carry none")
+    missing = [side for side, nodes in (("stored", intraop), ("SPECT", preop)) if nodes.known_cov is None]
+    return used_inputs(result, labels=request.use_labels and given, intraop_cov=intraop.known_cov is not None,
+                       preop_cov=preop.known_cov is not None, labels_why=labels_why,
+                       landmarks_why="none named on both the CT and in surgery",
+                       cov_why=f"the {' and '.join(missing)} nodes do not all carry one").text()
 
 
 def save_preop(session: Session, nodes: NodeSet, landmarks: NodeSet | None = None,
@@ -182,7 +199,8 @@ def _run(request: RunRequest) -> RunRecord:
                       down=None if gravity is None else gravity.down)
     record = RunRecord(preop, intraop, result, preop_landmarks=request.preop_landmarks,
                        intraop_landmarks=request.intraop_landmarks,
-                       weighing=weighing_text(preop, intraop, request.method), start=request.start)
+                       weighing=weighing_text(preop, intraop, request.method), start=request.start,
+                       used=used_text(request, result))
     if request.session is None:
         return record
     if not request.session.writable:
@@ -239,7 +257,7 @@ def export_file(kind: str, path: str, record: RunRecord, context: ReportContext 
                         landmarks=marks)
         else:
             shown = replace(record.preop, ids=shown_preop_ids(record.preop.ids, record.intraop.ids))   # "P:SN4"
-            context = replace(context or ReportContext(), final_registration=record.final_n)
+            context = replace(context or ReportContext(), final_registration=record.final_n, used=record.used)
             save_report_png(partial, shown, record.intraop, record.result, title=final.capitalize(), context=context)
             os.replace(sidecar_path(partial), sidecar_path(path))
         os.replace(partial, path)

@@ -18,7 +18,7 @@ from snreg.preop.gravity import PreopDown
 
 __all__ = ["GravityStart", "INTRAOP_SOURCE", "gravity_start", "session_gravity"]
 
-INTRAOP_SOURCE = "the IMU through the chain's reference"
+INTRAOP_SOURCE = "as the IMU on the endoscope measures it, through the trocar calibration"
 
 
 @dataclass(frozen=True, eq=False)

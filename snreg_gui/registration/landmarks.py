@@ -23,6 +23,7 @@ from snreg.nodes import NodeFile, NodeSet
 from snreg.registration.landmark_report import landmark_notes, landmark_rows, unchecked_note
 from snreg.workflow.registration_run import RunRecord, RunRequest
 
+NO_CT_LANDMARKS = "no CT landmarks loaded: load them with Landmarks... beside the preop nodes"
 MIN_POINTS = 3          # nodes plus landmark pairs a registration needs, at least one of them a node (DESIGN §4)
 LANDMARK_COLUMNS = ("landmark", "CT", "surgery", "dist (mm)", "loo (mm)", "check")
 LANDMARK_TIPS = ("anatomical landmark, paired by name (never a hot spot)", "found on the CT (with the preop nodes)",
@@ -69,8 +70,10 @@ def landmark_lines(preop: NodeSet | None, intraop: NodeSet | None, result=None) 
             check = "SUSPECT: left out of the fit"
         elif name not in touched:
             check = "CT only: touch it and store it"
+        elif not ct:
+            check = NO_CT_LANDMARKS
         elif name not in ct:
-            check = "not on the CT: check its name"
+            check = "not among the CT's landmarks: check its name"
         else:
             check = "" if row is not None or result is None else "not used"
         lines.append(LandmarkLine(name, name in ct, name in touched, math.nan if row is None else row.residual_mm,

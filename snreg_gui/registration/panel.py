@@ -366,6 +366,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
         self.pairing_table.setEnabled(record is not None)
         self.summary.setText("no registration yet" if record is None else "\n".join(
             [summary_line(record.result, rows)] + [record.start] * bool(record.start)
+            + [record.used[:1].upper() + record.used[1:]] * bool(record.used)
             + [record.weighing] * bool(record.weighing)
             + [f"WARNING: {text}" for text in node_warnings(rows)]))
         self._landmark_summary(record)

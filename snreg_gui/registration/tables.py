@@ -2,9 +2,9 @@
 
 Why: both node sets and the pairing must be readable at a glance; a claim whose confidence is below
 ``CONFIDENT`` is shaded so the technician does not act on it, and its confidence is printed rounded down so the
-digits never say 0.95 on a shaded row (:func:`~snreg.registration.report.confidence_text`). Each pair's expected
-distance (:func:`~snreg.registration.report.pair_expected_mm`) stands beside its distance. Rows come from the Qt-free
-:func:`snreg.registration.report.pair_rows`, the same rows the CSV and PNG exports use.
+digits never say 0.95 on a shaded row, nor 1.00 below 1 (:func:`~snreg.registration.wording.confidence_text`).
+Each pair's expected distance (:func:`~snreg.registration.report.pair_expected_mm`) stands beside its distance. Rows
+come from the Qt-free :func:`snreg.registration.report.pair_rows`, the same rows the CSV and PNG exports use.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QTableWidget, QTab
 
 from snreg.nodes import NodeSet
 from snreg.registration import CONFIDENT
-from snreg.registration.report import DOUBT_COLOUR, PairRow, confidence_text
+from snreg.registration.report import DOUBT_COLOUR, PairRow
+from snreg.registration.wording import CHECK_WORDS, confidence_text
 from snreg_gui.common.table_headers import two_line_headers  # noqa: F401 (the panel takes it from here)
 
 NODE_COLUMNS = ("id", "label", "x mm", "y mm", "z mm")
@@ -63,7 +64,8 @@ class PairingTable(QTableWidget):
             "the other stored nodes that came from the same hot spot (SPECT shows nodes closer than 10-15 mm as one)")
         self.horizontalHeaderItem(PAIR_COLUMNS.index("expected mm")).setToolTip(EXPECTED_TIP)
         self.horizontalHeaderItem(PAIR_COLUMNS.index("confidence")).setToolTip(
-            f"the probability that the claim is right, rounded down; below {CONFIDENT:g} the row is shaded")
+            f"the probability that the claim is right, rounded down (1.00 only when certain); below {CONFIDENT:g} the "
+            "row is shaded: confirm that node's label or store it again")
 
     def selected_intraop_ids(self) -> list[str]:
         """The intraop ids of the selected rows."""
@@ -82,7 +84,7 @@ class PairingTable(QTableWidget):
                 item = QTableWidgetItem(text)
                 if not pair.confident:
                     item.setBackground(doubt)
-                    item.setToolTip(f"confidence {pair.confidence:.4f} is below {CONFIDENT:g}: check this claim")
+                    item.setToolTip(f"confidence {confidence_text(pair.confidence, 4)} is {CHECK_WORDS}")
                 self.setItem(row, column, item)
 
 

@@ -22,7 +22,7 @@ from PySide6.QtWidgets import (QAbstractItemView, QHBoxLayout, QHeaderView, QLab
                                QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget)
 
 from snreg.registration.naming import marked_rows, pair_text
-from snreg.registration.report import confidence_text
+from snreg.registration.wording import confidence_text
 from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
 from snreg_gui.common.feed_view import FeedView
 from snreg_gui.common.node_error import ERROR_CAPTION, error_text
