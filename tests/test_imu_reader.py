@@ -27,7 +27,7 @@ from snreg.imu.fusion import Fusion, fuse_arrays
 from snreg.imu.protocol import ImuSample, StreamCounts, format_line, parse_line
 from snreg.imu.reader import ImuPortError, ImuState, SerialImuReader
 
-XIO_CSV = Path(__file__).resolve().parents[2] / "shared" / "data" / "imu" / "fusion_sensor_data.csv"
+XIO_CSV = Path(__file__).resolve().parent / "data" / "imu" / "fusion_sensor_data.csv"
 EXACT = SensorModel(0.0, 0.0, 0.0, None, None)          # noise-free, unquantised, no bias
 
 
@@ -137,7 +137,6 @@ def test_replay_keeps_the_recorded_values_unclipped(tmp_path):
     assert [s.t_device_us for s in got] == [0, 10_000, 20_000]
 
 
-@pytest.mark.skipif(not XIO_CSV.exists(), reason="x-io sample recording not available")
 def test_replay_of_the_xio_recording_reproduces_the_file():
     replay = CsvReplay(XIO_CSV)
     got = _replay_through_a_pty(replay, speed=200.0)

@@ -12,7 +12,7 @@ from snreg.demo.spect import THESIS_SOURCES, THESIS_VOXEL_MM, spect_of_nodes, wr
 from snreg.errors import UserError
 from snreg.nodes import read_nodes
 
-DICOM_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dicom"
+DICOM_DIR = Path(__file__).resolve().parent / "data" / "dicom"
 FAKE_NAME, FAKE_ID, FAKE_BIRTH = "Quaxlebrook^Zenobia", "PID-4471-QX", "19370415"
 
 
@@ -69,7 +69,6 @@ def test_no_patient_identity_reaches_any_output(phantom, tmp_path, capsys):
         assert not any(secret.lower() in text.lower() for text in texts), secret
 
 
-@pytest.mark.skipif(not (DICOM_DIR / "NM-MONO2-16-13x-heart.dcm").exists(), reason="shared NM heart sample not present")
 def test_real_heart_sample_warns_and_marks_the_node_file(tmp_path, capsys):
     run(DICOM_DIR / "NM-MONO2-16-13x-heart.dcm", "-o", tmp_path / "heart.csv", "--nodes", "1")
     assert "no patient position/orientation" in capsys.readouterr().err
@@ -77,7 +76,6 @@ def test_real_heart_sample_warns_and_marks_the_node_file(tmp_path, capsys):
     assert len(nodes) == 1 and any("placed by default" in c for c in nodes.comments)
 
 
-@pytest.mark.skipif(not (DICOM_DIR / "NM1_JPLY.dcm").exists(), reason="shared NM JPEG sample not present")
 def test_undecodable_jpeg_sample_is_a_user_error(tmp_path):
     with pytest.raises(UserError, match="cannot be decoded"):
         run(DICOM_DIR / "NM1_JPLY.dcm", "-o", tmp_path / "nodes.csv")

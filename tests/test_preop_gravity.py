@@ -13,7 +13,7 @@ from snreg.errors import PreopError
 from snreg.preop.gravity import MAX_TILT_DEG, TABLE_TILT_DEG, PreopDown, check_tilt, volume_down
 from snreg.preop.volume import load_volume
 
-HEART = Path(__file__).resolve().parents[2] / "shared" / "data" / "dicom" / "NM-MONO2-16-13x-heart.dcm"
+HEART = Path(__file__).resolve().parent / "data" / "dicom" / "NM-MONO2-16-13x-heart.dcm"
 
 
 @pytest.mark.parametrize("position, level", [("HFS", [0, 1, 0]), ("FFS", [0, 1, 0]), ("HFP", [0, -1, 0]),
@@ -88,7 +88,6 @@ def test_the_volume_gives_its_patient_position_and_the_operator_the_tilt(tmp_pat
     assert "on their side" in volume_down(_spect(tmp_path, patient_position="FFDR")).problem
 
 
-@pytest.mark.skipif(not HEART.exists(), reason="shared NM heart sample not present")
 def test_a_real_spect_without_patient_geometry_gives_no_down():
     """The public NM heart sample carries neither Patient Position nor an image orientation (placed by default)."""
     volume = load_volume(HEART)

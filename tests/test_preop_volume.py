@@ -11,7 +11,7 @@ from pydicom.sequence import Sequence
 from snreg.demo.spect import write_nm
 from snreg.preop import PreopError, load_volume
 
-DICOM_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dicom"
+DICOM_DIR = Path(__file__).resolve().parent / "data" / "dicom"
 HEART = DICOM_DIR / "NM-MONO2-16-13x-heart.dcm"
 JPEG = DICOM_DIR / "NM1_JPLY.dcm"
 VOXEL = (4.0, 3.5, 5.0)          # x, y, z mm: distinct so that axis mix-ups show
@@ -93,7 +93,6 @@ def test_ct_series_in_hounsfield_units(tmp_path, counts):
     np.testing.assert_allclose(volume.voxels, counts - 1024.0)
 
 
-@pytest.mark.skipif(not HEART.exists(), reason="shared NM heart sample not present")
 def test_real_nm_heart_sample_is_placed_by_default_with_a_warning():
     volume = load_volume(HEART, modality="NM")
     assert volume.voxels.shape == (13, 64, 64)
@@ -103,7 +102,6 @@ def test_real_nm_heart_sample_is_placed_by_default_with_a_warning():
     assert "no patient position/orientation" in volume.warnings[0] and "origin" in volume.warnings[0]
 
 
-@pytest.mark.skipif(not JPEG.exists(), reason="shared NM JPEG sample not present")
 def test_lossy_jpeg_sample_gives_a_clear_error():
     with pytest.raises(PreopError, match="cannot be decoded.*export it uncompressed"):
         load_volume(JPEG)
