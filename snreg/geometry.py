@@ -4,7 +4,7 @@ A transform is a 4x4 homogeneous array named ``<to>_from_<from>``:
 ``p_trocar = trocar_from_camera @ p_camera``. Angles are degrees at this
 interface; scipy's ``Rotation`` does the work inside.
 
-Euler convention (DESIGN.md §3): yaw about z, pitch about y, roll about x,
+Euler convention (docs/design.md, Conventions): yaw about z, pitch about y, roll about x,
 ``R = Rz @ Ry @ Rx`` (thesis eq. 4; its eq. 1 and 3 swap the Rx/Rz labels).
 """
 

@@ -1,4 +1,4 @@
-"""Node sets and their files: CSV (DESIGN.md §4) and 3D Slicer markups (``.mrk.json``).
+"""Node sets and their files: CSV (docs/design.md, Contracts) and 3D Slicer markups (``.mrk.json``).
 
 A :class:`NodeSet` is the one currency between preop, session and registration:
 ids, anatomical labels (``"OBT R"``), positions in mm, optional gamma counts and optional covariances (each node's

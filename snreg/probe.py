@@ -1,4 +1,4 @@
-"""The DROP-IN probe model: geometry and colours, read from a file (DESIGN.md §4, Probe model).
+"""The DROP-IN probe model: geometry and colours, read from a file (docs/design.md, Probe model).
 
 Default (``resources/probe/drop_in_probe.yaml``): a cylinder 10 mm in diameter, tip on its
 axis at 0; three green stripes 4 mm wide centred 20, 30 and 40 mm from the tip; a dark

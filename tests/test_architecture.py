@@ -1,4 +1,4 @@
-"""The layout's rules (DESIGN.md §2): imports point down the layers, the core never imports Qt, no import cycles.
+"""The layout's rules (docs/design.md, Layout): imports point down the layers, the core never imports Qt, no import cycles.
 
 The rules are import-linter contracts in pyproject.toml (``lint-imports`` checks them from the command line);
 here they are checked on the real tree, and shown to fail on the imports they forbid.

@@ -1,5 +1,5 @@
 """Every ``snreg`` command refuses bad input the same way: one line on stderr, exit status 2, no traceback,
-nothing written (DESIGN.md §4, Command line). The table holds the cases of issue 13 and more; they run
+nothing written (docs/design.md, Command line). The table holds the cases of issue 13 and more; they run
 in-process through ``main(argv)``, a few through a real ``snreg`` process."""
 
 import json

@@ -35,7 +35,7 @@ def final_euler(segments, **kwargs):
     return fuse_arrays(t, gyro, accel, sample_rate_hz=RATE)[-1]
 
 
-# --- Euler convention (DESIGN.md §3: yaw about z, pitch about y, roll about x, R = Rz Ry Rx) ---
+# --- Euler convention (docs/design.md, Conventions: yaw about z, pitch about y, roll about x, R = Rz Ry Rx) ---
 
 def test_level_at_rest_is_zero_pitch_and_roll():
     yaw, pitch, roll = final_euler([still(6.0)])

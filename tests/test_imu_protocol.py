@@ -1,4 +1,4 @@
-"""The IMU line protocol and stream decoder: round trips, corrupt lines, gap counting (DESIGN.md §4)."""
+"""The IMU line protocol and stream decoder: round trips, corrupt lines, gap counting (docs/design.md, Contracts)."""
 
 import re
 from pathlib import Path

@@ -56,7 +56,7 @@ def test_global_flags_far_extras_and_keeps_the_fit_exact(pelvic_nodes):
 
 
 def test_two_nodes_that_the_data_cannot_tell_apart_share_their_hot_spot_with_confidence(pelvic_nodes):
-    # DESIGN §4: of two removed nodes 1.7 mm apart beside one SPECT node, which is its own node is a coin toss, but
+    # docs/design.md, Contracts: of two removed nodes 1.7 mm apart beside one SPECT node, which is its own node is a coin toss, but
     # that both came from that hot spot is certain, and that is the claim
     xyz, _ = pelvic_nodes
     intraop, _ = moved_case(xyz, noise=1.0)

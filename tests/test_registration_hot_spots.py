@@ -1,4 +1,4 @@
-"""Hot-spot pairing (DESIGN §4): several removed nodes may come from one SPECT hot spot, a node beyond every hot
+"""Hot-spot pairing (docs/design.md, Contracts): several removed nodes may come from one SPECT hot spot, a node beyond every hot
 spot's reach came from none, and a noisy fit that leans past a bound is fitted within it rather than refused."""
 
 import numpy as np

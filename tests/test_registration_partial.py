@@ -111,7 +111,7 @@ def test_a_fit_far_better_beyond_the_bounds_refuses_the_forced_one_inside(pelvic
 
 def test_the_pairing_at_a_known_transform_leaves_a_far_node_to_none_and_lets_a_crowded_hot_spot_share(pelvic_nodes):
     # the model oracle of snreg simulate: with the transform known, a node 40 mm from every mapped node came from no
-    # hot spot, and two nodes beside one preop node both came from it (DESIGN §4)
+    # hot spot, and two nodes beside one preop node both came from it (docs/design.md, Contracts)
     xyz, _ = pelvic_nodes
     intraop = geometry.apply(TRUTH, xyz) + np.random.default_rng(4).normal(0.0, 1.0, xyz.shape)
     far = geometry.apply(TRUTH, xyz[:1]) + np.array([[40.0, 0.0, 0.0]])

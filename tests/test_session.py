@@ -1,4 +1,4 @@
-"""Session API (DESIGN.md §4 "Session (HDF5)"): round trip, streams, refusals, damaged files, privacy."""
+"""Session API (docs/design.md, Contracts "Session (HDF5)"): round trip, streams, refusals, damaged files, privacy."""
 
 import getpass
 import hashlib

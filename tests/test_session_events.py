@@ -1,4 +1,4 @@
-"""Session format 2 (DESIGN.md §4, extended): the events log, node re-expression with old values on record, and files of
+"""Session format 2 (docs/design.md, Contracts, extended): the events log, node re-expression with old values on record, and files of
 format 1 still read and continued."""
 
 from dataclasses import replace

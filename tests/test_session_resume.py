@@ -1,4 +1,4 @@
-"""Undo of a stored node and continuing a session after a restart (DESIGN.md §4; issue 6 "undo", "open/continue")."""
+"""Undo of a stored node and continuing a session after a restart (docs/design.md, Contracts; issue 6 "undo", "open/continue")."""
 
 import h5py
 import numpy as np

@@ -272,7 +272,7 @@ def test_endless_callable_source_stays_open_until_closed():
 
 
 def test_a_live_callable_source_stamps_at_grab_and_skips_what_a_slow_consumer_missed():
-    """As a camera (DESIGN.md §3): frame k is due k / fps after the first read; a consumer 95 ms late at 100 Hz
+    """As a camera (docs/design.md, Conventions): frame k is due k / fps after the first read; a consumer 95 ms late at 100 Hz
     gets the newest due frame (9 skipped), stamped with the host time it was grabbed: when it was due, the instant
     the scene shows, not when the late consumer took it."""
     clock = {"ns": 7_000_000_000}

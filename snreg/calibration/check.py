@@ -67,7 +67,7 @@ class CalibrationCheck:
     skipped: tuple[str, ...] = field(default=())
 
     def as_json(self) -> dict:
-        """``{"epipolar_rms_px", "reconstruction_mm", "views", "verdict", "reasons", ...}`` (DESIGN.md §4)."""
+        """``{"epipolar_rms_px", "reconstruction_mm", "views", "verdict", "reasons", ...}`` (docs/design.md, Contracts)."""
         return {"epipolar_rms_px": round(self.epipolar_rms_px, 4), "reconstruction_mm": round(self.reconstruction_mm, 4),
                 "views": self.views, "verdict": self.verdict, "reasons": list(self.reasons),
                 "scale_percent": round(100 * self.scale_error, 3),

@@ -183,7 +183,7 @@ def imu_camera_rotation(earth_from_imu, board_from_camera: np.ndarray, *, min_an
 
 
 def reference_trocar_from_camera(pivot: PivotResult) -> np.ndarray:
-    """(4, 4) ``trocar_from_camera`` in the reference pose: origin at the pivot, z along the shaft (DESIGN.md §3)."""
+    """(4, 4) ``trocar_from_camera`` in the reference pose: origin at the pivot, z along the shaft (docs/design.md, Conventions)."""
     rotation = reference_rotation(-pivot.pivot_camera_mm)
     return make_transform(rotation, -rotation @ pivot.pivot_camera_mm)
 

@@ -1,4 +1,4 @@
-"""The stereo camera model everything uses (DESIGN.md §4, Calibration file): :class:`StereoCalibration`, its
+"""The stereo camera model everything uses (docs/design.md, Calibration file): :class:`StereoCalibration`, its
 file (:mod:`snreg.camera.calibration`), and calibrations written by other tools (:mod:`snreg.camera.formats`)."""
 
 from snreg.camera.calibration import (REQUIRED_KEYS, THESIS_CALIBRATION_PATH, CalibrationFileError, StereoCalibration,

@@ -1,4 +1,4 @@
-"""The stereo calibration and its OpenCV ``FileStorage`` YAML file (DESIGN.md §4, Calibration file).
+"""The stereo calibration and its OpenCV ``FileStorage`` YAML file (docs/design.md, Calibration file).
 
 Keys: ``image_width``, ``image_height``, ``K1 D1 K2 D2 R T`` (OpenCV ``stereoCalibrate``:
 ``R, T`` map left-camera coordinates into the right camera, T in mm), the rectification
@@ -80,7 +80,7 @@ class StereoCalibration:
 
 
 def save_calibration(calib: StereoCalibration, path: str | Path) -> None:
-    """Write ``calib`` as the calibration file (DESIGN.md §4), atomically; ``OSError`` when it cannot be written."""
+    """Write ``calib`` as the calibration file (docs/design.md, Contracts), atomically; ``OSError`` when it cannot be written."""
     fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
     fs.write("image_width", int(calib.image_size[0]))
     fs.write("image_height", int(calib.image_size[1]))

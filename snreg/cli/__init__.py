@@ -1,4 +1,4 @@
-"""``snreg``: the command line (DESIGN.md §4); one module per subcommand, this one only builds the parser.
+"""``snreg``: the command line (docs/design.md, Contracts); one module per subcommand, this one only builds the parser.
 
 Errors a user can cause (:class:`~snreg.errors.UserError`, argparse's own) end as one line on stderr and exit
 status 2, with nothing written. Building the parser imports only argparse-level modules, so ``snreg --help``

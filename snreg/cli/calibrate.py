@@ -1,4 +1,4 @@
-"""``snreg calibrate stereo|import|check``: make, import and check the stereo calibration file (DESIGN.md §4).
+"""``snreg calibrate stereo|import|check``: make, import and check the stereo calibration file (docs/design.md, Contracts).
 
 - ``stereo --left GLOB --right GLOB --board COLSxROWS --square MM -o calib.yaml [--drop 3,7]`` (COLSxROWS: inner
   corners, as OpenCV counts them): prints the RMS figures, the reconstruction error, the baseline, a per-view

@@ -313,7 +313,7 @@ def folder_pairs(source, label: str):
 
 def read_orientations(path: str, count: int, per: str):
     """``earth_from_imu`` per ``per`` (image, pair: ``count`` of them) as a scipy ``Rotation`` from a CSV with
-    ``yaw``, ``pitch``, ``roll`` columns (degrees, DESIGN.md §3's ZYX; ``#`` lines skipped); ValueError in one
+    ``yaw``, ``pitch``, ``roll`` columns (degrees, docs/design.md (Conventions): ZYX; ``#`` lines skipped); ValueError in one
     sentence otherwise."""
     import numpy as np
     from scipy.spatial.transform import Rotation

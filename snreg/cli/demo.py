@@ -1,8 +1,8 @@
 """``snreg demo --headless -o SESSION.h5 [--json] [--igtl PORT] [--errors ideal|thesis|FILE] [--camera still|surgery]
 [--no-camera-tracking]``: wired into ``snreg.cli`` by :func:`add_demo_parser`.
 
-With ``--igtl`` the run serves the live link to 3D Slicer (DESIGN.md §4) and waits up to 30 s for the first
-client before it starts. DESIGN says "waiting up to 30 s ... before starting", so the run starts anyway after
+With ``--igtl`` the run serves the live link to 3D Slicer (docs/design.md, Contracts) and waits up to 30 s for the first
+client before it starts. docs/design.md (Live link) says "waiting up to 30 s ... before starting", so the run starts anyway after
 that (one line on stderr says no client came); a client that connects later still gets the node lists at once.
 """
 

@@ -1,4 +1,4 @@
-"""``snreg imu monitor`` and ``snreg imu simulate`` (DESIGN.md §4): live angles from a port, and the simulator."""
+"""``snreg imu monitor`` and ``snreg imu simulate`` (docs/design.md, Contracts): live angles from a port, and the simulator."""
 
 from __future__ import annotations
 

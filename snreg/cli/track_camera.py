@@ -1,4 +1,4 @@
-"""``snreg track-camera``: the camera's insertion through the trocar over a sequence of stereo pairs (DESIGN.md §4).
+"""``snreg track-camera``: the camera's insertion through the trocar over a sequence of stereo pairs (docs/design.md, Contracts).
 
 The pairs are two image globs in natural name order, the IMU's ``earth_from_imu`` one CSV row per pair (``yaw,pitch,
 roll`` degrees, as ``calibrate trocar pivot --imu-csv``), the chain the file ``calibrate trocar`` writes, whose

@@ -4,7 +4,7 @@ Why: the insertion tracker, its experiment and the surgery demo need a camera th
 (issue 27): slides of centimetres and turns of tens of degrees, with rests between, at most a few mm and degrees
 between consecutive pairs (pairs sub-sampled in time), optionally back to where it started. The shaft turns about
 the pivot without rolling, and the camera rolls about its own axis a little (the 30-degree scope is turned by
-hand). Poses follow DESIGN.md §3: ``trocar_from_camera`` with the camera centre at ``d R s`` for the insertion
+hand). Poses follow docs/design.md, Conventions: ``trocar_from_camera`` with the camera centre at ``d R s`` for the insertion
 ``d``, the rotation ``R`` and the shaft's direction ``s`` in the camera frame (:class:`~snreg.chain.ChainCalibration`).
 """
 

@@ -2,7 +2,7 @@
 IMU through the simulator and the fusion the app uses, the SPECT segmented by ``snreg preop``'s code.
 
 Why: an error budget is only worth its name if each source's error comes out of the code that would make it in a
-session (DESIGN §2: demo/ holds everything simulated; the budget in simulation/ and the demo rig both call these).
+session (docs/design.md, Layout: demo/ holds everything simulated; the budget in simulation/ and the demo rig both call these).
 Each function is seeded and returns the error it measured against the truth it simulated.
 """
 

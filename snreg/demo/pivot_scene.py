@@ -5,7 +5,7 @@ checkerboard together with an IMU whose orientation belongs to the frame on scre
 trocar-camera distance and IMU-camera rotation known. The wizard's code after the source and the IMU
 is the same as with a camera and an :class:`~snreg.imu.monitor.ImuMonitor`; only the devices differ.
 
-Geometry (DESIGN.md §3): the trocar frame has its origin at the pivot and z along the shaft into the
+Geometry (docs/design.md, Conventions): the trocar frame has its origin at the pivot and z along the shaft into the
 patient; in the reference pose the camera sits at ``z = trocar_camera_mm`` looking along +z, and the
 board faces it ``board_distance_mm`` further in, centred on the axis. Once per cycle of
 ``frames_per_cycle`` frames the shaft traces an ellipse about the axis: tilted ``tilt_deg[0]`` degrees

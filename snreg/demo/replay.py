@@ -1,7 +1,7 @@
 """Replaying a recorded session as a rig: its video as the cameras, its IMU stream on a pseudo-terminal.
 
 Why: a technician trains on a real session and a developer reproduces what happened in the operating room, both on
-the code a live session runs (DESIGN.md §5). The frames come from :class:`~snreg.session.playback.RecordedFeed` (a
+the code a live session runs (docs/design.md, Habits). The frames come from :class:`~snreg.session.playback.RecordedFeed` (a
 frame source, paced as recorded or ``speed`` times faster); the IMU samples go out as protocol lines on a
 :class:`~snreg.demo.imu_simulator.SimulatedPort` with their recorded device clock, read back by the same
 :class:`~snreg.imu.monitor.ImuMonitor` (serial reader and fusion) as a real IMU, both counted from one recorded

@@ -152,7 +152,7 @@ class DemoRig:
         self._start_imu()
         if self.moving_camera and self._epoch_ns is None:
             self._epoch_ns = self._wait_for_epoch()
-        # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
+        # a camera (docs/design.md, Conventions): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
         # skipped when tracking falls behind, while the scene goes on at its own pace (the surgery tour's counted
         # from the IMU motion's start, so a restart goes on where the tour is)
         name = "Demo surgery" if self.moving_camera else "Demo phantom"

@@ -2,7 +2,7 @@
 
 Why: the camera's insertion is tracked from how the tissue moves in the stereo video (:mod:`snreg.odometry`); its
 tests, its accuracy experiment and the surgery demo need rendered pairs of the thesis' rig whose truth is known.
-The tissue is a height field ahead of the pivot (DESIGN.md §3's trocar frame: z along the shaft into the patient in
+The tissue is a height field ahead of the pivot (docs/design.md (Conventions): trocar frame: z along the shaft into the patient in
 the reference pose): a shallow bowl whose rim rises towards the camera, tilted, with smooth bumps of a few mm, the
 tissue texture of :mod:`snreg.demo.renderer` on it, lit by the endoscope's light. Each ray of each eye is cast
 onto it by Newton steps on the height; the probe (a :class:`~snreg.demo.renderer.ProbePose` in the camera frame)

@@ -2,7 +2,7 @@
 
 :class:`Fusion` wraps ``imufusion.Ahrs`` (Madgwick's revised AHRS) and ``imufusion.Bias``
 (run-time gyroscope offset estimation) and turns each :class:`~snreg.imu.protocol.ImuSample`
-into (yaw, pitch, roll) in degrees per DESIGN.md §3: yaw about z, pitch about y, roll
+into (yaw, pitch, roll) in degrees per docs/design.md, Conventions: yaw about z, pitch about y, roll
 about x, ``R = Rz @ Ry @ Rx``, where R is ``earth_from_sensor`` (imufusion's quaternion,
 NWU earth frame: x north, y west, z up). At rest and level the accelerometer reads
 +1 g on z and pitch = roll = 0.
@@ -187,7 +187,7 @@ class Fusion:
 
     @property
     def euler(self) -> tuple[float, float, float]:
-        """(yaw, pitch, roll) in degrees now (DESIGN.md §3 convention)."""
+        """(yaw, pitch, roll) in degrees now (docs/design.md, Conventions convention)."""
         return euler_from_rotation(self.earth_from_sensor)
 
     def _calibrate_initial(self, gyro: np.ndarray) -> None:

@@ -1,4 +1,4 @@
-"""The IMU serial line protocol (DESIGN.md §4 "IMU serial protocol") and its stream decoder.
+"""The IMU serial line protocol (docs/design.md, Contracts "IMU serial protocol") and its stream decoder.
 
 A sample line is ``$IMU,<t_us>,<ax>,<ay>,<az>,<gx>,<gy>,<gz>*<CS>``: device time in
 microseconds (Arduino ``micros()``, unsigned 32 bit, wraps after 71.6 min), acceleration in

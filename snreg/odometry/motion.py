@@ -2,7 +2,7 @@
 or free.
 
 Why: the camera turns about the trocar's pivot and slides along its own shaft, so once its rotation is known its
-position has one unknown, the insertion ``d`` (DESIGN.md §3). With the shaft's direction ``s`` in the camera frame
+position has one unknown, the insertion ``d`` (docs/design.md, Conventions). With the shaft's direction ``s`` in the camera frame
 (:attr:`snreg.chain.ChainCalibration.shaft_camera`) the camera centre lies at ``d R s`` in the trocar frame, so a
 point ``P`` of the keyframe's left camera frame (insertion ``d_k``) lies in the current one at::
 

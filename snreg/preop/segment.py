@@ -32,7 +32,7 @@ __all__ = ["PreopNodes", "segment_nodes", "read_station_table", "side_labels", "
 
 KMEANS_ITERATIONS = 30
 MAX_NODES = 100          # more peaks than this above the threshold: the threshold is in the noise, not the nodes
-RESOLUTION_MM = 12.0     # the scanner's resolution, FWHM of a point source (DESIGN 4: SPECT resolves about 10-15 mm)
+RESOLUTION_MM = 12.0     # the scanner's resolution, FWHM of a point source (docs/design.md, Contracts: SPECT resolves about 10-15 mm)
 _FWHM_PER_SD = 2.0 * np.sqrt(2.0 * np.log(2.0))
 EXTENT_NOISE_SDS = 2.0   # a hot spot's extent counts where it stands this many sds of its counts' noise out
 

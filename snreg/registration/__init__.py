@@ -1,4 +1,4 @@
-"""Register the preop node set to the intraop node set and say which hot spot each intraop node came from (DESIGN §4).
+"""Register the preop node set to the intraop node set and say which hot spot each intraop node came from (docs/design.md, Contracts).
 
 >>> result = register(preop_xyz, intraop_xyz, method="global")
 >>> result.transform      # (4, 4) intraop_from_preop
@@ -56,7 +56,7 @@ CONFIDENT = 0.95
 class RegistrationResult:
     """The outcome of :func:`register`; transform ``intraop_from_preop``, distances and RMS in mm.
 
-    ``pairing[m]``: the hot spot (preop index) intraop node m came from, -1 for none (DESIGN §4); ``distances_mm[m]``:
+    ``pairing[m]``: the hot spot (preop index) intraop node m came from, -1 for none (docs/design.md, Contracts); ``distances_mm[m]``:
     its distance from that hot spot mapped (from the nearest for -1); ``rms_mm``: over the hot spots found, each by
     its nearest node (a shared hot spot's other nodes lie beside it by anatomy, not by error); ``confidence[m]``: the
     probability that m's claim is right."""

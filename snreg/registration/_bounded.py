@@ -1,7 +1,7 @@
 """The least-squares rigid correction of paired nodes that stays within the registration's bounds.
 
 Why: a noisy fit of a few pairs can lean past the rotation or translation bound while the truth lies inside it; the
-best fit inside the bounds is then the answer (with its honest, lower score), not a refusal (DESIGN §4, Bounds).
+best fit inside the bounds is then the answer (with its honest, lower score), not a refusal (docs/design.md, Bounds).
 
 How: with the translation fixed, the best rotation maximises trace(R^T M) for the pairs' cross-covariance M. Inside
 the angle bound that is Kabsch; on it, Rodrigues' formula for R = rotation by the bound angle about a unit axis n

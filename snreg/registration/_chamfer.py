@@ -9,7 +9,7 @@ initial alignment, coarse to fine over a resolution pyramid.
 
 ``form="volume"`` is the thesis' voxel method. ``form="exact"`` evaluates the same
 template points against the exact distance to the nearest reference sphere,
-``max(0, |x - c| - r)``, with no grid (see README for the measured equivalence/speed). Landmark pairs add their
+``max(0, |x - c| - r)``, with no grid (see docs/method/registration.md for the measured equivalence/speed). Landmark pairs add their
 distances, weighed against the nodes' by :func:`~snreg.registration._landmarks.landmark_weight`.
 """
 

@@ -4,7 +4,7 @@ The preop nodes are the centroids of a Gaussian mixture with a uniform outlier t
 weight ``w``; EM moves them rigidly onto the intraop nodes. The variance starts large
 (the mean squared distance of all pairs), so with only 3-10 nodes a sizeable ``w``
 dominates the Gaussians from the first step and the fit stalls; ``DEFAULT_W`` was chosen
-by ``snreg simulate --methods cpd`` over w in {0, 0.01, 0.05, 0.1, 0.2} (README). Landmark pairs join each M-step as
+by ``snreg simulate --methods cpd`` over w in {0, 0.01, 0.05, 0.1, 0.2} (docs/method/registration.md). Landmark pairs join each M-step as
 pairs of known correspondence with their own variance: weight ``sigma2 / landmark_sd_mm^2`` beside a posterior's 1
 (:func:`~snreg.registration._landmarks.landmark_weight`); sigma2 stays the nodes' own.
 """

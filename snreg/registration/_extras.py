@@ -1,5 +1,5 @@
 """Where extra intraop nodes lie: beside a hot spot's node, or anywhere (the part of the model of
-:mod:`snreg.registration._model` that the hot-spot semantics of DESIGN §4 rests on).
+:mod:`snreg.registration._model` that the hot-spot semantics of docs/design.md, Contracts rests on).
 
 An extra is a removed node that is not a hot spot's own node; ``EXTRAS_EXPECTED`` of them per case. With probability
 ``EXTRA_NEAR_FRACTION`` an extra lies beside the node of one of the N hot spots (any of them alike), else anywhere in

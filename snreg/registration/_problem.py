@@ -163,7 +163,7 @@ def make_problem(preop, intraop, *, preop_labels=None, intraop_labels=None, init
                  max_rotation_deg: float = 60.0, max_translation_mm: float = 60.0, seed: int = 0,
                  intraop_cov=None, preop_cov=None, preop_landmarks=None, intraop_landmarks=None,
                  landmark_sd_mm: float = 2.0, down=None, down_sd_deg: float = 10.0) -> Problem:
-    """Check the inputs once (DESIGN.md §4, Registration API) and build the shared :class:`Problem`. With ``down``
+    """Check the inputs once (docs/design.md, Registration API) and build the shared :class:`Problem`. With ``down``
     and no ``initial`` the start is gravity's: the two downs aligned, the centroids matched, the heading free."""
     downs = gravity_downs(down, down_sd_deg)
     gravity = downs is not None and initial is None

@@ -1,4 +1,4 @@
-"""Per-node confidence: the posterior probability that each intraop node's claim is right (DESIGN §4).
+"""Per-node confidence: the posterior probability that each intraop node's claim is right (docs/design.md, Contracts).
 
 A claim is the hot spot (preop index) a node came from, or -1 for "from no imaged hot spot". Candidate pairings (the
 global search's refined ones and the local moves around the best, each refitted and scored by

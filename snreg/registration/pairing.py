@@ -1,4 +1,4 @@
-"""Pairing rules: the hot spot (preop node) each intraop node came from, given a fitted correction (DESIGN §4).
+"""Pairing rules: the hot spot (preop node) each intraop node came from, given a fitted correction (docs/design.md, Contracts).
 
 Every rule reports the same semantics: ``pairing[m]`` is the hot spot intraop node m came from, or -1 for "from no
 imaged hot spot"; several nodes may name the same hot spot (``shares``). Rules (``RegistrationResult.pairing`` uses

@@ -1,6 +1,6 @@
 """What the app and the workflow need of a rig and of its IMU: the demo's and the hardware's both answer this.
 
-Why: the code after the devices is one code path (DESIGN.md §5). The acquisition worker, the calibration
+Why: the code after the devices is one code path (docs/design.md, Habits). The acquisition worker, the calibration
 wizards and the device dialog use only what is named here, so nothing above asks which rig it runs on; a new
 rig (another endoscope, a replayed recording) only has to satisfy these protocols.
 """

@@ -1,4 +1,4 @@
-"""Crash-safe HDF5 sessions (DESIGN.md §4 "Session (HDF5)").
+"""Crash-safe HDF5 sessions (docs/design.md, Contracts "Session (HDF5)").
 
 >>> with Session.create("s.h5", case_id="phantom-01") as s:
 ...     s.add_intraop_node("SN1", "OBT R", [1.0, 2.0, 3.0])   # durable once it returns

@@ -65,7 +65,7 @@ def _point_info(node) -> dict:
 
 
 def export_calibration(path: str | Path, out: str | Path) -> None:
-    """Write the stereo calibration a session used as a calibration file (DESIGN.md §4 "Calibration file")."""
+    """Write the stereo calibration a session used as a calibration file (docs/design.md, Contracts "Calibration file")."""
     with Session.open(path) as session:
         stereo = session.calibration().get("stereo")
     if stereo is None:

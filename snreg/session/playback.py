@@ -1,7 +1,7 @@
 """A recorded session's video as a frame source: the pairs of ``streams/frames`` at their recorded pace.
 
-Why: a replay must run the code a live session runs (DESIGN.md §5), so the recorded feeds come back through the
-:class:`~snreg.sources.FrameSource` interface. Live (the default), it behaves as a camera does (DESIGN.md §3): row k
+Why: a replay must run the code a live session runs (docs/design.md, Habits), so the recorded feeds come back through the
+:class:`~snreg.sources.FrameSource` interface. Live (the default), it behaves as a camera does (docs/design.md, Conventions): row k
 is due ``(t_k - t_0) / speed`` after ``start_ns``, :meth:`read` waits for the next due frame and, when the consumer has
 fallen behind, skips to the newest one, and each frame is stamped on the host clock when it is taken. With
 ``live=False`` every recorded frame is delivered, none before it is due, each stamped with the host time it was due

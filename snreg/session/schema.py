@@ -1,4 +1,4 @@
-"""The session file's schema (DESIGN.md §4 "Session (HDF5)"): names, versions, stream tables, validation.
+"""The session file's schema (docs/design.md, Contracts "Session (HDF5)"): names, versions, stream tables, validation.
 
 Everything a session stores is pseudonymous: the only identifier is ``case_id``, checked here so that a
 patient name or birth date typed by mistake is refused before anything reaches the disk.
@@ -38,7 +38,7 @@ _CASE_ID = re.compile(r"[A-Za-z0-9._-]{1,64}")
 _DATE = re.compile(r"(19|20)\d{2}[-._]?\d{2}[-._]?\d{2}|\d{2}[-._]\d{2}[-._](19|20)\d{2}")
 _NAME_YEAR = re.compile(r"[A-Z][a-z]{2,}[-._]?(19|20)\d{2}(?!\d)")     # "Smith1960", "Doe_1972": name and birth year
 
-# Stream tables: host time (time.perf_counter_ns, monotonic, as DESIGN.md §3) and device time, both ns.
+# Stream tables: host time (time.perf_counter_ns, monotonic, as docs/design.md, Conventions) and device time, both ns.
 # imu: device time = the sensor's microsecond clock x 1000. probe and frames: the cameras have no device clock,
 # so t_host_ns is the left eye's grab time and t_device_ns the right eye's, both on the host clock (their
 # difference is the left/right skew). camera (format 4): one row per pair while the insertion is tracked, on the

@@ -4,7 +4,7 @@ Why: the review screen must show an hour of recording (750k IMU rows at 208 Hz) 
 without holding the file open, so the reading and the fusing live here, Qt-free and testable: the GUI
 runs :func:`load_review` and then :func:`fuse_imu_blocks` in workers and only plots what they return.
 
-All times are seconds on the host clock (``time.perf_counter_ns``, DESIGN.md §3) from the review
+All times are seconds on the host clock (``time.perf_counter_ns``, docs/design.md, Conventions) from the review
 origin ``t0_ns``: the first sample of any stream (the first node when there are no streams).
 
 >>> review = load_review("s.h5")      # SessionError in one sentence when the file cannot be read

@@ -1,7 +1,7 @@
 """The stereo video recorded beside a session: two Matroska files of H.264 4:4:4, written off the caller's thread.
 
 Why these: tracking the decoded frames must give the nodes within 0.3 mm of tracking the originals, and a file cut
-short by a kill or a full disk must stay readable up to its last frame (README, "Recorded video", has the
+short by a kill or a full disk must stay readable up to its last frame (docs/guide/review.md, "Recorded video", has the
 measurements). x264 at CRF 18 tuned for PSNR (its default psychovisual tuning trades the stripes' edges for
 apparent detail: 0.3 mm at CRF 14), 4:4:4 chroma (the stripe colours keep their edges; 4:2:0 MJPEG or MPEG-4 moved
 the nodes 0.4-1.1 mm), preset ultrafast (no B-frames or look-ahead: a frame leaves the encoder at once), a key frame

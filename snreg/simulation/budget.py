@@ -138,7 +138,7 @@ class BudgetResult:
         return float(np.sqrt(np.nanmean(tre**2)))
 
     def to_json(self) -> dict:
-        """The ``--json`` object (DESIGN §4): ``{"all", "alone", "all_but", "tre_predicted_mm", "dominant"}``."""
+        """The ``--json`` object (docs/design.md, Contracts): ``{"all", "alone", "all_but", "tre_predicted_mm", "dominant"}``."""
         return {"all": self.figures["all"].to_json(),
                 "alone": {s: self.figures[f"alone:{s}"].to_json() for s in self.sources},
                 "all_but": {s: self.figures[f"all_but:{s}"].to_json() for s in self.sources},

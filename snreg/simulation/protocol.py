@@ -184,7 +184,7 @@ class TrialOutcome:
 
 
 def claims_right(trial: Trial, pairing: np.ndarray) -> np.ndarray:
-    """(M,) bool per intraop node: is its claim right (DESIGN §4)? A true node is right with its own hot spot; an extra
+    """(M,) bool per intraop node: is its claim right (docs/design.md, Contracts)? A true node is right with its own hot spot; an extra
     beside hot spot j is right with j or -1."""
     pairing = np.asarray(pairing, dtype=int)
     return np.where(trial.truth >= 0, pairing == trial.truth, (pairing == trial.source) | (pairing == -1))

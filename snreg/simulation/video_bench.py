@@ -1,6 +1,6 @@
 """Which codec and container to record a session's video with: ``python -m snreg.simulation.video_bench [--scale S]``.
 
-Why: the choice (README "Recorded video") rests on four measurements per candidate, on the demo's rendered phantom
+Why: the choice (docs/guide/review.md, "Recorded video") rests on four measurements per candidate, on the demo's rendered phantom
 tour (sensor noise sigma 2, the worst case for compression): the largest distance between a node tracked on the
 decoded frames and on the originals (median of each rest's fixes), the size of an hour of stereo 1080p30 (measured
 at ``scale`` of 1080p and scaled by the pixel count), the encoder's CPU seconds per second of stereo video, and

@@ -143,7 +143,7 @@ class CallableSource(FrameSource):
     same timestamp. This is where the synthetic renderer plugs in.
 
     Offline (the default) every frame is delivered, stamped at its nominal time from ``start_ns``. ``live``: the
-    source behaves as a camera does (DESIGN.md §3): frame k is due ``k / fps`` after the first read (or after
+    source behaves as a camera does (docs/design.md, Conventions): frame k is due ``k / fps`` after the first read (or after
     ``epoch_ns`` on the host clock, ``clock``: ``time.perf_counter_ns``, when given: another process showing the same
     scene, the demo's IMU, counts from it too), :meth:`read` waits for the next due frame and, when the consumer has
     fallen behind, skips to the newest one (``index`` jumps over the frames skipped, as the scene went on without

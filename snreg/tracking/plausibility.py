@@ -3,7 +3,7 @@
 Why: green things that are not the probe are common in surgery (round fiducials on a phantom, greenish
 reflections, a stained swab at the image border). Colour alone took two fiducials 7.2 mm apart for stripes
 10 mm apart. A fix is therefore accepted only when the candidate stripes, measured in 3D, agree with the
-probe model (:class:`~snreg.probe.ProbeModel`, DESIGN.md §4) within stated tolerances:
+probe model (:class:`~snreg.probe.ProbeModel`, docs/design.md, Contracts) within stated tolerances:
 
 - spacing: the distance between consecutive triangulated stripe centres (on the axis) against the model's,
   within ``spacing_mm`` plus the triangulation's own depth uncertainty there (a stripe centroid's disparity

@@ -2,7 +2,7 @@
 session, and Store SN, undo and auto-store over the last valid fixes, guarded.
 
 Why here and not in the GUI: the app's worker thread and ``snreg demo --headless`` must run the very same
-steps (DESIGN.md §5: real and simulated devices share the code after the sources). A node is the median
+steps (docs/design.md, Habits: real and simulated devices share the code after the sources). A node is the median
 of the last N valid tip fixes (thesis §5.2: N = 60) in both frames, with their spread; each fix is mapped with
 the IMU orientation at its own frame's grab time (:class:`ImuReading`). Each node also carries its own error's
 covariance (trocar frame, :func:`~snreg.tracking.uncertainty.node_covariance`: the stereo geometry at its depth, the

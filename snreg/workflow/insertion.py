@@ -3,7 +3,7 @@ store guard's word on it), and over a recorded sequence of pairs as ``snreg trac
 
 Why here: following the insertion needs both the probe tracker (:mod:`snreg.tracking`) and the insertion tracker
 (:mod:`snreg.odometry`), which sit side by side and do not know each other, and the acquisition maps every pair
-through the chain at that pair's insertion (DESIGN.md §1).
+through the chain at that pair's insertion (docs/design.md, Data flow).
 
 During acquisition (:class:`CameraInsertion`): each pair is mapped with the insertion tracked at it; a lost pair
 with the last one tracked (before any, the tracker's start: the trocar calibration's distance), and says so. The

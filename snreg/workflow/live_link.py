@@ -56,7 +56,7 @@ _LISTEN, _WAKE = "listen", "wake"
 
 
 class LiveLink:
-    """Serves DESIGN.md §4 "Live link" on ``host:port`` (port 0: any free port; ``self.port`` says which).
+    """Serves docs/design.md, Contracts "Live link" on ``host:port`` (port 0: any free port; ``self.port`` says which).
 
     ``host`` is 127.0.0.1 by default, so the surgical data stays on this computer; "0.0.0.0" serves the network.
     ``on_clients(count)`` is called from the server thread whenever the number of connected clients changes. At most

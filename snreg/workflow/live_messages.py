@@ -1,4 +1,4 @@
-"""The OpenIGTLink messages of the live link to 3D Slicer (DESIGN.md §4 "Live link"), packed with pyigtl.
+"""The OpenIGTLink messages of the live link to 3D Slicer (docs/design.md, Contracts "Live link"), packed with pyigtl.
 
 Why a module of its own: what goes over the wire (device names, frames, RAS versus LPS, units) is the contract
 Slicer and outside checks rely on; :mod:`snreg.workflow.live_link` only moves these bytes. Each function returns
@@ -45,7 +45,7 @@ PREOP_LANDMARKS = "PreopLandmarks"
 TROCAR_TO_RAS = "TrocarToRas"
 STATUS = "Status"
 
-RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])      # DESIGN.md §3: x and y negated (its own inverse)
+RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])      # docs/design.md, Conventions: x and y negated (its own inverse)
 INTRAOP_RGBA = (40, 200, 80, 255)                   # green: stored in surgery
 PREOP_RGBA = (230, 120, 30, 255)                    # orange: seen on the SPECT
 POINT_COLOURS = {INTRAOP_NODES: INTRAOP_RGBA, PREOP_NODES: PREOP_RGBA,

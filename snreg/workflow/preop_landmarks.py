@@ -2,7 +2,7 @@
 
 Why: the landmarks (e.g. the aortic bifurcation) are placed on the CT in 3D Slicer and saved apart from the SPECT's
 hot spots, as a ``.mrk.json`` in RAS or LPS (or a CSV of landmark rows). The registration pairs them with the touched
-ones by name in the preop nodes' frame, patient LPS (DESIGN §3), so a file's points must come out in LPS whatever it
+ones by name in the preop nodes' frame, patient LPS (docs/design.md, Conventions), so a file's points must come out in LPS whatever it
 was saved in, and one in any other frame (a trocar-frame file given by mistake) is refused rather than mixed in. The
 app's "Landmarks..." button and ``snreg register --preop-landmarks`` read them the same way.
 

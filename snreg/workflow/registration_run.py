@@ -1,7 +1,7 @@
 """What the registration panel's workers do: register and store, keep the preop set in the session, write the exports.
 
 Why: registration, the session's fsynced writes and figure rendering can each take longer than a frame, so
-they run off the GUI thread (DESIGN §5). The inputs travel as one frozen :class:`RunRequest` and come back
+they run off the GUI thread (docs/design.md, Habits). The inputs travel as one frozen :class:`RunRequest` and come back
 with the result as a :class:`RunRecord`, so a result always stays with the node sets that produced it even
 if the technician changes them while it runs. Each side's nodes are weighed by their own covariances when every node
 of that side has one (a stored node's from the tracker and chain, a hot spot's from the segmentation), as

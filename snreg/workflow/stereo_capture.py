@@ -1,6 +1,6 @@
 """The calibration wizard's live feed: frames read and the checkerboard searched for off the GUI thread.
 
-Why: a corner search takes 10-60 ms per image, too long for the GUI thread (DESIGN.md §5). The loop
+Why: a corner search takes 10-60 ms per image, too long for the GUI thread (docs/design.md, Habits). The loop
 runs as a generator in a :class:`~snreg_gui.common.workers.Worker`: it builds the source there (building
 one may take time), reads a pair, searches each eye on a reduced image (halved until at most
 ``DETECT_MAX_WIDTH`` wide; :func:`~snreg.calibration.checkerboard.find_corners` refines the corners

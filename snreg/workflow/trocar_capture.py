@@ -1,7 +1,7 @@
 """The trocar wizard's live capture: board poses paired with the IMU orientation taken with each frame.
 
 Why: the trocar wizard runs this loop in a worker thread, since corner detection (~80 ms a frame at half the
-thesis resolution) must stay off the GUI thread (DESIGN.md §5); it holds no Qt, so it lives in the core.
+thesis resolution) must stay off the GUI thread (docs/design.md, Habits); it holds no Qt, so it lives in the core.
 :func:`capture_samples` is the generator the capture worker runs; :mod:`snreg.calibration.trocar_fit` fits
 the samples it keeps.
 

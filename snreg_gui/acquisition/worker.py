@@ -1,6 +1,6 @@
 """The acquisition worker: reads frame pairs and runs :class:`snreg.workflow.acquisition.Acquisition` on them.
 
-Why: capture, tracking and session writes must never run on the GUI thread (DESIGN.md §5). The worker
+Why: capture, tracking and session writes must never run on the GUI thread (docs/design.md, Habits). The worker
 lives in its own QThread, paced by a timer there; every frame ends as one :class:`FrameResult` signal,
 and "Store SN" (or Store landmark) and undo requests arrive as queued slot calls between frames, so a node is the median
 of fixes this worker itself kept. The core decides whether a store is refused (said in ``store_failed``) or

@@ -1,7 +1,7 @@
 """Long work off the GUI thread: a function or generator run in its own QThread, results as signals.
 
 Why: calibration, registration, SPECT segmentation and live corner detection take from tens of
-milliseconds to seconds, and the GUI thread must never block (DESIGN.md §5). Modelled on napari's
+milliseconds to seconds, and the GUI thread must never block (docs/design.md, Habits). Modelled on napari's
 generator workers: connect ``yielded``/``returned``/``errored``/``finished`` first, then :meth:`Worker.start`.
 A generator is a loop that yields progress or live results and may be asked to stop between yields.
 

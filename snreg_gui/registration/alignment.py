@@ -7,7 +7,7 @@ turns and shifts the preop set in the view until it roughly covers the intraop s
 
 The preop (SPECT, patient LPS) and intraop (trocar) frames are unrelated in every real case, so the alignment starts
 from the centroids: the preop centroid ``c`` lands on the intraop centroid ``d``, turned about itself and then
-shifted: ``p' = R (p - c) + d + t`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (DESIGN §3). Untouched (all zero), it
+shifted: ``p' = R (p - c) + d + t`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (docs/design.md, Conventions). Untouched (all zero), it
 is the centroids matched, so a first Run registers without any manual step; the shift ``t`` is the operator's
 correction from there. Without intraop nodes ``d = c``. It is the start only when the operator touches it (``edited``)
 or chooses it, or when gravity cannot give one (:mod:`snreg_gui.registration.start`).

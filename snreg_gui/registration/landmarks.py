@@ -1,7 +1,7 @@
 """The registration panel's anatomical landmarks: listed apart from the hot spots, given to the run, said in words.
 
 Why: a patient with one or two sentinel nodes registers when landmarks (e.g. the aortic bifurcation, found on the CT
-and touched with the probe) make up the three points (DESIGN §4). A landmark pair enters the fit with its
+and touched with the probe) make up the three points (docs/design.md, Contracts). A landmark pair enters the fit with its
 correspondence known, so a wrong one (a name given to the wrong vessel) must never be trusted silently (issue 29):
 the panel lists every landmark with the side(s) it is on, each pair's residual and leave-one-out residual, and says
 a suspect in words, in :mod:`snreg.registration.landmark_report`'s wording (the same as ``snreg register``). A mixin of
@@ -24,7 +24,7 @@ from snreg.registration.landmark_report import landmark_notes, landmark_rows, un
 from snreg.workflow.registration_run import RunRecord, RunRequest
 
 NO_CT_LANDMARKS = "no CT landmarks loaded: load them with Landmarks... beside the preop nodes"
-MIN_POINTS = 3          # nodes plus landmark pairs a registration needs, at least one of them a node (DESIGN §4)
+MIN_POINTS = 3          # nodes plus landmark pairs a registration needs, at least one of them a node (docs/design.md, Contracts)
 LANDMARK_COLUMNS = ("landmark", "CT", "surgery", "dist (mm)", "loo (mm)", "check")
 LANDMARK_TIPS = ("anatomical landmark, paired by name (never a hot spot)", "found on the CT (with the preop nodes)",
                  "touched with the probe and stored (Store landmark)",

@@ -1,5 +1,5 @@
 // snreg IMU firmware: Arduino Nano Every + LSM6DSOX (I2C) speaking the snreg serial line protocol
-// (DESIGN.md §4 "IMU serial protocol"), one line per sample at 208 Hz:
+// (docs/design.md, Contracts "IMU serial protocol"), one line per sample at 208 Hz:
 //
 //   $IMU,<t_us>,<ax>,<ay>,<az>,<gx>,<gy>,<gz>*<CS>
 //

@@ -2,7 +2,7 @@
 
 Why: before surgery the technician calibrates the Firefly stereo endoscope by showing it a
 checkerboard in many poses (thesis §3.3, §4.2: 30 views) and needs to see, while doing it, that the
-views are good and varied, and to judge and save the result (DESIGN.md §4, Calibration file). Pages:
+views are good and varied, and to judge and save the result (docs/design.md, Calibration file). Pages:
 
 1. Setup: inner corners (cols x rows, as OpenCV counts them), square size, target number of views.
 2. Capture: both live feeds with the found corners, "Capture view" and auto-capture, a coverage map
