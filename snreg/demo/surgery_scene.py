@@ -14,14 +14,19 @@ between rests it glides to the next node while the camera moves (:class:`~snreg.
 
 The chain is the thesis' manual one with the endoscope held as the phantom's set-up holds it (looking caudally
 34 degrees below the patient's coronal plane, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`, on a table tilted 27 degrees
-head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
-resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: ``noise_variants``
-exposures per rest, one per moving frame: about 145 pairs, 0.45 GB, 20-40 s) and replayed from memory.
+head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which
+the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half resolution, so every distinct frame
+of the tour (``noise_variants`` exposures per rest, one per moving frame: about 145 pairs, 0.45 GB) is rendered once
+and replayed from memory: on first use (:meth:`SurgeryScene.render`), or ahead of the play in tour order
+(:meth:`SurgeryScene.render_next`, which the demo rig runs beside the feed, so the first frame need not wait for the
+whole tour: 20-60 s on a loaded machine).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+import threading
 
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
@@ -91,6 +96,8 @@ class SurgeryScene:
         surface = TissueSurface(**_TISSUE, anchors=tuple(tuple(float(v) for v in p) for p in self.nodes_trocar))
         self.tissue = TissueScene(calibration, probe, surface, probe_in_front=True)
         self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._rendering = threading.Lock()          # one render at a time: the feed and the renderer ahead share it
+        self._distinct = len({self._key(index) for index in range(self.cycle)})
 
     @property
     def cycle(self) -> int:
@@ -123,19 +130,47 @@ class SurgeryScene:
         camera_from_trocar = invert(self.trocar_from_camera(index))
         return ProbePose.make(apply(camera_from_trocar, tip[None])[0], camera_from_trocar[:3, :3] @ axis)
 
+    @property
+    def distinct_frames(self) -> int:
+        """Distinct frames in one tour: what rendering it all takes."""
+        return self._distinct
+
+    @property
+    def rendered(self) -> int:
+        """Distinct frames rendered so far."""
+        return len(self._cache)
+
     def prerender(self) -> None:
         """Render every frame of the tour once, so :meth:`render` only replays."""
-        for index in range(self.cycle):
-            self.render(index)
+        while self.render_next():
+            pass
+
+    def render_next(self, after: int = 0, within: int | None = None) -> bool:
+        """Render the first distinct frame not rendered yet from frame ``after`` on in tour order (wrapping round),
+        at most ``within`` frames ahead (None: anywhere); False when there is none (all rendered, or none that
+        near)."""
+        ahead = self.cycle if within is None else min(int(within), self.cycle)
+        start = after % self.cycle
+        for step in range(ahead):
+            index = (start + step) % self.cycle
+            if self._key(index) not in self._cache:
+                self.render(index)
+                return True
+        return False
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback)."""
+        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback; thread-safe)."""
         key = self._key(index)
-        if key not in self._cache:
-            options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
-                                    seed=self.seed * 10**7 + (key[0] + 1) * 10**6 + key[1])
-            self._cache[key] = self.tissue.render(self.trocar_from_camera(index), self.pose(index), options)
-        return self._cache[key]
+        frames = self._cache.get(key)
+        if frames is None:
+            with self._rendering:
+                frames = self._cache.get(key)           # rendered while this waited
+                if frames is None:
+                    options = RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px,
+                                            seed=self.seed * 10**7 + (key[0] + 1) * 10**6 + key[1])
+                    frames = self.tissue.render(self.trocar_from_camera(index), self.pose(index), options)
+                    self._cache[key] = frames
+        return frames
 
     def _key(self, index: int) -> tuple[int, int]:
         """Frames that look alike share a key: (node, noise exposure) while resting, (-1, frame in the tour) moving."""
