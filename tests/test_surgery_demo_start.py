@@ -59,3 +59,23 @@ def test_the_surgery_rig_starts_with_the_imu_starting_and_its_first_frame_before
         source.close()
     finally:
         rig.close()
+
+
+class SilentImu:
+    """An IMU whose port is open but has sent nothing yet."""
+
+    def snapshot(self) -> ImuSnapshot:
+        return snapshot("connecting", 0)
+
+
+def test_the_screen_shows_the_tour_rendering_and_the_imu_starting(qtbot):
+    from snreg_gui.acquisition.screen import AcquisitionScreen
+
+    progress = ["rendering the surgery tour, 40 of 145"]
+    screen = AcquisitionScreen(SilentImu(), fixes_per_node=5, preparing=lambda: progress[0])
+    qtbot.addWidget(screen)
+    qtbot.waitUntil(lambda: screen.video_health.text() == "camera: waiting for frames (rendering the surgery tour, "
+                    "40 of 145)", timeout=3_000)
+    assert screen.imu_health.text() == "IMU: starting, no sample yet"
+    progress[0] = "rendering the surgery tour, 41 of 145"
+    qtbot.waitUntil(lambda: "41 of 145" in screen.video_health.text(), timeout=3_000)
