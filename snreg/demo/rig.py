@@ -16,8 +16,8 @@ between rests in the same patient; the simulator plays the same motion (``--moti
 ``IMU_HOLD_S`` after its stream starts (its fusion's still start) and writing the host-clock instant the motion starts
 (``--epoch-file``); the rendered feed counts its frames from that instant (``epoch_ns``), so each frame meets the
 orientation it was rendered at, however long the simulator process took to start. The IMU starts first (it is shown
-streaming, not stale, while the scene is prepared), and the surgery tour is rendered as it plays: a thread beside the
-feed renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
+streaming, not stale, while the scene is prepared), and the surgery tour is rendered as it plays: a thread started with
+the rig renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
 frame not ready yet itself, and :attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery
 tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (20-60 s).
 """
@@ -120,7 +120,10 @@ class DemoRig:
         self.imu = ImuMonitor(str(self._link))
         self._played = 0                        # the tour frame the feed asked for last (the renderer keeps ahead of it)
         self._renderer: threading.Thread | None = None
-        self._stop_rendering = threading.Event()
+        self._stop_rendering, self._scene_ready = threading.Event(), threading.Event()
+        if self.moving_camera:                  # the tour starts rendering now: the app's start-up is time gained
+            self._renderer = threading.Thread(target=self._render_ahead, name="demo-tour-renderer", daemon=True)
+            self._renderer.start()
 
     @property
     def moving_camera(self) -> bool:
@@ -138,20 +141,14 @@ class DemoRig:
         pre-rendering take seconds; the surgery tour renders beside the feed as it plays). Raises OSError when the
         IMU simulator did not come up."""
         self._start_imu()                       # the IMU streams while the scene is prepared
-        if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
-            options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
-                                                       "blur_sigma_px": self.errors.blur_px,
-                                                       "tip_offsets_mm": self.errors.tip_offsets_mm}
-            if self.moving_camera:
-                self.scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain,
-                                          fps=self.fps, seed=self.seed, **options)
-                self._renderer = threading.Thread(target=self._render_ahead, args=(self.scene,),
-                                                  name="demo-tour-renderer", daemon=True)
-                self._renderer.start()
-            else:
-                scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
-                scene.prerender()
-                self.scene = scene
+        if self.moving_camera:                  # its renderer builds it and renders it as it plays
+            self._scene_ready.wait()
+            if self.scene is None:
+                raise OSError("the surgery demo's scene could not be built; see the log")
+        elif self.scene is None:                # rendered once: a restart after a calibration replays the same tour
+            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **self._scene_options())
+            scene.prerender()
+            self.scene = scene
         if self.moving_camera and self._epoch_ns is None:
             self._epoch_ns = self._wait_for_epoch()
         # a camera (DESIGN.md §3): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
@@ -177,9 +174,21 @@ class DemoRig:
         self._played = index
         return self.scene.render(index)
 
-    def _render_ahead(self, scene: SurgeryScene) -> None:
-        """The renderer beside the feed: the tour's distinct frames in order, up to :data:`RENDER_AHEAD_S` ahead of
-        the frame played last, until all are rendered or the rig closes."""
+    def _scene_options(self) -> dict:
+        """The error model's noise, blur and pointing for the rendered scene (none under the ideal model)."""
+        return {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma, "blur_sigma_px": self.errors.blur_px,
+                                               "tip_offsets_mm": self.errors.tip_offsets_mm}
+
+    def _render_ahead(self) -> None:
+        """The renderer beside the feed, from the rig's start: builds the surgery scene, then renders the tour's
+        distinct frames in order, up to :data:`RENDER_AHEAD_S` ahead of the frame played last, until all are rendered
+        or the rig closes."""
+        try:
+            scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain, fps=self.fps,
+                                 seed=self.seed, **self._scene_options())
+            self.scene = scene
+        finally:
+            self._scene_ready.set()
         within = int(RENDER_AHEAD_S * self.fps)
         while not self._stop_rendering.is_set() and scene.rendered < scene.distinct_frames:
             if not scene.render_next(self._played, within):
