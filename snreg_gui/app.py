@@ -216,8 +216,11 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
             self._show_placeholder(NO_RIG_TEXT if self.rig is None else "No session: File > New session...")
             return
         limits = self.options.limits()
-        self.acquisition = AcquisitionScreen(self.rig.imu, self.fixes_per_node, limits.max_spread_mm,
-                                             self.options.untracked_text(self.rig), self.error_sources)
+        rig = self.rig
+        preparing = (lambda: rig.preparing) if isinstance(rig, DemoRig) else None     # the demo's tour rendering
+        self.acquisition = AcquisitionScreen(rig.imu, self.fixes_per_node, limits.max_spread_mm,
+                                             self.options.untracked_text(rig), self.error_sources,
+                                             preparing=preparing)
         self.acquisition.set_nodes(self.session.intraop_records(kind=None))      # the landmarks too, marked
         self.acquisition.set_landmark_names(self.registration.preop_box.landmarks)
         self._show_in_acquisition_tab(self.acquisition)

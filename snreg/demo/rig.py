@@ -15,7 +15,11 @@ position and the table's tilt. ``camera="surgery"``: :mod:`snreg.demo.surgery_sc
 between rests in the same patient; the simulator plays the same motion (``--motion``), holding its start
 ``IMU_HOLD_S`` after its stream starts (its fusion's still start) and writing the host-clock instant the motion starts
 (``--epoch-file``); the rendered feed counts its frames from that instant (``epoch_ns``), so each frame meets the
-orientation it was rendered at, however long the simulator process took to start.
+orientation it was rendered at, however long the simulator process took to start. The IMU starts first (it is shown
+streaming, not stale, while the scene is prepared), and the surgery tour is rendered as it plays: a thread started with
+the rig renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
+frame not ready yet itself, and :attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery
+tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (20-60 s).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -60,6 +65,7 @@ IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loa
 IMU_HOLD_S = 5.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (its
                                # 3 s start-up, then 2 s at its normal gain to settle from level to the tilted patient's
                                # pose: 0.4 deg left after 3 s) before the camera first moves
+RENDER_AHEAD_S = 10.0          # the surgery tour is rendered this far ahead of the play (a rest and the move after it)
 
 
 def interactive_schedule(fps: float = DEMO_FPS) -> Schedule:
@@ -121,6 +127,12 @@ class DemoRig:
             attitude = ",".join(f"{v:.6f}" for v in euler_from_rotation(self._start_orientation()))
             self._launch_imu("--still", f"--attitude={attitude}")
         self.imu = ImuMonitor(str(self._link))
+        self._played = 0                        # the tour frame the feed asked for last (the renderer keeps ahead of it)
+        self._renderer: threading.Thread | None = None
+        self._stop_rendering, self._scene_ready = threading.Event(), threading.Event()
+        if self.moving_camera:                  # the tour starts rendering now: the app's start-up is time gained
+            self._renderer = threading.Thread(target=self._render_ahead, name="demo-tour-renderer", daemon=True)
+            self._renderer.start()
 
     @property
     def moving_camera(self) -> bool:
@@ -134,29 +146,62 @@ class DemoRig:
         return f"demo: {scene}, simulated IMU"
 
     def frame_source(self) -> FrameSource:
-        """The rendered stereo feed; call it in the worker thread (the IMU process starting and the scene
-        pre-rendering take seconds). Raises OSError when the IMU simulator did not come up."""
-        if not self.moving_camera:              # the still IMU streams while the tour renders
-            self._start_imu()
-        if self.scene is None:                  # rendered once: a restart after a calibration replays the same tour
-            options = {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma,
-                                                       "blur_sigma_px": self.errors.blur_px,
-                                                       "tip_offsets_mm": self.errors.tip_offsets_mm}
-            if self.moving_camera:
-                scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain, fps=self.fps,
-                                     seed=self.seed, **options)
-            else:
-                scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **options)
+        """The rendered stereo feed; call it in the worker thread (the IMU process starting and the still scene
+        pre-rendering take seconds; the surgery tour renders beside the feed as it plays). Raises OSError when the
+        IMU simulator did not come up."""
+        self._start_imu()                       # the IMU streams while the scene is prepared
+        if self.moving_camera:                  # its renderer builds it and renders it as it plays
+            self._scene_ready.wait()
+            if self.scene is None:
+                raise OSError("the surgery demo's scene could not be built; see the log")
+        elif self.scene is None:                # rendered once: a restart after a calibration replays the same tour
+            scene = PhantomScene(self.cameras, self.probe, self.schedule, seed=self.seed, **self._scene_options())
             scene.prerender()
             self.scene = scene
-        self._start_imu()
         if self.moving_camera and self._epoch_ns is None:
             self._epoch_ns = self._wait_for_epoch()
         # a camera (docs/design.md, Conventions): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
         # skipped when tracking falls behind, while the scene goes on at its own pace (the surgery tour's counted
         # from the IMU motion's start, so a restart goes on where the tour is)
         name = "Demo surgery" if self.moving_camera else "Demo phantom"
-        return CallableSource(self.scene.render, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
+        render = self._play if self.moving_camera else self.scene.render
+        return CallableSource(render, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
+
+    @property
+    def preparing(self) -> str:
+        """What the rig is still preparing, in words ("rendering the surgery tour, 40 of 145"); "" when nothing."""
+        if not self.moving_camera:
+            return ""
+        scene = self.scene
+        if scene is None:
+            return "preparing the surgery tour"
+        done, total = scene.rendered, scene.distinct_frames
+        return f"rendering the surgery tour, {done} of {total}" if done < total else ""
+
+    def _play(self, index: int):
+        """The feed's frame ``index`` of the surgery tour (rendered now when the renderer ahead has not yet)."""
+        self._played = index
+        return self.scene.render(index)
+
+    def _scene_options(self) -> dict:
+        """The error model's noise, blur and pointing for the rendered scene (none under the ideal model)."""
+        return {} if self.errors is None else {"noise_sigma": self.errors.noise_sigma, "blur_sigma_px": self.errors.blur_px,
+                                               "tip_offsets_mm": self.errors.tip_offsets_mm}
+
+    def _render_ahead(self) -> None:
+        """The renderer beside the feed, from the rig's start: builds the surgery scene, then renders the tour's
+        distinct frames in order, up to :data:`RENDER_AHEAD_S` ahead of the frame played last, until all are rendered
+        or the rig closes."""
+        try:
+            scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain, fps=self.fps,
+                                 seed=self.seed, **self._scene_options())
+            self.scene = scene
+        finally:
+            self._scene_ready.set()
+        within = int(RENDER_AHEAD_S * self.fps)
+        while not self._stop_rendering.is_set() and scene.rendered < scene.distinct_frames:
+            if not scene.render_next(self._played, within):
+                self._stop_rendering.wait(0.05)        # all near frames ready: wait for the play to move on
 
     def nodes_trocar(self) -> np.ndarray:
         """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured by)."""
@@ -223,7 +268,10 @@ class DemoRig:
         self.imu.start()
 
     def close(self) -> None:
-        """Stop the IMU reader and its simulator process; call after the worker has stopped."""
+        """Stop the tour's renderer, the IMU reader and its simulator process; call after the worker has stopped."""
+        self._stop_rendering.set()
+        if self._renderer is not None:
+            self._renderer.join()
         self.imu.stop()
         self._simulator.terminate()
         try:

@@ -14,13 +14,17 @@ between rests it glides to the next node while the camera moves (:class:`~snreg.
 
 The chain is the thesis' manual one with the endoscope held as the phantom's set-up holds it (looking caudally
 34 degrees below the patient's coronal plane, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`, on a table tilted 27 degrees
-head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half
-resolution, so every frame of the tour is rendered once (:meth:`SurgeryScene.prerender`: one radiance and
-``noise_variants`` exposures of each eye per rest, paired apart frame by frame, one render per moving frame) and
-replayed from memory.
+head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which
+the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half resolution, so every distinct frame
+of the tour (one radiance per rest, exposed ``noise_variants`` times per eye and paired apart frame by frame; one
+render per moving frame) is rendered once and replayed from memory: on first use (:meth:`SurgeryScene.render`), or
+ahead of the play in tour order (:meth:`SurgeryScene.render_next`, which the demo rig runs beside the feed, so the
+first frame need not wait for the whole tour: 20-60 s on a loaded machine).
 """
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 
@@ -92,8 +96,9 @@ class SurgeryScene:
         self._rest_axes = np.array([pose[:3, :3] @ PROBE_AXIS for pose in rests])
         surface = TissueSurface(**_TISSUE, anchors=tuple(tuple(float(v) for v in p) for p in self.nodes_trocar))
         self.tissue = TissueScene(calibration, probe, surface, probe_in_front=True)
-        self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}       # moving frames by frame in the tour
-        self._rests: dict[int, RestExposures] = {}
+        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._rendering = threading.Lock()          # one render at a time: the feed and the renderer ahead share it
+        self._distinct = len({self._key(index) for index in range(self.cycle)})
 
     @property
     def cycle(self) -> int:
@@ -126,29 +131,63 @@ class SurgeryScene:
         camera_from_trocar = invert(self.trocar_from_camera(index))
         return ProbePose.make(apply(camera_from_trocar, tip[None])[0], camera_from_trocar[:3, :3] @ axis)
 
+    @property
+    def distinct_frames(self) -> int:
+        """Distinct frames in one tour: what rendering it all takes."""
+        return self._distinct
+
+    @property
+    def rendered(self) -> int:
+        """Distinct frames rendered so far."""
+        return len(self._cache)
+
     def prerender(self) -> None:
         """Render every frame of the tour once, so :meth:`render` only replays."""
-        for index in range(self.cycle):
-            self.render(index)
+        while self.render_next():
+            pass
+
+    def render_next(self, after: int = 0, within: int | None = None) -> bool:
+        """Render the first distinct frame not rendered yet from frame ``after`` on in tour order (wrapping round),
+        at most ``within`` frames ahead (None: anywhere); False when there is none (all rendered, or none that
+        near)."""
+        ahead = self.cycle if within is None else min(int(within), self.cycle)
+        start = after % self.cycle
+        for step in range(ahead):
+            index = (start + step) % self.cycle
+            if self._key(index) not in self._cache:
+                self.render(index)
+                return True
+        return False
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback): a rest's exposures paired
-        apart frame by frame (:class:`~snreg.demo.rest_exposures.RestExposures`), a moving frame as rendered."""
-        resting = self.resting_node(index)
-        if resting is not None:
-            if resting not in self._rests:
-                seed = self.seed * 10**7 + (resting + 1) * 10**6
-                radiance = self.tissue.radiance(self.trocar_from_camera(index), self.pose(index), self._options(seed))
-                self._rests[resting] = RestExposures(radiance, self._expose, self.schedule.noise_variants, seed)
-            return self._rests[resting].pair(index)
-        key = index % self.cycle
-        if key not in self._cache:
-            self._cache[key] = self.tissue.render(self.trocar_from_camera(index), self.pose(index),
-                                                  self._options(self.seed * 10**7 + key))
-        return self._cache[key]
+        """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback; thread-safe): a rest's
+        exposures paired apart frame by frame (:class:`~snreg.demo.rest_exposures.RestExposures`), a moving frame as
+        rendered."""
+        key = self._key(index)
+        rendered = self._cache.get(key)
+        if rendered is None:
+            with self._rendering:
+                rendered = self._cache.get(key)         # rendered while this waited
+                if rendered is None:
+                    rendered = self._cache[key] = self._render_distinct(index, key)
+        return rendered.pair(index) if isinstance(rendered, RestExposures) else rendered
+
+    def _render_distinct(self, index: int, key: tuple[int, int]):
+        if key[0] >= 0:                                 # a rest: one radiance, its exposures drawn apart
+            seed = self.seed * 10**7 + (key[0] + 1) * 10**6
+            radiance = self.tissue.radiance(self.trocar_from_camera(index), self.pose(index), self._options(seed))
+            return RestExposures(radiance, self._expose, self.schedule.noise_variants, seed)
+        return self.tissue.render(self.trocar_from_camera(index), self.pose(index),
+                                  self._options(self.seed * 10**7 + key[1]))
 
     def _options(self, seed: int) -> RenderOptions:
         return RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px, seed=seed)
 
     def _expose(self, radiance, seed: int) -> tuple[np.ndarray, np.ndarray]:
         return self.tissue.renderer.expose(radiance, self._options(seed))
+
+    def _key(self, index: int) -> tuple[int, int]:
+        """Frames rendered once share a key: (node, 0) while resting, (-1, frame in the tour) moving."""
+        resting = self.resting_node(index)
+        return (resting, 0) if resting is not None else (-1, index % self.cycle)
+

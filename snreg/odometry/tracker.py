@@ -92,6 +92,7 @@ class _Step:
     points: int
     depth_mm: float          # median depth of the agreeing points now
     keyframe: Keyframe
+    rotation: np.ndarray     # (3, 3) the camera's trocar_from_camera rotation now, as the motion fit says
 
 
 class InsertionTracker:
@@ -155,7 +156,8 @@ class InsertionTracker:
         keyframe = self._add_keyframe(view, rotation, self.start_mm, 0.0)
         if keyframe is None:
             return self._lost("too few tissue features to start from")
-        self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe)
+        self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe,
+                           keyframe.rotation)
         self._last_index = self._index
         return InsertionEstimate(self._index, TRACKED, self.start_mm, 1.0, self.start_sd_mm, 0.0, START_REASON,
                                  len(keyframe.points), keyframe.number, 0.0)
@@ -257,7 +259,8 @@ class InsertionTracker:
             return None, f"{free.failure}, so the camera's departure from the pivot model is unknown"
         residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
         now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
-        return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe), ""
+        return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe,
+                     keyframe.rotation @ fit.rotation.T), ""
 
     def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float) -> list[Keyframe]:
         """Keyframes close enough in scale and turn to follow into this view at this rotation and insertion, with
@@ -283,7 +286,10 @@ class InsertionTracker:
         return max(float(now[2]), 1.0) / max(keyframe.median_depth_mm, 1.0)
 
     def _renew(self, view: View, rotation: np.ndarray, step: _Step) -> None:
-        """A new keyframe from this pair when no keyframe is fresh for it."""
+        """A new keyframe from this pair when no keyframe is fresh for it, with the camera's rotation the motion fit
+        found (``step.rotation``), not the IMU's reading at this one instant: a reading off while the camera moves (the
+        IMU's lag behind the grab time) would otherwise stay in every later pair's relative rotation from this
+        keyframe, a pivot residual of the insertion times that error where nothing moves (issue 35)."""
         p = self.params
         for keyframe in self.keyframes:
             angle = float(rotation_angle_deg(rotation.T @ keyframe.rotation))
@@ -291,7 +297,7 @@ class InsertionTracker:
             if angle <= p.fresh_angle_deg and scale <= p.fresh_scale and (
                     keyframe is not step.keyframe or step.points >= 0.6 * len(keyframe.points)):
                 return
-        self._add_keyframe(view, rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm)
+        self._add_keyframe(view, step.rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm)
 
     def _add_keyframe(self, view: View, rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
                       depth_mm: float = 80.0) -> Keyframe | None:

@@ -167,7 +167,7 @@ class View:
 @dataclass(eq=False)
 class Keyframe:
     """Tissue points (N, 3, left camera frame, mm) of one pair with where they are in it (working pixels, both
-    eyes), the pair's band-passed images (and the coarse left one with its mask), its camera rotation (``trocar_from_camera``, 3 x 3, from the IMU), insertion
+    eyes), the pair's band-passed images (and the coarse left one with its mask), its camera rotation (``trocar_from_camera``, 3 x 3: the IMU's at the first, the motion fit's after), insertion
     (mm) and that insertion's variance (mm², from the keyframes it was measured from), and its contrast."""
 
     number: int

@@ -69,7 +69,8 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
     """Emits ``store_requested(StoreRequest)``, ``undo_requested()``, ``fixes_per_node_changed(int)`` and
     ``max_spread_changed(float)``; fed by :meth:`show_result`, :meth:`add_node`, :meth:`remove_node`,
     :meth:`show_store_problem`, :meth:`ask_to_confirm`, :meth:`offer_override` and :meth:`set_paused`.
-    ``confirm_box``: the question a press asked, while it is open."""
+    ``confirm_box``: the question a press asked, while it is open. ``preparing``: a callable that says what the rig is
+    still preparing (the demo's tour rendering), shown on the camera line."""
 
     store_requested = Signal(object)
     undo_requested = Signal()
@@ -78,9 +79,10 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
 
     def __init__(self, imu: ImuMonitor, fixes_per_node: int = THESIS_FIXES_PER_NODE,
                  max_spread_mm: float = StoreLimits.max_spread_mm, untracked: str = "camera insertion not tracked",
-                 error_sources: dict | None = None):
+                 error_sources: dict | None = None, preparing=None):
         super().__init__()
         self._imu = imu
+        self._preparing = preparing or str         # what the rig is still preparing, in words ("": nothing)
         self._last_result: FrameResult | None = None
         self._last_arrival_ns: int | None = None
         self._store_pending = False
@@ -386,7 +388,7 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         if self._last_result is not None:
             self._update_store_state()           # a feed that stopped disables Store SN
         for line, (text, style) in ((self.video_health, camera_health(self._last_result, self._feed_age_s(),
-                                                                      self._paused)),
+                                                                      self._paused, self._preparing())),
                                     (self.imu_health, imu_health(self._imu.snapshot()))):
             line.setText(text)
             set_style(line, style)
