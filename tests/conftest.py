@@ -23,6 +23,25 @@ def _own_settings_per_test(tmp_path_factory):
     yield
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """A test marked ``realtime`` runs alone: under pytest-xdist it holds the suite's lock exclusively (its setup,
+    module fixtures included, and its teardown), every other test holds it shared. Such a test drives a live feed at
+    its own pace (the demo rig, a recording), and a live source skips the frames its consumer cannot take, as a camera
+    does: beside another worker's CPU-bound tests its store windows did not fill and its nodes were not stored."""
+    token = getattr(item.config, "workerinput", {}).get("testrunuid")
+    if token is None:                                       # not under xdist: nothing runs beside it
+        yield
+        return
+    import fcntl
+    with open(os.path.join(tempfile.gettempdir(), f"snreg-suite-{token}.lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX if item.get_closest_marker("realtime") else fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 DEADLINE_FLOOR_MS = 30_000   # a wait's deadline only names a hang; it never measures speed (the suite runs loaded)
 
 

@@ -17,6 +17,8 @@ from snreg.session import Session
 from snreg.workflow import acquisition
 from snreg.workflow.acquisition import THESIS_FIXES_PER_NODE
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 
 def _outcome(spread: float, fix: bool = True):
     return SimpleNamespace(fix=object() if fix else None, window_spread_mm=spread)

@@ -13,6 +13,8 @@ from snreg.geometry import apply, euler_from_rotation, invert, rotation_angle_de
 from snreg.preop.gravity import PreopDown
 from snreg.session import Session
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 
 def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     path = tmp_path / "demo.h5"

@@ -1,11 +1,14 @@
 """The app starts offscreen (pytest-qt), with and without the demo rig."""
 
 import numpy as np
+import pytest
 from PySide6.QtWidgets import QLabel
 
 from snreg_gui.app import MainWindow
 from snreg_gui.common.feed_view import FeedView
 from snreg_gui.window_closing import end_question
+
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
 
 def test_main_window_starts_in_demo_mode(qtbot, tmp_path):

@@ -20,6 +20,8 @@ from snreg_gui.app import MainWindow
 from snreg_gui.common.node_error import ERROR_CAPTION
 from snreg_gui.tools.bench import Heartbeat
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 FIXES = 20                      # a short store window keeps the test quick (thesis: 60)
 GROSS_STALL_MS = 250.0          # a guard against blocking work on the GUI thread; the 50 ms figure is measured by
                                 # 'python -m snreg_gui.bench' (numbers live in benchmarks, not timed tests)

@@ -24,6 +24,8 @@ from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 
 @pytest.fixture
 def settings(tmp_path):

@@ -4,6 +4,7 @@ first Run from gravity with no angle typed (issue 30: the SPECT's patient positi
 while the panel assumes the default 30, the IMU through the chain), paired as the phantom truth says, and exported."""
 
 import numpy as np
+import pytest
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QFileDialog
 
@@ -13,6 +14,8 @@ from snreg.nodes import read_nodes
 from snreg.preop.gravity import PreopDown
 from snreg.session import Session
 from snreg_gui.app import MainWindow
+
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
 FIXES = 20
 

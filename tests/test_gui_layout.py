@@ -14,6 +14,8 @@ from snreg.demo.scene import Schedule
 from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems, overlaps
 from snreg_gui.tools.screenshots import SIZES
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 LANDMARK_NAMES = ("left common iliac artery bifurcation", "right common iliac artery bifurcation",
                   "aortic bifurcation")
 PREOP_XYZ = np.array([[-55.0, 20.0, 30.0], [-45.0, 42.0, 8.0], [-47.0, 78.0, 50.0], [52.0, 18.0, 35.0],

@@ -12,6 +12,8 @@ from snreg.demo.scene import Schedule
 from snreg_gui.app import MainWindow
 from snreg_gui.common.live_link import ENABLED_KEY, PORT_KEY
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 
 def free_port() -> int:
     with socket.socket() as sock:

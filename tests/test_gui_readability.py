@@ -24,6 +24,8 @@ from snreg_gui.acquisition.status import (NO_VALUE, SPREAD_BAD, SPREAD_GOOD, SPR
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 EULER = (12.34, -4.56, 0.04)          # yaw, pitch, roll fed by the IMU stand-in
 
 

@@ -11,6 +11,8 @@ pytest.importorskip("pytestqt")
 from snreg.session import Session  # noqa: E402
 from snreg_gui.review.screen import ReviewScreen  # noqa: E402
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 
 def test_scrubbing_shows_the_recorded_pair_with_its_overlay_and_a_node_jumps_to_its_window(qtbot, recorded_video):
     path, _, _ = recorded_video

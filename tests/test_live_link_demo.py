@@ -19,6 +19,8 @@ from snreg.cli import main
 from snreg.geometry import apply
 from snreg.session import Session
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 DEMO_TIMEOUT_S = 600            # a deadline for a loaded machine, not a measurement
 
 

@@ -17,6 +17,8 @@ from snreg.session import Session, SessionError
 from snreg.session.playback import RecordedFeed
 from snreg.sources import SourceState
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 
 def test_auto_store_on_a_replay_stores_the_same_nodes(recorded_video, tmp_path):
     path, _, _ = recorded_video

@@ -22,6 +22,8 @@ from snreg.probe import default_probe_model, save_probe_model
 from snreg.rig import ABSENT, AbsentImu, HardwareRig, Imu, Rig, RigConfig, check_source
 from snreg.sources import SourceState
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 SCALE = 0.25                         # the thesis cameras at 480x270
 N_PAIRS = 3
 

@@ -28,6 +28,8 @@ from snreg.sources import CallableSource
 from snreg.workflow.acquisition import Acquisition, ImuReading
 from snreg.workflow.retrack import retrack, store_retracked
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 LEVEL = ImuReading(np.eye(3))
 
 

@@ -17,6 +17,8 @@ from snreg.session import Session
 from snreg.session.schema import CAMERA_STATES
 from snreg.workflow.acquisition import ImuReading
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 FPS = 30.0
 
 

@@ -14,6 +14,8 @@ from snreg.imu.monitor import ImuSnapshot
 from snreg_gui.acquisition.health import camera_health, imu_health
 from snreg_gui.acquisition.status import BAD
 
+pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+
 PROGRESS = re.compile(r"rendering the surgery tour, (\d+) of (\d+)")
 
 
