@@ -9,6 +9,8 @@ import pytest
 from PySide6.QtCore import QPoint
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QPushButton, QScrollArea, QVBoxLayout, QWidget
 
+from conftest import holds
+
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
 from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems, overlaps
@@ -39,13 +41,14 @@ class TurnedImu:
 
 
 def wait(condition, timeout_s: float = 60.0) -> bool:
-    """Run the event loop until ``condition()`` holds (it must not throw) or the time is up; its last value."""
+    """Run the event loop until ``condition()`` holds (conftest.holds: a throw is "not yet") or the time is up; its
+    last value."""
     from PySide6.QtWidgets import QApplication
     deadline = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < deadline:
+    while not holds(condition) and time.monotonic() < deadline:
         QApplication.processEvents()
         time.sleep(0.01)
-    return condition()
+    return holds(condition)
 
 
 def settle(window, size) -> list[str]:
