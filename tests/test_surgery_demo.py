@@ -121,7 +121,10 @@ def test_the_headless_surgery_demo_stores_every_node_where_it_is(tmp_path):
     assert out["camera"] == "surgery" and out["camera_tracking"] is True
     assert out["pairing_correct"] and len(out["nodes"]) == 4 and out["rms_mm"] < 2.0
     errors = [np.linalg.norm(np.subtract(node["xyz_trocar"], node["truth_trocar"])) for node in out["nodes"]]
-    assert max(errors) < 2.0, errors                     # a 10-20 mm slide unseen would put them that far off
+    # a 10-20 mm slide unseen would put them that far off; the deep node (118 mm, OBT R) carries quarter-resolution
+    # stereo's depth bias, 1.98 mm before issue 35 and 2.1-2.3 mm since its rests draw fresh noise per frame (seed 1);
+    # the insertion below is the fine check
+    assert max(errors) < 3.0, errors
     with Session.open(run.session_path) as session:
         camera = session.stream("camera")
         insertion = {node.id: node.trocar_camera_mm for node in session.intraop_records()}
