@@ -148,11 +148,12 @@ def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served
     # every pose sent live is in the recording: the live one took the IMU filter's orientation when the frame was
     # processed, the export slerps the re-fused orientation at the frame's grab, so on the still rig they differ by
     # the filter's jitter over the processing lag (longer under load): hundredths of a degree, 270 mm from the trocar
-    # (0.075 deg seen in a fresh-clone run; 0.2 deg is 0.9 mm there, still far below a wrong pose)
+    # (0.075 deg and 0.205 mm seen in fresh-clone runs; 0.2 deg is 0.9 mm there, far below a wrong pose: the rests
+    # lie tens of mm apart)
     for live in served_demo["client"].messages("ProbeTipToTrocar"):
         matrix = np.asarray(live.matrix)
         gap = np.linalg.norm(poses[:, :3, 3] - matrix[:3, 3], axis=1)
-        assert gap.min() < 0.2
+        assert gap.min() < 1.0
         assert rotation_distance_deg(poses[int(np.argmin(gap)), :3, :3], matrix[:3, :3]) < 0.2
 
 
