@@ -96,8 +96,7 @@ def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame_throug
     settled: median 0.03 deg, p95 0.1 deg; 0.2 deg in its first seconds). Issue 35: the first rest is held past its
     end until released (nobody stored: the test releases it a second later), the IMU holding with the camera over
     its own channel, and both move on together."""
-    rig = DemoRig(scale=0.125, schedule=Schedule(rest_frames=60), camera="surgery", seed=4, hold_rests=True,
-                  release_lead_s=0.3)
+    rig = DemoRig(scale=0.125, schedule=Schedule(rest_frames=60), camera="surgery", seed=4, hold_rests=True)
     errors, truth, moving, tours, released = [], [], [], [], []
     hold = rig.schedule.rest_frames - 1                                   # the first rest's last frame
     try:
@@ -110,7 +109,7 @@ def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame_throug
                 moving.append(tour > hold)
                 tours.append((frame.index, tour))
                 if tour == hold and frame.index >= hold + 30:
-                    released.append(rig.release_rest(frame.index))        # the probe lifts 0.3 s later
+                    released.append(rig.release_rest(frame.index))        # the probe lifts a second later
                 if tour > rig.scene.tour.rest_starts[1] + 10:             # through the first move into the next rest
                     break
     finally:

@@ -20,6 +20,14 @@ streaming, not stale, while the scene is prepared), and the surgery tour is rend
 the rig renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
 frame not ready yet itself, and :attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery
 tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (20-60 s).
+
+``hold_rests`` (the app's demo and the headless one, issue 35): the technician holds the probe on each node until it
+is stored, as a real one does, however few frames a loaded computer processes: the feed's frames map to the tour's
+through :class:`~snreg.demo.held_tour.HeldTour`, whose rests end on :meth:`DemoRig.release_rest` (the node stored) or
+after a maximum; the surgery camera's IMU simulator is told each run of that clock over its standard input
+(``--timeline-stdin``), so the camera and the IMU hold and move on together. A frame's ``index`` stays the feed's (it
+counts wall-clock frames, skipped ones included); :meth:`DemoRig.tour_frame` and :meth:`DemoRig.resting_node` give
+the truth at it.
 """
 
 from __future__ import annotations
