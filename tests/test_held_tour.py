@@ -74,6 +74,7 @@ def test_a_held_rest_shows_fresh_exposures_of_the_same_rest_and_timed_rests_igno
     assert all(0 <= s < 10 for s in shown) and len(set(shown)) == 10
     timed = tour(held=False)
     assert [timed.tour_frame(k) for k in (0, 9, 10, 31)] == [0, 9, 10, 31] and not timed.release(5)
+    assert [timed.shown_frame(k) for k in (3, 33)] == [3, 33]
 
 
 def test_the_simulated_imu_holds_where_its_timeline_holds_and_moves_in_step_after():

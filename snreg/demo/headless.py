@@ -7,6 +7,9 @@ source; the "technician" types the label written on the phantom), the phantom's 
 DICOM, read back and segmented, and the preop nodes registered to the stored ones with ``global``
 from gravity (:mod:`snreg.workflow.registration_start`: the SPECT's patient position and the table tilt the team
 enters, snreg's default; the IMU through the chain's reference), with no angle typed (:mod:`snreg.demo.phantom`).
+The technician holds the probe on each node until it is stored (issue 35: :class:`~snreg.demo.held_tour.HeldTour`),
+however few frames a loaded computer processes, and lifts it once stored or after :data:`_GIVE_UP_WINDOWS` store
+windows of processed frames without a store (a node that never holds still: the failure then says why).
 
 With a live link (:class:`snreg.workflow.live_link.LiveLink`) the run feeds it as the app does: every processed
 frame, every stored node, the preop nodes once segmented and the registration; the seconds the loop spends in those

@@ -56,7 +56,7 @@ class HeldTour:
         index picks (the same pose: a held rest still shows fresh sensor noise from frame to frame)."""
         frame = self.tour_frame(feed_index)
         rest = self._rest_at(frame)
-        if rest is None:
+        if rest is None or not self.held:               # timed rests: every frame its own, as the feed counts them
             return frame
         first, frames = rest
         return frame - frame % self.cycle + first + feed_index % frames
