@@ -26,8 +26,8 @@ is stored, as a real one does, however few frames a loaded computer processes: t
 through :class:`~snreg.demo.held_tour.HeldTour`, whose rests end on :meth:`DemoRig.release_rest` (the node stored) or
 after a maximum; the surgery camera's IMU simulator is told each run of that clock over its standard input
 (``--timeline-stdin``), so the camera and the IMU hold and move on together. A frame's ``index`` stays the feed's (it
-counts wall-clock frames, skipped ones included); :meth:`DemoRig.tour_frame` and :meth:`DemoRig.resting_node` give
-the truth at it.
+counts wall-clock frames, skipped ones included); :meth:`DemoRig.tour_frame` gives the tour
+frame (the scene's truth) at it.
 """
 
 from __future__ import annotations
@@ -51,9 +51,9 @@ from snreg.camera import thesis_calibration
 from snreg.chain import camera_to_trocar, reference_rotation
 from snreg.demo.board_tour import board_feed
 from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
+from snreg.demo.errors import ErrorModel
 from snreg.demo.held_tour import HeldTour
 from snreg.demo.motion_timeline import Run
-from snreg.demo.errors import ErrorModel
 from snreg.demo.phantom import (TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation, still_demo_chain,
                                  true_sources_lps, write_phantom_spect)
 from snreg.demo.pivot_scene import PivotScene, SceneImu
@@ -220,10 +220,6 @@ class DemoRig:
     def tour_frame(self, feed_index: int) -> int:
         """The tour frame (the scene's index: its truth) the feed showed at its frame ``feed_index``."""
         return self._tour.tour_frame(feed_index)
-
-    def resting_node(self, feed_index: int) -> int | None:
-        """The node the probe rests on at feed frame ``feed_index``, None while it moves."""
-        return self.scene.resting_node(self.tour_frame(feed_index))
 
     def release_rest(self, feed_index: int | None = None) -> bool:
         """A node was stored on feed frame ``feed_index`` (default: the newest shown): with ``hold_rests`` the probe
