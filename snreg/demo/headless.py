@@ -49,7 +49,6 @@ _IMU_WAIT_S = 5.0
 _TOURS = 3                 # of the nodes at most, before giving up (a node that never holds still)
 _GIVE_UP_WINDOWS = 3       # the technician lifts a probe not stored after this many store windows of frames processed
 _RELEASE_LEAD_S = 0.3      # the probe lifts this long after its node is stored (the surgery IMU is told in time)
-_MAX_HOLD_S = 120.0        # and moves on this long after a rest's end however few frames were processed (a stall)
 
 
 class DemoError(RuntimeError):
@@ -164,7 +163,7 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
     """:func:`run_headless` into ``session_path`` as it is (the staging folder's)."""
     schedule = Schedule(rest_frames=rest_frames_for(camera, fixes_per_node))
     rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera, hold_rests=True,
-                  release_lead_s=_RELEASE_LEAD_S, max_hold_s=_MAX_HOLD_S)
+                  release_lead_s=_RELEASE_LEAD_S)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:

@@ -3,7 +3,8 @@
 Why (issue 35): the live feed skips frames when processing falls behind, so on a loaded computer a rest of fixed
 wall-clock length ended before its store window filled and the demo failed. A technician holds the probe on the node
 until it is stored, and so does the demo's: a rest lasts until :meth:`HeldTour.release` (the node stored: the probe
-lifts ``lead_frames`` later) or, with nobody storing, ``max_hold_frames`` after the rest's nominal end; it also ends
+lifts ``lead_frames`` later) or, with nobody storing, after ``max_hold_frames`` frames delivered past the rest's
+nominal end (counted in frames the feed delivered, so a loaded computer gets as many to fill its window); it also ends
 early when the node is stored early, so an unloaded computer runs the tour faster. Feed frame ``k`` (counted from the
 feed's epoch) maps to the tour's frame through a :class:`~snreg.demo.motion_timeline.MotionTimeline` in seconds, the
 one the surgery demo's IMU simulator plays (each new run is handed to ``send``), so the camera and the IMU hold and
@@ -34,27 +35,29 @@ class HeldTour:
         self._send = send
         self._holds = sorted(first + frames - 1 for first, frames in self.rest_spans)   # each rest's last frame
         self._lock = threading.Lock()
+        self._held_frames = 0                           # frames delivered while held at the current rest's end
         first = Run(0.0, 0.0, self._hold_after(-1) / self.fps if self.held else math.inf)
         self.timeline = MotionTimeline(first)
         if send is not None:
             send(first)
 
     def tour_frame(self, feed_index: int) -> int:
-        """The tour frame at feed frame ``feed_index``; a rest held past ``max_hold_frames`` is released here."""
-        motion = float(self.timeline.motion_s(feed_index / self.fps)[0])
-        frame = round(motion * self.fps)
-        if self.held:
-            with self._lock:
-                last = self.timeline.last
-                held_from = round((last.start_s + last.until_s - last.from_s) * self.fps)
-                if round(last.until_s * self.fps) == frame and feed_index - held_from >= self.max_hold_frames:
-                    self._release(feed_index, feed_index)
-        return frame
+        """The tour frame at feed frame ``feed_index``."""
+        return round(float(self.timeline.motion_s(feed_index / self.fps)[0]) * self.fps)
 
     def shown_frame(self, feed_index: int) -> int:
-        """The tour frame to render at feed frame ``feed_index``: the tour's, or while resting the rest frame the feed
-        index picks (the same pose: a held rest still shows fresh sensor noise from frame to frame)."""
+        """The tour frame to render for feed frame ``feed_index``, which the feed delivers (call it once per frame
+        delivered: a live feed renders only those). It is the tour's frame, or while resting the rest frame the feed
+        index picks (the same pose: a held rest still shows fresh sensor noise from frame to frame). A rest held past
+        its end for ``max_hold_frames`` delivered frames (frames processed, not wall-clock time: a loaded computer
+        gets as many) is released here."""
         frame = self.tour_frame(feed_index)
+        if self.held:
+            with self._lock:
+                if round(self.timeline.last.until_s * self.fps) == frame:
+                    self._held_frames += 1
+                    if self._held_frames >= self.max_hold_frames:
+                        self._release(feed_index, feed_index)
         rest = self._rest_at(frame)
         if rest is None or not self.held:               # timed rests: every frame its own, as the feed counts them
             return frame
@@ -84,6 +87,7 @@ class HeldTour:
         hold = round(last.until_s * self.fps)
         run = Run((now_index + self.lead_frames) / self.fps, hold / self.fps, self._hold_after(hold) / self.fps)
         self.timeline.add(run)
+        self._held_frames = 0
         if self._send is not None:
             self._send(run)
         return True

@@ -79,7 +79,8 @@ IMU_HOLD_S = 5.0               # the surgery tour starts this long after the IMU
                                # pose: 0.4 deg left after 3 s) before the camera first moves
 RELEASE_LEAD_S = 1.0           # with held rests, the probe lifts this long after its node was stored: the stored node
                                # is seen on screen before it moves, and the IMU simulator is told the run in time
-MAX_HOLD_S = 60.0              # with held rests and nobody storing, the tour moves on this long after a rest's end
+MAX_HOLD_S = 60.0              # with held rests and nobody storing, the tour moves on after this many seconds' worth of
+                               # frames processed past a rest's end (more wall-clock time on a loaded computer)
 RENDER_AHEAD_S = 10.0          # the surgery tour is rendered this far ahead of the play (a rest and the move after it)
 
 
@@ -107,7 +108,8 @@ class DemoRig:
         ``schedule``: the probe's rests and moves (default: :func:`interactive_schedule`, rests a person can press
         Store SN in). ``hold_rests``: the technician holds the probe on each node until it is stored
         (:meth:`release_rest`: the probe lifts ``release_lead_s`` later, before the rest's nominal end if the store
-        came first) or, with nobody storing, ``max_hold_s`` past the rest's nominal end (:mod:`snreg.demo.held_tour`);
+        came first) or, with nobody storing, after ``max_hold_s`` worth of frames processed past the rest's nominal end
+        (:mod:`snreg.demo.held_tour`);
         else rests last their nominal frames of wall-clock time, stored or not."""
         if camera not in CAMERAS:
             raise ValueError(f"the demo camera is 'still' or 'surgery', not {camera!r}")
