@@ -36,7 +36,7 @@ def main(argv=None) -> int:
         parser.error("--camera applies to the demo only; add --demo")
     errors = _error_model(parser, args)
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    rig = DemoRig(errors=errors, camera=args.camera or "still") if args.demo else None
+    rig = DemoRig(errors=errors, camera=args.camera or "still", hold_rests=True) if args.demo else None
     window = MainWindow(args.session, demo=args.demo, rig=rig, replay=args.replay, speed=args.speed)
     for signum in (signal.SIGINT, signal.SIGTERM):         # Ctrl-C or kill: close the session and devices cleanly
         signal.signal(signum, lambda *_: window.quit_without_asking())

@@ -110,7 +110,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         if replay:
             self.replay(session_path, speed)
         elif demo:
-            self.rig = rig or DemoRig()
+            self.rig = rig or DemoRig(hold_rests=True)
             stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"      # two demos started in one second
             path = session_path or Path(tempfile.gettempdir()) / f"snreg-demo-{stamp}.h5"
             self.set_session(self._create(path, "phantom-demo"))
@@ -238,6 +238,8 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self.worker.node_error_sources.connect(self.acquisition.add_error_sources, queued)
         self.worker.node_removed.connect(self.acquisition.remove_node, queued)
         self.worker.node_stored.connect(self._nodes_changed, queued)
+        if isinstance(rig, DemoRig):            # the demo's technician lifts the probe once its node is stored
+            self.worker.node_stored.connect(lambda node: rig.release_rest(), Qt.ConnectionType.DirectConnection)
         self.worker.node_removed.connect(self._nodes_changed, queued)
         self.worker.store_failed.connect(self.acquisition.show_store_problem, queued)
         self.worker.store_confirm.connect(self.acquisition.ask_to_confirm, queued)

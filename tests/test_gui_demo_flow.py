@@ -21,13 +21,14 @@ FIXES = 20
 
 
 def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
-    rig = DemoRig(schedule=Schedule(rest_frames=FIXES + 25, move_frames=3))
+    rig = DemoRig(schedule=Schedule(rest_frames=FIXES + 25, move_frames=3), hold_rests=True)   # as snreg-gui --demo
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=rig, fixes_per_node=FIXES)
     qtbot.addWidget(window)
     window.show()
     screen, panel = window.acquisition, window.registration
     screen.auto_store.setChecked(True)
-    qtbot.waitUntil(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), timeout=60_000)
+    # held rests end on their stores, however slow the computer: the timeout is a deadline, not a measurement
+    qtbot.waitUntil(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), timeout=240_000)
     qtbot.waitUntil(lambda: panel.preop_box.nodes is not None and len(panel.preop_box.nodes) == 4, timeout=20_000)
     window.tabs.setCurrentWidget(panel)
     qtbot.waitUntil(lambda: panel.intraop_table.rowCount() == 4, timeout=5_000)    # the panel follows the stored nodes

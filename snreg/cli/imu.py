@@ -59,6 +59,11 @@ def add_imu_parser(subparsers) -> None:
     s.add_argument("--epoch-file", metavar="PATH", help="when the stream starts, write there the host time at which "
                    "the motion starts (time.perf_counter_ns(), shared by the processes of this computer), so another "
                    "program shows the same motion in step; the lines then keep to that schedule")
+    s.add_argument("--timeline-stdin", action="store_true",
+                   help="with --motion: the motion waits at its start until runs arrive on standard input, one line "
+                        "each: START FROM UNTIL (seconds from the motion's start: from clock time START the motion "
+                        "plays from FROM until UNTIL, then holds; the demo rig holding a rest until its node is "
+                        "stored); the serial protocol is unchanged")
     s.add_argument("--parent", type=positive_int, metavar="PID",
                    help="stop when process PID, the program that started this simulator, ends")
     s.set_defaults(func=cmd_imu_simulate)
@@ -155,6 +160,7 @@ def cmd_imu_simulate(args) -> int:
 
     from snreg.demo.imu_motion import MotionProfile, protractor_profile, read_motion_file, still
     from snreg.demo.imu_simulator import CsvReplay, Faults, ImuSimulator, SimulatedPort
+    from snreg.demo.motion_timeline import MotionTimeline, Run
 
     if args.parent is not None and args.parent != os.getppid():
         raise UserError(f"--parent {args.parent}: not the process that started this simulator (its parent is "
@@ -166,9 +172,12 @@ def cmd_imu_simulate(args) -> int:
     if args.replay and (args.hold or args.epoch_file):
         raise UserError("--hold and --epoch-file do not apply to --replay, which keeps the recording's times; "
                         "drop them")
+    if args.timeline_stdin and not args.motion:
+        raise UserError("--timeline-stdin paces the motion of --motion FILE; add --motion or drop it")
     if args.attitude is not None and (not args.still or len(args.attitude) != 3):
         raise UserError("--attitude holds the still sensor at YAW,PITCH,ROLL degrees: give three numbers, with --still")
     epoch_file = check_output_file(args.epoch_file, "epoch") if args.epoch_file else None
+    timeline = MotionTimeline(Run(0.0, 0.0, 0.0)) if args.timeline_stdin else None     # held at its start until told
     try:
         faults = Faults(dropout_rate=args.dropout, garbage_rate=args.garbage)
         if args.replay:
@@ -187,13 +196,15 @@ def cmd_imu_simulate(args) -> int:
                                             "at yaw, pitch, roll " + ", ".join(f"{v:g}" for v in args.attitude))
             else:
                 motion, what = protractor_profile(repeat=True), "protractor moves (1, 5, 10 deg about y and z)"
-            source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed)
+            source = ImuSimulator(motion, rate_hz=rate, faults=faults, seed=args.seed, timeline=timeline)
             what += f" at {rate:g} Hz"
         port = SimulatedPort(source, port_link=args.port_link, hold_s=args.hold,
                              on_start=None if epoch_file is None else lambda ns: _write_epoch(epoch_file, ns))
     except (ValueError, OSError) as err:
         raise UserError(str(err)) from None
     previous = signal.signal(signal.SIGTERM, _interrupt)      # `kill` cleans up like Ctrl-C
+    if timeline is not None:
+        threading.Thread(target=timeline.follow, args=(sys.stdin,), daemon=True).start()
     if args.parent is not None:
         threading.Thread(target=_stop_with_parent, args=(args.parent,), daemon=True).start()
     try:

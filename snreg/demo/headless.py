@@ -7,6 +7,9 @@ source; the "technician" types the label written on the phantom), the phantom's 
 DICOM, read back and segmented, and the preop nodes registered to the stored ones with ``global``
 from gravity (:mod:`snreg.workflow.registration_start`: the SPECT's patient position and the table tilt the team
 enters, snreg's default; the IMU through the chain's reference), with no angle typed (:mod:`snreg.demo.phantom`).
+The technician holds the probe on each node until it is stored (issue 35: :class:`~snreg.demo.held_tour.HeldTour`),
+however few frames a loaded computer processes, and lifts it once stored or after :data:`_GIVE_UP_WINDOWS` store
+windows of processed frames without a store (a node that never holds still: the failure then says why).
 
 With a live link (:class:`snreg.workflow.live_link.LiveLink`) the run feeds it as the app does: every processed
 frame, every stored node, the preop nodes once segmented and the registration; the seconds the loop spends in those
@@ -43,7 +46,9 @@ N_NODES = len(NODE_CENTRES_MM)
 # these options repeats it (its defaults differ: each node's covariance, no labels), as the output says.
 REPEAT_OPTIONS = "--labels --no-covariances"
 _IMU_WAIT_S = 5.0
-_TOURS = 3                 # of the nodes at most, before giving up (a loaded computer skips frames: rests miss nodes)
+_TOURS = 3                 # of the nodes at most, before giving up (a node that never holds still)
+_GIVE_UP_WINDOWS = 3       # the technician lifts a probe not stored after this many store windows of frames processed
+_RELEASE_LEAD_S = 0.3      # the probe lifts this long after its node is stored (the surgery IMU is told in time)
 
 
 class DemoError(RuntimeError):
@@ -146,17 +151,19 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
 
 
 def rest_frames_for(camera: str, fixes_per_node: int) -> int:
-    """The headless demo's rests, in frames: nobody presses a key, so no longer than auto-store needs. The feed is live
-    (frames skipped while tracking lags), so each rest lasts twice the frames a node needs, three times with the
-    surgery camera (tracking its insertion costs time too), and a second more."""
-    return (3 if camera == "surgery" else 2) * fixes_per_node + 30
+    """The headless demo's rests, in frames, before the technician holds on (:class:`~snreg.demo.held_tour.HeldTour`):
+    the frames a node needs at the full rate and a second more (either camera). A rest ends when its node is stored,
+    so it is shorter when the computer keeps up, and held longer when the live feed skips frames (a loaded computer):
+    its length never decides whether the window fills."""
+    return fixes_per_node + 30
 
 
 def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, link, errors, video: bool, camera: str,
          camera_tracking: bool) -> HeadlessResult:
     """:func:`run_headless` into ``session_path`` as it is (the staging folder's)."""
     schedule = Schedule(rest_frames=rest_frames_for(camera, fixes_per_node))
-    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera)
+    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera, hold_rests=True,
+                  release_lead_s=_RELEASE_LEAD_S)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
@@ -195,29 +202,34 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
                               video_fps=rig.fps if video else None, insertion=insertion)
     limit, read, tail, stored_at, rests, ended = _TOURS * rig.scene.cycle, 0, 0, [], RestLog(), ""
+    tour, at_rest, shown = 0, 0, 0             # the tour frame; frames processed on this rest; feed frames shown
     with source:
         for frame in source:
             read += 1
+            shown, tour = frame.index + 1, rig.tour_frame(frame.index)
             outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))
             feed("show_frame", outcome)
-            node = rig.scene.resting_node(frame.index)
+            node = rig.scene.resting_node(tour)
             due = outcome.auto_store_due and node is not None
             if due:
                 feed("add_node", acquisition.store(session.next_node_id(), PHANTOM_LABELS[node], left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
                 stored_at.append(node)
+            at_rest = 0 if node is None else at_rest + 1
+            if due or at_rest == _GIVE_UP_WINDOWS * fixes_per_node:      # stored, or never still: the probe lifts
+                rig.release_rest(frame.index)
             rests.add(node, outcome, stored=due, window=fixes_per_node)
             if len(session.intraop_records()) == N_NODES:
                 tail += 1                            # a second more on record: a replay meets the last rest whole
                 if tail > _tail_frames(rig):
                     return read, stored_at
-            if frame.index >= limit:
+            if tour >= limit:
                 break
         else:                                        # the feed ended before the tours did: its reason, while it has one
             ended = source.problem or "the frame source ended early"
     why = rests.why_missing(set(stored_at), PHANTOM_LABELS, fixes_per_node=fixes_per_node, still_mm=STILL_SPREAD_MM)
     raise DemoError(f"only {len(stored_at)} of {N_NODES} nodes were stored in {_TOURS} tour{'s' * (_TOURS > 1)} of "
-                    f"the nodes ({read} of {limit} frames processed): " + "; ".join(p for p in (ended, why) if p))
+                    f"the nodes ({read} of {shown} frames processed): " + "; ".join(p for p in (ended, why) if p))
 
 
 def _tail_frames(rig: DemoRig) -> int:

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.demo.imu_motion import MotionProfile, still
+from snreg.demo.motion_timeline import MotionTimeline
 from snreg.files import read_text_file
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US, StreamCounts, format_info, format_line
 
@@ -36,6 +37,7 @@ __all__ = ["SensorModel", "Faults",
 ACCEL_LSB_MG = {2: 0.061, 4: 0.122, 8: 0.244, 16: 0.488}             # LSM6DSOX sensitivity per full scale (g)
 GYRO_LSB_MDPS = {125: 4.375, 250: 8.75, 500: 17.5, 1000: 35.0, 2000: 70.0}   # (deg/s)
 _CHUNK = 256                  # samples generated per block
+_TIMELINE_CHUNK = 8           # with a timeline told while it plays: blocks of 40 ms, so a run sent ahead is met
 _INFO_EVERY_S = 5.0           # the info line repeats, like the firmware's, so a late reader learns the rate
 _MAX_LAG_S = 0.2              # further behind schedule than this (nobody reading): resume, do not burst
 _SETTLE_S = 0.1               # after the port opened, before the first line
@@ -160,20 +162,22 @@ class ImuSimulator(_LineSource):
     """Simulated LSM6DSOX on a motion profile (default: still and level).
 
     rate_hz: output data rate; n_samples: stream length (None: endless); start_us: device time of
-    the first sample (near 2**32 to exercise the wrap). ``gyro_bias_dps`` is the drawn bias.
+    the first sample (near 2**32 to exercise the wrap). ``gyro_bias_dps`` is the drawn bias. ``timeline``: the
+    profile plays on this :class:`~snreg.demo.motion_timeline.MotionTimeline` (held where it holds, skipping where it
+    skips; times from the motion's start), which may be told new runs while the stream plays.
     """
 
     sensor_name = "LSM6DSOX-sim"
 
     def __init__(self, profile: MotionProfile | None = None, *, rate_hz: float = 208.0,
                  sensor: SensorModel = SensorModel(), faults: Faults = Faults(), seed: int = 0,
-                 n_samples: int | None = None, start_us: int = 0):
+                 n_samples: int | None = None, start_us: int = 0, timeline: MotionTimeline | None = None):
         if not rate_hz > 0:
             raise ValueError(f"sample rate must be positive, got {rate_hz} Hz")
         super().__init__(faults, seed)
         self.profile = profile or MotionProfile([still(1.0)])
         self.rate_hz, self.sensor, self.n_samples, self.start_us = float(rate_hz), sensor, n_samples, int(start_us)
-        self.decimals = 6
+        self.decimals, self.timeline = 6, timeline
         self.gyro_bias_dps = np.random.default_rng([seed, 0]).uniform(-1, 1, 3) * sensor.gyro_bias_max_dps
 
     def true_orientation(self, t_device_us) -> Rotation:
@@ -194,13 +198,16 @@ class ImuSimulator(_LineSource):
 
     def _blocks(self, motion_offset_s: float = 0.0) -> Iterator[Readings]:
         rng_accel, rng_gyro = np.random.default_rng([self.seed, 1, 0]), np.random.default_rng([self.seed, 1, 1])
-        start = 0
+        start, chunk = 0, _CHUNK if self.timeline is None else _TIMELINE_CHUNK
         while self.n_samples is None or start < self.n_samples:
-            count = _CHUNK if self.n_samples is None else min(_CHUNK, self.n_samples - start)
+            count = chunk if self.n_samples is None else min(chunk, self.n_samples - start)
             t = (start + np.arange(count)) / self.rate_hz
-            sensor_from_world = self.profile.orientation(t + motion_offset_s).inv()
+            motion, rate = t + motion_offset_s, 1.0
+            if self.timeline is not None:
+                motion, rate = self.timeline.motion_s(motion), self.timeline.rate(motion)[:, None]
+            sensor_from_world = self.profile.orientation(motion).inv()
             accel = sensor_from_world.apply([0.0, 0.0, 1.0])
-            gyro = sensor_from_world.apply(self.profile.angular_velocity_dps(t + motion_offset_s)) + self.gyro_bias_dps
+            gyro = sensor_from_world.apply(rate * self.profile.angular_velocity_dps(motion)) + self.gyro_bias_dps
             accel, gyro = self.sensor.measure(accel, gyro, self.rate_hz, rng_accel, rng_gyro)
             t_us = (self.start_us + np.round(t * 1e6).astype(np.int64)) % DEVICE_CLOCK_WRAP_US
             yield Readings(t, t_us, accel, gyro)

@@ -20,11 +20,21 @@ streaming, not stale, while the scene is prepared), and the surgery tour is rend
 the rig renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
 frame not ready yet itself, and :attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery
 tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (20-60 s).
+
+``hold_rests`` (the app's demo and the headless one, issue 35): the technician holds the probe on each node until it
+is stored, as a real one does, however few frames a loaded computer processes: the feed's frames map to the tour's
+through :class:`~snreg.demo.held_tour.HeldTour`, whose rests end on :meth:`DemoRig.release_rest` (the node stored) or
+after a maximum; the surgery camera's IMU simulator is told each run of that clock over its standard input
+(``--timeline-stdin``), so the camera and the IMU hold and move on together. A frame's ``index`` stays the feed's (it
+counts wall-clock frames, skipped ones included); :meth:`DemoRig.tour_frame` gives the tour
+frame (the scene's truth) at it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import math
 import os
 import subprocess
 import sys
@@ -42,6 +52,8 @@ from snreg.chain import camera_to_trocar, reference_rotation
 from snreg.demo.board_tour import board_feed
 from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
+from snreg.demo.held_tour import HeldTour
+from snreg.demo.motion_timeline import Run
 from snreg.demo.phantom import (TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation, still_demo_chain,
                                  true_sources_lps, write_phantom_spect)
 from snreg.demo.pivot_scene import PivotScene, SceneImu
@@ -65,6 +77,10 @@ IMU_START_TIMEOUT_S = 60.0     # the simulator process starting on a heavily loa
 IMU_HOLD_S = 5.0               # the surgery tour starts this long after the IMU stream: the fusion's still start (its
                                # 3 s start-up, then 2 s at its normal gain to settle from level to the tilted patient's
                                # pose: 0.4 deg left after 3 s) before the camera first moves
+RELEASE_LEAD_S = 1.0           # with held rests, the probe lifts this long after its node was stored: the stored node
+                               # is seen on screen before it moves, and the IMU simulator is told the run in time
+MAX_HOLD_S = 60.0              # with held rests and nobody storing, the tour moves on after this many seconds' worth of
+                               # frames processed past a rest's end (more wall-clock time on a loaded computer)
 RENDER_AHEAD_S = 10.0          # the surgery tour is rendered this far ahead of the play (a rest and the move after it)
 
 
@@ -84,12 +100,17 @@ class DemoRig:
     simulated = True
 
     def __init__(self, *, scale: float = 0.5, schedule: Schedule | None = None, fps: float = DEMO_FPS, seed: int = 0,
-                 errors: ErrorModel | None = None, camera: str = "still"):
+                 errors: ErrorModel | None = None, camera: str = "still", hold_rests: bool = False,
+                 release_lead_s: float = RELEASE_LEAD_S, max_hold_s: float = MAX_HOLD_S):
         """``errors``: an error model (:mod:`snreg.demo.errors`) the rig runs with, drawn under ``seed``
         (:class:`~snreg.demo.error_rig.DemoErrors`); None: nothing errs but the render's noise (the ideal model).
         ``camera``: "still" (the thesis' phantom) or "surgery" (the camera slides and turns between nodes).
         ``schedule``: the probe's rests and moves (default: :func:`interactive_schedule`, rests a person can press
-        Store SN in)."""
+        Store SN in). ``hold_rests``: the technician holds the probe on each node until it is stored
+        (:meth:`release_rest`: the probe lifts ``release_lead_s`` later, before the rest's nominal end if the store
+        came first) or, with nobody storing, after ``max_hold_s`` worth of frames processed past the rest's nominal end
+        (:mod:`snreg.demo.held_tour`);
+        else rests last their nominal frames of wall-clock time, stored or not."""
         if camera not in CAMERAS:
             raise ValueError(f"the demo camera is 'still' or 'surgery', not {camera!r}")
         self.camera = camera
@@ -117,12 +138,21 @@ class DemoRig:
         self._link = Path(self._folder.name) / "imu"
         self._epoch_ns: int | None = None
         self._epoch_file = Path(self._folder.name) / "epoch"
+        self.hold_rests = bool(hold_rests)
+        self._hold_options = dict(held=self.hold_rests, lead_frames=math.ceil(release_lead_s * fps),
+                                  max_hold_frames=round(max_hold_s * fps))
+        self._tour: HeldTour | None = None      # the tour's clock: the surgery camera's one for the rig's life (the
+        self._feed_index = 0                    # IMU plays it), the still one's per feed; the newest feed frame
         if self.moving_camera:                  # its process starts while the tour renders
             motion = Path(self._folder.name) / "motion.json"
+            tour = surgery_tour(self.schedule, self.true_chain)
             with atomic_write(motion) as temporary:
-                profile = surgery_tour(self.schedule, self.true_chain).motion_profile(self.true_chain, self.fps)
-                temporary.write_text(json.dumps(profile.to_dict()))
-            self._launch_imu("--motion", str(motion), "--hold", str(IMU_HOLD_S), "--epoch-file", str(self._epoch_file))
+                temporary.write_text(json.dumps(tour.motion_profile(self.true_chain, self.fps).to_dict()))
+            held = ("--timeline-stdin",) if self.hold_rests else ()
+            self._launch_imu("--motion", str(motion), "--hold", str(IMU_HOLD_S), "--epoch-file", str(self._epoch_file),
+                             *held)
+            self._tour = HeldTour([(first, self.schedule.rest_frames) for first in tour.rest_starts], tour.cycle,
+                                  self.fps, send=self._send_run if self.hold_rests else None, **self._hold_options)
         else:
             attitude = ",".join(f"{v:.6f}" for v in euler_from_rotation(self._start_orientation()))
             self._launch_imu("--still", f"--attitude={attitude}")
@@ -163,9 +193,12 @@ class DemoRig:
         # a camera (docs/design.md, Conventions): frames stamped at grab on the host clock of the IMU samples and stored nodes, and
         # skipped when tracking falls behind, while the scene goes on at its own pace (the surgery tour's counted
         # from the IMU motion's start, so a restart goes on where the tour is)
+        if not self.moving_camera:              # a restart replays the still tour from its start
+            rest = self.schedule.rest_frames + self.schedule.move_frames
+            self._tour = HeldTour([(n * rest, self.schedule.rest_frames) for n in range(len(self.scene.node_poses))],
+                                  self.scene.cycle, self.fps, **self._hold_options)
         name = "Demo surgery" if self.moving_camera else "Demo phantom"
-        render = self._play if self.moving_camera else self.scene.render
-        return CallableSource(render, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
+        return CallableSource(self._play, self.fps, live=True, name=name, epoch_ns=self._epoch_ns)
 
     @property
     def preparing(self) -> str:
@@ -179,9 +212,36 @@ class DemoRig:
         return f"rendering the surgery tour, {done} of {total}" if done < total else ""
 
     def _play(self, index: int):
-        """The feed's frame ``index`` of the surgery tour (rendered now when the renderer ahead has not yet)."""
-        self._played = index
-        return self.scene.render(index)
+        """The feed's frame ``index``: the tour's frame then (the surgery tour's rendered now when the renderer ahead
+        has not yet)."""
+        self._feed_index = index
+        shown = self._tour.shown_frame(index)
+        self._played = shown
+        return self.scene.render(shown)
+
+    def tour_frame(self, feed_index: int) -> int:
+        """The tour frame (the scene's index: its truth) the feed showed at its frame ``feed_index``."""
+        return self._tour.tour_frame(feed_index)
+
+    def release_rest(self, feed_index: int | None = None) -> bool:
+        """A node was stored on feed frame ``feed_index`` (default: the newest shown): with ``hold_rests`` the probe
+        lifts off that rest's node ``release_lead_s`` from now (the surgery camera and its IMU move on together).
+        False when nothing changes (rests not held, the probe moving, or that rest's end set already). Thread-safe:
+        call it from the thread that stored."""
+        if self._tour is None:
+            return False
+        now = self._feed_index
+        if self._epoch_ns is not None:          # the surgery feed's clock: the feed may be behind it
+            now = max(now, int((time.perf_counter_ns() - self._epoch_ns) * self.fps // 1e9))
+        return self._tour.release(now if feed_index is None else feed_index, now)
+
+    def _send_run(self, run: Run) -> None:
+        """Hand a run of the tour's timeline to the IMU simulator (its standard input)."""
+        try:
+            self._simulator.stdin.write(run.line())
+            self._simulator.stdin.flush()
+        except (OSError, ValueError):           # the simulator ended: the IMU shows stale, and the demo says so
+            pass
 
     def _scene_options(self) -> dict:
         """The error model's noise, blur and pointing for the rendered scene (none under the ideal model)."""
@@ -244,6 +304,7 @@ class DemoRig:
         self._simulator = subprocess.Popen(
             [sys.executable, "-m", "snreg.cli", "imu", "simulate", *motion, "--seed", str(self.seed),
              "--port-link", str(self._link), "--parent", str(os.getpid())],
+            stdin=subprocess.PIPE if "--timeline-stdin" in motion else None, text=True,
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
     def _wait_for_epoch(self) -> int:
@@ -273,6 +334,9 @@ class DemoRig:
         if self._renderer is not None:
             self._renderer.join()
         self.imu.stop()
+        if self._simulator.stdin is not None:
+            with contextlib.suppress(OSError):
+                self._simulator.stdin.close()
         self._simulator.terminate()
         try:
             self._simulator.wait(5.0)
