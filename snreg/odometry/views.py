@@ -19,7 +19,8 @@ from snreg.camera import StereoCalibration
 from snreg.geometry import make_transform
 from snreg.probe import ProbeModel
 
-__all__ = ["OdometryParams", "EyePair", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade", "inside"]
+__all__ = ["OdometryParams", "EyePair", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade",
+           "inside"]
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,7 @@ class OdometryParams:
     max_features: int = 220               # tissue corners per keyframe
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
-    lk_window_px: int = 17
+    lk_window_px: int = 13
     lk_levels: int = 2
     min_points: int = 30                  # fewer agreeing points: lost
     min_agreeing_share: float = 0.5       # of the points followed
@@ -53,7 +54,7 @@ _UNWARPED = 0.01                                     # a homography this close t
 _NEAR_MM, _PROBE_SAMPLES = 5.0, 8                   # the probe's outline in the masks
 _EDGE_CAP = 24                                       # band-pass deviations counted towards the texture, at most
 COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
-_LK_STEPS, _LK_EPS_PX = 20, 0.01
+_LK_STEPS, _LK_EPS_PX = 10, 0.01
 
 
 class EyePair:
@@ -114,6 +115,32 @@ class EyePair:
         return (homog[:3] / homog[3]).T
 
 
+@dataclass(frozen=True, eq=False)
+class PairImages:
+    """What a pair's view needs that the probe's fix does not change, so it can be made beside the probe tracker (a
+    thread of its own: OpenCV releases the GIL): both eyes band-passed at the working scale (:func:`band_pass`), the
+    left one's deviation from mid-grey (every other pixel, capped: the probe's edges count once) and its plain
+    brightness, and the left image band-passed ``coarse_factor`` times smaller (at most ``COARSE_MAX_WIDTH`` wide)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    deviation: np.ndarray
+    brightness: float
+    coarse: np.ndarray
+    coarse_factor: int
+
+    @classmethod
+    def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray) -> "PairImages":
+        """The images of a BGR pair; ValueError for frames of another size than the calibration's."""
+        plain_left = pair.grey(left, "left")
+        grey_left, grey_right = band_pass(plain_left), band_pass(pair.grey(right, "right"))
+        deviation = np.minimum(cv2.absdiff(grey_left[::2, ::2], _MID), _EDGE_CAP)
+        coarse, factor = plain_left, 1
+        while coarse.shape[1] > COARSE_MAX_WIDTH:
+            coarse, factor = cv2.pyrDown(coarse), 2 * factor
+        return cls(grey_left, grey_right, deviation, float(plain_left.mean()), band_pass(coarse), factor)
+
+
 @dataclass(eq=False)
 class View:
     """One pair at the working scale: band-passed grey images (:func:`band_pass`), where features may be taken or
@@ -136,32 +163,29 @@ class View:
     @classmethod
     def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray, params: OdometryParams,
            probe_tip: np.ndarray | None = None, probe_axis: np.ndarray | None = None,
-           probe: ProbeModel | None = None) -> "View":
+           probe: ProbeModel | None = None, *, images: PairImages | None = None) -> "View":
         """The view of a BGR pair; with the probe's tip and axis (left camera frame, mm) and model, the probe and a
-        margin about it are left out of the mask."""
-        plain_left = pair.grey(left, "left")
-        grey_left, grey_right = band_pass(plain_left), band_pass(pair.grey(right, "right"))
-        masks = [np.zeros(grey_left.shape, np.uint8) for _ in range(2)]
+        margin about it are left out of the mask. ``images``: the pair's :class:`PairImages` made already (beside
+        the probe tracker), else made here."""
+        images = images if images is not None else PairImages.of(pair, left, right)
+        masks = [np.zeros(images.left.shape, np.uint8) for _ in range(2)]
         b = params.border_px
         for eye, mask in enumerate(masks):
             mask[b:-b, b:-b] = 255
             if probe_tip is not None and probe_axis is not None and probe is not None:
                 _cut_probe(mask, pair, eye, np.asarray(probe_tip, float), np.asarray(probe_axis, float), probe,
                            params.lk_window_px // 2 + 3)
-        deviation = np.minimum(cv2.absdiff(grey_left[::2, ::2], _MID), _EDGE_CAP)   # the probe's edges count once
         tissue = masks[0][::2, ::2] > 0
-        texture = float(deviation[tissue].mean()) / _GAIN if tissue.any() else 0.0
-        contrast = texture / max(float(plain_left.mean()), 1.0)
-        coarse, factor = plain_left, 1
-        while coarse.shape[1] > COARSE_MAX_WIDTH:
-            coarse, factor = cv2.pyrDown(coarse), 2 * factor
-        coarse = band_pass(coarse)
+        texture = float(images.deviation[tissue].mean()) / _GAIN if tissue.any() else 0.0
+        contrast = texture / max(images.brightness, 1.0)
+        coarse = images.coarse
         coarse_mask = cv2.resize(masks[0], (coarse.shape[1], coarse.shape[0]), interpolation=cv2.INTER_NEAREST)
         # the probe's strong edges would outweigh the tissue: left out where known, limited everywhere
         limit = 3.0 * max(float(cv2.absdiff(coarse, _MID)[coarse_mask > 0].mean()), 1.0) if coarse_mask.any() else 1.0
         coarse = np.clip(coarse, _MID - limit, _MID + limit).astype(np.uint8)
         coarse[coarse_mask == 0] = _MID
-        return cls(grey_left, grey_right, masks[0], masks[1], texture, contrast, coarse, coarse_mask, factor)
+        return cls(images.left, images.right, masks[0], masks[1], texture, contrast, coarse, coarse_mask,
+                   images.coarse_factor)
 
 
 @dataclass(eq=False)
@@ -212,11 +236,9 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
                   rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
                   depth_guess_mm: float = 80.0) -> Keyframe | None:
     """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated)."""
-    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
-                                      blockSize=7)
-    if corners is None or len(corners) < params.min_points:
+    left_px = _tissue_corners(view, params)
+    if len(left_px) < params.min_points:
         return None
-    left_px = corners.reshape(-1, 2).astype(np.float32)
     guess = pair.project(np.column_stack([pair.normalise(left_px, 0), np.ones(len(left_px))]) * depth_guess_mm, 1)
     right_px, found = lucas_kanade(view.left, view.right, left_px, guess.astype(np.float32), params, levels=4)
     back, found_back = lucas_kanade(view.right, view.left, right_px, left_px.copy(), params, levels=1)
@@ -232,6 +254,20 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
     return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
                     np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view.coarse,
                     view.coarse_mask)
+
+
+def _tissue_corners(view: View, params: OdometryParams) -> np.ndarray:
+    """(N, 2) float32 working pixels of the view's strongest tissue corners, at most ``params.max_features``,
+    ``params.min_distance_px`` apart, on the mask. Why on the left image halved: the corner measure over the whole
+    image was a third of a keyframe's cost, and Lucas-Kanade follows the texture about a point, not the corner
+    itself, so a corner found to the halved image's pixel serves as well."""
+    small = cv2.pyrDown(view.left)
+    mask = cv2.resize(view.mask, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST)
+    corners = cv2.goodFeaturesToTrack(small, params.max_features, 0.005, params.min_distance_px / 2.0, mask=mask,
+                                      blockSize=5)
+    if corners is None:
+        return np.empty((0, 2), np.float32)
+    return (corners.reshape(-1, 2) * 2.0 + 0.5).astype(np.float32)
 
 
 def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
