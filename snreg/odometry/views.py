@@ -236,9 +236,11 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
                   rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
                   depth_guess_mm: float = 80.0) -> Keyframe | None:
     """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated)."""
-    left_px = _tissue_corners(view, params)
-    if len(left_px) < params.min_points:
+    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
+                                      blockSize=7)
+    if corners is None or len(corners) < params.min_points:
         return None
+    left_px = corners.reshape(-1, 2).astype(np.float32)
     guess = pair.project(np.column_stack([pair.normalise(left_px, 0), np.ones(len(left_px))]) * depth_guess_mm, 1)
     right_px, found = lucas_kanade(view.left, view.right, left_px, guess.astype(np.float32), params, levels=4)
     back, found_back = lucas_kanade(view.right, view.left, right_px, left_px.copy(), params, levels=1)
@@ -254,20 +256,6 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
     return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
                     np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view.coarse,
                     view.coarse_mask)
-
-
-def _tissue_corners(view: View, params: OdometryParams) -> np.ndarray:
-    """(N, 2) float32 working pixels of the view's strongest tissue corners, at most ``params.max_features``,
-    ``params.min_distance_px`` apart, on the mask. Why on the left image halved: the corner measure over the whole
-    image was a third of a keyframe's cost, and Lucas-Kanade follows the texture about a point, not the corner
-    itself, so a corner found to the halved image's pixel serves as well."""
-    small = cv2.pyrDown(view.left)
-    mask = cv2.resize(view.mask, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST)
-    corners = cv2.goodFeaturesToTrack(small, params.max_features, 0.005, params.min_distance_px / 2.0, mask=mask,
-                                      blockSize=5)
-    if corners is None:
-        return np.empty((0, 2), np.float32)
-    return (corners.reshape(-1, 2) * 2.0 + 0.5).astype(np.float32)
 
 
 def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
