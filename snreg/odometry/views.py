@@ -31,7 +31,7 @@ class OdometryParams:
     max_features: int = 220               # tissue corners per keyframe
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
-    lk_window_px: int = 13
+    lk_window_px: int = 17
     lk_levels: int = 2
     min_points: int = 30                  # fewer agreeing points: lost
     min_agreeing_share: float = 0.5       # of the points followed
@@ -54,7 +54,7 @@ _UNWARPED = 0.01                                     # a homography this close t
 _NEAR_MM, _PROBE_SAMPLES = 5.0, 8                   # the probe's outline in the masks
 _EDGE_CAP = 24                                       # band-pass deviations counted towards the texture, at most
 COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
-_LK_STEPS, _LK_EPS_PX = 10, 0.01
+_LK_STEPS, _LK_EPS_PX = 20, 0.01
 
 
 class EyePair:
