@@ -2,6 +2,8 @@
 stream, each node's insertion, and the store guard while the insertion is lost and the camera moved (refused in
 words, the override on record). Rendered pairs of a camera sliding over tissue (tests/surgery_frames.py)."""
 
+import threading
+
 import numpy as np
 import pytest
 from surgery_frames import NODE_A, NODE_B, START_MM, SlidingWorld, slide_then_rest
@@ -12,6 +14,7 @@ from snreg.odometry import InsertionTracker
 from snreg.session import Session
 from snreg.session.pose_streams import insertions_at
 from snreg.workflow.acquisition import Acquisition
+from snreg.workflow.insertion import CameraInsertion
 
 WINDOW = 4
 
@@ -82,6 +85,44 @@ def test_each_pair_is_mapped_at_its_tracked_insertion_and_each_node_records_its_
         stored = {node.id: node.trocar_camera_mm for node in session.intraop_records()}
         assert stored == {"SN1": first.trocar_camera_mm, "SN2": second.trocar_camera_mm}
         assert len(session.stream("camera")) == len(sliding)
+
+
+def test_the_insertion_begun_beside_the_probe_tracker_is_the_serial_one_pair_for_pair(world, sliding, tmp_path):
+    made_in = []
+
+    class Watched(InsertionTracker):
+        def prepare(self, left, right):
+            made_in.append(threading.get_ident())
+            return super().prepare(left, right)
+
+    with Session.create(tmp_path / "beside.h5", case_id="beside-1", stream_flush_s=0) as session:
+        acq = Acquisition(world.calibration, world.probe, world.chain, session, fixes_per_node=WINDOW, clock=Clock(),
+                          insertion=Watched(world.calibration, world.chain, probe=world.probe))
+        outcomes = [acq.process(pair.frame, pair.imu) for pair in sliding]
+    # each pair's images were made in the insertion's own thread, beside the caller's probe tracking
+    assert len(made_in) == len(sliding) and threading.get_ident() not in made_in
+    serial = InsertionTracker(world.calibration, world.chain, probe=world.probe)        # one thread, in frame order
+    for pair, outcome in zip(sliding, outcomes):
+        expected = serial.update(pair.frame.left, pair.frame.right, pair.imu.earth_from_imu, probe_fix=outcome.fix)
+        assert outcome.insertion.estimate == expected and expected.tracked
+        assert outcome.insertion.estimate.index == pair.frame.index
+        assert outcome.insertion.used_mm == expected.trocar_camera_mm           # the pair mapped at its own insertion
+
+
+def test_pairs_begun_ahead_are_finished_in_their_own_order_with_their_own_images(world, sliding):
+    """Several pairs begun before the first is finished (a caller that runs ahead) still give the serial estimates:
+    each update takes its own pair's images, whatever the thread made meanwhile."""
+    ahead = CameraInsertion(InsertionTracker(world.calibration, world.chain, probe=world.probe), world.chain)
+    serial = InsertionTracker(world.calibration, world.chain, probe=world.probe)
+    pairs = sliding[WINDOW - 1:WINDOW + 3]          # the last still pair, then the slide
+    begun = [ahead.begin(p.frame.left, p.frame.right) for p in pairs]
+    for pair, future in zip(pairs, begun):
+        step = ahead.update(pair.frame.left, pair.frame.right, pair.frame.t_left_ns, pair.imu.earth_from_imu,
+                            begun=future)
+        assert step.estimate == serial.update(pair.frame.left, pair.frame.right, pair.imu.earth_from_imu)
+    with pytest.raises(ValueError, match="calibration"):            # a wrong pair's error is raised where it is used
+        ahead.update(pairs[0].frame.left[::2], pairs[0].frame.right[::2], 0, np.eye(3),
+                     begun=ahead.begin(pairs[0].frame.left[::2], pairs[0].frame.right[::2]))
 
 
 def test_without_tracking_a_node_after_a_slide_lands_displaced_by_the_slide(world, sliding, tmp_path):

@@ -30,9 +30,10 @@ def cmd_bench(args) -> int:
     print(format_rows(rows), flush=True)
     print(f"bench: rendering and tracking {args.pairs} stereo pairs ...", file=sys.stderr, flush=True)
     print("\ntracking (rendered 1920x1080 pairs, one process):")
-    print(format_tracking(bench_tracking(pairs=args.pairs)))
+    tracking = bench_tracking(pairs=args.pairs)
+    print(format_tracking(tracking), flush=True)
     print(f"bench: rendering a surgery video of {args.pairs} pairs and tracking the camera's insertion ...",
           file=sys.stderr, flush=True)
     print("\ncamera insertion (rendered 1920x1080 surgery video, one core):")
-    print(format_insertion(bench_insertion(pairs=args.pairs)))
+    print(format_insertion(bench_insertion(pairs=args.pairs), tracking))
     return 0

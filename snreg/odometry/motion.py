@@ -103,7 +103,7 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
         gradient = rows.T @ (values * weights)
         normal[:3, :3] += prior_weight**2 * np.eye(3)
         gradient[:3] += prior_weight**2 * tilt
-        condition = np.linalg.cond(normal)
+        condition = _condition(normal)
         if not condition < _MAX_CONDITION:
             failure = (f"the motion is not determined by the tissue points (condition number {condition:.1e}: too few "
                        "points, or too far to show a slide)")
@@ -112,8 +112,9 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
         rotation = _rotation(step[:3]) @ rotation
         insertion += step[3]
         steps += 1
-        if np.abs(step).max() < _CONVERGED or steps == _PHASE_STEPS:      # this phase settled: the next one
-            if phase == len(_PHASES) - 1 and not (np.abs(step[:3]).max() < _SETTLED_RAD and abs(step[3]) < _SETTLED_MM):
+        final = phase == len(_PHASES) - 1
+        if np.abs(step).max() < (_CONVERGED if final else _SETTLED_RAD) or steps == _PHASE_STEPS:   # settled: next
+            if final and not (np.abs(step[:3]).max() < _SETTLED_RAD and abs(step[3]) < _SETTLED_MM):
                 failure = (f"the motion fit did not settle in {_PHASE_STEPS} steps (its last step moved the insertion "
                            f"{abs(step[3]):.3f} mm)")
             phase, steps = phase + 1, 0
@@ -186,6 +187,13 @@ def _projection_rows(q: np.ndarray, d_q: np.ndarray, seen: np.ndarray, focal: fl
     scale = (focal * inverse_z)[:, None]
     rows = np.stack([scale * (d_q[:, 0] - x[:, None] * d_q[:, 2]), scale * (d_q[:, 1] - y[:, None] * d_q[:, 2])], axis=1)
     return residual, rows
+
+
+def _condition(normal: np.ndarray) -> float:
+    """The condition number of a symmetric positive semi-definite matrix (its largest eigenvalue over its smallest;
+    infinite when singular): ``np.linalg.cond``'s value for such a matrix, without a singular value decomposition."""
+    values = np.linalg.eigvalsh(normal)
+    return float(values[-1] / values[0]) if values[0] > 0 else float("inf")
 
 
 def _rms(error: np.ndarray, keep: np.ndarray) -> float:

@@ -19,7 +19,8 @@ from snreg.camera import StereoCalibration
 from snreg.geometry import make_transform
 from snreg.probe import ProbeModel
 
-__all__ = ["OdometryParams", "EyePair", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade", "inside"]
+__all__ = ["OdometryParams", "EyePair", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade",
+           "inside"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,32 @@ class EyePair:
         return (homog[:3] / homog[3]).T
 
 
+@dataclass(frozen=True, eq=False)
+class PairImages:
+    """What a pair's view needs that the probe's fix does not change, so it can be made beside the probe tracker (a
+    thread of its own: OpenCV releases the GIL): both eyes band-passed at the working scale (:func:`band_pass`), the
+    left one's deviation from mid-grey (every other pixel, capped: the probe's edges count once) and its plain
+    brightness, and the left image band-passed ``coarse_factor`` times smaller (at most ``COARSE_MAX_WIDTH`` wide)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    deviation: np.ndarray
+    brightness: float
+    coarse: np.ndarray
+    coarse_factor: int
+
+    @classmethod
+    def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray) -> "PairImages":
+        """The images of a BGR pair; ValueError for frames of another size than the calibration's."""
+        plain_left = pair.grey(left, "left")
+        grey_left, grey_right = band_pass(plain_left), band_pass(pair.grey(right, "right"))
+        deviation = np.minimum(cv2.absdiff(grey_left[::2, ::2], _MID), _EDGE_CAP)
+        coarse, factor = plain_left, 1
+        while coarse.shape[1] > COARSE_MAX_WIDTH:
+            coarse, factor = cv2.pyrDown(coarse), 2 * factor
+        return cls(grey_left, grey_right, deviation, float(plain_left.mean()), band_pass(coarse), factor)
+
+
 @dataclass(eq=False)
 class View:
     """One pair at the working scale: band-passed grey images (:func:`band_pass`), where features may be taken or
@@ -136,32 +163,29 @@ class View:
     @classmethod
     def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray, params: OdometryParams,
            probe_tip: np.ndarray | None = None, probe_axis: np.ndarray | None = None,
-           probe: ProbeModel | None = None) -> "View":
+           probe: ProbeModel | None = None, *, images: PairImages | None = None) -> "View":
         """The view of a BGR pair; with the probe's tip and axis (left camera frame, mm) and model, the probe and a
-        margin about it are left out of the mask."""
-        plain_left = pair.grey(left, "left")
-        grey_left, grey_right = band_pass(plain_left), band_pass(pair.grey(right, "right"))
-        masks = [np.zeros(grey_left.shape, np.uint8) for _ in range(2)]
+        margin about it are left out of the mask. ``images``: the pair's :class:`PairImages` made already (beside
+        the probe tracker), else made here."""
+        images = images if images is not None else PairImages.of(pair, left, right)
+        masks = [np.zeros(images.left.shape, np.uint8) for _ in range(2)]
         b = params.border_px
         for eye, mask in enumerate(masks):
             mask[b:-b, b:-b] = 255
             if probe_tip is not None and probe_axis is not None and probe is not None:
                 _cut_probe(mask, pair, eye, np.asarray(probe_tip, float), np.asarray(probe_axis, float), probe,
                            params.lk_window_px // 2 + 3)
-        deviation = np.minimum(cv2.absdiff(grey_left[::2, ::2], _MID), _EDGE_CAP)   # the probe's edges count once
         tissue = masks[0][::2, ::2] > 0
-        texture = float(deviation[tissue].mean()) / _GAIN if tissue.any() else 0.0
-        contrast = texture / max(float(plain_left.mean()), 1.0)
-        coarse, factor = plain_left, 1
-        while coarse.shape[1] > COARSE_MAX_WIDTH:
-            coarse, factor = cv2.pyrDown(coarse), 2 * factor
-        coarse = band_pass(coarse)
+        texture = float(images.deviation[tissue].mean()) / _GAIN if tissue.any() else 0.0
+        contrast = texture / max(images.brightness, 1.0)
+        coarse = images.coarse
         coarse_mask = cv2.resize(masks[0], (coarse.shape[1], coarse.shape[0]), interpolation=cv2.INTER_NEAREST)
         # the probe's strong edges would outweigh the tissue: left out where known, limited everywhere
         limit = 3.0 * max(float(cv2.absdiff(coarse, _MID)[coarse_mask > 0].mean()), 1.0) if coarse_mask.any() else 1.0
         coarse = np.clip(coarse, _MID - limit, _MID + limit).astype(np.uint8)
         coarse[coarse_mask == 0] = _MID
-        return cls(grey_left, grey_right, masks[0], masks[1], texture, contrast, coarse, coarse_mask, factor)
+        return cls(images.left, images.right, masks[0], masks[1], texture, contrast, coarse, coarse_mask,
+                   images.coarse_factor)
 
 
 @dataclass(eq=False)

@@ -37,6 +37,12 @@ CANDIDATES = [
     ("PyAV x264 4:4:4 CRF 14 (MKV)", "av", ".mkv", ("libx264", "yuv444p", {"crf": "14", "preset": "ultrafast"})),
     ("PyAV x264 4:4:4 CRF 18 tune psnr (MKV)", "av", ".mkv",
      ("libx264", "yuv444p", {"crf": "18", "tune": "psnr", "preset": "ultrafast"})),
+    # issue 36: the encoder under one core at full HD; cheaper settings of the same encoder, and MJPEG in 4:4:4
+    ("PyAV x264 4:4:4 CRF 22 tune psnr (MKV)", "av", ".mkv",
+     ("libx264", "yuv444p", {"crf": "22", "tune": "psnr", "preset": "ultrafast"})),
+    ("PyAV x264 4:2:0 CRF 18 tune psnr (MKV)", "av", ".mkv",
+     ("libx264", "yuv420p", {"crf": "18", "tune": "psnr", "preset": "ultrafast"})),
+    ("PyAV MJPEG 4:4:4 q2 (MKV)", "av", ".mkv", ("mjpeg", "yuvj444p", {"qmin": "2", "qmax": "2"})),
 ]
 
 

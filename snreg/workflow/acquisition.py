@@ -74,7 +74,7 @@ class FrameOutcome:
     sample; ``video``: the recording's state in words (:func:`video_text`). With insertion tracking: ``insertion``,
     the tracker's estimate at this pair and the insertion the pair was mapped with (held from the last tracked pair
     when lost), ``insertion_text`` in words (:func:`~snreg.workflow.insertion.insertion_text`) and ``insertion_ms``
-    its cost; None, "" and 0 without."""
+    what it adds to the pair's time (its images are made beside the probe tracker); None, "" and 0 without."""
 
     index: int
     fix: ProbeFix | None
@@ -180,6 +180,7 @@ class Acquisition:
         self._record_imu(imu.samples)
         self._last_imu = imu
         self._record_frame(frame)
+        begun = self.insertion.begin(frame.left, frame.right) if self.insertion is not None else None
         started = time.perf_counter()
         fix, reason, tip_trocar, pose = None, "", None, None
         try:
@@ -188,7 +189,7 @@ class Acquisition:
             reason = str(err)
         track_ms = (time.perf_counter() - started) * 1e3
         self._last_reason = reason
-        step, insertion_ms = self._follow_insertion(frame, imu, fix)
+        step, insertion_ms = self._follow_insertion(frame, imu, fix, begun)
         chain = self.chain if step is None else step.chain
         if fix is not None:
             tip_trocar = camera_to_trocar(chain, imu.earth_from_imu, fix.tip)
@@ -209,12 +210,15 @@ class Acquisition:
                             pose, check, float(imu.gap_s), video_text(self.session.video_state(), self.video_problem),
                             step, insertion_text(step, self.insertion.start_mm) if step else "", insertion_ms)
 
-    def _follow_insertion(self, frame: StereoFrame, imu: ImuReading, fix: ProbeFix | None):
-        """(the insertion at this pair, ms it took), its ``streams/camera`` row recorded; (None, 0) without tracking."""
+    def _follow_insertion(self, frame: StereoFrame, imu: ImuReading, fix: ProbeFix | None, begun):
+        """(the insertion at this pair, ms it took after the probe tracker: what it adds to the pair's time), its
+        ``streams/camera`` row recorded; (None, 0) without tracking. ``begun``: the pair's insertion started beside
+        the probe tracker (:meth:`~snreg.workflow.insertion.CameraInsertion.begin`)."""
         if self.insertion is None:
             return None, 0.0
         started = time.perf_counter()
-        step = self.insertion.update(frame.left, frame.right, frame.t_left_ns, imu.earth_from_imu, probe_fix=fix)
+        step = self.insertion.update(frame.left, frame.right, frame.t_left_ns, imu.earth_from_imu, probe_fix=fix,
+                                     begun=begun)
         estimate = step.estimate
         self.session.append_camera(frame.t_left_ns, frame.t_right_ns, estimate.trocar_camera_mm, estimate.state,
                                    estimate.quality, estimate.residual_mm, estimate.sd_mm)
