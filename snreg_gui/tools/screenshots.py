@@ -241,16 +241,27 @@ def _refusal_and_close(shots: Shooter, window) -> None:
     keep.click()
 
 
+def open_review(window, timeout_s: float = 120.0):
+    """The window's recorded session closed and opened in its Review tab (the first call; later ones show the tab),
+    once read: its nodes listed, the IMU fused, its video opened. Returns the review screen; SystemExit naming what
+    did not come after ``timeout_s`` (the layout tests open the review the same way)."""
+    if window.session is not None:
+        path = window.session.path
+        window.pause_acquisition()
+        window.session.close()
+        window.session = None
+        window.open_for_review(path)
+    review = window.review
+    window.tabs.setCurrentWidget(review)
+    wait_until(lambda: review.node_table.rowCount() > 0 and not review.status.text().startswith(("loading", "fusing")),
+               timeout_s, "the review")
+    wait_until(lambda: review.scrubber.video is not None, timeout_s, "the review's video")
+    return review
+
+
 def _review(shots: Shooter, window) -> None:
     path = window.session.path
-    window.pause_acquisition()
-    window.session.close()
-    window.session = None
-    window.open_for_review(path)
-    review = window.review
-    wait_until(lambda: review.node_table.rowCount() > 0 and not review.status.text().startswith(("loading", "fusing")),
-               120, "the review")
-    wait_until(lambda: review.scrubber.video is not None, 60, "the review's video")
+    review = open_review(window)
     review.node_table.selectRow(1)                   # its recorded pair at the store fills the two feeds
     wait_until(lambda: review.snapshots.left_view.title.startswith("left: frame"), 60, "the node's recorded pair")
     shots.shoot("tab-3-review", window)
