@@ -51,6 +51,10 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     assert table.rowCount() == 3
     assert [table.item(r, 0).text() for r in range(3)] == truth.node_ids
     assert [float(table.item(r, 2).text()) for r in range(3)] == pytest.approx(truth.node_times_s)
+    for row in range(3):             # the rest of each record in its row's tooltip, on every cell (six columns fit)
+        tips = {table.item(row, c).toolTip() for c in range(table.columnCount())}
+        assert len(tips) == 1 and "camera x, y, z: " in tips.pop()
+    assert table.horizontalScrollBar().maximum() == 0
     regs = screen.registrations
     assert regs.list.rowCount() == 1
     assert (regs.list.item(0, 1).text(), regs.list.item(0, 2).text()) == ("global", f"{truth.rms_mm:.2f}")
