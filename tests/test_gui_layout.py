@@ -13,8 +13,8 @@ from conftest import holds
 
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
-from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems, overlaps
-from snreg_gui.tools.screenshots import SIZES, open_review
+from snreg_gui.tools.layout_check import ELLIPSIS, SCREEN_SIZES, layout_problems, overlaps
+from snreg_gui.tools.screenshots import open_review
 
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
@@ -62,7 +62,7 @@ def settle(window, size) -> list[str]:
 
 
 def check_sizes(window, what: str) -> list[str]:
-    return [f"{what} {w}x{h}: {problem}" for w, h in (*SIZES, (1366, 768)) for problem in settle(window, (w, h))]
+    return [f"{what} {w}x{h}: {problem}" for w, h in SCREEN_SIZES for problem in settle(window, (w, h))]
 
 
 # -- the check can fail --------------------------------------------------------------------------------------------
@@ -115,7 +115,7 @@ def demo(qapp, tmp_path_factory):
     began = time.perf_counter_ns()                     # the recording starts with the window
     window = MainWindow(str(folder / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
                         settings=settings)
-    window.resize(*SIZES[0])
+    window.resize(*SCREEN_SIZES[0])
     window.show()
     screen, panel = window.acquisition, window.registration
     assert wait(lambda: screen._last_result is not None, 120)
@@ -158,13 +158,13 @@ def demo(qapp, tmp_path_factory):
 
 @pytest.mark.parametrize("tab", [0, 1])
 def test_the_acquisition_and_registration_tabs_show_every_text_whole_at_every_size(demo, tab):
-    settle(demo, SIZES[0])                             # first shown at 1024x700, as on a small screen
+    settle(demo, SCREEN_SIZES[0])                          # first shown at 1024x700, as on a small screen
     demo.tabs.setCurrentIndex(tab)
     problems = check_sizes(demo, demo.tabs.tabText(tab))
     assert not problems, "\n".join(problems)
 
 
-@pytest.mark.parametrize("size", [SIZES[0], (1366, 768)])
+@pytest.mark.parametrize("size", SCREEN_SIZES[:2])
 def test_the_insertion_warning_appears_without_moving_the_feeds_the_plot_or_the_angles(qtbot, size):
     from snreg_gui.acquisition.screen import AcquisitionScreen
     from snreg_gui.common.feed_view import FeedView
@@ -236,7 +236,7 @@ def review_of(demo):
     return review
 
 
-@pytest.mark.parametrize("size", [SIZES[0], (1366, 768), SIZES[1]])
+@pytest.mark.parametrize("size", SCREEN_SIZES)
 def test_the_review_timeline_labels_lie_apart(demo, size):
     """The labels of six nodes and three landmarks of long names, stored over the recording, never overlap and lie
     inside the top plot; the legend under the plots names each landmark's number."""
