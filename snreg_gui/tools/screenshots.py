@@ -38,6 +38,7 @@ SIZES = SCREEN_SIZES[:2]           # 1024x700 and 1366x768: where a cut shows fi
 FEED_TIMEOUT_S = 180.0            # a rendered scene's first frame, on a loaded machine
 STORE_TIMEOUT_S = 900.0           # the demo's four nodes auto-stored, on a loaded machine
 SURGERY_FIXES = 20                # fixes per node in the surgery demo's shots
+SURGERY_SCALE = 0.25              # its cameras' resolution, of the thesis' 1920x1080
 UNIFORM_IMAGE = 0.999            # a whole shot this uniform is blank (a page of text is far from it)
 UNIFORM_FEED = 0.985             # a feed's area this uniform shows no frame (a caption on black)
 # the shots, by the part of the run that takes them (--only picks parts of these names)
@@ -320,11 +321,11 @@ def main(argv=None) -> int:
     work = Path(tempfile.mkdtemp(prefix="snreg-screens-"))     # the demo session, its video and SPECT: removed
     settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
     # the still phantom rests 60 frames per node (a short run); the surgery camera's tour follows its IMU's real-time
-    # motion, so it keeps the rests a person gets, and a node is stored from fewer fixes (a loaded machine processes
-    # too few frames in a rest for the thesis' 60 before the camera moves on)
+    # motion, so it keeps the rests a person gets, rendered at a quarter of the thesis resolution and a node stored
+    # from fewer fixes (at half the resolution and 60 fixes a loaded machine stored no node in 15 minutes)
     if args.camera == "surgery":
-        window = MainWindow(str(work / "demo.h5"), demo=True, rig=DemoRig(camera="surgery"), settings=settings,
-                            fixes_per_node=SURGERY_FIXES)
+        window = MainWindow(str(work / "demo.h5"), demo=True, rig=DemoRig(camera="surgery", scale=SURGERY_SCALE),
+                            settings=settings, fixes_per_node=SURGERY_FIXES)
     else:
         window = MainWindow(str(work / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=60)),
                             settings=settings)
