@@ -125,7 +125,7 @@ class Shooter:
             _spin(0.7)
             image = self._grab(widget, box)
             path = self.out / f"{name}-{width}x{height}.png"
-            saved = image.convertToFormat(QImage.Format.Format_Indexed8, Qt.ImageConversionFlag.ThresholdDither) \
+            saved = image.convertToFormat(QImage.Format.Format_Indexed8, Qt.ImageConversionFlag.DiffuseDither) \
                 if self.docs else image
             saved.save(str(path), quality=0 if self.docs else -1)          # 0: PNG's strongest compression
             self.written.append(path)
