@@ -13,8 +13,8 @@ from conftest import holds
 
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
-from snreg_gui.tools.layout_check import ELLIPSIS, layout_problems, overlaps
-from snreg_gui.tools.screenshots import SIZES
+from snreg_gui.tools.layout_check import ELLIPSIS, SCREEN_SIZES, layout_problems, overlaps
+from snreg_gui.tools.screenshots import open_review
 
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
@@ -62,7 +62,7 @@ def settle(window, size) -> list[str]:
 
 
 def check_sizes(window, what: str) -> list[str]:
-    return [f"{what} {w}x{h}: {problem}" for w, h in (*SIZES, (1366, 768)) for problem in settle(window, (w, h))]
+    return [f"{what} {w}x{h}: {problem}" for w, h in SCREEN_SIZES for problem in settle(window, (w, h))]
 
 
 # -- the check can fail --------------------------------------------------------------------------------------------
@@ -115,7 +115,7 @@ def demo(qapp, tmp_path_factory):
     began = time.perf_counter_ns()                     # the recording starts with the window
     window = MainWindow(str(folder / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=90)),
                         settings=settings)
-    window.resize(*SIZES[0])
+    window.resize(*SCREEN_SIZES[0])
     window.show()
     screen, panel = window.acquisition, window.registration
     assert wait(lambda: screen._last_result is not None, 120)
@@ -158,13 +158,13 @@ def demo(qapp, tmp_path_factory):
 
 @pytest.mark.parametrize("tab", [0, 1])
 def test_the_acquisition_and_registration_tabs_show_every_text_whole_at_every_size(demo, tab):
-    settle(demo, SIZES[0])                             # first shown at 1024x700, as on a small screen
+    settle(demo, SCREEN_SIZES[0])                          # first shown at 1024x700, as on a small screen
     demo.tabs.setCurrentIndex(tab)
     problems = check_sizes(demo, demo.tabs.tabText(tab))
     assert not problems, "\n".join(problems)
 
 
-@pytest.mark.parametrize("size", [SIZES[0], (1366, 768)])
+@pytest.mark.parametrize("size", SCREEN_SIZES[:2])
 def test_the_insertion_warning_appears_without_moving_the_feeds_the_plot_or_the_angles(qtbot, size):
     from snreg_gui.acquisition.screen import AcquisitionScreen
     from snreg_gui.common.feed_view import FeedView
@@ -229,41 +229,29 @@ def test_the_device_dialog_and_the_wizard_pages_show_every_text_whole(demo):
     assert not problems, "\n".join(problems)
 
 
-def open_review(demo):
-    """The demo's session, closed and opened for review (once)."""
-    if demo.session is not None:
-        path = demo.session.path
-        demo.pause_acquisition()
-        demo.session.close()
-        demo.session = None
-        demo.open_for_review(path)
-    review = demo.review
-    demo.tabs.setCurrentWidget(review)
+def review_of(demo):
+    """The demo's session, closed and opened for review (once, as the screenshots do), its nine stores shown."""
+    review = open_review(demo)
     assert wait(lambda: review.node_table.rowCount() >= 9 and len(review.timelines.marker_labels()) == 9, 120)
     return review
 
 
-# not strict: where the labels fall depends on when the live demo stored each node, so at these heights they overlap
-# in most runs, not in all
-CROWDED = pytest.mark.xfail(strict=False, reason="the top plot has room for 3 label rows at this height (2-4 at "
-                                                 "1366x768, with the review's preop tab): three long landmark names "
-                                                 "among six nodes still overlap (left to do)")
-
-
-@pytest.mark.parametrize("size", [pytest.param(SIZES[0], marks=CROWDED), pytest.param((1366, 768), marks=CROWDED),
-                                  SIZES[1]])
+@pytest.mark.parametrize("size", SCREEN_SIZES)
 def test_the_review_timeline_labels_lie_apart(demo, size):
-    """The labels of six nodes and three landmarks of long names, stored over the recording, never overlap."""
-    review = open_review(demo)
+    """The labels of six nodes and three landmarks of long names, stored over the recording, never overlap and lie
+    inside the top plot; the legend under the plots names each landmark's number."""
+    review = review_of(demo)
     settle(demo, size)
     labels = [(label.toPlainText(), label.sceneBoundingRect()) for label in review.timelines.marker_labels()]
     assert overlaps(labels) == []
+    plot = review.timelines.angles.vb.sceneBoundingRect()
+    assert [text for text, rect in labels if rect.left() < plot.left() or rect.right() > plot.right()] == []
+    legend = review.timelines.legend
+    assert legend.isVisible() and all(name in legend.text() for name in LANDMARK_NAMES)
 
 
-@pytest.mark.xfail(strict=True, reason="the review's node table has columns past its right edge at every size: "
-                                       "review/panels.py belongs to the review issue, left to it")
 def test_the_review_tab_shows_every_text_whole_at_every_size(demo):
-    open_review(demo)
+    review_of(demo)
     problems = check_sizes(demo, "Review")
     assert not problems, "\n".join(problems)
 

@@ -573,3 +573,16 @@ def test_final_mark_is_kept_in_the_session_and_the_exports_use_it(qtbot, panel, 
         qtbot.waitUntil(lambda: not panel.export_buttons["pairs"].isEnabled(), timeout=TIMEOUT_MS)
     with Session.open(path) as reopened:
         assert reopened.final_registration() is None and len(reopened.registrations()) == 2
+
+
+@pytest.mark.parametrize("width", [560, 900])
+def test_the_three_projections_lie_inside_their_view_however_narrow_with_the_legend_wrapped(qtbot, width):
+    """At 1024x700 the legend, one line, held the views wider than their pane: the third projection was cut."""
+    view = ThreeViewPlot()
+    qtbot.addWidget(view)
+    view.resize(width, 350)
+    view.show()
+    qtbot.waitExposed(view)
+    qtbot.waitUntil(lambda: max(plot.sceneBoundingRect().right() for plot in view.plots) <= view.width(),
+                    timeout=5_000)
+    assert view.legend.sceneBoundingRect().right() <= view.width()

@@ -9,7 +9,7 @@ from test_session_timeline import (CAMERA_LAG_S, DURATION_S, FRAME_RATE_HZ, LOST
 
 from snreg.session.schema import FORMAT_VERSION
 from snreg_gui.review.screen import ReviewScreen
-from snreg_gui.review.timelines import label_rows
+from snreg_gui.review.timelines import label_anchor, label_rows
 
 LOAD_TIMEOUT_MS = 20_000
 
@@ -51,6 +51,10 @@ def test_header_nodes_and_registrations(qtbot, screen, recorded):
     assert table.rowCount() == 3
     assert [table.item(r, 0).text() for r in range(3)] == truth.node_ids
     assert [float(table.item(r, 2).text()) for r in range(3)] == pytest.approx(truth.node_times_s)
+    for row in range(3):             # the rest of each record in its row's tooltip, on every cell (six columns fit)
+        tips = {table.item(row, c).toolTip() for c in range(table.columnCount())}
+        assert len(tips) == 1 and "camera x, y, z: " in tips.pop()
+    assert table.horizontalScrollBar().maximum() == 0
     regs = screen.registrations
     assert regs.list.rowCount() == 1
     assert (regs.list.item(0, 1).text(), regs.list.item(0, 2).text()) == ("global", f"{truth.rms_mm:.2f}")
@@ -231,3 +235,10 @@ def test_refresh_reads_a_session_still_being_recorded_again(qtbot, screen, tmp_p
         with qtbot.waitSignal(screen.loaded, timeout=LOAD_TIMEOUT_MS):
             qtbot.mouseClick(screen.refresh_button, Qt.MouseButton.LeftButton)
         assert screen.node_table.rowCount() == 2 and screen.path == str(session.path)
+
+
+def test_a_label_at_the_plots_end_is_shifted_along_its_line_to_lie_inside():
+    assert label_anchor(5.0, 2.0, 0.0, 10.0) == 0.5                       # room: centred on its line
+    assert label_anchor(0.2, 2.0, 0.0, 10.0) == pytest.approx(0.1)        # at the left end: its left edge at 0
+    assert label_anchor(9.9, 2.0, 0.0, 10.0) == pytest.approx(0.95)       # at the right end: its right edge at 10
+    assert label_anchor(5.0, 20.0, 0.0, 10.0) == pytest.approx(0.25)      # wider than the plot: from its left end

@@ -72,3 +72,20 @@ def test_a_feed_without_a_frame_is_reported_blank_or_stops_the_run(qtbot, tmp_pa
     shots = Shooter(tmp_path, [(320, 240)], [])
     shots.shoot("feed", window)
     assert len(shots.blank) == 1 and "feed 'left'" in shots.blank[0]
+
+
+def test_the_guides_set_shoots_tabs_at_every_size_and_wizard_pages_at_the_first_in_256_colours(qtbot, tmp_path):
+    """``--docs`` (issue 35's screenshot set): every tab at 1024x700 and 1366x768, each wizard page at 1024x700 only,
+    nothing outside the set, saved with a palette so the set stays small in the repository."""
+    window, feed = _feed_window(qtbot)
+    feed.show_frame(np.random.default_rng(2).integers(0, 255, (120, 160, 3)).astype(np.uint8))
+    shots = Shooter(tmp_path, [(320, 240), (400, 300)], [], docs=True)
+    assert shots.wanted("tab-3-review") and shots.wanted("trocar-4-manual")
+    assert not shots.wanted("paused-for-calibration") and not shots.wanted("refused-store", "replay-acquisition")
+    shots.shoot("tab-1-acquisition", window)
+    shots.shoot("stereo-1-setup", window)
+    shots.shoot("close-question", window)                               # not in the set: not taken
+    assert [p.name for p in shots.written] == ["tab-1-acquisition-320x240.png", "tab-1-acquisition-400x300.png",
+                                               "stereo-1-setup-320x240.png"]
+    assert all(QImage(str(p)).format() == QImage.Format.Format_Indexed8 for p in shots.written)
+    assert shots.blank == []

@@ -142,5 +142,5 @@ def test_the_demos_text_says_what_it_used_how_to_repeat_it_and_cuts_its_confiden
     shown = [line.split("confidence ")[1].split()[0] for line in out.splitlines() if "confidence " in line]
     assert shown == ["0.94", "0.94", "0.95", "0.99", "0.99", "1.00"]
     assert out.count(f"({CHECK_WORDS})") == 2
-    assert "used: labels (left/right, station)" in out and "the demo registers without them" in out
-    assert f"snreg register {tmp_path / 'd.h5'} --labels --no-covariances" in out
+    assert "used: labels (left/right, station)" in out and "the stored and SPECT nodes do not all carry one" in out
+    assert f"(the same registration again: snreg register {tmp_path / 'd.h5'} --labels)" in out

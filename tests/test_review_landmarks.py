@@ -72,7 +72,9 @@ def test_the_review_lists_a_stored_landmark_apart_and_marks_it_on_the_timeline(q
     assert sorted(timelines.node_markers) == ["SN1", "SN2", "SN3"] and list(timelines.landmark_markers) == [AORTA]
     lines = timelines.landmark_markers[AORTA]
     assert [line.value() for line in lines] == pytest.approx([2.5] * len(timelines.plots))
-    assert lines[0].label.textItem.toPlainText() == f"\u25c6 {AORTA}"
+    assert lines[0].label.textItem.toPlainText() == "\u25c6 1"            # its number: whole names overlapped
+    assert AORTA in lines[0].label.toolTip() and timelines.legend.isVisible()
+    assert "\u25c6 1" in timelines.legend.text() and AORTA in timelines.legend.text()
     assert lines[0].pen.style() == Qt.PenStyle.DotLine and lines[0].pen != timelines.node_markers["SN1"][0].pen
     rect = table.visualItemRect(table.item(1, 0))
     qtbot.mouseClick(table.viewport(), Qt.MouseButton.LeftButton, pos=rect.center())

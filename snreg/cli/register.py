@@ -4,8 +4,9 @@ intraop nodes and pair them; with a session alone, both node sets and the initia
 Each side's covariances (a stored node's own error, a hot spot's from the segmentation; a session's nodes or a CSV's
 ``cov_*`` columns) are given to ``register`` when every node of that side has one; ``--no-covariances`` registers
 without them, for comparison. The output says what was used and what not, and why (labels, landmarks, covariances:
-:mod:`snreg.registration.wording`, the words and digits every screen shares): the headless demo registers with the
-labels and without covariances, so ``--labels --no-covariances`` repeats its confidences.
+:mod:`snreg.registration.wording`, the words and digits every screen shares). What a registration is given is decided
+in one place, :func:`snreg.workflow.node_registration.register_nodes`, which the headless demo calls too (with the
+labels typed on the phantom), so ``snreg register SESSION.h5 --labels`` repeats the demo's confidences.
 
 Anatomical landmarks come with the nodes: a CSV's rows of ``kind`` landmark, a markups file's landmark points
 (:mod:`snreg.nodes`), a session's stored and preop landmarks; ``--preop-landmarks``/``--intraop-landmarks`` add a file
@@ -231,12 +232,13 @@ def _with_landmarks(read, path: str | None, preop: bool = False):
 
 def cmd_register(args) -> int:
     from snreg.errors import NodeFileError, NoFitError, SessionError
-    from snreg.registration import CONFIDENT, register
+    from snreg.registration import CONFIDENT
     from snreg.registration.naming import PREOP_MARK, ids_collide, marked_missing, marked_rows, pair_text
     from snreg.registration.landmark_report import landmark_notes, landmark_rows, unpaired_landmarks
     from snreg.registration.report import missing_nodes, node_warnings, pair_expected_mm, pair_rows
     from snreg.registration.wording import (HOT_SPOT_LEGEND, LOO_LEGEND, check_words, confidence_text, down_words,
                                             loo_text, rule_words)
+    from snreg.workflow.node_registration import node_covariances, register_nodes
 
     if args.output:
         check_output_file(args.output, "result")
@@ -246,17 +248,13 @@ def cmd_register(args) -> int:
         raise UserError(str(err)) from None
     preop, intraop, start = inputs.preop.nodes, inputs.intraop.nodes, _start(args, inputs)
     marks = (inputs.preop.landmarks, inputs.intraop.landmarks)
-    covariances = _covariances(preop, intraop, args.no_covariances)
+    covariances = node_covariances(preop, intraop, not args.no_covariances)
     try:
-        result = register(preop.xyz, intraop.xyz, method=args.method,
-                          preop_labels=preop.labels if args.labels else None,
-                          intraop_labels=intraop.labels if args.labels else None,
-                          initial=start.initial, max_rotation_deg=args.max_rotation,
-                          max_translation_mm=args.max_translation, seed=args.seed,
-                          intraop_cov=covariances["intraop"], preop_cov=covariances["preop"],
-                          preop_landmarks=marks[0] if len(marks[0]) else None,
-                          intraop_landmarks=marks[1] if len(marks[1]) else None, landmark_sd_mm=args.landmark_sd,
-                          down=None if start.gravity is None else start.gravity.down)
+        result = register_nodes(inputs.preop, inputs.intraop, method=args.method, labels=args.labels,
+                                covariances=not args.no_covariances, initial=start.initial,
+                                max_rotation_deg=args.max_rotation, max_translation_mm=args.max_translation,
+                                seed=args.seed, landmark_sd_mm=args.landmark_sd,
+                                down=None if start.gravity is None else start.gravity.down)
     except NoFitError:
         raise UserError(_no_fit_text(args, start)) from None
     except ValueError as err:
@@ -359,10 +357,3 @@ def _print_landmarks(rows, sd_mm: float) -> None:
         print(f"{row.name:<{width}} {row.residual_mm:>8.1f} {row.leave_one_out_mm:>7.1f}"
               + ("  SUSPECT: left out of the fit" if row.suspect else ""))
 
-
-def _covariances(preop, intraop, ignore: bool) -> dict:
-    """``{"intraop", "preop"}``: each side's covariances (N, 3, 3) mm^2 when every node of it has one, else None (and
-    both None when ``ignore``)."""
-    if ignore:
-        return {"intraop": None, "preop": None}
-    return {"intraop": intraop.known_cov, "preop": preop.known_cov}

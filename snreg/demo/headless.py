@@ -33,18 +33,21 @@ from snreg.odometry import InsertionTracker
 from snreg.preop.gravity import volume_down
 from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
-from snreg.registration import RegistrationResult, register
+from snreg.nodes import NodeFile
+from snreg.registration import RegistrationResult
 from snreg.registration.naming import pairs_line
 from snreg.registration.report import pair_table
 from snreg.registration.wording import confidence_value, labels_given, used_inputs
 from snreg.session import Session
 from snreg.workflow.acquisition import STILL_SPREAD_MM, Acquisition, ImuReading
+from snreg.workflow.node_registration import node_covariances, register_nodes
 from snreg.workflow.registration_start import session_gravity
 
 N_NODES = len(NODE_CENTRES_MM)
-# The demo registers with the labels typed on the phantom and without the nodes' covariances; ``snreg register`` with
-# these options repeats it (its defaults differ: each node's covariance, no labels), as the output says.
-REPEAT_OPTIONS = "--labels --no-covariances"
+# The demo registers as ``snreg register SESSION.h5`` does (:func:`~snreg.workflow.node_registration.register_nodes`:
+# each node's covariance, the landmarks) with the labels typed on the phantom, which that command uses when asked:
+# these options repeat it, confidences and all.
+REPEAT_OPTIONS = "--labels"
 _IMU_WAIT_S = 5.0
 _TOURS = 3                 # of the nodes at most, before giving up (a node that never holds still)
 _GIVE_UP_WINDOWS = 3       # the technician lifts a probe not stored after this many store windows of frames processed
@@ -75,14 +78,16 @@ class HeadlessResult:
     link_s: float = 0.0
     link_calls: int = 0
     intraop_cov: np.ndarray | None = None         # (M, 3, 3) each stored node's covariance, mm^2, trocar frame
+    weighed: tuple[bool, bool] = (False, False)   # whether the (intraop, preop) nodes' covariances were given
 
     def used(self):
         """What the demo's registration used (:class:`~snreg.registration.wording.UsedInputs`): the labels typed on the
-        phantom, no covariances (``snreg register`` uses them by default: :data:`REPEAT_OPTIONS` repeats the demo)."""
-        return used_inputs(self.result, labels=labels_given(self.intraop_labels), intraop_cov=False, preop_cov=False,
-                           labels_why="none typed", landmarks_why="the phantom has none",
-                           cov_why="the demo registers without them; snreg register uses them unless given "
-                                   "--no-covariances")
+        phantom and each side's covariances when all its nodes carry one, as ``snreg register`` with
+        :data:`REPEAT_OPTIONS`."""
+        missing = [side for side, used in zip(("stored", "SPECT"), self.weighed) if not used]
+        return used_inputs(self.result, labels=labels_given(self.intraop_labels), intraop_cov=self.weighed[0],
+                           preop_cov=self.weighed[1], labels_why="none typed", landmarks_why="the phantom has none",
+                           cov_why=f"the {' and '.join(missing)} nodes do not all carry one")
 
     def to_json(self) -> dict:
         """``{"rms_mm", "pairing", "nodes", ...}``: pairing is the preop index per stored node (-1 extra), as in the
@@ -179,8 +184,10 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
             session.set_preop_nodes(preop, down=volume_down(volume))
             feed("set_preop_nodes", preop)
             intraop = session.intraop_nodes()
-            result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
-                              intraop_labels=intraop.labels, down=session_gravity(session).down, seed=seed)
+            weighed = node_covariances(preop, intraop)
+            result = register_nodes(NodeFile(preop, session.preop_landmarks()),       # as snreg register --labels
+                                    NodeFile(intraop, session.intraop_landmarks()), labels=True,
+                                    down=session_gravity(session).down)
             session.add_registration(result, preop.ids, intraop.ids)
             feed("set_registration", result, pairs_line(preop, intraop, result))
     finally:
@@ -188,7 +195,8 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
     truth = _true_pairing(preop.xyz, sources, stored_at)
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
-                          tracking, recording_s, feed.seconds, feed.calls, intraop.cov)
+                          tracking, recording_s, feed.seconds, feed.calls, intraop.cov,
+                          tuple(weighed[side] is not None for side in ("intraop", "preop")))
 
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,

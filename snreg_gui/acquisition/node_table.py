@@ -13,10 +13,11 @@ from __future__ import annotations
 import math
 
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QStyle, QTableWidget, QTableWidgetItem
+from PySide6.QtWidgets import QAbstractItemView, QHeaderView, QSizePolicy, QTableWidget, QTableWidgetItem
 
 from snreg.landmarks import LANDMARK
 from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP, error_text
+from snreg_gui.common.table_headers import fit_id_column, fit_spanned_rows
 
 NODE_COLUMNS = ("id", "label", "x", "y", "z", ERROR_CAPTION, "spread", "counts")
 NODE_TIPS = ("", "station label", "trocar frame, mm", "trocar frame, mm", "trocar frame, mm", ERROR_TIP,
@@ -47,17 +48,11 @@ class StoredNodes(QTableWidget):
 
     def _fit_ids(self) -> None:
         """The id column as wide as the widest node id (landmark names span it and the label, wrapped)."""
-        ids = [self.item(row, 0).text() for row in range(self.rowCount()) if self.columnSpan(row, 0) == 1]
-        margin = 2 * self.style().pixelMetric(QStyle.PixelMetric.PM_HeaderMargin) + 8
-        width = max(self.fontMetrics().horizontalAdvance(text) for text in ["id", "SN88", *ids]) + margin
-        if self.horizontalHeader().sectionSize(0) != width:
-            self.horizontalHeader().resizeSection(0, width)
+        fit_id_column(self)
 
     def _fit_rows(self) -> None:
         """Landmark rows as high as their wrapped names; node rows one line."""
-        for row in range(self.rowCount()):
-            if self.columnSpan(row, 0) > 1:
-                self.resizeRowToContents(row)
+        fit_spanned_rows(self)
 
     def resizeEvent(self, event) -> None:                       # noqa: N802 (Qt's name)
         super().resizeEvent(event)

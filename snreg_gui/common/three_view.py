@@ -17,6 +17,10 @@ from snreg_gui.common.label_layout import place_labels
 from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
                                         xyz_of)
 
+LEGEND_MIN_PX = 200         # the legend's narrowest wrapping width
+LEGEND_MARGIN_PX = 20       # beside it, each side
+
+
 __all__ = ["ThreeViewPlot"]
 
 
@@ -40,6 +44,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         self.setBackground("w")
         self.scene_shown = NodeScene()
         self.legend = self.addLabel(self.scene_shown.legend(), row=0, col=0, colspan=len(VIEWS))
+        self.legend.item.setTextWidth(LEGEND_MIN_PX)    # wrapped to the view's width (resizeEvent): as one line it
+        self.legend.updateMin()                          # held the views wider than a 1024x700 window's pane
         self.plots, self.preop_dots, self.missing_dots, self.intraop_dots, self.pair_lines = [], [], [], [], []
         self.landmark_dots: list[tuple[pg.ScatterPlotItem, pg.ScatterPlotItem]] = []    # per projection: CT, touched
         self.ellipses: list[dict[str, pg.PlotDataItem]] = []       # per projection: "preop", "missing", "intraop"
@@ -71,6 +77,14 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             self._labels.append(([], [], []))
             self._anchors.append(np.zeros((0, 2)))
             plot.vb.sigTransformChanged.connect(lambda _=None, k=column: self._place_labels(k))
+
+    def resizeEvent(self, event) -> None:                        # noqa: N802 (Qt's name)
+        """The legend wrapped to the view's width, so it never holds the three projections past the view's edge."""
+        if getattr(self, "legend", None) is not None and not self.closed:   # pyqtgraph resizes before __init__
+                                                                          # ends, and on close, its items gone
+            self.legend.item.setTextWidth(max(self.width() - 2 * LEGEND_MARGIN_PX, LEGEND_MIN_PX))
+            self.legend.updateMin()
+        super().resizeEvent(event)
 
     def show_scene(self, scene: NodeScene) -> None:
         self.scene_shown = scene

@@ -25,10 +25,13 @@ from snreg.registration.naming import marked_rows, pair_text
 from snreg.registration.wording import confidence_text
 from snreg.session.timeline import ReviewNode, ReviewRegistration, SessionReview
 from snreg_gui.common.feed_view import FeedView
-from snreg_gui.common.node_error import ERROR_CAPTION, error_text
+from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP, error_text
+from snreg_gui.common.table_headers import fit_id_column, two_line_headers
 
-NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", f"{ERROR_CAPTION} (mm)", "camera x, y, z (mm)",
-                "insertion (mm)", "spread (mm)", "frames", "counts")
+# the stored nodes' columns (keys; shown over two lines): what a reviewer compares between nodes. The rest of a node's
+# record (camera position, spread, frames, counts) is in its row's tooltip: with all ten columns the table ran past
+# its right edge at every window size (issue 35)
+NODE_COLUMNS = ("id", "label", "time (s)", "trocar x, y, z (mm)", f"{ERROR_CAPTION} (mm)", "insertion (mm)")
 INSERTION_TIP = ("the camera's insertion (pivot to camera) the node was mapped with, tracked from the video; "
                  "empty: not tracked, the chain's distance")
 LANDMARK_MARK = "landmark: "
@@ -120,25 +123,50 @@ def fill_table(table: QTableWidget, rows: Sequence[Sequence[str]]) -> None:
 
 
 def node_rows(nodes: Sequence[ReviewNode]) -> list[list[str]]:
-    """One row per stored point; a landmark's id cell says so ("landmark: aortic bifurcation")."""
+    """One row per stored point, in :data:`NODE_COLUMNS`; a landmark's id cell says so ("landmark: aortic
+    bifurcation")."""
     return [[f"{LANDMARK_MARK}{n.id}" if n.is_landmark else n.id, n.label, f"{n.t_s:.2f}", _xyz(n.xyz_trocar),
-             error_text(n.cov_trocar_mm2), _xyz(n.xyz_camera),
-             _number(n.trocar_camera_mm, 1), _number(n.spread_mm, 2), str(n.n_frames), _number(n.counts, 0)]
-            for n in nodes]
+             error_text(n.cov_trocar_mm2), _number(n.trocar_camera_mm, 1)] for n in nodes]
+
+
+def node_details(node: ReviewNode) -> str:
+    """The rest of a stored point's record, for its row's tooltip: camera position, spread, fixes, counts."""
+    counts = _number(node.counts, 0)
+    return (f"camera x, y, z: {_xyz(node.xyz_camera)} mm; spread {_number(node.spread_mm, 2)} mm over "
+            f"{node.n_frames} fixes" + (f"; counts {counts}" if counts else "; no counts typed"))
+
+
+def node_table() -> QTableWidget:
+    """The stored nodes' table: captions over two lines, the id column as wide as the node ids, a landmark's name
+    spanning the id and label cells, word-wrapped; every column inside a side pane at 1024x700."""
+    table = read_only_table(NODE_COLUMNS)
+    table.horizontalHeaderItem(NODE_COLUMNS.index("insertion (mm)")).setToolTip(INSERTION_TIP)
+    table.horizontalHeaderItem(NODE_COLUMNS.index(f"{ERROR_CAPTION} (mm)")).setToolTip(ERROR_TIP)
+    two_line_headers(table)
+    table.setWordWrap(True)
+    fit_id_column(table)
+    table.verticalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)  # a wrapped name's lines
+    return table
 
 
 def fill_node_table(table: QTableWidget, points: Sequence[ReviewNode]) -> None:
-    """The stored nodes and landmarks in the order stored; a landmark's row in italics with a tooltip (an anatomical
-    point touched with the probe, never a node: not counted, never paired as a hot spot's)."""
+    """The stored nodes and landmarks in the order stored, each row's tooltip the rest of its record
+    (:func:`node_details`); a landmark's row in italics, its name across the id and label cells, with a tooltip (an
+    anatomical point touched with the probe, never a node: not counted, never paired as a hot spot's)."""
+    table.clearSpans()
     fill_table(table, node_rows(points))
     for row, point in enumerate(points):
-        if point.is_landmark:
-            for column in range(table.columnCount()):
-                item = table.item(row, column)
+        details = node_details(point)
+        for column in range(table.columnCount()):
+            item = table.item(row, column)
+            item.setData(Qt.ItemDataRole.ToolTipRole, f"{LANDMARK_TIP}\n{details}" if point.is_landmark else details)
+            if point.is_landmark:
                 font = item.font()
                 font.setItalic(True)
                 item.setFont(font)
-                item.setData(Qt.ItemDataRole.ToolTipRole, LANDMARK_TIP)
+        if point.is_landmark:
+            table.setSpan(row, 0, 1, 2)
+    fit_id_column(table)
 
 
 def _xyz(v: np.ndarray) -> str:

@@ -30,10 +30,9 @@ from PySide6.QtWidgets import (QGroupBox, QHBoxLayout, QLabel, QPushButton, QSpl
 
 from snreg.session import SessionError, set_final_in_file
 from snreg.session.timeline import SessionReview, fuse_imu_blocks, load_review
-from snreg_gui.common.node_error import ERROR_CAPTION, ERROR_TIP
 from snreg_gui.common.workers import Worker
-from snreg_gui.review.panels import (INSERTION_TIP, NODE_COLUMNS, PREOP_COLUMNS, SnapshotPair, StoredRegistrations,
-                                     fill_node_table, fill_table, header_text, preop_rows, preop_text, read_only_table)
+from snreg_gui.review.panels import (PREOP_COLUMNS, SnapshotPair, StoredRegistrations, fill_node_table, fill_table,
+                                     header_text, node_table, preop_rows, preop_text, read_only_table)
 from snreg_gui.review.timelines import TimelinePlots
 from snreg_gui.review.video_view import VideoScrubber
 
@@ -66,9 +65,7 @@ class ReviewScreen(QWidget):
         self.header = QLabel("")
         self.header.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.header.setWordWrap(True)                 # a damage line is long: it must not widen the window
-        self.node_table = read_only_table(NODE_COLUMNS)
-        self.node_table.horizontalHeaderItem(NODE_COLUMNS.index("insertion (mm)")).setToolTip(INSERTION_TIP)
-        self.node_table.horizontalHeaderItem(NODE_COLUMNS.index(f"{ERROR_CAPTION} (mm)")).setToolTip(ERROR_TIP)
+        self.node_table = node_table()
         self.preop_caption = QLabel("")
         self.preop_caption.setWordWrap(True)
         self.preop_table = read_only_table(PREOP_COLUMNS)
@@ -110,9 +107,14 @@ class ReviewScreen(QWidget):
         for widget in (self.node_tabs, self.snapshots, registrations):
             side.addWidget(widget)
         side.setSizes([300, 300, 250])               # proportions; the user moves the handles
+        plots = QWidget()                             # the timelines, the landmarks' legend under them
+        plots_layout = QVBoxLayout(plots)
+        plots_layout.setContentsMargins(0, 0, 0, 0)
+        plots_layout.addWidget(self.timelines, stretch=1)
+        plots_layout.addWidget(self.timelines.legend)
         body = QSplitter(Qt.Orientation.Horizontal)
         body.addWidget(side)
-        body.addWidget(self.timelines)
+        body.addWidget(plots)
         body.setSizes([600, 900])
         layout = QVBoxLayout(self)
         top = QHBoxLayout()
@@ -257,7 +259,7 @@ class ReviewScreen(QWidget):
 
     def _clear(self) -> None:
         self.header.setText("")
-        fill_table(self.node_table, [])
+        fill_node_table(self.node_table, [])
         self.preop_caption.setText("")
         fill_table(self.preop_table, [])
         self.snapshots.show_pair(None, None)

@@ -7,7 +7,10 @@ downsampling clipped to the view, and only fed with ``setData``; the IMU angles 
 the fusion runs in a worker (:meth:`TimelinePlots.add_imu_block`). The insertion (issue 27) is drawn where it was
 tracked; where it was lost the curve breaks and a red bar shows the insertion those pairs were mapped at (the last
 tracked), and each node's insertion is a ring at its store. A stored anatomical landmark has a marker of its own
-(green, dotted, labelled with a diamond and its name), never one of the node markers.
+(green, dotted, labelled with a diamond and its number in the order stored, "\u25c6 2"), never one of the node
+markers; :attr:`TimelinePlots.legend`, placed under the plots, names each number ("\u25c6 2 aortic bifurcation"), and
+the label's tooltip too. Whole names on the plot overlapped each other and the node labels at 1024x700 and 1366x768,
+where the top plot has room for about three label rows (issue 35).
 
 >>> plots = TimelinePlots()
 >>> plots.show_review(review)            # a snreg.session.timeline.SessionReview
@@ -17,8 +20,11 @@ tracked), and each node's insertion is a ring at its store. A stored anatomical 
 
 from __future__ import annotations
 
+import html
+
 import numpy as np
 import pyqtgraph as pg
+from PySide6.QtWidgets import QLabel
 
 from snreg.session.timeline import SessionReview, gap_after, lost_stretches, with_gaps
 from snreg_gui.common.node_scene import LANDMARK_COLOUR     # green, as the node views draw landmarks
@@ -30,7 +36,7 @@ _GAP_PEN = pg.mkPen("#de2d26", width=6)
 _LOST_PEN = pg.mkPen("#de2d26", width=4)
 _NODE_RING = "#ffd700"          # a node's insertion, at its store
 _LANDMARK_PEN = pg.mkPen(LANDMARK_COLOUR, width=1, style=pg.QtCore.Qt.PenStyle.DotLine)
-LANDMARK_LABEL = "\u25c6 "        # a diamond before a landmark's name on its marker
+LANDMARK_LABEL = "\u25c6 "        # a diamond before a landmark's number on its marker and its name in the legend
 PROGRESS_POINTS = 20_000       # IMU points per curve drawn while the fusion is still running
 LABEL_GAP_PX = 6               # between two labels on one row
 LABEL_ROWS = 6                 # at most, however high the top plot
@@ -58,6 +64,20 @@ def label_rows(times_s, min_gap_s: float, widths_s=None, max_rows: int = LABEL_R
     return rows
 
 
+def label_anchor(t: float, width: float, start: float, end: float) -> float:
+    """Where along its width (0 = its left edge, 0.5 its centre) a label ``width`` wide stands on its line at ``t``,
+    so that it lies within ``start``..``end``: its centre where it fits, else shifted just inside (a label wider than
+    the span starts at ``start``)."""
+    if width <= 0:
+        return 0.5
+    return float(np.clip(np.clip(0.5, 1.0 - (end - t) / width, (t - start) / width), 0.0, 1.0))
+
+
+def landmark_mark(k: int) -> str:
+    """The label of the ``k``-th landmark stored (from 0) on the timeline: "\u25c6 1", "\u25c6 2", ..."""
+    return f"{LANDMARK_LABEL}{k + 1}"
+
+
 def _colour_key() -> str:
     """One line naming the curves' colours (an in-plot legend sat under the node labels)."""
     def names(title: str, words) -> str:
@@ -81,6 +101,9 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
     def __init__(self):
         super().__init__()
         self.key = self.addLabel(_colour_key(), row=0, col=0)      # above the plots: node labels never cover it
+        self.legend = QLabel("")            # the landmarks' numbers and names, word-wrapped; placed by the screen
+        self.legend.setWordWrap(True)
+        self.legend.hide()
         self.angles = self._plot(0, "IMU (deg)")
         self.tip = self._plot(1, "tip (mm)")                  # short labels: five plots share a 700 px screen
         self.insertion = self._plot(2, "insertion (mm)")
@@ -144,6 +167,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self.untracked_note.setText("")
         self.rate_curve.setData([0.0], [], stepMode="center")
         self._remove_markers()
+        self._show_legend([])
         for cursor in self.cursors:
             cursor.hide()
         self.show_window(None)
@@ -175,13 +199,22 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         width = float(np.ptp(span)) if len(span) else 0.0
         for point in stored:
             if point.is_landmark:
-                self.landmark_markers[point.id] = self._add_marker(LANDMARK_LABEL + point.id, point.t_s,
-                                                                   pen=_LANDMARK_PEN, colour=LANDMARK_COLOUR)
+                mark = landmark_mark(len(self.landmark_markers))
+                self.landmark_markers[point.id] = self._add_marker(mark, point.t_s, pen=_LANDMARK_PEN,
+                                                                   colour=LANDMARK_COLOUR)
+                self.landmark_markers[point.id][0].label.setToolTip(f"{mark} {point.id} (anatomical landmark)")
             else:
                 self.node_markers[point.id] = self._add_marker(point.id, point.t_s)
+        self._show_legend(list(self.landmark_markers))
         if len(span):
             self.angles.setXRange(float(span.min()), float(span.max()), padding=0.02)
         self._place_labels()
+
+    def _show_legend(self, names: list[str]) -> None:
+        """The legend under the plots: each landmark's number and name, in the landmark colour; hidden when none."""
+        self.legend.setText(" &nbsp; ".join(f"<span style='color:{LANDMARK_COLOUR}'>{landmark_mark(k)}</span> "
+                                            f"{html.escape(name)}" for k, name in enumerate(names)))
+        self.legend.setVisible(bool(names))
 
     def marker_labels(self) -> list:
         """The labels of the node and landmark markers (on the top plot)."""
@@ -189,7 +222,9 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
 
     def _place_labels(self, *_) -> None:
         """Each marker's label on the highest row where it covers no other, rows as high as a label from the top of
-        the top plot: measured in pixels, so again whenever the plot is resized or its time range changes."""
+        the top plot, and wholly inside the plot (centred on its line, or shifted along it at the plot's ends, where
+        half of "SN1" was cut off): measured in pixels, so again whenever the plot is resized or its time range
+        changes."""
         labels = self.marker_labels()
         view = self.angles.vb
         (x0, x1), width_px, height_px = view.viewRange()[0], view.width(), view.height()
@@ -198,9 +233,14 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         s_per_px = (x1 - x0) / width_px
         boxes = [label.boundingRect() for label in labels]          # a TextItem's box is in pixels
         row_px = max(box.height() for box in boxes)
-        rows = label_rows([label.line.value() for label in labels], LABEL_GAP_PX * s_per_px,
-                          [box.width() * s_per_px for box in boxes], min(LABEL_ROWS, max(int(height_px // row_px), 1)))
-        for label, row in zip(labels, rows):
+        widths = [box.width() * s_per_px for box in boxes]
+        lefts = [label_anchor(label.line.value(), width, x0 + 2 * s_per_px, x1 - 2 * s_per_px)
+                 for label, width in zip(labels, widths)]
+        rows = label_rows([label.line.value() + (0.5 - left) * width for label, left, width in zip(labels, lefts,
+                                                                                                   widths)],
+                          LABEL_GAP_PX * s_per_px, widths, min(LABEL_ROWS, max(int(height_px // row_px), 1)))
+        for label, row, left in zip(labels, rows, lefts):
+            label.anchors = [(left, 0), (left, 0)]
             label.setPosition(1.0 - min(row * row_px + 2, height_px) / height_px)
 
     def _show_insertion(self, review: SessionReview, period_s: float | None) -> None:

@@ -21,6 +21,7 @@ from PySide6.QtWidgets import (QAbstractButton, QAbstractItemView, QAbstractScro
                                QStyle, QTableWidget, QWidget)
 
 ELLIPSIS = "\u2026"
+SCREEN_SIZES = ((1024, 700), (1366, 768), (1920, 1080))     # issue 35: every screen from 1024x700 up
 SLACK_PX = 1                 # rounding between font metrics and layout
 CONTROLS = (QAbstractButton, QLineEdit, QComboBox, QAbstractSpinBox, QSlider)
 

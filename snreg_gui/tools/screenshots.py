@@ -1,7 +1,13 @@
-"""Screenshots of every tab and every wizard page of the demo, at 1024x700 and 1920x1080, for a person to look at.
+"""Screenshots of every tab and every wizard page of the demo, at 1024x700 and 1366x768, for a person to look at.
 
     xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python -m snreg_gui.screenshots -o screenshots/
     QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots -o screenshots/ --only trocar
+    QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots --docs -o docs/images/   # the guide's set
+
+``--camera`` picks the demo (default surgery: the camera slides and turns between nodes, its insertion tracked; still:
+the thesis' phantom). ``--docs`` takes the set the technician's guide shows (issue 35: every tab of the surgery demo
+with nothing cut, at both sizes; each wizard page at the smallest, where a cut would show first), saved with a
+palette of 256 colours so the set stays small in the repository.
 
 Why: offscreen tests prove behaviour, not that a screen reads well. This drives the demo as an operator would
 (auto-store the four phantom nodes, register against the phantom SPECT, go through both calibration wizards
@@ -22,12 +28,17 @@ import time
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import QPoint, QSettings
+from PySide6.QtCore import QPoint, QSettings, Qt
 from PySide6.QtGui import QImage, QPainter
 from PySide6.QtWidgets import QApplication, QMessageBox, QWidget, QWizard
 
-SIZES = ((1024, 700), (1920, 1080))
+from snreg_gui.tools.layout_check import SCREEN_SIZES
+
+SIZES = SCREEN_SIZES[:2]           # 1024x700 and 1366x768: where a cut shows first
 FEED_TIMEOUT_S = 180.0            # a rendered scene's first frame, on a loaded machine
+STORE_TIMEOUT_S = 900.0           # the demo's four nodes auto-stored, on a loaded machine
+SURGERY_FIXES = 20                # fixes per node in the surgery demo's shots
+SURGERY_SCALE = 0.25              # its cameras' resolution, of the thesis' 1920x1080
 UNIFORM_IMAGE = 0.999            # a whole shot this uniform is blank (a page of text is far from it)
 UNIFORM_FEED = 0.985             # a feed's area this uniform shows no frame (a caption on black)
 # the shots, by the part of the run that takes them (--only picks parts of these names)
@@ -38,6 +49,10 @@ PHASES = {"tabs": ("tab-1-acquisition", "tab-2-registration", "tab-3-review"),
                      "trocar-5-summary", "trocar-6-applied"),
           "refusal": ("refused-store", "close-question"),
           "replay": ("replay-acquisition",)}
+# --docs: the tabs at every size, these wizard pages at the first size only
+DOCS_TABS = PHASES["tabs"]
+DOCS_PAGES = ("stereo-1-setup", "stereo-2-capture", "stereo-3-calibrate", "stereo-4-save", "trocar-1-method",
+              "trocar-2-pivot", "trocar-2-tissue", "trocar-3-arc", "trocar-4-manual", "trocar-5-summary")
 
 
 def blank_reason(grey: np.ndarray, uniform: float = UNIFORM_IMAGE, tolerance: int = 6) -> str | None:
@@ -80,14 +95,17 @@ def wait_until(condition, timeout_s: float, what: str) -> None:
 class Shooter:
     """Saves shots of a widget (or a window with a box over it) at each size and keeps the blank ones' reasons."""
 
-    def __init__(self, out: Path, sizes, only: list[str]):
-        self.out, self.sizes, self.only = out, sizes, only
+    def __init__(self, out: Path, sizes, only: list[str], docs: bool = False):
+        self.out, self.sizes, self.only, self.docs = out, sizes, only, docs
         self.x11 = QApplication.instance().platformName() == "xcb"
         self.written: list[Path] = []
         self.blank: list[str] = []
 
     def wanted(self, *names: str) -> bool:
-        """Whether any of these shots is asked for (``--only``: parts of their names; none: all)."""
+        """Whether any of these shots is asked for (``--only``: parts of their names; ``--docs``: the guide's set;
+        neither: all)."""
+        if self.docs and not any(name in DOCS_TABS + DOCS_PAGES for name in names):
+            return False
         return not self.only or any(part in name for name in names for part in self.only)
 
     def shoot(self, name: str, widget: QWidget, box: QWidget | None = None, centre_box: bool = True) -> None:
@@ -96,7 +114,7 @@ class Shooter:
         if not self.wanted(name):
             return
         from snreg_gui.common.feed_view import FeedView
-        for width, height in self.sizes:
+        for width, height in self.sizes if not self.docs or name in DOCS_TABS else self.sizes[:1]:
             widget.move(0, 0)                        # all of it on the screen, whatever its size
             widget.resize(width, height)
             _spin(0.8)
@@ -107,7 +125,9 @@ class Shooter:
             _spin(0.7)
             image = self._grab(widget, box)
             path = self.out / f"{name}-{width}x{height}.png"
-            image.save(str(path))
+            saved = image.convertToFormat(QImage.Format.Format_Indexed8, Qt.ImageConversionFlag.DiffuseDither) \
+                if self.docs else image
+            saved.save(str(path), quality=0 if self.docs else -1)          # 0: PNG's strongest compression
             self.written.append(path)
             self._check(path, image, widget, feeds)
             print(f"wrote {path} ({image.width()}x{image.height()})", flush=True)
@@ -147,7 +167,7 @@ def _store_and_register(shots: Shooter, window) -> None:
     from snreg.demo.scene import NODE_CENTRES_MM
     screen, panel = window.acquisition, window.registration
     screen.auto_store.setChecked(True)
-    wait_until(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), 400, "the four nodes to be stored")
+    wait_until(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), STORE_TIMEOUT_S, "the four nodes to be stored")
     screen.auto_store.setChecked(False)
     shots.shoot("tab-1-acquisition", window)
     window.tabs.setCurrentWidget(panel)
@@ -241,16 +261,27 @@ def _refusal_and_close(shots: Shooter, window) -> None:
     keep.click()
 
 
+def open_review(window, timeout_s: float = 120.0):
+    """The window's recorded session closed and opened in its Review tab (the first call; later ones show the tab),
+    once read: its nodes listed, the IMU fused, its video opened. Returns the review screen; SystemExit naming what
+    did not come after ``timeout_s`` (the layout tests open the review the same way)."""
+    if window.session is not None:
+        path = window.session.path
+        window.pause_acquisition()
+        window.session.close()
+        window.session = None
+        window.open_for_review(path)
+    review = window.review
+    window.tabs.setCurrentWidget(review)
+    wait_until(lambda: review.node_table.rowCount() > 0 and not review.status.text().startswith(("loading", "fusing")),
+               timeout_s, "the review")
+    wait_until(lambda: review.scrubber.video is not None, timeout_s, "the review's video")
+    return review
+
+
 def _review(shots: Shooter, window) -> None:
     path = window.session.path
-    window.pause_acquisition()
-    window.session.close()
-    window.session = None
-    window.open_for_review(path)
-    review = window.review
-    wait_until(lambda: review.node_table.rowCount() > 0 and not review.status.text().startswith(("loading", "fusing")),
-               120, "the review")
-    wait_until(lambda: review.scrubber.video is not None, 60, "the review's video")
+    review = open_review(window)
     review.node_table.selectRow(1)                   # its recorded pair at the store fills the two feeds
     wait_until(lambda: review.snapshots.left_view.title.startswith("left: frame"), 60, "the node's recorded pair")
     shots.shoot("tab-3-review", window)
@@ -274,19 +305,30 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES),
                         help="window sizes, e.g. 1024x700,1920x1080")
     parser.add_argument("--only", default="", help="comma-separated parts of shot names (e.g. trocar,tab-1)")
+    parser.add_argument("--camera", choices=("surgery", "still"), default="surgery",
+                        help="the demo shown: surgery (the camera moves between nodes) or still (the thesis' phantom)")
+    parser.add_argument("--docs", action="store_true",
+                        help="the technician's guide's set: tabs at every size, wizard pages at the first, 256 colours")
     args = parser.parse_args(argv)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    shots = Shooter(out, [_size(s) for s in args.sizes.split(",")], [p for p in args.only.split(",") if p])
+    shots = Shooter(out, [_size(s) for s in args.sizes.split(",")], [p for p in args.only.split(",") if p], args.docs)
     from snreg.demo.rig import DemoRig
     from snreg.demo.scene import Schedule
     from snreg_gui.app import MainWindow
 
     work = Path(tempfile.mkdtemp(prefix="snreg-screens-"))     # the demo session, its video and SPECT: removed
     settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
-    window = MainWindow(str(work / "phantom.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=60)),
-                        settings=settings)
+    # the still phantom rests 60 frames per node (a short run); the surgery camera's tour follows its IMU's real-time
+    # motion, so it keeps the rests a person gets, rendered at a quarter of the thesis resolution and a node stored
+    # from fewer fixes (at half the resolution and 60 fixes a loaded machine stored no node in 15 minutes)
+    if args.camera == "surgery":
+        window = MainWindow(str(work / "demo.h5"), demo=True, rig=DemoRig(camera="surgery", scale=SURGERY_SCALE),
+                            settings=settings, fixes_per_node=SURGERY_FIXES)
+    else:
+        window = MainWindow(str(work / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=60)),
+                            settings=settings)
     window.resize(*shots.sizes[0])
     window.show()
     try:

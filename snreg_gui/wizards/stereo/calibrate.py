@@ -62,6 +62,7 @@ class CalibratePage(QWizardPage):
         self.progress.setRange(0, 0)                 # busy indicator: calibrate_stereo reports no progress
         self.status = QLabel("")
         self.summary = QLabel("")
+        self.summary.setWordWrap(True)                  # a warning line is long: wrapped, never cut at 1024x700
         self.summary.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.table = QTableWidget(0, len(COLUMNS))
         self.table.setHorizontalHeaderLabels(COLUMNS)
