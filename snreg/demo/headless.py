@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from snreg import geometry
+from snreg.demo.navigation_log import NavigationLog, hot_spot_truth
 from snreg.demo.phantom import PHANTOM_LABELS
 from snreg.demo.rest_log import RestLog
 from snreg.demo.rig import DemoRig
@@ -32,13 +34,16 @@ from snreg.preop.segment import segment_nodes
 from snreg.preop.volume import load_volume
 from snreg.registration import RegistrationResult, register
 from snreg.registration.naming import pairs_line
-from snreg.registration.report import pair_table
+from snreg.registration.report import missing_nodes, pair_table
 from snreg.registration.wording import confidence_value, labels_given, used_inputs
 from snreg.session import Session
+from snreg.tracking.stereo import StereoTracker
 from snreg.workflow.acquisition import STILL_SPREAD_MM, Acquisition, ImuReading
+from snreg.workflow.navigation import camera_pose
 from snreg.workflow.registration_start import session_gravity
 
 N_NODES = len(NODE_CENTRES_MM)
+MIN_NODES = 3              # stored nodes a registration needs (the phantom has no landmarks)
 # The demo registers with the labels typed on the phantom and without the nodes' covariances; ``snreg register`` with
 # these options repeats it (its defaults differ: each node's covariance, no labels), as the output says.
 REPEAT_OPTIONS = "--labels --no-covariances"
@@ -70,6 +75,7 @@ class HeadlessResult:
     link_s: float = 0.0
     link_calls: int = 0
     intraop_cov: np.ndarray | None = None         # (M, 3, 3) each stored node's covariance, mm^2, trocar frame
+    navigation: tuple = ()                        # the hot spots not found yet per frame, against the truth
 
     def used(self):
         """What the demo's registration used (:class:`~snreg.registration.wording.UsedInputs`): the labels typed on the
@@ -95,7 +101,7 @@ class HeadlessResult:
                 "used": self.used().as_json(), "repeat": f"snreg register {self.session_path} {REPEAT_OPTIONS}",
                 "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames,
                 "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
-                "spect": str(self.spect_path)}
+                "spect": str(self.spect_path), "navigation": list(self.navigation)}
 
 
 def spect_path_for(session_path: str | Path) -> Path:
@@ -161,51 +167,78 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
-            started = time.perf_counter()
-            tracking = camera_tracking and rig.moving_camera
-            frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking)
-            recording_s = time.perf_counter() - started
-            sources = rig.phantom_sources_lps()
+            sources = rig.phantom_sources_lps()         # the SPECT is there before surgery: registered after each store
             spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
             session.set_preop_nodes(preop, down=volume_down(volume))
             feed("set_preop_nodes", preop)
+            started = time.perf_counter()
+            tracking = camera_tracking and rig.moving_camera
+            navigation = NavigationLog(preop, hot_spot_truth(preop.xyz, sources, rig.nodes_trocar()), None, None,
+                                       rig.calibration.image_size)
+            frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking,
+                                        lambda: _register(session, preop, seed), navigation)
+            recording_s = time.perf_counter() - started
             intraop = session.intraop_nodes()
-            result = register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels,
-                              intraop_labels=intraop.labels, down=session_gravity(session).down, seed=seed)
+            result = _register(session, preop, seed)
             session.add_registration(result, preop.ids, intraop.ids)
             feed("set_registration", result, pairs_line(preop, intraop, result))
+            feed("set_missing", missing_nodes(preop, result))
     finally:
         rig.close()
     truth = _true_pairing(preop.xyz, sources, stored_at)
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
-                          tracking, recording_s, feed.seconds, feed.calls, intraop.cov)
+                          tracking, recording_s, feed.seconds, feed.calls, intraop.cov, tuple(navigation.entries))
+
+
+def _register(session: Session, preop, seed: int) -> RegistrationResult:
+    """The demo's registration of the nodes stored in ``session`` now (the labels typed, from gravity)."""
+    intraop = session.intraop_nodes()
+    return register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels, intraop_labels=intraop.labels,
+                    down=session_gravity(session).down, seed=seed)
 
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,
-            tracking: bool = False) -> tuple[int, list[int]]:
+            tracking: bool = False, register_now=None, navigation: NavigationLog | None = None) -> tuple[int, list[int]]:
     """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
-    skips some) and, per stored node, the phantom node the probe rested on. ``tracking``: follow the insertion."""
+    skips some) and, per stored node, the phantom node the probe rested on. ``tracking``: follow the insertion.
+    ``register_now``: the registration of the nodes stored now, run after each store once there are
+    :data:`MIN_NODES` (inline, as the app's worker would: about 50 ms), its hot spots not found yet logged per frame
+    into ``navigation`` (:class:`~snreg.demo.navigation_log.NavigationLog`) against the truth."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
     insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if tracking else None
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
                               video_fps=rig.fps if video else None, insertion=insertion)
+    if navigation is not None:
+        navigation.project = acquisition.tracker.project
+        navigation.true_project = StereoTracker(rig.cameras, rig.probe).project
+    first_ns = None
     limit, read, tail, stored_at, rests, ended = _TOURS * rig.scene.cycle, 0, 0, [], RestLog(), ""
     with source:
         for frame in source:
             read += 1
-            outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))
+            reading = ImuReading.at_frame(rig.imu, frame)
+            outcome = acquisition.process(frame, reading)
             feed("show_frame", outcome)
+            first_ns = frame.t_left_ns if first_ns is None else first_ns
+            if navigation is not None:
+                estimated = geometry.invert(camera_pose(acquisition.chain, reading.earth_from_imu, outcome.insertion))
+                navigation.frame(frame.index, (frame.t_left_ns - first_ns) * 1e-9, estimated,
+                                 geometry.invert(rig.true_trocar_from_camera(frame.index)), outcome.tip_trocar,
+                                 set(stored_at))
             node = rig.scene.resting_node(frame.index)
             due = outcome.auto_store_due and node is not None
             if due:
                 feed("add_node", acquisition.store(session.next_node_id(), PHANTOM_LABELS[node], left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
                 stored_at.append(node)
+                if register_now is not None and navigation is not None and len(stored_at) >= MIN_NODES:
+                    navigation.registered(register_now())
+                    feed("set_missing", list(navigation.state.targets))
             rests.add(node, outcome, stored=due, window=fixes_per_node)
             if len(session.intraop_records()) == N_NODES:
                 tail += 1                            # a second more on record: a replay meets the last rest whole
