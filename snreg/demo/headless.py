@@ -25,7 +25,7 @@ from snreg import geometry
 from snreg.demo.navigation_log import NavigationLog, hot_spot_truth
 from snreg.demo.phantom import PHANTOM_LABELS
 from snreg.demo.rest_log import RestLog
-from snreg.demo.rig import DemoRig
+from snreg.demo.rig import DEMO_FPS, DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
 from snreg.demo.staging import publish, staging_folder
 from snreg.odometry import InsertionTracker
@@ -127,14 +127,15 @@ class _TimedLink:
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
                  link=None, errors=None, video: bool = True, camera: str = "still",
-                 camera_tracking: bool = True) -> HeadlessResult:
+                 camera_tracking: bool = True, fps: float = DEMO_FPS) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
     ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
     :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
     beside the session; ``camera``: "still" or "surgery" (:class:`~snreg.demo.rig.DemoRig`); ``camera_tracking``:
     follow the insertion of a camera that moves (off: every node is mapped at the trocar calibration's distance, to
-    compare).
+    compare); ``fps``: the feed's pace (the tour's frames last longer at a lower one: a loaded computer then
+    processes more of them, for measurements; the command line keeps the demo's own).
 
     The run records into a hidden folder beside ``session_path`` (:mod:`snreg.demo.staging`) and its files (session,
     journal, videos, SPECT) move there only when it completes: a run that fails leaves ``session_path`` free for the
@@ -143,7 +144,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     folder = staging_folder(target)
     try:
         run = _run(folder / target.name, seed=seed, fixes_per_node=fixes_per_node, scale=scale, link=link,
-                   errors=errors, video=video, camera=camera, camera_tracking=camera_tracking)
+                   errors=errors, video=video, camera=camera, camera_tracking=camera_tracking, fps=fps)
     except DemoError as err:
         raise DemoError(f"{err}; the recording so far is kept in {folder} to look at (delete it when done), and "
                         f"{target.name} was not written, so the same command can run again") from None
@@ -159,10 +160,10 @@ def rest_frames_for(camera: str, fixes_per_node: int) -> int:
 
 
 def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, link, errors, video: bool, camera: str,
-         camera_tracking: bool) -> HeadlessResult:
+         camera_tracking: bool, fps: float = DEMO_FPS) -> HeadlessResult:
     """:func:`run_headless` into ``session_path`` as it is (the staging folder's)."""
     schedule = Schedule(rest_frames=rest_frames_for(camera, fixes_per_node))
-    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera)
+    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera, fps=fps)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:

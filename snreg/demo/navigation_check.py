@@ -23,7 +23,7 @@ import json
 import subprocess
 import sys
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -91,11 +91,16 @@ def _distance(entry: dict) -> float:
     return float(np.linalg.norm(np.subtract(entry["truth_trocar"], entry["predicted_trocar"])))
 
 
-def run_demo(camera: str, seed: int, folder: Path, errors: str = "thesis") -> tuple[list | None, str]:
-    """One headless demo run: (its navigation entries, "") or (None, why it failed)."""
+def run_demo(camera: str, seed: int, folder: Path, errors: str = "thesis",
+             fps: float | None = None) -> tuple[list | None, str]:
+    """One headless demo run: (its navigation entries, "") or (None, why it failed). ``fps``: None runs the command
+    (``snreg demo --headless ...``); a pace runs the same demo with its feed at that pace (:func:`~snreg.demo.headless.
+    run_headless`'s ``fps``: on a loaded computer a slower feed leaves time to process its frames)."""
     session = folder / f"{camera}-{seed}.h5"
-    command = [sys.executable, "-m", "snreg.cli", "demo", "--headless", "-o", str(session), "--json", "--errors",
-               errors, "--camera", camera, "--seed", str(seed)]
+    command = ([sys.executable, "-m", "snreg.cli", "demo", "--headless", "-o", str(session), "--json", "--errors",
+                errors, "--camera", camera, "--seed", str(seed)] if fps is None else
+               [sys.executable, "-m", "snreg.demo.navigation_check", "--one", camera, str(seed), str(fps), str(session),
+                errors])
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -111,27 +116,47 @@ def main(argv=None) -> int:
     parser.add_argument("--cameras", default="still,surgery")
     parser.add_argument("--parallel", type=int, default=2)
     parser.add_argument("--keep", type=Path, help="write each run's entries here as <camera>-<seed>.json")
+    parser.add_argument("--fps", type=float, help="run the demo's feed at this pace instead of its own (30)")
+    parser.add_argument("--one", nargs=5, metavar=("CAMERA", "SEED", "FPS", "SESSION", "ERRORS"),
+                        help=argparse.SUPPRESS)          # one run at a pace, its JSON on stdout (run_demo)
     args = parser.parse_args(argv)
+    if args.one:
+        return _one(*args.one)
     jobs = [(camera, int(seed)) for camera in args.cameras.split(",") for seed in args.seeds.split(",")]
+    completed = []
     with tempfile.TemporaryDirectory(prefix="snreg-navigation-") as folder, \
             ThreadPoolExecutor(args.parallel) as pool:
-        outcomes = list(pool.map(lambda job: run_demo(*job, Path(folder)), jobs))
-    completed = []
-    for (camera, seed), (entries, problem) in zip(jobs, outcomes):
-        if entries is None:
-            print(f"{camera} seed {seed}: FAILED: {problem}")
-            continue
-        completed.append(entries)
-        if args.keep is not None:
-            args.keep.mkdir(parents=True, exist_ok=True)
-            (args.keep / f"{camera}-{seed}.json").write_text(json.dumps(entries))
-        one = figures([entries])
-        print(f"{camera} seed {seed}: {one.approach_frames} approach frames, shown confident "
-              f"{100 * one.shown_confident:.0f} %, error {one.median_error_mm:.2f} mm, bound {one.median_bound_mm:.2f} "
-              f"mm, pose {one.median_pose_px:.2f} px")
+        runs = {pool.submit(run_demo, camera, seed, Path(folder), fps=args.fps): (camera, seed) for camera, seed in jobs}
+        for done in as_completed(runs):                  # each run said as it ends: a long check shows progress
+            (camera, seed), (entries, problem) = runs[done], done.result()
+            if entries is None:
+                print(f"{camera} seed {seed}: FAILED: {problem}", flush=True)
+                continue
+            completed.append(entries)
+            if args.keep is not None:
+                args.keep.mkdir(parents=True, exist_ok=True)
+                (args.keep / f"{camera}-{seed}.json").write_text(json.dumps(entries))
+            one = figures([entries])
+            print(f"{camera} seed {seed}: {one.approach_frames} approach frames, shown confident "
+                  f"{100 * one.shown_confident:.0f} %, error {one.median_error_mm:.2f} mm, bound "
+                  f"{one.median_bound_mm:.2f} mm, pose {one.median_pose_px:.2f} px", flush=True)
     if completed:
         print("\n".join(figures(completed).lines()))
     return 0 if completed else 1
+
+
+def _one(camera: str, seed: str, fps: str, session: str, errors: str) -> int:
+    """``--one``: run the headless demo at ``fps`` and print its JSON (as ``snreg demo --headless --json`` does)."""
+    from snreg.demo.errors import load_error_model
+    from snreg.demo.headless import DemoError, run_headless
+
+    try:
+        run = run_headless(session, seed=int(seed), errors=load_error_model(errors), camera=camera, fps=float(fps))
+    except DemoError as err:
+        print(f"snreg: {err}", file=sys.stderr)
+        return 2
+    print(json.dumps(run.to_json()))
+    return 0
 
 
 if __name__ == "__main__":
