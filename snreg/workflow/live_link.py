@@ -181,7 +181,7 @@ class LiveLink:
         ``MissingHotSpots``, names = preop ids."""
         ids = [str(t.preop_id) for t in targets]
         xyz = np.array([t.mapped_xyz for t in targets], dtype=float).reshape(-1, 3)
-        self._offer(msg.MISSING_HOT_SPOTS, (ids, xyz), f"hot spots not found yet: {', '.join(ids) or 'none'}")
+        self._offer(msg.MISSING_HOT_SPOTS, (ids, xyz))     # the status keeps saying the registration it follows
 
     # -- waiting and closing ------------------------------------------------------------
     def wait_for_client(self, timeout_s: float | None = None) -> bool:
