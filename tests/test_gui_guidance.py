@@ -4,6 +4,7 @@ them: a region at the expected pixel, an arrow at the border for one off screen,
 import time
 
 import numpy as np
+import pytest
 from PySide6.QtGui import QColor
 
 from snreg import geometry
@@ -104,3 +105,31 @@ def test_an_unconfident_pairing_is_said_on_the_feed_and_nothing_is_drawn_as_conf
     assert not screen.left_feed.hot_spots.confident and screen.guidance.text() == UPDATING
     screen.show_missing([])                                                  # every node paired: nothing listed
     assert screen.missing_list.text() == "" and screen.guidance.text() == ""
+
+
+def test_the_worker_draws_from_the_cameras_pose_at_the_frames_orientation_and_insertion(qtbot):
+    from types import SimpleNamespace
+
+    from snreg.chain import trocar_from_camera as pose_of
+    from snreg.demo.surgery_scene import surgery_demo_chain
+    from snreg.workflow.acquisition import ImuReading
+    from snreg_gui.acquisition.worker import AcquisitionWorker
+
+    chain = surgery_demo_chain()
+    slid = chain.with_insertion(float(np.linalg.norm(chain.imu_from_camera[:3, 3])) - chain.imu_trocar_mm + 10.0)
+    orientation = geometry.rotation_from_euler(20.0, -10.0, 5.0)
+    trocar_from_camera = pose_of(slid, orientation)                   # the pose at the slid chain
+    ahead = geometry.apply(trocar_from_camera, np.array([[0.0, 0.0, 120.0]]))[0]     # on the optical axis
+    worker = AcquisitionWorker(None, CALIBRATION, None, chain, None, None, 30.0)
+    worker.acquisition = SimpleNamespace(chain=chain, tracker=StereoTracker(CALIBRATION))
+    worker.set_navigation(NavigationState((MissingNode(0, "P1", "", ahead, 5.0),), (), confident=True))
+    outcome = FrameOutcome(0, None, "", None, 0, float("nan"), False, False, 5.0,
+                           insertion=SimpleNamespace(chain=slid))
+    left, right, words = worker._hot_spots(outcome, ImuReading(orientation))
+    K = CALIBRATION.K1
+    np.testing.assert_allclose(left.marks[0].centre, DISPLAY_SCALE * K[:2, 2], atol=0.05)
+    assert right.marks[0].centre[0] < left.marks[0].centre[0] and words == "P1: no probe fix"
+    unslid = FrameOutcome(0, None, "", None, 0, float("nan"), False, False, 5.0)     # the chain's own insertion
+    moved, _, _ = worker._hot_spots(unslid, ImuReading(orientation))
+    np.testing.assert_allclose(moved.marks[0].centre, left.marks[0].centre, atol=0.05)   # still on the axis...
+    assert moved.marks[0].axes[0] == pytest.approx(left.marks[0].axes[0] * 120.0 / 130.0, rel=0.01)   # 10 mm deeper
