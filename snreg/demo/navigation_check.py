@@ -91,8 +91,8 @@ def _distance(entry: dict) -> float:
     return float(np.linalg.norm(np.subtract(entry["truth_trocar"], entry["predicted_trocar"])))
 
 
-def run_demo(camera: str, seed: int, folder: Path, errors: str = "thesis",
-             fps: float | None = None) -> tuple[list | None, str]:
+def run_demo(camera: str, seed: int, folder: Path, errors: str = "thesis", fps: float | None = None,
+             fixes: int = 60) -> tuple[list | None, str]:
     """One headless demo run: (its navigation entries, "") or (None, why it failed). ``fps``: None runs the command
     (``snreg demo --headless ...``); a pace runs the same demo with its feed at that pace (:func:`~snreg.demo.headless.
     run_headless`'s ``fps``: on a loaded computer a slower feed leaves time to process its frames)."""
@@ -100,7 +100,7 @@ def run_demo(camera: str, seed: int, folder: Path, errors: str = "thesis",
     command = ([sys.executable, "-m", "snreg.cli", "demo", "--headless", "-o", str(session), "--json", "--errors",
                 errors, "--camera", camera, "--seed", str(seed)] if fps is None else
                [sys.executable, "-m", "snreg.demo.navigation_check", "--one", camera, str(seed), str(fps), str(session),
-                errors])
+                errors, str(fixes)])
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -117,7 +117,8 @@ def main(argv=None) -> int:
     parser.add_argument("--parallel", type=int, default=2)
     parser.add_argument("--keep", type=Path, help="write each run's entries here as <camera>-<seed>.json")
     parser.add_argument("--fps", type=float, help="run the demo's feed at this pace instead of its own (30)")
-    parser.add_argument("--one", nargs=5, metavar=("CAMERA", "SEED", "FPS", "SESSION", "ERRORS"),
+    parser.add_argument("--fixes", type=int, default=60, help="fixes per node with --fps (the demo's: 60)")
+    parser.add_argument("--one", nargs=6, metavar=("CAMERA", "SEED", "FPS", "SESSION", "ERRORS", "FIXES"),
                         help=argparse.SUPPRESS)          # one run at a pace, its JSON on stdout (run_demo)
     args = parser.parse_args(argv)
     if args.one:
@@ -126,7 +127,8 @@ def main(argv=None) -> int:
     completed = []
     with tempfile.TemporaryDirectory(prefix="snreg-navigation-") as folder, \
             ThreadPoolExecutor(args.parallel) as pool:
-        runs = {pool.submit(run_demo, camera, seed, Path(folder), fps=args.fps): (camera, seed) for camera, seed in jobs}
+        runs = {pool.submit(run_demo, camera, seed, Path(folder), fps=args.fps, fixes=args.fixes): (camera, seed)
+                for camera, seed in jobs}
         for done in as_completed(runs):                  # each run said as it ends: a long check shows progress
             (camera, seed), (entries, problem) = runs[done], done.result()
             if entries is None:
@@ -145,13 +147,14 @@ def main(argv=None) -> int:
     return 0 if completed else 1
 
 
-def _one(camera: str, seed: str, fps: str, session: str, errors: str) -> int:
+def _one(camera: str, seed: str, fps: str, session: str, errors: str, fixes: str) -> int:
     """``--one``: run the headless demo at ``fps`` and print its JSON (as ``snreg demo --headless --json`` does)."""
     from snreg.demo.errors import load_error_model
     from snreg.demo.headless import DemoError, run_headless
 
     try:
-        run = run_headless(session, seed=int(seed), errors=load_error_model(errors), camera=camera, fps=float(fps))
+        run = run_headless(session, seed=int(seed), errors=load_error_model(errors), camera=camera, fps=float(fps),
+                           fixes_per_node=int(fixes))
     except DemoError as err:
         print(f"snreg: {err}", file=sys.stderr)
         return 2
