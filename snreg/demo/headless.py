@@ -179,7 +179,7 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
             navigation = NavigationLog(preop, hot_spot_truth(preop.xyz, sources, rig.nodes_trocar()), None, None,
                                        rig.calibration.image_size)
             frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking,
-                                        lambda: _register(session, preop, seed), navigation)
+                                        lambda: _register(session, preop, seed, covariances=True), navigation)
             recording_s = time.perf_counter() - started
             intraop = session.intraop_nodes()
             result = _register(session, preop, seed)
@@ -194,11 +194,14 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
                           tracking, recording_s, feed.seconds, feed.calls, intraop.cov, tuple(navigation.entries))
 
 
-def _register(session: Session, preop, seed: int) -> RegistrationResult:
-    """The demo's registration of the nodes stored in ``session`` now (the labels typed, from gravity)."""
+def _register(session: Session, preop, seed: int, covariances: bool = False) -> RegistrationResult:
+    """The demo's registration of the nodes stored in ``session`` now (the labels typed, from gravity); with
+    ``covariances`` each side's nodes weighed by their own, as the app's registration after a store weighs them
+    (:func:`snreg.workflow.registration_run.run_registration`), the one the feeds draw from."""
     intraop = session.intraop_nodes()
+    weights = dict(intraop_cov=intraop.known_cov, preop_cov=preop.known_cov) if covariances else {}
     return register(preop.xyz, intraop.xyz, method="global", preop_labels=preop.labels, intraop_labels=intraop.labels,
-                    down=session_gravity(session).down, seed=seed)
+                    down=session_gravity(session).down, seed=seed, **weights)
 
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,
