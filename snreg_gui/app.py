@@ -58,7 +58,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
     Without ``demo``, an existing ``session_path`` opens for review and a new one is created for recording.
     ``rig`` lets tests pass a rig with a shorter schedule; ``settings`` an isolated QSettings."""
 
-    missing_for_worker = Signal(list)      # the missing SPECT nodes, to the acquisition worker's thread
+    navigation_for_worker = Signal(object)  # the hot spots not found yet (NavigationState), to the worker's thread
 
     def __init__(self, session_path: str | None = None, demo: bool = False, *, rig=None,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, settings: QSettings | None = None,
@@ -91,6 +91,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self.setCentralWidget(self.tabs)
         self.tabs.currentChanged.connect(self._refresh_registration)
         self.registration.missing_changed.connect(self._missing_changed)
+        self.registration.navigation_changed.connect(self.navigation_for_worker)
         self.wizards = WizardLauncher(self)
         self.live_link = LiveLinkControl(self.settings, self, self._link_state)
         self._menus()
@@ -231,8 +232,9 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
                                         track_insertion=self.options.tracks_insertion(self.rig),
                                         resume_insertion=kept and kept.on(self.rig.calibration, self.rig.chain))
         queued = Qt.ConnectionType.QueuedConnection         # explicit: the worker lives in another thread
-        self.missing_for_worker.connect(self.worker.set_missing, queued)
+        self.navigation_for_worker.connect(self.worker.set_navigation, queued)
         self._missing_changed(self.registration.missing_nodes)
+        self.navigation_for_worker.emit(self.registration.navigation)
         self.worker.frame_processed.connect(self.acquisition.show_result, queued)
         self.worker.node_stored.connect(self.acquisition.add_node, queued)
         self.worker.node_error_sources.connect(self.acquisition.add_error_sources, queued)
@@ -262,11 +264,11 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self._thread = start_worker(self.worker)
 
     def _missing_changed(self, missing: list) -> None:
-        """The SPECT nodes the latest registration left unpaired go to the acquisition screen and, for the circle on
-        the feeds, to the worker (in its thread)."""
+        """The SPECT nodes the latest registration left unpaired go to the acquisition screen and to 3D Slicer (the
+        feeds draw them from the worker's thread: ``navigation_for_worker``)."""
         if self.acquisition is not None:
             self.acquisition.show_missing(missing)
-        self.missing_for_worker.emit(list(missing))
+        self.live_link.set_missing(missing)
 
     def _nodes_changed(self, *_) -> None:
         """The registration panel follows the stored nodes: it registers again at once when it says so (the missing

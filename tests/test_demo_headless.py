@@ -14,6 +14,8 @@ from snreg.preop.gravity import PreopDown
 from snreg.session import Session
 
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
+NAVIGATION_KEYS = {"frame", "t_s", "hot_spot", "shown", "confident", "predicted_trocar", "bound_mm", "truth_trocar",
+                   "left_px", "left_px_true_pose", "truth_left_px"}
 
 
 def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
@@ -27,6 +29,19 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     assert out["camera"] == "still" and out["camera_tracking"] is False
     assert all(np.linalg.norm(np.subtract(node["xyz_trocar"], node["truth_trocar"])) < 1.5 for node in out["nodes"])
     assert all(np.linalg.eigvalsh(node["cov_trocar_mm2"]).min() > 0 for node in out["nodes"])
+    # issue 36: from the registration of the first 3 nodes, the 4th node's hot spot is drawn on its approach, against
+    # the truth (docs/design.md, Command line)
+    navigation = out["navigation"]
+    last_spot = out["nodes"][3]["preop"]
+    assert navigation and {e["hot_spot"] for e in navigation} == {last_spot}
+    assert all(set(e) == NAVIGATION_KEYS for e in navigation)
+    assert [e["frame"] for e in navigation] == sorted(e["frame"] for e in navigation)
+    assert all(e["shown"] for e in navigation)
+    final = navigation[-1]
+    assert np.linalg.norm(np.subtract(final["truth_trocar"], final["predicted_trocar"])) <= final["bound_mm"]
+    pose_px = [np.hypot(*np.subtract(e["left_px"], e["left_px_true_pose"])) for e in navigation
+               if e["left_px"] is not None and e["left_px_true_pose"] is not None]
+    assert pose_px and np.median(pose_px) <= 0.01 * 960          # 1 % of the half-resolution image's width
     with Session.open(path) as session:
         assert session.preop_down() == PreopDown("HFS")                # kept with the preop nodes
         assert session.preop_nodes().cov.shape == (4, 3, 3)          # each hot spot's own, from the segmentation

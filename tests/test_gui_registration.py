@@ -366,9 +366,14 @@ def test_missing_nodes_leave_one_out_and_exclude_rerun(qtbot, panel, pelvic_node
         result = click_run(qtbot, panel)
     assert [t.preop_id for t in missing.args[0]] == ["P3", "P5"]
     assert "P3" in panel.missing_label.text() and "P5" in panel.missing_label.text()
+    state = panel.navigation                                          # what the feeds draw: current, P3 and P5
+    assert [t.preop_id for t in state.targets] == ["P3", "P5"] and not state.stale
+    assert set(state.found) == {panel.preop_box.nodes.ids[truth[m]] for m in found}
+    assert state.confident == bool(np.all(result.confidence >= 0.95))
     with qtbot.waitSignal(panel.missing_changed) as cleared:            # inputs changed: no stale guidance
         panel.rotation_bound.setValue(59.0)
     assert cleared.args[0] == [] and panel.missing_label.text() == "" and panel.missing_nodes == []
+    assert panel.navigation.stale and panel.navigation.banner() == panel.navigation.stale   # greyed on the feeds
     result = click_run(qtbot, panel)
     loo_column = PAIR_COLUMNS.index("leave-one-out mm")
     assert [float(v) for v in table_column(panel.pairing_table, loo_column)] == pytest.approx(

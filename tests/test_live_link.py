@@ -19,7 +19,8 @@ from snreg.nodes import NodeSet
 from snreg.workflow import live_messages as msg
 from snreg.workflow.live_link import LiveLink
 
-DEVICES = 7     # ProbeTipToTrocar, IntraopNodes, PreopNodes, IntraopLandmarks, PreopLandmarks, TrocarToRas, Status
+DEVICES = 8     # ProbeTipToTrocar, IntraopNodes, PreopNodes, IntraopLandmarks, PreopLandmarks, TrocarToRas,
+#                 MissingHotSpots, Status
 
 
 def frame(pose):
@@ -91,6 +92,17 @@ def test_a_client_gets_nodes_preop_registration_and_status_at_once(link, igtl_cl
     assert client.messages("Status")[-1].string.endswith("last: registered with global, RMS 0.50 mm: SN1 -> P1 (with "
                                                          "SN2); SN2 -> P1 (with SN1)")
     assert client.messages("ProbeTipToTrocar") == []      # no stale pose for a late joiner
+
+
+def test_the_hot_spots_not_found_yet_go_as_a_point_list_in_the_trocar_frame(link, igtl_client):
+    from snreg.registration.report import MissingNode
+
+    link.set_missing([MissingNode(3, "P4", "R", np.array([12.0, -30.0, 85.0]), 6.0)])
+    client = igtl_client(link.port)                 # joins late: the list is part of the state sent on connect
+    assert client.wait_for(lambda c: (shown_list(c, "MissingHotSpots") or ([],))[0] == ["P4"])
+    assert np.allclose(shown_list(client, "MissingHotSpots")[1], [[12.0, -30.0, 85.0]])
+    link.set_missing([])                            # all found: the list empties (one hidden point)
+    assert client.wait_for(lambda c: shown_list(c, "MissingHotSpots") == ([], []))
 
 
 def test_landmarks_have_lists_of_their_own(link, igtl_client):

@@ -24,9 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from snreg import geometry
+from snreg.demo.navigation_log import NavigationLog, hot_spot_truth
 from snreg.demo.phantom import PHANTOM_LABELS
 from snreg.demo.rest_log import RestLog
-from snreg.demo.rig import DemoRig
+from snreg.demo.rig import DEMO_FPS, DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
 from snreg.demo.staging import publish, staging_folder
 from snreg.odometry import InsertionTracker
@@ -36,14 +38,17 @@ from snreg.preop.volume import load_volume
 from snreg.nodes import NodeFile
 from snreg.registration import RegistrationResult
 from snreg.registration.naming import pairs_line
-from snreg.registration.report import pair_table
+from snreg.registration.report import missing_nodes, pair_table
 from snreg.registration.wording import confidence_value, labels_given, used_inputs
 from snreg.session import Session
+from snreg.tracking.stereo import StereoTracker
 from snreg.workflow.acquisition import STILL_SPREAD_MM, Acquisition, ImuReading
+from snreg.workflow.navigation import camera_pose
 from snreg.workflow.node_registration import node_covariances, register_nodes
 from snreg.workflow.registration_start import session_gravity
 
 N_NODES = len(NODE_CENTRES_MM)
+MIN_NODES = 3              # stored nodes a registration needs (the phantom has no landmarks)
 # The demo registers as ``snreg register SESSION.h5`` does (:func:`~snreg.workflow.node_registration.register_nodes`:
 # each node's covariance, the landmarks) with the labels typed on the phantom, which that command uses when asked:
 # these options repeat it, confidences and all.
@@ -79,6 +84,7 @@ class HeadlessResult:
     link_calls: int = 0
     intraop_cov: np.ndarray | None = None         # (M, 3, 3) each stored node's covariance, mm^2, trocar frame
     weighed: tuple[bool, bool] = (False, False)   # whether the (intraop, preop) nodes' covariances were given
+    navigation: tuple = ()                        # the hot spots not found yet per frame, against the truth
 
     def used(self):
         """What the demo's registration used (:class:`~snreg.registration.wording.UsedInputs`): the labels typed on the
@@ -105,7 +111,7 @@ class HeadlessResult:
                 "used": self.used().as_json(), "repeat": f"snreg register {self.session_path} {REPEAT_OPTIONS}",
                 "camera": self.camera, "camera_tracking": self.camera_tracking, "frames": self.frames,
                 "recording_s": round(self.recording_s, 3), "session": str(self.session_path),
-                "spect": str(self.spect_path)}
+                "spect": str(self.spect_path), "navigation": list(self.navigation)}
 
 
 def spect_path_for(session_path: str | Path) -> Path:
@@ -131,14 +137,15 @@ class _TimedLink:
 
 def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int = 60, scale: float = 0.5,
                  link=None, errors=None, video: bool = True, camera: str = "still",
-                 camera_tracking: bool = True) -> HeadlessResult:
+                 camera_tracking: bool = True, fps: float = DEMO_FPS) -> HeadlessResult:
     """Record the four phantom nodes into a new session at ``session_path``, then register the phantom's SPECT.
 
     ``link``: a :class:`~snreg.workflow.live_link.LiveLink` to feed, or None; ``errors``: the
     :class:`~snreg.demo.errors.ErrorModel` the rig runs with (None: today's ideal demo); ``video``: record both feeds
     beside the session; ``camera``: "still" or "surgery" (:class:`~snreg.demo.rig.DemoRig`); ``camera_tracking``:
     follow the insertion of a camera that moves (off: every node is mapped at the trocar calibration's distance, to
-    compare).
+    compare); ``fps``: the feed's pace (the tour's frames last longer at a lower one: a loaded computer then
+    processes more of them, for measurements; the command line keeps the demo's own).
 
     The run records into a hidden folder beside ``session_path`` (:mod:`snreg.demo.staging`) and its files (session,
     journal, videos, SPECT) move there only when it completes: a run that fails leaves ``session_path`` free for the
@@ -147,7 +154,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     folder = staging_folder(target)
     try:
         run = _run(folder / target.name, seed=seed, fixes_per_node=fixes_per_node, scale=scale, link=link,
-                   errors=errors, video=video, camera=camera, camera_tracking=camera_tracking)
+                   errors=errors, video=video, camera=camera, camera_tracking=camera_tracking, fps=fps)
     except DemoError as err:
         raise DemoError(f"{err}; the recording so far is kept in {folder} to look at (delete it when done), and "
                         f"{target.name} was not written, so the same command can run again") from None
@@ -164,65 +171,93 @@ def rest_frames_for(camera: str, fixes_per_node: int) -> int:
 
 
 def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, link, errors, video: bool, camera: str,
-         camera_tracking: bool) -> HeadlessResult:
+         camera_tracking: bool, fps: float = DEMO_FPS) -> HeadlessResult:
     """:func:`run_headless` into ``session_path`` as it is (the staging folder's)."""
     schedule = Schedule(rest_frames=rest_frames_for(camera, fixes_per_node))
-    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera, hold_rests=True,
+    rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera, fps=fps, hold_rests=True,
                   release_lead_s=_RELEASE_LEAD_S)
     feed = _TimedLink(link)
     try:
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
-            started = time.perf_counter()
-            tracking = camera_tracking and rig.moving_camera
-            frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking)
-            recording_s = time.perf_counter() - started
-            sources = rig.phantom_sources_lps()
+            sources = rig.phantom_sources_lps()         # the SPECT is there before surgery: registered after each store
             spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
             preop = segment_nodes(volume, n_nodes=N_NODES).nodes
             session.set_preop_nodes(preop, down=volume_down(volume))
             feed("set_preop_nodes", preop)
+            started = time.perf_counter()
+            tracking = camera_tracking and rig.moving_camera
+            navigation = NavigationLog(preop, hot_spot_truth(preop.xyz, sources, rig.nodes_trocar()), None, None,
+                                       rig.calibration.image_size)
+            frames, stored_at = _record(rig, session, fixes_per_node, feed, video, tracking,
+                                        lambda: _register(session, preop), navigation)
+            recording_s = time.perf_counter() - started
             intraop = session.intraop_nodes()
             weighed = node_covariances(preop, intraop)
-            result = register_nodes(NodeFile(preop, session.preop_landmarks()),       # as snreg register --labels
-                                    NodeFile(intraop, session.intraop_landmarks()), labels=True,
-                                    down=session_gravity(session).down)
+            result = _register(session, preop)
             session.add_registration(result, preop.ids, intraop.ids)
             feed("set_registration", result, pairs_line(preop, intraop, result))
+            feed("set_missing", missing_nodes(preop, result))
     finally:
         rig.close()
     truth = _true_pairing(preop.xyz, sources, stored_at)
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
                           tracking, recording_s, feed.seconds, feed.calls, intraop.cov,
-                          tuple(weighed[side] is not None for side in ("intraop", "preop")))
+                          tuple(weighed[side] is not None for side in ("intraop", "preop")), tuple(navigation.entries))
+
+
+def _register(session: Session, preop) -> RegistrationResult:
+    """The demo's registration of the nodes stored in ``session`` now, as ``snreg register SESSION.h5 --labels`` does
+    (:func:`~snreg.workflow.node_registration.register_nodes`: each side's covariances, the landmarks, the labels typed,
+    from gravity); the one after each store is the one the feeds draw from, as the app's registration after a store."""
+    return register_nodes(NodeFile(preop, session.preop_landmarks()),
+                          NodeFile(session.intraop_nodes(), session.intraop_landmarks()), labels=True,
+                          down=session_gravity(session).down)
 
 
 def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLink, video: bool = True,
-            tracking: bool = False) -> tuple[int, list[int]]:
+            tracking: bool = False, register_now=None, navigation: NavigationLog | None = None) -> tuple[int, list[int]]:
     """Run the tour until every node is auto-stored, feeding the live link; returns the frames read (the live feed
-    skips some) and, per stored node, the phantom node the probe rested on. ``tracking``: follow the insertion."""
+    skips some) and, per stored node, the phantom node the probe rested on. ``tracking``: follow the insertion.
+    ``register_now``: the registration of the nodes stored now, run after each store once there are
+    :data:`MIN_NODES` (inline, as the app's worker would: about 50 ms), its hot spots not found yet logged per frame
+    into ``navigation`` (:class:`~snreg.demo.navigation_log.NavigationLog`) against the truth."""
     source = rig.frame_source()
     if not _wait_for_imu(rig):
         raise DemoError(f"the simulated IMU sent nothing for {_IMU_WAIT_S:.0f} s ({rig.imu.snapshot().problem})")
     insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if tracking else None
     acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
                               video_fps=rig.fps if video else None, insertion=insertion)
+    if navigation is not None:
+        navigation.project = acquisition.tracker.project
+        navigation.true_project = StereoTracker(rig.cameras, rig.probe).project
+    first_ns = None
     limit, read, tail, stored_at, rests, ended = _TOURS * rig.scene.cycle, 0, 0, [], RestLog(), ""
     tour, at_rest, shown = 0, 0, 0             # the tour frame; frames processed on this rest; feed frames shown
     with source:
         for frame in source:
             read += 1
             shown, tour = frame.index + 1, rig.tour_frame(frame.index)
-            outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))
+            reading = ImuReading.at_frame(rig.imu, frame)
+            outcome = acquisition.process(frame, reading)
             feed("show_frame", outcome)
+            first_ns = frame.t_left_ns if first_ns is None else first_ns
+            if navigation is not None:
+                estimated = geometry.invert(camera_pose(acquisition.chain, reading.earth_from_imu, outcome.insertion))
+                navigation.frame(frame.index, (frame.t_left_ns - first_ns) * 1e-9, estimated,
+                                 geometry.invert(rig.true_trocar_from_camera(tour)), outcome.tip_trocar,
+                                 set(stored_at))
             node = rig.scene.resting_node(tour)
             due = outcome.auto_store_due and node is not None
             if due:
                 feed("add_node", acquisition.store(session.next_node_id(), PHANTOM_LABELS[node], left_jpeg=frame.left,
                                                    right_jpeg=frame.right))
                 stored_at.append(node)
+                if register_now is not None and navigation is not None and len(stored_at) >= MIN_NODES:
+                    navigation.registered(register_now())
+                    feed("set_missing", list(navigation.state.targets))
             at_rest = 0 if node is None else at_rest + 1
             if due or at_rest == _GIVE_UP_WINDOWS * fixes_per_node:      # stored, or never still: the probe lifts
                 rig.release_rest(frame.index)

@@ -48,7 +48,7 @@ import numpy as np
 
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
-from snreg.chain import camera_to_trocar, reference_rotation
+from snreg.chain import camera_to_trocar, reference_rotation, trocar_from_camera
 from snreg.demo.board_tour import board_feed
 from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
@@ -266,6 +266,14 @@ class DemoRig:
     def nodes_trocar(self) -> np.ndarray:
         """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured by)."""
         return camera_to_trocar(self.true_chain, self._start_orientation(), phantom_tips(self.probe))
+
+    def true_trocar_from_camera(self, index: int) -> np.ndarray:
+        """(4, 4) the camera's true pose at tour frame ``index`` (:meth:`tour_frame` of a feed frame): the surgery
+        tour's there, the still camera's at the start orientation; call it once :meth:`frame_source` has built the
+        scene."""
+        if self.moving_camera:
+            return self.scene.trocar_from_camera(index)
+        return trocar_from_camera(self.true_chain, self._start_orientation())
 
     def phantom_sources_lps(self) -> np.ndarray:
         """(4, 3) LPS mm: where the phantom's sources were when the SPECT was made (the truth the demo's SPECT images)."""

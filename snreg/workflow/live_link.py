@@ -49,7 +49,7 @@ STALL_DROP_S = 10.0             # a client that takes nothing for this long whil
 STATUS_PERIOD_S = 1.0           # the Status string is recomputed (and sent if it changed) this often
 SEND_BUFFER_BYTES = 8 * 1024    # per client (Linux doubles it): bounds how stale the poses a slow reader gets can be
 _STATE = (msg.INTRAOP_NODES, msg.PREOP_NODES, msg.INTRAOP_LANDMARKS, msg.PREOP_LANDMARKS, msg.TROCAR_TO_RAS,
-          msg.STATUS)                                  # re-sent whole to every new client
+          msg.MISSING_HOT_SPOTS, msg.STATUS)                                  # re-sent whole to every new client
 _STORED = (msg.INTRAOP_NODES, msg.INTRAOP_LANDMARKS)     # the stored points' lists, by kind
 _PREOP = (msg.PREOP_NODES, msg.PREOP_LANDMARKS)
 _LISTEN, _WAKE = "listen", "wake"
@@ -174,6 +174,14 @@ class LiveLink:
         if unchecked:
             said += f" ({unchecked})"
         self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float), f"{said}: {pairs}" if pairs else said)
+
+    def set_missing(self, targets) -> None:
+        """The hot spots the registration left unfound (:class:`~snreg.registration.report.MissingNode`, where it maps
+        them in the trocar frame; [] when none or when no registration answers the nodes stored now), sent as
+        ``MissingHotSpots``, names = preop ids."""
+        ids = [str(t.preop_id) for t in targets]
+        xyz = np.array([t.mapped_xyz for t in targets], dtype=float).reshape(-1, 3)
+        self._offer(msg.MISSING_HOT_SPOTS, (ids, xyz))     # the status keeps saying the registration it follows
 
     # -- waiting and closing ------------------------------------------------------------
     def wait_for_client(self, timeout_s: float | None = None) -> bool:
@@ -323,7 +331,7 @@ class LiveLink:
     def _pack(self, device, data, now, frames, fixes, last_frame, action, n_nodes, n_landmarks) -> bytes | None:
         if device == msg.PROBE_POSE:
             return msg.probe_pose(*data)
-        if device in _STORED:
+        if device in _STORED or device == msg.MISSING_HOT_SPOTS:
             return msg.point_list(device, *data)
         if device in _PREOP:
             return msg.preop_points(*data, device=device)

@@ -33,7 +33,7 @@ import pyigtl
 from snreg.geometry import invert
 
 __all__ = ["DEFAULT_PORT", "PROBE_POSE", "INTRAOP_NODES", "PREOP_NODES", "INTRAOP_LANDMARKS", "PREOP_LANDMARKS",
-           "TROCAR_TO_RAS", "STATUS", "RAS_FROM_LPS", "NO_POINTS_NAME", "POINT_COLOURS", "probe_pose", "point_list",
+           "TROCAR_TO_RAS", "MISSING_HOT_SPOTS", "STATUS", "RAS_FROM_LPS", "NO_POINTS_NAME", "POINT_COLOURS", "probe_pose", "point_list",
            "preop_points", "ras_from_trocar", "trocar_to_ras", "status", "StreamHealth"]
 
 DEFAULT_PORT = 18944                 # OpenIGTLink's registered port, SlicerOpenIGTLink's default
@@ -43,6 +43,7 @@ PREOP_NODES = "PreopNodes"
 INTRAOP_LANDMARKS = "IntraopLandmarks"
 PREOP_LANDMARKS = "PreopLandmarks"
 TROCAR_TO_RAS = "TrocarToRas"
+MISSING_HOT_SPOTS = "MissingHotSpots"   # the hot spots not found yet, where the registration maps them (trocar frame)
 STATUS = "Status"
 
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])      # docs/design.md, Conventions: x and y negated (its own inverse)
@@ -50,7 +51,8 @@ INTRAOP_RGBA = (40, 200, 80, 255)                   # green: stored in surgery
 PREOP_RGBA = (230, 120, 30, 255)                    # orange: seen on the SPECT
 POINT_COLOURS = {INTRAOP_NODES: INTRAOP_RGBA, PREOP_NODES: PREOP_RGBA,
                  INTRAOP_LANDMARKS: (40, 150, 230, 255),   # blue: a landmark touched in surgery
-                 PREOP_LANDMARKS: (170, 60, 200, 255)}     # purple: a landmark placed on the CT
+                 PREOP_LANDMARKS: (170, 60, 200, 255),     # purple: a landmark placed on the CT
+                 MISSING_HOT_SPOTS: (80, 200, 255, 255)}   # light blue, as on the feeds: a hot spot not found yet
 NO_POINTS_NAME = "(none)"                           # the hidden point that stands for an empty list
 
 

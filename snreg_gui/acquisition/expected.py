@@ -10,7 +10,8 @@ in its worker after each store and hands over the hot spots it left unpaired wit
 over none and nothing is said. When one source dominates the stored nodes' own covariances, the box says which and
 what lowers it (:func:`snreg.workflow.error_advice.advice_text`, from each node's covariance by source). Each line is
 hidden while it has nothing to say; no frame or heading of its own takes room from the side column (which must fit
-700 px with three SPECT nodes missing: the guidance line below them says "nearest missing"). It computes nothing: the
+700 px with three SPECT nodes missing: the guidance line below them says the way to the nearest, "P4: 47 mm, up and
+left on screen, 12 mm deeper"). It computes nothing: the
 lines are the core's.
 """
 
@@ -19,7 +20,7 @@ from __future__ import annotations
 from PySide6.QtWidgets import QVBoxLayout, QWidget
 
 from snreg.workflow.error_advice import advice_text
-from snreg.workflow.guidance import guidance_line, targets_text
+from snreg.workflow.guidance import targets_text
 from snreg_gui.acquisition.status import StatusLine
 
 
@@ -54,10 +55,11 @@ class ExpectedErrors(QWidget):
             self.guidance.setText("")
         self._update()
 
-    def show_tip(self, tip_trocar) -> None:
-        """The nearest missing node's distance and direction from the tip (trocar frame, mm; None: no fix)."""
+    def show_guidance(self, text: str) -> None:
+        """The way from the tip to the nearest missing node in the endoscope's view, or why none is given (the
+        worker's words for the frame, :func:`snreg_gui.acquisition.hot_spots.guidance_text`)."""
         if self.missing:
-            self.guidance.setText(guidance_line(self.missing, tip_trocar))
+            self.guidance.setText(text)
 
     def add_error_sources(self, node_id: str, sources: dict) -> None:
         """A stored node's covariance by source (the acquisition worker's ``node_error_sources``)."""

@@ -218,8 +218,8 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         depth = float(outcome.fix.tip[2]) if outcome.fix is not None else None
         self.left_feed.show_frame(result.left_rgb, result.overlay_left, depth)
         self.right_feed.show_frame(result.right_rgb, result.overlay_right, depth)
-        for feed, circle in ((self.left_feed, result.target_left), (self.right_feed, result.target_right)):
-            feed.show_circle(*(circle or (None,)))
+        self.left_feed.show_hot_spots(result.hot_spots_left)
+        self.right_feed.show_hot_spots(result.hot_spots_right)
         self._draws += 1
         if self._draws % PLOT_EVERY == 0:
             self.orientation.redraw()
@@ -227,7 +227,7 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
             self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
         self.angles.show_values(result.imu.euler_deg)
         self.insertion_line.show_outcome(outcome)
-        self.expected.show_tip(outcome.tip_trocar)
+        self.expected.show_guidance(result.guidance)
         self.tip_values.show_values(outcome.tip_trocar)
         self.tip_trocar.setText("tracked" if outcome.tip_trocar is not None else f"no fix ({outcome.reason})")
 

@@ -25,7 +25,7 @@ from PySide6.QtCore import QCoreApplication, QMetaObject, QObject, Qt, QThread, 
 
 from snreg import geometry
 from snreg.camera import StereoCalibration
-from snreg.chain import ChainCalibration, trocar_from_camera
+from snreg.chain import ChainCalibration
 from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.odometry import InsertionTracker
 from snreg.session import Session, SessionError
@@ -33,8 +33,9 @@ from snreg.sources import FrameSource, SourceError, SourceState
 from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading,
                                         StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
-from snreg.workflow.guidance import point_to_nearest, target_circle
 from snreg.workflow.insertion import CameraInsertion
+from snreg.workflow.navigation import NavigationState, camera_pose, navigate
+from snreg_gui.acquisition.hot_spots import feed_layer, guidance_text
 
 _AXIS_DRAWN_MM = 50.0
 
@@ -57,8 +58,9 @@ class FrameResult:
     skew_ms: float
     fps: float
     t_host_ns: int
-    target_left: tuple | None = None       # (centre (2,), radius, preop id): display pixels of the nearest missing node
-    target_right: tuple | None = None
+    hot_spots_left: object = None          # HotSpotLayer: the hot spots not found yet on each feed (display pixels)
+    hot_spots_right: object = None
+    guidance: str = ""                     # the way to the nearest in the view's words, or why none is given
 
 
 @dataclass(frozen=True)
@@ -126,7 +128,7 @@ class AcquisitionWorker(QObject):
         self._last_frame = None
         self._last_ns: int | None = None
         self._fps_measured = 0.0
-        self._missing: list = []
+        self._navigation = NavigationState()
 
     @Slot()
     def start(self) -> None:
@@ -253,30 +255,27 @@ class AcquisitionWorker(QObject):
         if outcome.fix is not None:
             drawn = np.array([outcome.fix.tip, outcome.fix.tip + _AXIS_DRAWN_MM * outcome.fix.axis])
             overlay_left, overlay_right = (DISPLAY_SCALE * tracker.project(drawn, eye) for eye in (0, 1))
-        targets = self._target_circles(outcome.tip_trocar, reading.earth_from_imu)
+        hot_spots = self._hot_spots(outcome, reading)
         self.frame_processed.emit(FrameResult(outcome, display_rgb(frame.left), display_rgb(frame.right),
                                               overlay_left, overlay_right, imu, frame.skew_ms, self._fps_measured, now,
-                                              *targets))
+                                              *hot_spots))
 
-    @Slot(list)
-    def set_missing(self, missing: list) -> None:
-        """The SPECT nodes the latest registration left unpaired; the nearest to the tip is drawn on the feeds."""
-        self._missing = list(missing)
+    @Slot(object)
+    def set_navigation(self, state: NavigationState) -> None:
+        """The latest registration's hot spots not found yet, found, its confidence and whether it is current
+        (:class:`~snreg.workflow.navigation.NavigationState`): drawn on both feeds from the next frame."""
+        self._navigation = state
 
-    def _target_circles(self, tip_trocar, earth_from_imu) -> tuple:
-        """Display circles (left, right) of the missing node nearest the tip, sized by its bound and named; Nones
-        without."""
-        pointer = point_to_nearest(self._missing, tip_trocar)
-        if pointer is None:
-            return None, None
-        camera_from_trocar = geometry.invert(trocar_from_camera(self.acquisition.chain, earth_from_imu))
-        circles = []
-        for eye in (0, 1):
-            circle = target_circle(pointer.target, camera_from_trocar,
-                                   lambda points, eye=eye: self.acquisition.tracker.project(points, eye))
-            circles.append(None if circle is None else (DISPLAY_SCALE * circle[0], DISPLAY_SCALE * circle[1],
-                                                        pointer.target.preop_id))
-        return tuple(circles)
+    def _hot_spots(self, outcome: FrameOutcome, reading: ImuReading) -> tuple:
+        """(left layer, right layer, guidance words) of the hot spots not found yet, seen from the camera's pose at
+        this frame (the chain at its insertion and IMU orientation, as the tip is mapped)."""
+        state = self._navigation
+        views = []
+        if state.targets:
+            pose = camera_pose(self.acquisition.chain, reading.earth_from_imu, outcome.insertion)
+            views = navigate(list(state.targets), geometry.invert(pose), self.acquisition.tracker.project,
+                             self.acquisition.tracker.calibration.image_size, outcome.tip_trocar)
+        return (*(feed_layer(views, eye, state, DISPLAY_SCALE) for eye in (0, 1)), guidance_text(views, state))
 
 
 def start_worker(worker: AcquisitionWorker) -> QThread:

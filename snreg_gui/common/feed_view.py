@@ -8,13 +8,44 @@ The acquisition feeds, the wizards' feeds and the review's snapshots all use it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt
-from PySide6.QtGui import QColor, QImage, QPainter, QPen
+from PySide6.QtGui import QColor, QImage, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
 _TIP_COLOUR = QColor(255, 220, 0)
 _TARGET_COLOUR = QColor(80, 200, 255)            # a missing SPECT node: where to look
+_STALE_COLOUR = QColor(150, 150, 150)            # ... from a registration that is not current or not confident
+_BANNER_COLOUR = QColor(255, 170, 60)
+_ARROW_PX = 14.0                                 # an edge arrow's length on screen
+
+
+@dataclass(frozen=True, eq=False)
+class HotSpotMark:
+    """A hot spot not found yet on one feed, in the frame's pixels: its ``text`` ("P4 12 mm deeper") and either its
+    90 % region (``centre`` (2,), semi-axes ``axes`` (2,), ``angle_deg``) or, off screen, an arrow at the border
+    (``arrow_at`` (2,), unit ``arrow_way`` (2,))."""
+
+    text: str
+    centre: np.ndarray | None = None
+    axes: np.ndarray | None = None
+    angle_deg: float = 0.0
+    arrow_at: np.ndarray | None = None
+    arrow_way: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class HotSpotLayer:
+    """Everything the feed says about the hot spots not found yet: the ``marks``, a ``banner`` over them ("pairing
+    not confident: store another node", "updating: ..."), whether they are drawn as current and confident (else
+    grey), and the ``note`` of those found ("found: P1, P2")."""
+
+    marks: tuple[HotSpotMark, ...] = ()
+    banner: str = ""
+    confident: bool = True
+    note: str = ""
 _POINT_COLOUR, _FIRST_POINT_COLOUR = QColor(0, 230, 90), QColor(255, 60, 60)
 _MESSAGE_COLOUR = QColor(255, 90, 90)
 
@@ -30,7 +61,7 @@ class FeedView(QWidget):
         self._rgb: np.ndarray | None = None       # keeps the pixels of ``_image`` alive
         self._image: QImage | None = None
         self._overlay: np.ndarray | None = None
-        self._circle: tuple | None = None       # (centre (2,), radius px, text) of a place to look for
+        self.hot_spots: HotSpotLayer | None = None
         self._depth_mm: float | None = None
         self._points: np.ndarray | None = None
         self._heat: np.ndarray | None = None
@@ -48,9 +79,9 @@ class FeedView(QWidget):
         self._overlay, self._depth_mm = overlay, depth_mm
         self.update()
 
-    def show_circle(self, centre, radius_px: float = 0.0, text: str = "") -> None:
-        """Circle a place in the frame's pixels (a SPECT node not found yet, sized by its bound), None to hide."""
-        self._circle = None if centre is None else (np.asarray(centre, float), float(radius_px), text)
+    def show_hot_spots(self, layer: HotSpotLayer | None) -> None:
+        """Draw the hot spots not found yet (:class:`HotSpotLayer`), None to hide."""
+        self.hot_spots = layer
         self.update()
 
     def show_points(self, points: np.ndarray | None) -> None:
@@ -73,7 +104,7 @@ class FeedView(QWidget):
 
     def clear(self, title: str | None = None) -> None:
         """Show no frame (and nothing on it); ``title`` replaces the caption if given."""
-        self._rgb = self._image = self._overlay = self._points = self._circle = None
+        self._rgb = self._image = self._overlay = self._points = self.hot_spots = None
         self.show_heat(None)
         self.message = ""
         if title is not None:
@@ -107,8 +138,8 @@ class FeedView(QWidget):
             scale = target.width() / self._image.width()
             if self._points is not None and len(self._points):
                 self._paint_points(painter, target, scale)
-            if self._circle is not None:
-                self._paint_circle(painter, target, scale)
+            if self.hot_spots is not None:
+                self._paint_hot_spots(painter, target, scale)
             if self._overlay is not None:
                 self._paint_overlay(painter, target, scale)
             if self.message:
@@ -132,15 +163,48 @@ class FeedView(QWidget):
         painter.setBrush(_FIRST_POINT_COLOUR)
         painter.drawEllipse(self._at(target, scale, *self._points[0]), 4.5, 4.5)
 
-    def _paint_circle(self, painter: QPainter, target: QRectF, scale: float) -> None:
-        (x, y), radius, text = self._circle
-        centre = self._at(target, scale, x, y)
+    def _paint_hot_spots(self, painter: QPainter, target: QRectF, scale: float) -> None:
+        """Each mark's region as a dashed ellipse with its text, or an arrow at the border with its text; grey when
+        not current or not confident; the banner along the top and the found note along the bottom."""
+        layer = self.hot_spots
+        colour = _TARGET_COLOUR if layer.confident else _STALE_COLOUR
         painter.setRenderHint(QPainter.RenderHint.Antialiasing)
-        painter.setPen(QPen(_TARGET_COLOUR, 2, Qt.PenStyle.DashLine))
         painter.setBrush(Qt.BrushStyle.NoBrush)
-        painter.drawEllipse(centre, max(radius * scale, 6.0), max(radius * scale, 6.0))
-        if text:
-            painter.drawText(centre + QPointF(radius * scale + 4, 4), text)
+        for mark in layer.marks:
+            painter.setPen(QPen(colour, 2, Qt.PenStyle.DashLine if layer.confident else Qt.PenStyle.DotLine))
+            if mark.centre is not None:
+                centre = self._at(target, scale, *mark.centre)
+                a, b = (max(float(v) * scale, 6.0) for v in mark.axes)
+                painter.save()
+                painter.translate(centre)
+                painter.rotate(mark.angle_deg)
+                painter.drawEllipse(QPointF(0.0, 0.0), a, b)
+                painter.restore()
+                painter.drawText(centre + QPointF(min(a, b) + 4, 4), mark.text)
+            elif mark.arrow_at is not None:
+                self._paint_arrow(painter, self._at(target, scale, *mark.arrow_at), mark, colour)
+        painter.setPen(_BANNER_COLOUR)
+        if layer.banner:
+            painter.drawText(target.adjusted(6, 20, -6, 0), Qt.AlignmentFlag.AlignHCenter | Qt.AlignmentFlag.AlignTop,
+                             layer.banner)
+        if layer.note:
+            painter.setPen(colour)
+            painter.drawText(target.adjusted(6, 0, -6, -4), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignBottom,
+                             layer.note)
+
+    @staticmethod
+    def _paint_arrow(painter: QPainter, tip: QPointF, mark: HotSpotMark, colour: QColor) -> None:
+        """A filled arrow ending at ``tip`` pointing ``mark.arrow_way``, its text just inside it."""
+        way = QPointF(float(mark.arrow_way[0]), float(mark.arrow_way[1]))
+        side = QPointF(-way.y(), way.x())
+        base = tip - way * _ARROW_PX
+        painter.setPen(QPen(colour, 2))
+        painter.setBrush(colour)
+        painter.drawPolygon(QPolygonF([tip, base + side * (_ARROW_PX / 2), base - side * (_ARROW_PX / 2)]))
+        painter.setBrush(Qt.BrushStyle.NoBrush)
+        width = painter.fontMetrics().horizontalAdvance(mark.text)
+        inside = base - way * 6 - QPointF(width / 2, -4) - QPointF(way.x() * width / 2, way.y() * 8)
+        painter.drawText(inside, mark.text)
 
     def _paint_overlay(self, painter: QPainter, target: QRectF, scale: float) -> None:
         tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)

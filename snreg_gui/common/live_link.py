@@ -121,6 +121,11 @@ class LiveLinkControl(QObject):
         if self.link is not None:
             self.link.set_registration(result, pairs)
 
+    def set_missing(self, targets) -> None:
+        """The hot spots not found yet (MissingNode list, trocar frame), sent as ``MissingHotSpots``."""
+        if self.link is not None:
+            self.link.set_missing(targets)
+
     # -- internals ----------------------------------------------------------------------------
     def _toggled(self, checked: bool) -> None:
         if checked == (self.link is not None):

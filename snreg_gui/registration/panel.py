@@ -27,6 +27,8 @@ listed apart from the hot spots, drawn in the view and given to each run (:mod:`
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
@@ -40,6 +42,7 @@ from snreg.registration.report import (mapped_preop, missing_nodes, node_warning
                                        summary_line)
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
+from snreg.workflow.navigation import UPDATING, NavigationState, navigation_state
 from snreg.workflow.registration_run import EXPORTS, RunRecord
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import PREOP_OUT_OF_DATE, NodeScene, make_node_view
@@ -59,6 +62,9 @@ DEFAULT_METHOD = "global"
 VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
 
 
+OUT_OF_DATE = "out of date: nodes changed since this registration; register again"
+
+
 def _shown_rows(record: RunRecord) -> list:
     """The record's pairing rows as the panel shows them: preop ids marked "P:" when they repeat intraop ids."""
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
@@ -69,11 +75,13 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
 
     registered = Signal(object)
     missing_changed = Signal(list)     # MissingNode per preop node left unpaired by the result shown ([] without one)
+    navigation_changed = Signal(object)   # NavigationState: what the feeds draw of the result shown, and if it is current
 
     def __init__(self, parent=None):
         super().__init__(parent)
         self.last_result = None
         self.missing_nodes: list = []              # MissingNode of the result shown
+        self.navigation = NavigationState()        # ... with the hot spots found, its confidence and its currency
         self._session = None
         self._intraop: NodeSet | None = None
         self._intraop_from_session = False          # the intraop nodes are the session's (its chain gives their down)
@@ -333,6 +341,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
             self.missing_nodes = []
             self.missing_label.setText("")
             self.missing_changed.emit([])
+        self._navigation_stale()
         self._refresh_view()
 
     def _refresh_view(self) -> None:
@@ -349,6 +358,17 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
             scene = NodeScene(moved, intraop, preop_caption=PREOP_OUT_OF_DATE if record is not None else None,
                               **self._landmark_scene(None, np.eye(4) if initial is None else initial))
         self.view.show_scene(scene)
+
+    def _set_navigation(self, state: NavigationState) -> None:
+        self.navigation = state
+        self.navigation_changed.emit(state)
+
+    def _navigation_stale(self) -> None:
+        """The feeds' hot spots are no longer current: greyed, "updating" while a run will answer the nodes stored now,
+        else out of date until the technician registers again."""
+        if (self.navigation.targets or self.navigation.found) and not self.navigation.stale:
+            self._set_navigation(self.navigation.updating(UPDATING if self.auto_rerun.isChecked() or self._registering
+                                                          else OUT_OF_DATE))
 
     # -- results -----------------------------------------------------------------
     def pairs_line(self) -> str:
@@ -375,6 +395,8 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
         self.missing_label.setText("Not found yet (trocar frame):\n" + targets_text(missing) if missing else "")
         self.missing_nodes = missing
         self.missing_changed.emit(missing)
+        self._set_navigation(NavigationState() if record is None else
+                             replace(navigation_state(record.preop, record.result), targets=tuple(missing)))
         self._say("" if record is None else record.note)
         if not current:
             self._inputs_changed()

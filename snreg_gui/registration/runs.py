@@ -90,6 +90,7 @@ class PanelRuns:
                              gravity=start.gravity, preop_down=self._preop_down())
         request = self._with_landmarks(request)
         self._registering = True
+        self._navigation_stale()                    # the feeds say "updating" until it ends
         self.run_button.setEnabled(automatic)
         self.busy_bar.setVisible(True)
         left_out = f", without {', '.join(sorted(self._excluded))}" if self._excluded else ""
