@@ -59,6 +59,7 @@ def run(world, pairs, path, tracked=True):
     return outcomes, first, second, camera
 
 
+@pytest.mark.slow
 def test_each_pair_is_mapped_at_its_tracked_insertion_and_each_node_records_its_own(world, sliding, tmp_path):
     outcomes, first, second, camera = run(world, sliding, tmp_path / "tracked.h5")
     for pair, outcome in zip(sliding, outcomes):

@@ -102,6 +102,7 @@ def test_no_core_module_imports_qt():
     assert {k: v for k, v in offenders.items() if v} == {}
 
 
+@pytest.mark.slow
 def test_importing_every_core_module_loads_no_qt():
     code = (
         "import pkgutil, sys, snreg\n"

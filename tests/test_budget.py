@@ -124,6 +124,7 @@ def small_budget():
     return model, config, run_budget(model, config)
 
 
+@pytest.mark.slow
 def test_budget_reports_every_source_alone_and_all_but(small_budget, tmp_path):
     model, config, result = small_budget
     out = result.to_json()
@@ -147,6 +148,7 @@ def test_budget_reports_every_source_alone_and_all_but(small_budget, tmp_path):
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.slow
 def test_switching_a_source_off_removes_exactly_its_contribution(small_budget):
     model, config, result = small_budget
     without = run_budget(model.with_setting("pointing=0").with_setting("tracking=0").with_setting("calibration=0"),
@@ -182,6 +184,7 @@ def test_cli_states_the_library_defaults():
     assert cli_budget.DEFAULT_REPS == budget.DEFAULT_REPS and cli_budget._METHODS == METHODS
 
 
+@pytest.mark.slow
 def test_cli_json_is_one_object_of_the_documented_shape(capsys, tmp_path):
     argv = ["budget", "--reps", "2", "--workers", "1", "--set", "tracking=0", "--set", "calibration=0", "--set", "imu=0",
             "--json", "--quiet", "-o", str(tmp_path / "out")]
@@ -211,6 +214,7 @@ def _within_sampling_noise(covered, p):
     return low <= np.sum(covered) <= high
 
 
+@pytest.mark.slow
 def test_each_nodes_covariance_holds_its_error_and_the_budget_can_register_with_it():
     """The rig's covariance from the model's magnitudes: on one draw it is the function the acquisition runs; over a
     small run the 90 % ellipsoids hold the share of the nodes' intraop errors they should (pointing's uniform errors

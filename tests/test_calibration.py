@@ -119,6 +119,7 @@ def test_render_is_deterministic_under_its_seed(truth, rendered):
     np.testing.assert_allclose(find_corners(colour, BOARD), find_corners(left[0], BOARD), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_corners_are_found_in_board_order(truth, rendered, rendered_result):
     """Detections match the true projections corner by corner, whatever the board's turn in the image."""
     poses = rendered[0]
@@ -173,6 +174,7 @@ def test_samples_agree_with_plain_opencv(samples):
     assert result.rms_px < 0.3 and result.reconstruction_error_mm < 0.02  # squares
 
 
+@pytest.mark.slow
 def test_command_writes_a_loadable_file(samples, tmp_path, capsys):
     out = tmp_path / "calib.yaml"
     assert run_command(["calibrate", "stereo", "--left", str(SAMPLES / "left*.jpg"), "--right", str(SAMPLES / "right*.jpg"),
@@ -316,6 +318,7 @@ def test_copies_of_one_view_are_flagged_and_their_calibration_fails_the_check(tr
     assert other_views.verdict == "bad"
 
 
+@pytest.mark.slow
 def test_check_command_on_the_samples(samples, tmp_path, capsys):
     _, result = samples
     good, spoiled = tmp_path / "good.yaml", tmp_path / "spoiled.yaml"

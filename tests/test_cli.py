@@ -71,6 +71,7 @@ def test_register_reads_intraop_nodes_from_a_session(node_files, tmp_path, capsy
     assert capsys.readouterr().err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_simulate_small(tmp_path):
     cmd = [sys.executable, "-m", "snreg.cli", "simulate", "--reps", "1", "--sigmas", "2,10", "--extras", "0,2",
            "--methods", "icp,global", "--workers", "1", "-o", str(tmp_path / "sim")]
@@ -89,6 +90,7 @@ def test_simulate_rejects_bad_arguments(capsys):
     assert exc.value.code == 2
 
 
+@pytest.mark.slow
 def test_bench_prints_every_method(capsys):
     assert main(["bench", "--reps", "1", "--pairs", "3"]) == 0
     out = capsys.readouterr().out

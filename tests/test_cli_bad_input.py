@@ -402,6 +402,7 @@ def snreg_process(*argv, **kwargs) -> subprocess.CompletedProcess:
     (["imu", "simulate", "--parent", "999999"], "--parent"),
     (["track", "{not_an_image.png}", "{r.png}", "--calib", CALIB], "not a readable image"),   # no OpenCV log line
 ])
+@pytest.mark.slow
 def test_bad_input_through_a_real_process(images, argv, fragment):
     result = snreg_process(*expand(argv, images))
     assert result.returncode == 2 and result.stdout == ""

@@ -64,6 +64,7 @@ def test_a_staged_run_moves_out_whole_and_never_replaces_a_file_that_appeared(tm
         n: n for n in ("d.h5", "d.h5.journal", "d.left.mkv", "d-spect.dcm")}
 
 
+@pytest.mark.slow
 def test_a_failed_demo_names_each_rests_best_spread_and_the_same_command_runs_again(tmp_path, capsys, monkeypatch):
     path = tmp_path / "d.h5"
     monkeypatch.setattr(acquisition, "STILL_SPREAD_MM", 0.0)     # nothing is ever held still enough: no auto-store

@@ -18,6 +18,7 @@ NAVIGATION_KEYS = {"frame", "t_s", "hot_spot", "shown", "confident", "predicted_
                    "left_px", "left_px_true_pose", "truth_left_px"}
 
 
+@pytest.mark.slow
 def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
     path = tmp_path / "demo.h5"
     assert main(["demo", "--headless", "-o", str(path), "--fixes", "20", "--json"]) == 0

@@ -52,6 +52,7 @@ TOKENS = ["1e400", "-1e200", ".Nan", ".Inf", "0.", "[", "]", "{", "}", "rows: 3"
 @fuzz(100)
 @given(cuts=st.lists(st.tuples(st.integers(0, len(THESIS_TEXT)), st.integers(0, 40), st.sampled_from(TOKENS + [""])),
                      min_size=1, max_size=4))
+@pytest.mark.slow
 def test_calibration_files_are_read_or_refused_in_one_sentence(tmp_path_factory, cuts):
     text = THESIS_TEXT
     for at, remove, token in cuts:             # cut something out, put a hostile token in its place
@@ -154,6 +155,7 @@ def recorded(tmp_path_factory):
     return path.read_bytes(), journal_path(path).read_bytes()
 
 
+@pytest.mark.slow
 @fuzz(150)
 @given(entries=st.lists(st.tuples(KINDS, JSON) | SPOILED, max_size=6), noise=st.binary(max_size=80))
 def test_journal_lines_of_any_content_never_stop_the_reader(recorded, tmp_path_factory, entries, noise):
@@ -165,6 +167,7 @@ def test_journal_lines_of_any_content_never_stop_the_reader(recorded, tmp_path_f
     assert {"SN1", "SN2"} <= ids or any(kind in ("node_removed", "nodes_reexpressed") for kind, _ in entries)
 
 
+@pytest.mark.slow
 @fuzz(12)
 @given(position=st.floats(0, 1), xor=st.integers(1, 255), near_start=st.booleans())
 def test_a_flipped_byte_beside_an_intact_journal_loses_no_stored_node(recorded, tmp_path_factory, position, xor,

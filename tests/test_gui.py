@@ -11,6 +11,7 @@ from snreg_gui.window_closing import end_question
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
 
+@pytest.mark.slow
 def test_main_window_starts_in_demo_mode(qtbot, tmp_path):
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True)
     qtbot.addWidget(window)

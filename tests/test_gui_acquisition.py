@@ -57,6 +57,7 @@ def store_when_settled(qtbot, window, results, other_than=None) -> int:
     return node_index
 
 
+@pytest.mark.slow
 def test_store_nodes_in_demo(qtbot, demo_window):
     window, rig = demo_window
     screen = window.acquisition
@@ -96,6 +97,7 @@ def test_store_nodes_in_demo(qtbot, demo_window):
     assert radius == f"\u00b1{ellipsoid_radius_mm(nodes[0].cov_trocar_mm2):.1f}"
 
 
+@pytest.mark.slow
 def test_auto_store_stores_a_node_once_the_probe_is_held_still(qtbot, demo_window):
     window, rig = demo_window
     screen = window.acquisition
@@ -118,6 +120,7 @@ def test_auto_store_stores_a_node_once_the_probe_is_held_still(qtbot, demo_windo
     assert sorted(nearest) == list(range(len(tips)))
 
 
+@pytest.mark.slow
 def test_a_store_before_enough_fixes_is_refused_in_words_and_on_record(qtbot, demo_window):
     window, _ = demo_window
     screen = window.acquisition
@@ -157,6 +160,7 @@ def test_store_disabled_with_the_tracking_reason_and_stale_feed_flagged(qtbot):
     assert screen.store_reason.text().startswith("no frames for") and not screen.store_button.isEnabled()
 
 
+@pytest.mark.slow
 def test_the_surgery_demo_follows_the_camera_insertion_in_the_app(qtbot, tmp_path):
     """``snreg-gui --demo --camera surgery``: the rig's camera moves, so the worker tracks its insertion; the
     frames of a move are mapped at the insertion the camera slid to (a quarter of the thesis resolution)."""

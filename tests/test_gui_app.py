@@ -39,6 +39,7 @@ def recorded_session(path, n_nodes=2):
     return path
 
 
+@pytest.mark.slow
 def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, settings):
     path = recorded_session(tmp_path / "old.h5")
     first = MainWindow(settings=settings)
@@ -71,6 +72,7 @@ def test_recent_sessions_and_the_window_layout_are_remembered(qtbot, tmp_path, s
     second.shutdown()
 
 
+@pytest.mark.slow
 def test_continue_session_shows_its_nodes_and_records_into_it(qtbot, tmp_path, settings):
     path = recorded_session(tmp_path / "case.h5")
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=30)),
@@ -88,6 +90,7 @@ def test_continue_session_shows_its_nodes_and_records_into_it(qtbot, tmp_path, s
         assert session.intraop_nodes().ids == ["SN1"]
 
 
+@pytest.mark.slow
 def test_a_damaged_session_or_a_bad_case_id_is_refused_in_a_sentence(qtbot, tmp_path, settings):
     path = recorded_session(tmp_path / "torn.h5")
     path.write_bytes(path.read_bytes()[:1500])
@@ -105,6 +108,7 @@ def test_a_damaged_session_or_a_bad_case_id_is_refused_in_a_sentence(qtbot, tmp_
     demo.shutdown()
 
 
+@pytest.mark.slow
 def test_the_hardware_rig_chosen_in_the_device_dialog_runs_the_same_acquisition(qtbot, tmp_path, settings, monkeypatch):
     """Image folders stand in for the cameras; everything after the source is the real path."""
     calibration = thesis_calibration().scaled(0.5)
@@ -144,6 +148,7 @@ def test_the_hardware_rig_chosen_in_the_device_dialog_runs_the_same_acquisition(
     window.shutdown()
 
 
+@pytest.mark.slow
 def test_calibration_results_reach_the_rig_and_the_session(qtbot, tmp_path, settings):
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=30)),
                         settings=settings)

@@ -20,6 +20,7 @@ pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs
 FIXES = 20
 
 
+@pytest.mark.slow
 def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     rig = DemoRig(schedule=Schedule(rest_frames=FIXES + 25, move_frames=3), hold_rests=True)   # as snreg-gui --demo
     window = MainWindow(str(tmp_path / "demo.h5"), demo=True, rig=rig, fixes_per_node=FIXES)

@@ -121,6 +121,7 @@ def press(qtbot, screen, key):
     qtbot.keyClick(screen, key)
 
 
+@pytest.mark.slow
 def test_a_store_while_the_insertion_is_lost_is_refused_offered_and_overridden_on_record(qtbot, open_window, world,
                                                                                           pairs):
     rig = SlidingRig(world, pairs)

@@ -156,6 +156,7 @@ def demo(qapp, tmp_path_factory):
     window.shutdown()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tab", [0, 1])
 def test_the_acquisition_and_registration_tabs_show_every_text_whole_at_every_size(demo, tab):
     settle(demo, SCREEN_SIZES[0])                          # first shown at 1024x700, as on a small screen
@@ -195,6 +196,7 @@ def page_problems(wizard, what: str) -> list[str]:
     return check_sizes(wizard, f"{what} page {wizard.currentId()}")
 
 
+@pytest.mark.slow
 def test_the_device_dialog_and_the_wizard_pages_show_every_text_whole(demo):
     from snreg_gui.wizards.device_dialog import DeviceDialog
     dialog = DeviceDialog(None, parent=demo)
@@ -236,6 +238,7 @@ def review_of(demo):
     return review
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", SCREEN_SIZES)
 def test_the_review_timeline_labels_lie_apart(demo, size):
     """The labels of six nodes and three landmarks of long names, stored over the recording, never overlap and lie
@@ -250,12 +253,14 @@ def test_the_review_timeline_labels_lie_apart(demo, size):
     assert legend.isVisible() and all(name in legend.text() for name in LANDMARK_NAMES)
 
 
+@pytest.mark.slow
 def test_the_review_tab_shows_every_text_whole_at_every_size(demo):
     review_of(demo)
     problems = check_sizes(demo, "Review")
     assert not problems, "\n".join(problems)
 
 
+@pytest.mark.slow
 def test_timeline_labels_as_wide_as_their_text_take_rows_apart():
     from snreg_gui.review.timelines import label_rows
     assert label_rows([0.0, 3.0, 6.0], 0.0, [8.0, 1.0, 1.0]) == [0, 1, 0]   # the wide one covers 3 s, not 6 s

@@ -34,6 +34,7 @@ def open_window(qtbot, tmp_path, settings, name):
     return window
 
 
+@pytest.mark.slow
 def test_the_toggle_serves_stored_nodes_and_poses_to_a_client(qtbot, tmp_path, settings, igtl_client, monkeypatch):
     window = open_window(qtbot, tmp_path, settings, "demo.h5")
     try:

@@ -136,6 +136,7 @@ def demo_window(qtbot, tmp_path):
     window.shutdown()
 
 
+@pytest.mark.slow
 def test_every_tab_fits_1024x700_and_the_pairing_headers_are_whole(qtbot, demo_window):
     window = demo_window
     missing = [MissingNode(k, f"P{k + 1}", "INT R", np.array([1.0, 2.0, 3.0]), 12.0) for k in range(3)]

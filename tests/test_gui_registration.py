@@ -227,6 +227,7 @@ def test_too_few_intraop_nodes_say_what_is_true(qtbot, panel, pelvic_nodes, tmp_
                                     "registration needs at least 3: include some (Include all) or store more.")
 
 
+@pytest.mark.slow
 def test_exports_are_written_and_read_back(qtbot, panel, pelvic_nodes, tmp_path, monkeypatch):
     preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
     extra = NodeSet(intraop.ids + ["I7"], intraop.labels + ["PR L"], np.vstack([intraop.xyz, [[250.0, 250, 250]]]))

@@ -179,6 +179,7 @@ def test_a_tilt_outside_0_to_60_degrees_is_refused(qtbot, panel):
             PreopDown("HFS", tilt)
 
 
+@pytest.mark.slow
 def test_the_down_is_saved_in_the_session_with_the_tilts_source(qtbot, panel, pelvic_nodes, tmp_path, capsys):
     xyz, labels = pelvic_nodes
     session, truth = far_case(tmp_path / "case.h5", xyz, labels)

@@ -74,6 +74,7 @@ def test_a_feed_without_a_frame_is_reported_blank_or_stops_the_run(qtbot, tmp_pa
     assert len(shots.blank) == 1 and "feed 'left'" in shots.blank[0]
 
 
+@pytest.mark.slow
 def test_the_guides_set_shoots_tabs_at_every_size_and_wizard_pages_at_the_first_in_256_colours(qtbot, tmp_path):
     """``--docs`` (issue 35's screenshot set): every tab at 1024x700 and 1366x768, each wizard page at 1024x700 only,
     nothing outside the set, saved with a palette so the set stays small in the repository."""

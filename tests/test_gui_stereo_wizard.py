@@ -158,6 +158,7 @@ def test_the_setup_numbers_stay_number_sized_in_the_wide_dialog(qtbot, open_wiza
 
 # -- capture, calibrate, drop, save ------------------------------------------------------
 
+@pytest.mark.slow
 def test_capture_calibrate_drop_and_save(qtbot, open_wizard, tour, tmp_path):
     wizard = open_wizard(tour.source, target_views=12)
     page = wizard.capture_page
@@ -271,6 +272,7 @@ def test_the_source_ending_or_failing_is_said_in_its_sentence_and_next_reopens_i
     assert failing.capture_page.feed_status.text() == "Cannot open camera 0: check that it is connected."
 
 
+@pytest.mark.slow
 def test_auto_capture_takes_only_still_new_places(qtbot, open_wizard, still_tour):
     wizard = open_wizard(still_tour.source, target_views=3)
     page = wizard.capture_page

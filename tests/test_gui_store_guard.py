@@ -114,6 +114,7 @@ SCENARIOS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_every_store_key_is_refused_in_words_and_on_record(qtbot, open_window, scene, scenario):
     frames, gap_s, reason = SCENARIOS[scenario]
@@ -131,6 +132,7 @@ def test_every_store_key_is_refused_in_words_and_on_record(qtbot, open_window, s
     assert all(reason in event["reason"] for event in refused)
 
 
+@pytest.mark.slow
 def test_a_store_near_a_stored_node_asks_naming_it(qtbot, open_window, scene):
     window = open_window(FakeRig(scene, on_node(1), FakeImu()))
     screen = window.acquisition
@@ -151,6 +153,7 @@ def test_a_store_near_a_stored_node_asks_naming_it(qtbot, open_window, scene):
     assert window.session.events("store_near_confirmed")[0]["near"] == "SN1"
 
 
+@pytest.mark.slow
 def test_paused_for_calibration_the_chain_change_prompt_and_the_question_on_close(qtbot, open_window, scene):
     window = open_window(FakeRig(scene, on_node(0), FakeImu()))
     screen = window.acquisition

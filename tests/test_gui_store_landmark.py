@@ -3,6 +3,7 @@ stored through the worker as a landmark (never a node), refused in words while t
 replacing a landmark of the same name, undo, and the live link's landmark lists."""
 
 import numpy as np
+import pytest
 from conftest import shown
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMessageBox
@@ -21,6 +22,7 @@ def click(qtbot, screen):
     qtbot.mouseClick(screen.landmark_picker.button, Qt.MouseButton.LeftButton)
 
 
+@pytest.mark.slow
 def test_the_name_list_offers_the_preop_landmarks_first_then_the_vocabulary(qtbot, open_window, scene, tmp_path):
     window = open_window(FakeRig(scene, on_node(0), FakeImu()))
     picker = window.acquisition.landmark_picker
@@ -34,6 +36,7 @@ def test_the_name_list_offers_the_preop_landmarks_first_then_the_vocabulary(qtbo
     assert picker.name() == "left internal iliac origin"
 
 
+@pytest.mark.slow
 def test_a_landmark_file_read_in_the_preop_box_reaches_the_name_list_and_the_live_link(qtbot, open_window, scene,
                                                                                       tmp_path, monkeypatch):
     window = open_window(FakeRig(scene, on_node(0), FakeImu()))
@@ -46,6 +49,7 @@ def test_a_landmark_file_read_in_the_preop_box_reaches_the_name_list_and_the_liv
     assert sent and sent[-1].ids == ["sacral promontory"]
 
 
+@pytest.mark.slow
 def test_store_landmark_stores_a_landmark_apart_asks_before_replacing_and_undoes(qtbot, open_window, scene):
     window = open_window(FakeRig(scene, on_node(1), FakeImu()))
     screen = window.acquisition
@@ -73,6 +77,7 @@ def test_store_landmark_stores_a_landmark_apart_asks_before_replacing_and_undoes
     assert window.session.intraop_records(kind=None) == []
 
 
+@pytest.mark.slow
 def test_store_landmark_is_refused_in_words_while_the_probe_moves_and_without_a_name(qtbot, open_window, scene):
     window = open_window(FakeRig(scene, MOVING, FakeImu()))
     screen = window.acquisition
@@ -90,6 +95,7 @@ def test_store_landmark_is_refused_in_words_while_the_probe_moves_and_without_a_
     assert window.session.intraop_records(kind=None) == []
 
 
+@pytest.mark.slow
 def test_the_live_link_receives_the_stored_and_the_preop_landmarks(qtbot, open_window, scene, tmp_path, igtl_client,
                                                                    monkeypatch):
     window = open_window(FakeRig(scene, on_node(0), FakeImu()))

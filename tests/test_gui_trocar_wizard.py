@@ -78,6 +78,7 @@ def wait_for_samples(qtbot, page, n):
                     timeout=30_000)
 
 
+@pytest.mark.slow
 def test_pivot_method_finds_the_true_chain_and_saves_it_in_the_session(qtbot, scene, open_wizard, tmp_path):
     session = Session.create(tmp_path / "pivot.h5", case_id="pivot-01")
     wizard, sources = open_wizard(session)
@@ -109,6 +110,7 @@ def test_pivot_method_finds_the_true_chain_and_saves_it_in_the_session(qtbot, sc
     assert np.allclose(stored.imu_from_camera, chain.imu_from_camera) and stored.imu_trocar_mm == chain.imu_trocar_mm
 
 
+@pytest.mark.slow
 def test_arc_method_estimates_the_distance_on_the_same_recording(qtbot, scene, open_wizard):
     wizard, sources = open_wizard()
     click(qtbot, next_button(wizard))                  # the pivot page first, then back: its source is closed
@@ -190,6 +192,7 @@ def test_a_feed_that_cannot_open_is_named_in_one_sentence(qtbot, scene):
     assert not page.accept_button.isEnabled() and not next_button(wizard).isEnabled()
 
 
+@pytest.mark.slow
 def test_turning_over_tissue_finds_the_true_chain_and_reset_starts_afresh(qtbot, scene):
     calibration = thesis_calibration().scaled(0.25)           # the tissue renders 5 times faster than at half size
     tissue = TissuePivotScene(calibration, frames_per_cycle=FRAMES_PER_CYCLE, seed=2)

@@ -124,6 +124,7 @@ def test_no_initial_bias_estimate_when_moving_at_start():
 
 # --- gyro bias and yaw drift ---
 
+@pytest.mark.slow
 def test_bias_estimate_converges_to_the_simulated_bias_at_rest():
     t, gyro, accel, bias = simulate([still(60.0)], sensor=SensorModel(gyro_bias_max_dps=0.3), seed=3)
     initial = Fusion(RATE)                              # initial still-period estimate (3 s)

@@ -137,6 +137,7 @@ def test_replay_keeps_the_recorded_values_unclipped(tmp_path):
     assert [s.t_device_us for s in got] == [0, 10_000, 20_000]
 
 
+@pytest.mark.slow
 def test_replay_of_the_xio_recording_reproduces_the_file():
     replay = CsvReplay(XIO_CSV)
     got = _replay_through_a_pty(replay, speed=200.0)

@@ -93,6 +93,7 @@ def served_demo(tmp_path_factory):
                 stalled_bytes=stalled_bytes)
 
 
+@pytest.mark.slow
 def test_the_demo_says_it_waits_for_a_client_and_streams_rigid_poses(served_demo):
     assert "waiting up to 30 s" in served_demo["err"] and "a client is connected" in served_demo["err"]
     poses = served_demo["client"].messages("ProbeTipToTrocar")
@@ -104,6 +105,7 @@ def test_the_demo_says_it_waits_for_a_client_and_streams_rigid_poses(served_demo
         np.testing.assert_allclose(np.asarray(pose.matrix)[3], [0, 0, 0, 1])
 
 
+@pytest.mark.slow
 def test_the_last_intraop_nodes_are_the_sessions_nodes(served_demo):
     names, positions = shown(served_demo["client"].messages("IntraopNodes")[-1])
     nodes = served_demo["nodes"]
@@ -111,6 +113,7 @@ def test_the_last_intraop_nodes_are_the_sessions_nodes(served_demo):
     np.testing.assert_allclose(positions, nodes.xyz, atol=0.01)
 
 
+@pytest.mark.slow
 def test_trocar_to_ras_maps_the_paired_intraop_nodes_onto_the_preop_nodes(served_demo):
     client, registration = served_demo["client"], served_demo["registration"]
     ras_from_trocar = np.asarray(client.messages("TrocarToRas")[-1].matrix)
@@ -130,6 +133,7 @@ def test_trocar_to_ras_maps_the_paired_intraop_nodes_onto_the_preop_nodes(served
     assert all(f"{intraop_id} -> {preop_id}" in status for intraop_id, preop_id in paired)   # which hot spot, in words
 
 
+@pytest.mark.slow
 def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served_demo, tmp_path):
     assert main(["session", "export", str(served_demo["path"]), "--format", "slicer-sequence",
                  "-o", str(tmp_path / "seq")]) == 0
@@ -157,6 +161,7 @@ def test_the_exported_sequence_holds_the_sessions_poses_and_the_live_ones(served
         assert rotation_distance_deg(poses[int(np.argmin(gap)), :3, :3], matrix[:3, :3]) < 0.2
 
 
+@pytest.mark.slow
 def test_a_stalled_client_costs_the_acquisition_no_frames(served_demo):
     """A client that connects and never reads must not cost the acquisition frames (at most 5%). The demo reads its
     rendered frames on demand, so its frame count cannot drop; a camera delivering in real time drops the frames
@@ -177,6 +182,7 @@ def test_a_stalled_client_costs_the_acquisition_no_frames(served_demo):
     assert out["pairing_correct"] and len(out["nodes"]) == 4
 
 
+@pytest.mark.slow
 def test_a_taken_port_is_one_line_and_no_session(tmp_path, capsys):
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

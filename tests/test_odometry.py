@@ -96,6 +96,7 @@ def test_the_free_fit_measures_how_far_the_camera_left_the_pivot_model():
 
 
 # -- the tracker, on renders --------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_slide_along_the_shaft_is_followed(rig):
     path = straight_path(np.concatenate([np.linspace(START_MM, START_MM + 30, 8), np.linspace(188, 135, 12)]))
     estimates, video, _ = track(rig, path)
@@ -106,6 +107,7 @@ def test_a_slide_along_the_shaft_is_followed(rig):
     assert all(e.sd_mm == pytest.approx(np.hypot(e.change_sd_mm, THESIS_TROCAR_CAMERA_SD_MM)) for e in estimates)
 
 
+@pytest.mark.slow
 def test_turns_about_the_pivot_leave_the_insertion_where_it_is(rig):
     angle = np.linspace(0.0, 18.0, 10)          # out, across and back, at most 3 degrees per pair
     across = np.linspace(7.2, -7.2, 6)[1:-1]
@@ -118,6 +120,7 @@ def test_turns_about_the_pivot_leave_the_insertion_where_it_is(rig):
     assert max(e.residual_mm for e in estimates) < 3.0          # the IMU's 0.2 degrees at the pivot's lever
 
 
+@pytest.mark.slow
 def test_returning_to_the_start_view_returns_to_the_start_insertion(rig):
     path = surgery_path(40, START_MM, seed=4, slide_mm=30.0, turn_deg=20.0)
     estimates, video, tracker = track(rig, path, probe_fixes=True)

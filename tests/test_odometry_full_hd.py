@@ -16,6 +16,7 @@ from snreg.probe import default_probe_model
 START_MM = 158.0
 
 
+@pytest.mark.slow
 def test_full_hd_pairs_are_tracked_at_half_size_against_truth():
     calibration, probe, chain = thesis_calibration(), default_probe_model(), surgery_chain(START_MM)
     assert calibration.image_size == (1920, 1080)

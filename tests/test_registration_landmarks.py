@@ -55,6 +55,7 @@ def test_landmarks_help_a_noisy_pattern(seed):
     assert helped < 0.85 * alone, (helped, alone)
 
 
+@pytest.mark.slow
 def test_landmarks_narrow_the_stated_bound_over_seeds():
     bounds = []
     for seed in range(5, 10):

@@ -60,6 +60,7 @@ def test_a_landmark_40_mm_wrong_is_suspect_with_every_method(method):
         assert result.landmarks_checkable
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_right_landmarks_make_no_suspect_and_the_fit_no_worse(method):
     """Over seeded cases, the nodes land closer to the truth with three right landmark pairs than without: the pairs

@@ -152,6 +152,7 @@ def test_covariances_are_checked_and_a_scalar_is_one_sd_for_every_node():
     np.testing.assert_array_equal(one.pairing, every.pairing)
 
 
+@pytest.mark.slow
 def test_covariances_pair_anisotropic_nodes_better_than_one_sigma():
     right = {False: 0, True: 0}
     for seed in range(30):
@@ -179,6 +180,7 @@ def test_the_weighted_fit_trusts_each_node_across_its_ray():
     assert np.all(np.isfinite(weighted.leave_one_out_mm)) and np.all(weighted.target_error_mm > 0)
 
 
+@pytest.mark.slow
 def test_target_error_bounds_with_covariances_cover_the_truth():
     inside, total = 0, 0
     for seed in range(20):

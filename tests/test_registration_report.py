@@ -113,6 +113,7 @@ def _png_size(path) -> tuple[int, int]:
     return struct.unpack(">II", data[16:24])
 
 
+@pytest.mark.slow
 def test_png_report_is_the_documented_width_and_as_tall_as_its_content(case, tmp_path):
     preop, intraop, result, _, _ = case
     path = save_report_png(tmp_path / "report.png", preop, intraop, result)

@@ -20,6 +20,7 @@ from snreg.sources import SourceState
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
 
+@pytest.mark.slow
 def test_auto_store_on_a_replay_stores_the_same_nodes(recorded_video, tmp_path):
     path, _, _ = recorded_video
     with Session.open(path) as session:
@@ -33,6 +34,7 @@ def test_auto_store_on_a_replay_stores_the_same_nodes(recorded_video, tmp_path):
         assert segment.frames[0] == session.stream("frames").shape[0] - segment.first_row > 0
 
 
+@pytest.mark.slow
 def test_a_live_replay_keeps_the_recorded_pace_and_skips_when_behind(recorded_video):
     path, _, _ = recorded_video
     clock = [0]
@@ -62,6 +64,7 @@ def _session_with_imu(path, n_frames=45):
         session.append_imu(t, t - start, np.tile([0.0, 0.0, 1.0], (len(t), 1)), np.zeros((len(t), 3)))
 
 
+@pytest.mark.slow
 def test_the_imu_stream_replays_through_the_serial_reader_in_step_with_the_frames(tmp_path):
     path = tmp_path / "imu.h5"
     _session_with_imu(path)
@@ -78,6 +81,7 @@ def test_the_imu_stream_replays_through_the_serial_reader_in_step_with_the_frame
         rig.close()
 
 
+@pytest.mark.slow
 def test_a_session_without_video_is_refused_in_one_sentence(tmp_path):
     path = tmp_path / "bare.h5"
     with Session.create(path, case_id="bare") as session:
@@ -88,6 +92,7 @@ def test_a_session_without_video_is_refused_in_one_sentence(tmp_path):
         RecordedFeed(path)
 
 
+@pytest.mark.slow
 def test_the_app_replays_a_session_into_a_new_one(qtbot, recorded_video, tmp_path):
     from PySide6.QtCore import QSettings
 

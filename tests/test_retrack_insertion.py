@@ -48,6 +48,7 @@ def node_errors(nodes):
     return [float(np.linalg.norm(xyz - truth)) for xyz, truth in zip(nodes, (NODE_A, NODE_B))]
 
 
+@pytest.mark.slow
 def test_retrack_follows_the_insertion_over_the_video_and_remaps_a_node_stored_at_the_constant(recorded, capsys):
     untracked, _ = recorded
     with Session.open(untracked) as session:
@@ -81,6 +82,7 @@ def test_retrack_follows_the_insertion_over_the_video_and_remaps_a_node_stored_a
     assert "insertion tracked over the video" in event["reason"]
 
 
+@pytest.mark.slow
 def test_retrack_remaps_nodes_stored_with_an_insertion_tracked_from_a_wrong_start(recorded):
     _, wrong = recorded
     with Session.open(wrong) as session:

@@ -76,6 +76,7 @@ def imu_port(tmp_path):
     port.stop()
 
 
+@pytest.mark.slow
 def test_folder_rig_reads_the_recorded_pairs_and_the_imu_streams(recording, imu_port):
     root, pairs, _ = recording
     rig = HardwareRig(folder_config(root, serial_port=imu_port.port))
@@ -225,6 +226,7 @@ def test_missing_names_what_each_mode_still_needs():
     assert RigConfig(mode="pair", left="0", right="/dev/video2", **calib).missing == ""
 
 
+@pytest.mark.slow
 def test_hardware_and_demo_rigs_answer_the_rig_protocol_with_their_wizard_feeds(recording, imu_port):
     root, pairs, _ = recording
     hardware = HardwareRig(folder_config(root, serial_port=imu_port.port))

@@ -86,6 +86,7 @@ def as_format_3(path):
     journal.write_bytes(b"".join(_line(kind, data) for kind, data in old))
 
 
+@pytest.mark.slow
 def test_a_format_3_file_without_the_camera_stream_reads_as_the_chains_constant(tmp_path, capsys):
     path = tmp_path / "old.h5"
     chain = ChainCalibration.manual()

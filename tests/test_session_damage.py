@@ -62,6 +62,7 @@ def session(tmp_path, rng):
     return path
 
 
+@pytest.mark.slow
 def test_a_byte_that_crashes_libhdf5_makes_the_file_damaged_not_the_reader_dead(session, capsys):
     _crash_root_format(session)
     check = check_file(session)                   # the crash is real: the child reading the attribute was killed
@@ -91,6 +92,7 @@ def test_recover_keeps_every_readable_row_whatever_the_root_attributes_say(sessi
         assert not s.damaged and s.intraop_nodes().ids == IDS and len(s.registrations()) == 1
 
 
+@pytest.mark.slow
 def test_two_recovers_at_once_keep_every_row_and_every_backup(session):
     _crash_root_format(session)
     with RecoverLock(session):                    # a recover under way: a second is refused, naming the first

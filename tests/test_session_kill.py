@@ -89,6 +89,7 @@ def _check(path, printed):
     return session.damaged
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs POSIX SIGKILL")
 def test_every_returned_node_survives_sigkill(tmp_path):
     with ThreadPoolExecutor(max_workers=4) as pool:
@@ -146,6 +147,7 @@ def _reexpress_kill_run(tmp_path, k):
     return path, sum(line.startswith("R") for line in lines), waited
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs POSIX SIGKILL")
 def test_a_kill_during_reexpression_loses_nothing(tmp_path):
     """Every node survives, all under one chain (never half re-expressed), at the place that chain maps its recorded

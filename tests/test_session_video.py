@@ -33,6 +33,7 @@ pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs
 LEVEL = ImuReading(np.eye(3))
 
 
+@pytest.mark.slow
 def test_both_feeds_are_recorded_frame_for_frame_with_the_frame_rows(recorded_video):
     path, scene, _ = recorded_video
     info = session_info(path)
@@ -54,6 +55,7 @@ def test_both_feeds_are_recorded_frame_for_frame_with_the_frame_rows(recorded_vi
             assert reader.read(rows) is None
 
 
+@pytest.mark.slow
 def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_scales_the_range(recorded_video, tmp_path):
     path, _, cameras = recorded_video
     own = retrack(path)
@@ -80,6 +82,7 @@ def test_retrack_with_the_own_calibration_moves_little_and_a_longer_baseline_sca
     np.testing.assert_allclose([n.cov_trocar_mm2 for n in nodes], [n.after_cov for n in scaled.nodes])
 
 
+@pytest.mark.slow
 def test_retrack_refuses_another_image_size_and_a_session_without_video(recorded_video, tmp_path, capsys):
     path, _, _ = recorded_video
     with pytest.raises(SessionError, match="960x540 images but the session's video is 480x270"):
@@ -120,6 +123,7 @@ def _flip(path, offset: int) -> None:
         file.write(bytes([byte[0] ^ 0xFF]))
 
 
+@pytest.mark.slow
 def test_verify_reports_every_flipped_byte_and_names_what_it_damaged(recorded_video, tmp_path, capsys):
     path, _, _ = recorded_video
     assert verify(path).ok
@@ -184,6 +188,7 @@ _RECORDER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_killed_recording_keeps_the_frames_it_logged_readable(tmp_path):
     path = tmp_path / "k.h5"
     process = subprocess.Popen([sys.executable, "-c", _RECORDER, str(path)], stdout=subprocess.PIPE)
@@ -202,6 +207,7 @@ def test_a_killed_recording_keeps_the_frames_it_logged_readable(tmp_path):
         assert count_frames(segment.path(path, side)) >= 0.9 * rows
 
 
+@pytest.mark.slow
 def test_pairs_the_encoder_cannot_keep_up_with_are_counted_and_leave_no_row(tmp_path, monkeypatch):
     import snreg.session.video as video
     monkeypatch.setattr(video, "QUEUE_PAIRS", 1)
@@ -239,6 +245,7 @@ def test_too_little_free_space_records_no_video_and_says_so(tmp_path, monkeypatc
         assert session.stream("frames").shape[0] == 1          # the session goes on without video
 
 
+@pytest.mark.slow
 def test_turning_recording_off_closes_the_segment_recorded_so_far(tmp_path):
     cameras = thesis_calibration().scaled(0.125)
     frame = next(iter(CallableSource(lambda k: (np.zeros((135, 240, 3), np.uint8),) * 2, 30.0, 1)))

@@ -110,6 +110,7 @@ def test_parse_method():
         parse_method("global+magic")
 
 
+@pytest.mark.slow
 def test_small_study_is_reproducible_and_reports(tmp_path):
     patients = synthetic_cohort()[:3]
     config = StudyConfig(methods=("icp", "global"), sigmas=(2.0, 10.0), extras=(0, 1), reps=2, seed=3, workers=1)
@@ -142,6 +143,7 @@ def test_intraop_labels_keep_the_side_and_sometimes_miss_the_station():
     assert 0.6 < same / total < 0.8    # STATION_ERROR = 0.3
 
 
+@pytest.mark.slow
 def test_a_study_with_missing_nodes_reports_them_per_count_with_coverage_and_the_incremental_scenario(tmp_path):
     patients = [p for p in synthetic_cohort() if len(p.nodes) >= 5][:2]
     config = StudyConfig(methods=("global",), sigmas=(5.0,), extras=(0, 1), reps=1, seed=4, workers=1, missing=(0, 1))

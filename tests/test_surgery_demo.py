@@ -89,6 +89,7 @@ def test_the_imu_profile_is_the_rendered_camera_orientation_at_every_frame(scene
     assert profile.orientation([-5.0])[0].approx_equal(profile.orientation([0.0])[0])     # held before the start
 
 
+@pytest.mark.slow
 def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame_through_held_rests():
     """The real path: the simulator process plays the tour's motion on a pty and says when it starts, the feed counts
     its frames from then, the reader and the fusion run as with hardware, and the orientation the acquisition takes
@@ -123,6 +124,7 @@ def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame_throug
     assert np.median(errors[moving]) < 0.15 and errors.max() < 0.6, (np.median(errors[moving]), errors.max())
 
 
+@pytest.mark.slow
 def test_the_headless_surgery_demo_stores_every_node_where_it_is(tmp_path):
     """End to end on the app's code (a quarter of the thesis resolution, 20 fixes a node): the camera's insertion is
     tracked, each node is mapped at the insertion it was stored at and pairs with its own hot spot."""

@@ -47,6 +47,7 @@ def settled(scene, index: int) -> bool:
     return node is not None and index - scene.tour.rest_starts[node] >= LAG
 
 
+@pytest.mark.slow
 def test_no_pivot_warning_where_nothing_moved(tour):
     scene, _, taken, steps = tour
     at_rest = [(index, step) for index, step in zip(taken, steps) if settled(scene, index)]
@@ -60,6 +61,7 @@ def test_no_pivot_warning_where_nothing_moved(tour):
         assert step.used_mm == pytest.approx(truth, abs=0.5)
 
 
+@pytest.mark.slow
 def test_a_trocar_that_moved_at_the_rest_still_raises_the_warning(tour):
     scene = tour[0]
     rest = scene.tour.rest_starts[3]                              # the +20 mm rest, where the warning came before

@@ -43,6 +43,7 @@ def test_the_camera_line_says_what_the_rig_prepares():
     assert camera_health(None, float("inf")) == ("camera: waiting for frames", "")
 
 
+@pytest.mark.slow
 def test_the_surgery_rig_starts_with_the_imu_starting_and_its_first_frame_before_the_tour_is_rendered():
     rig = DemoRig(scale=0.125, camera="surgery", seed=2)          # 6 s rests, as the app's
     try:

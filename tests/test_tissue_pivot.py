@@ -99,6 +99,7 @@ def test_the_free_fit_leaves_out_points_that_move_against_the_tissue():
 
 
 # -- the follower and the pivot fit, on renders ------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_turn_over_tissue_gives_the_pivot_distance_and_the_imu_rotation(calibration, turn):
     poses, tracked, _ = follow(calibration, rendered(turn, PAIRS))
     assert len(tracked) == PAIRS
@@ -114,6 +115,7 @@ def test_a_turn_over_tissue_gives_the_pivot_distance_and_the_imu_rotation(calibr
     assert rotation_error < 1.0 and fit.hand_eye.rms_deg < 1.0         # the IMU's 0.2 degrees per axis
 
 
+@pytest.mark.slow
 def test_another_tissue_and_distance(calibration):
     surface = TissueSurface(depth_mm=225.0, relief_mm=5.0, relief_scale_mm=12.0, tilt_deg=(-6.0, 10.0), seed=8,
                             texture_seed=21)
@@ -125,6 +127,7 @@ def test_another_tissue_and_distance(calibration):
     assert len(tracked) >= 22 and abs(pivot.trocar_camera_mm - 140.0) < 2.0 and pivot.verdict != "bad"
 
 
+@pytest.mark.slow
 def test_too_little_turn_is_judged_bad(calibration, small_turn):
     poses, tracked, _ = follow(calibration, rendered(small_turn, 12))
     pivot = tissue_pivot_calibration(poses)
@@ -132,6 +135,7 @@ def test_too_little_turn_is_judged_bad(calibration, small_turn):
     assert pivot.verdict == "bad" and "turned through only 3.0 degrees" in pivot.advice
 
 
+@pytest.mark.slow
 def test_a_trocar_that_moved_while_turning_is_judged_bad(calibration, turn):
     """Half-way the trocar is pushed 5 mm sideways (the tissue moved against it): two pivots, not one."""
     shifted = make_transform(np.eye(3), [5.0, 0.0, 0.0])
@@ -179,6 +183,7 @@ def write_recording(scene, pairs, folder):
             "--right", str(folder / "right" / "*.png"), "--calib", str(folder / "calib.yaml")]
 
 
+@pytest.mark.slow
 def test_command_tissue_writes_the_chain_and_prints_the_contract(turn, tmp_path, capsys):
     argv = write_recording(turn, rendered(turn, PAIRS), tmp_path)
     assert main([*argv, "--imu-csv", str(tmp_path / "imu.csv"), "-o", str(tmp_path / "chain.json"), "--json"]) == 0

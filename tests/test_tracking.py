@@ -42,6 +42,7 @@ def test_probe_model_file_round_trip_and_errors(tmp_path):
         load_probe_model(tmp_path / "missing.yaml")
 
 
+@pytest.mark.slow
 def test_renderer_is_deterministic_and_stereo_consistent(scene):
     _, _, renderer = scene
     a = renderer.render(pose_at(120), RenderOptions(noise_sigma=3, seed=5))
@@ -119,6 +120,7 @@ def test_fix_filter_rejects_outliers_and_detects_stillness():
         summarise(np.zeros((0, 3)))
 
 
+@pytest.mark.slow
 def test_accuracy_experiment_small(scene):
     calibration, probe, _ = scene
     results = run_tracking_experiment(calibration, probe, bands=((130, 170),), frames=2, seed=1)

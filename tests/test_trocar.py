@@ -99,6 +99,7 @@ def test_pivot_and_imu_rotation_from_noisy_poses_with_outliers():
     assert 0.05 < hand_eye.rms_deg < 0.5
 
 
+@pytest.mark.slow
 def test_pivot_from_rendered_board_images(calib, rendered):
     trocar_from_camera, images, imu = rendered
     poses = np.array([board_from_camera_pose(find_corners(image, BOARD), BOARD, calib.K1, calib.D1) for image in images])
@@ -250,6 +251,7 @@ def test_command_manual_prints_and_writes_the_thesis_chain(tmp_path, capsys):
         run_trocar(["manual", "--imu-trocar", "460", "--trocar-camera", "-5"])
 
 
+@pytest.mark.slow
 def test_command_pivot_on_image_files(tmp_path, capsys, calib, rendered):
     trocar_from_camera, images, imu = rendered
     for k, image in enumerate(images):
