@@ -42,25 +42,25 @@ LABEL_GAP_PX = 6               # between two labels on one row
 LABEL_ROWS = 6                 # at most, however high the top plot
 
 
-def label_rows(times_s, min_gap_s: float, widths_s=None, max_rows: int = LABEL_ROWS) -> list[int]:
+def label_rows(times_s, min_gap_s: float, widths_s=None, max_rows: int = LABEL_ROWS) -> list[int | None]:
     """A row for each label (0 = top), so that labels do not overlap (they did as "SNSNSN4", and a landmark's long
     name ran over the next ones): label k, centred on ``times_s[k]``, is ``widths_s[k]`` wide (default 0) and keeps
     ``min_gap_s`` from its neighbours on its row. Each takes the highest row whose last label ends far enough before
-    it, in time order; when all ``max_rows`` rows are taken, the row whose last label ends first (the least
-    overlap)."""
+    it, in time order; None when all ``max_rows`` rows are taken there (too crowded to show it whole: its line stays,
+    and zooming in gives it room)."""
     times = np.asarray(times_s, dtype=float)
     widths = np.zeros(len(times)) if widths_s is None else np.asarray(widths_s, dtype=float)
-    rows = [0] * len(times)
+    rows: list[int | None] = [None] * len(times)
     ends: list[float] = []                     # where the last label on each row ends
     for k in np.argsort(times, kind="stable"):
         start = times[k] - widths[k] / 2
         row = next((r for r, end in enumerate(ends) if start - end >= min_gap_s), len(ends))
-        if row == len(ends) and row >= max(max_rows, 1):
-            row = int(np.argmin(ends))
-        elif row == len(ends):
+        if row == len(ends):
+            if row >= max(max_rows, 1):
+                continue
             ends.append(start)
         ends[row] = max(ends[row], times[k] + widths[k] / 2)
-        rows[k] = row
+        rows[k] = int(row)
     return rows
 
 
@@ -221,8 +221,8 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         return [lines[0].label for lines in [*self.node_markers.values(), *self.landmark_markers.values()]]
 
     def _place_labels(self, *_) -> None:
-        """Each marker's label on the highest row where it covers no other, rows as high as a label from the top of
-        the top plot, and wholly inside the plot (centred on its line, or shifted along it at the plot's ends, where
+        """Each marker's label on the highest row where it covers no other (hidden where every row is taken there),
+        rows as high as a label from the top of the top plot, and wholly inside the plot (centred on its line, or shifted along it at the plot's ends, where
         half of "SN1" was cut off): measured in pixels, so again whenever the plot is resized or its time range
         changes."""
         labels = self.marker_labels()
@@ -240,8 +240,10 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
                                                                                                    widths)],
                           LABEL_GAP_PX * s_per_px, widths, min(LABEL_ROWS, max(int(height_px // row_px), 1)))
         for label, row, left in zip(labels, rows, lefts):
-            label.anchors = [(left, 0), (left, 0)]
-            label.setPosition(1.0 - min(row * row_px + 2, height_px) / height_px)
+            label.setVisible(row is not None)           # crowded: the line alone until zoomed in
+            if row is not None:
+                label.anchors = [(left, 0), (left, 0)]
+                label.setPosition(1.0 - min(row * row_px + 2, height_px) / height_px)
 
     def _show_insertion(self, review: SessionReview, period_s: float | None) -> None:
         """The insertion where tracked (breaks where lost or not recorded), the lost stretches at the insertion held,
