@@ -8,7 +8,7 @@ All but :class:`UserError` are ``ValueError``s, so code that validates input may
 from __future__ import annotations
 
 __all__ = ["UserError", "NodeFileError", "CalibrationFileError", "SourceError", "ImuPortError", "PreopError",
-           "SessionError", "TrackingError", "StoreError", "NoFitError", "LiveLinkError", "StoreRefused",
+           "SessionError", "TrackingError", "StoreError", "NoFitError", "TooFewPairsError", "LiveLinkError", "StoreRefused",
            "StoreNeedsConfirmation"]
 
 
@@ -50,6 +50,12 @@ class StoreError(ValueError):
 
 class NoFitError(ValueError):
     """No pairing of the node sets fits within the registration's bounds; the message names what to change."""
+
+
+class TooFewPairsError(ValueError):
+    """Fewer nodes can pair than a registration needs, though each side has enough: the left/right labels let fewer
+    than three stored nodes pair with a hot spot of their side (say three left nodes stored, two left hot spots). The
+    message says what to store or check; the app may simply wait for the next store."""
 
 
 class LiveLinkError(ValueError):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from snreg import geometry
+from snreg.errors import TooFewPairsError
 from snreg.labels import parse_label
 from snreg.registration import CONFIDENT, METHODS, register, solve_transform
 
@@ -146,6 +147,21 @@ def test_labels_resolve_a_left_right_mirror_ambiguity():
     swapped = register(xyz, intraop, preop_labels=labels, intraop_labels=[labels[k ^ 1] for k in range(4)],
                        max_rotation_deg=180.0, max_translation_mm=100.0)
     np.testing.assert_array_equal(swapped.pairing, [1, 0, 3, 2])
+
+
+def test_three_nodes_of_one_side_against_two_hot_spots_there_are_too_few_pairs_not_wrong_labels():
+    # Three left nodes stored (one an extra) while the SPECT has two left hot spots: no three pairs keep their side,
+    # so nothing registers yet; the labels are right and the message says so, and what to do (issue 36's edges).
+    preop = np.array([[-40.0, 0.0, 0.0], [-30.0, 30.0, 20.0], [40.0, 0.0, 0.0], [30.0, 30.0, 20.0]])
+    intraop = np.array([[-40.0, 0.0, 0.0], [-30.0, 30.0, 20.0], [-45.0, 10.0, 5.0]])
+    with pytest.raises(TooFewPairsError, match="only 2 of the 3 stored nodes pair with a hot spot of their side.*"
+                                               "store a node on the other side"):
+        register(preop, intraop, preop_labels=["L", "L", "R", "R"], intraop_labels=["EXT L", "OBT L", "L"])
+    with pytest.raises(TooFewPairsError, match="none of the 3 stored nodes has a hot spot on its side"):
+        register(preop, intraop, preop_labels=["L", "L", "L", "L"], intraop_labels=["R", "R", "R"])
+    result = register(preop, intraop[:2].tolist() + [[35.0, 5.0, 3.0]], preop_labels=["L", "L", "R", "R"],
+                      intraop_labels=["EXT L", "OBT L", "R"])
+    assert result.pairing[:2].tolist() == [0, 1]
 
 
 def test_parse_label():

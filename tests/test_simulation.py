@@ -174,3 +174,19 @@ def test_a_refused_trial_is_a_failure_under_every_pairing_rule():
     outcome = protocol.run_trial(trial, "global", max_rotation_deg=1.0, max_translation_mm=1.0)
     assert outcome.row["refused"] and not outcome.row["success"] and not outcome.row["all_claims"]
     assert all(outcome.row[f"success_{rule}"] is False for rule in RULES)
+
+
+def test_a_trial_whose_labels_let_fewer_than_three_nodes_pair_is_refused_not_a_crash():
+    # The incremental scenario's first three stores can all be left nodes (one an extra) where the patient has two
+    # left hot spots: the registration refuses (TooFewPairsError), and the study counts a failure instead of stopping.
+    from dataclasses import replace
+
+    from snreg.simulation import protocol
+
+    patient = synthetic_cohort()[6]
+    trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 5.0, 0, 0, (1, 6, 0, 1, 0))
+    left = set(trial.truth[:2].tolist())                 # the hot spots of the first two stored nodes are the left ones
+    part = replace(trial, intraop=trial.intraop[:3], truth=trial.truth[:3], source=None, intraop_cov=None,
+                   intraop_labels=["L", "L", "L"], preop_labels=["L" if k in left else "R" for k in range(len(trial.preop))])
+    outcome = protocol.run_trial(part, "global", use_labels=True)
+    assert outcome.row["refused"] and not outcome.row["success"]

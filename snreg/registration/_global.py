@@ -20,17 +20,19 @@ from __future__ import annotations
 from itertools import combinations, permutations
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 
 from snreg import geometry
-from snreg.errors import NoFitError
+from snreg.errors import NoFitError, TooFewPairsError
 from snreg.labels import SIDE_CROSSING_NATS
 from snreg.registration._bounded import tilted_within
 from snreg.registration._extras import extra_nats
-from snreg.registration._model import ASSIGN_SIGMAS_MM, C_MISSING, Candidate, pair_nats, refine_many, squared_distances
+from snreg.registration._model import (ASSIGN_SIGMAS_MM, C_MISSING, MIN_PAIRS, Candidate, pair_nats, refine_many,
+                                       squared_distances)
 from snreg.registration._problem import Problem, option_count
 
-__all__ = ["solve_global", "local_moves", "no_fit_message"]
+__all__ = ["solve_global", "local_moves", "no_fit_message", "few_pairs_message"]
 
 _FORBIDDEN = 1e9
 _LOCAL_ROUNDS = 2
@@ -81,6 +83,20 @@ def _hypotheses(problem: Problem, max_hypotheses: int, rng: np.random.Generator)
     return pre, intra
 
 
+def few_pairs_message(problem: Problem) -> str:
+    """Why no three nodes pair without crossing left/right labels: how many stored nodes can pair with a hot spot of
+    their side at most (a one-to-one matching), and what to do."""
+    allowed = problem.label_nats < SIDE_CROSSING_NATS
+    rows, cols = linear_sum_assignment(allowed, maximize=True)
+    most = int(allowed[rows, cols].sum())
+    m = len(problem.intraop)
+    if most == 0:
+        return (f"none of the {m} stored nodes has a hot spot on its side: check the L/R labels of both node sets")
+    return (f"the left/right labels let only {most} of the {m} stored nodes pair with a hot spot of their side "
+            f"(one each), and a registration needs {MIN_PAIRS}: store a node on the other side, or check the L/R "
+            "labels of both node sets")
+
+
 def _node_triplets(problem: Problem, max_hypotheses: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Corrections (H, 4, 4) laying preop node triplets on intraop node triplets, and their label nats (H,); those
     crossing left/right labels left out."""
@@ -89,7 +105,7 @@ def _node_triplets(problem: Problem, max_hypotheses: int, rng: np.random.Generat
     intra_idx = np.tile(intra, (len(pre), 1))
     keep = problem.label_nats[pre_idx, intra_idx].max(axis=1) < SIDE_CROSSING_NATS if len(pre_idx) else np.zeros(0, bool)
     if len(pre_idx) and not keep.any() and problem.n_landmarks == 0:
-        raise ValueError("every node pairing crosses left/right labels; check the L/R labels of both node sets")
+        raise TooFewPairsError(few_pairs_message(problem))
     corrections = _triangle_transforms(problem.preop[pre_idx[keep]], problem.intraop[intra_idx[keep]])
     return corrections, problem.label_nats[pre_idx[keep], intra_idx[keep]].sum(axis=1)
 
@@ -223,7 +239,7 @@ def solve_global(problem: Problem, *, max_hypotheses: int = 6000, refine_top: in
         corrections = np.concatenate([corrections.reshape(-1, 4, 4), marked])
         triplet_labels = np.concatenate([triplet_labels, marked_labels])
     if len(corrections) == 0:
-        raise ValueError("every node pairing crosses left/right labels; check the L/R labels of both node sets")
+        raise TooFewPairsError(few_pairs_message(problem))
     inside = problem.within_bounds(corrections)
     outside_best = _best_outside(problem, corrections[~inside], triplet_labels[~inside])
     angle, shift = problem.correction_size(corrections)

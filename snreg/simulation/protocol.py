@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from snreg import geometry
 from snreg.labels import STATIONS, parse_label
+from snreg.errors import TooFewPairsError
 from snreg.registration import NoFitError, register
 from snreg.registration.pairing import RULES, pairing_at
 
@@ -241,7 +242,7 @@ def run_trial(trial: Trial, method: str, use_labels: bool = False, use_cov: bool
                           preop_labels=trial.preop_labels if use_labels else None,
                           intraop_labels=trial.intraop_labels if use_labels else None,
                           intraop_cov=trial.intraop_cov if use_cov else None, **marks, **options)
-    except NoFitError:
+    except (NoFitError, TooFewPairsError):          # a refusal: no fit within the bounds, or too few side-true pairs
         result = None
     except ValueError:
         if len(trial.moved_preop) >= 3 and len(trial.intraop) >= 3:
