@@ -333,11 +333,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, Pan
         self.pairing_table.setEnabled(False)
         self._update_exports()
         self._show_start()
-        if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
-            self.missing_nodes = []
-            self.missing_label.setText("")
-            self.missing_changed.emit([])
-        self._navigation_stale()
+        self._guidance_out_of_date()
         self._refresh_view()
 
     def _refresh_view(self) -> None:
