@@ -7,7 +7,8 @@ acquisition screen: the SPECT nodes not found yet and their expected errors (``m
 panel, using its widgets (``run_button``, ``busy_bar``, ``auto_rerun``, ``alignment``, ``method_combo``, bounds,
 the start (``_start_choice``: gravity or the typed alignment, and why),
 ``pairing_table``, ``include_button``) and state (``_session``, ``_intraop``, ``_excluded``, ``_registering``,
-``_rerun_pending``, ``_auto_pending``, ``_tasks``).
+``_rerun_pending``, ``_auto_pending``, ``_tasks``); the feeds hear of each run through
+:mod:`~snreg_gui.registration.navigation` (``_navigation_stale``, ``_run_coming``: "updating" while a run will answer).
 """
 
 from __future__ import annotations
