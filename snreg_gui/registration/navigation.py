@@ -15,7 +15,8 @@ from dataclasses import replace
 
 from snreg.workflow.navigation import UPDATING, NavigationState, navigation_state
 
-OUT_OF_DATE = "out of date: nodes or settings changed since this registration; press Run on the Registration tab"
+OUT_OF_DATE = ("out of date: nodes or settings changed since this registration; press Run registration on the "
+               "Registration tab")
 
 
 class PanelNavigation:
