@@ -272,13 +272,15 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
 
     def _nodes_changed(self, *_) -> None:
         """The registration panel follows the stored nodes: it registers again at once when it says so (the missing
-        nodes then update on the acquisition screen), else it is redrawn when next shown; so is the review of it."""
+        nodes then update on the acquisition screen), else it is redrawn when next shown, its result's hot spots out of
+        date on the acquisition screen at once; so is the review of it."""
         self.review.live_changed()
         if self.registration.auto_rerun.isChecked():
             self._registration_stale = False
             self.registration.rerun_after_store()
             return
         self._registration_stale = True
+        self.registration.nodes_changed_unseen()
         self._refresh_registration()
 
     def _refresh_registration(self, *_) -> None:

@@ -222,3 +222,33 @@ def test_the_command_line_refuses_a_bad_start_before_any_window(argv, fragment, 
     with pytest.raises(SystemExit) as ended:
         main(argv)
     assert ended.value.code == 2 and fragment in capsys.readouterr().err
+
+
+def test_a_node_stored_while_register_again_is_off_puts_the_feeds_hot_spots_out_of_date_at_once(qtbot, tmp_path,
+                                                                                                 settings,
+                                                                                                 pelvic_nodes):
+    """The panel re-reads the nodes only when next shown, but the acquisition screen must not go on listing and drawing
+    as current the hot spots of a registration that no longer answers the nodes stored (one of them just found)."""
+    from snreg.nodes import NodeSet, write_nodes
+    from snreg_gui.registration.navigation import OUT_OF_DATE
+
+    xyz, labels = pelvic_nodes
+    write_nodes(NodeSet.from_xyz(xyz, labels, prefix="P"), tmp_path / "preop.csv")
+    window = MainWindow(str(tmp_path / "case.h5"), settings=settings)
+    qtbot.addWidget(window)
+    panel = window.registration
+    panel.load_preop(str(tmp_path / "preop.csv"))
+    qtbot.waitUntil(lambda: not panel.busy and panel.preop_box.nodes is not None, timeout=15_000)
+    for k in range(4):                                                   # P5 and P6 not found yet
+        window.session.add_intraop_node(f"SN{k + 1}", labels[k], xyz[k] + [0.5, -0.5, 0.0])
+    panel.refresh_intraop()
+    with qtbot.waitSignal(panel.registered, timeout=15_000):
+        panel.run()
+    assert [t.preop_id for t in panel.navigation.targets] == ["P5", "P6"] and not panel.navigation.stale
+    panel.auto_rerun.setChecked(False)
+    assert window.tabs.currentWidget() is not panel                      # the panel is not re-read now
+    with qtbot.waitSignal(panel.missing_changed) as missing:
+        window.session.add_intraop_node("SN5", labels[4], xyz[4])
+        window._nodes_changed()                                          # as the worker's node_stored calls it
+    assert missing.args[0] == [] and panel.navigation.stale == OUT_OF_DATE
+    window.shutdown()

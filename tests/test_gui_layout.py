@@ -267,11 +267,3 @@ def test_the_review_tab_shows_every_text_whole_at_every_size(demo):
     review_of(demo)
     problems = check_sizes(demo, "Review")
     assert not problems, "\n".join(problems)
-
-
-@pytest.mark.slow
-def test_timeline_labels_as_wide_as_their_text_take_rows_apart():
-    from snreg_gui.review.timelines import label_rows
-    assert label_rows([0.0, 3.0, 6.0], 0.0, [8.0, 1.0, 1.0]) == [0, 1, 0]   # the wide one covers 3 s, not 6 s
-    assert label_rows([0.0, 3.0, 6.0], 0.0) == [0, 0, 0]                    # points: one row
-    assert label_rows([0.0, 1.0, 2.0, 9.0], 0.0, [30.0, 2.0, 1.0, 1.0], max_rows=2) == [0, 1, None, 1]

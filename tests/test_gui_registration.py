@@ -592,3 +592,61 @@ def test_the_three_projections_lie_inside_their_view_however_narrow_with_the_leg
     qtbot.waitUntil(lambda: max(plot.sceneBoundingRect().right() for plot in view.plots) <= view.width(),
                     timeout=5_000)
     assert view.legend.sceneBoundingRect().right() <= view.width()
+
+
+def test_the_feeds_say_updating_only_while_a_run_will_answer_else_out_of_date(qtbot, panel, pelvic_nodes, tmp_path,
+                                                                               monkeypatch):
+    """Greyed hot spots say why: "updating" while a registration runs, "out of date: ... register again" when none
+    will (inputs changed by hand, a run that failed); a result that no longer answers the inputs is never sent as
+    current, not even for a moment."""
+    from snreg.workflow.navigation import UPDATING
+    from snreg_gui.registration import runs
+    from snreg_gui.registration.navigation import OUT_OF_DATE
+
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    found = [m for m in range(len(intraop)) if truth[m] not in (2, 4)]
+    panel.set_intraop_nodes(NodeSet([intraop.ids[m] for m in found], [intraop.labels[m] for m in found],
+                                    intraop.xyz[found], frame="trocar"))
+    click_run(qtbot, panel)
+    assert panel.auto_rerun.isChecked() and panel.navigation.targets and not panel.navigation.stale
+    sent = []
+    panel.navigation_changed.connect(sent.append)
+    panel.rotation_bound.setValue(59.0)                    # no run follows a change by hand
+    assert panel.navigation.stale == OUT_OF_DATE and [s.stale for s in sent] == [OUT_OF_DATE]
+    sent.clear()
+    click_run(qtbot, panel)
+    assert [s.stale for s in sent] == [UPDATING, ""]       # greyed while it runs, then the new result, current
+    sent.clear()
+
+    def broken(*_):
+        raise ValueError("the solver broke")
+
+    monkeypatch.setattr(runs, "run_from", broken)
+    panel.rotation_bound.setValue(58.0)
+    qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: "solver broke" in panel.message.text(), timeout=TIMEOUT_MS)
+    assert panel.navigation.stale == OUT_OF_DATE            # nothing is updating once the run failed
+    assert [s.stale for s in sent] == [OUT_OF_DATE, UPDATING, OUT_OF_DATE]
+
+
+def test_an_undo_that_leaves_too_few_nodes_to_register_says_out_of_date_not_updating(qtbot, panel, pelvic_nodes,
+                                                                                        tmp_path):
+    from snreg_gui.registration.navigation import OUT_OF_DATE
+
+    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    session = Session.create(tmp_path / "s.h5", case_id="phantom-04")
+    for m in range(3):
+        session.add_intraop_node(intraop.ids[m], intraop.labels[m], intraop.xyz[m])
+    panel.set_session(session)
+    session.add_intraop_node(intraop.ids[3], intraop.labels[3], intraop.xyz[3])
+    with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS):
+        panel.rerun_after_store()
+    assert panel.navigation.targets and not panel.navigation.stale
+    session.remove_intraop_node(intraop.ids[3])
+    session.remove_intraop_node(intraop.ids[2])             # two undone: two nodes left, no run can follow
+    with qtbot.assertNotEmitted(panel.registered, wait=300):
+        panel.rerun_after_store()
+    assert panel.navigation.stale == OUT_OF_DATE and panel.navigation.banner() == OUT_OF_DATE
+    session.close()

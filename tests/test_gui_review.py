@@ -224,6 +224,12 @@ def test_node_labels_close_in_time_go_on_different_rows():
     assert label_rows(np.arange(8) * 0.01, 1.0) == [0, 1, 2, 3, 4, 5, None, None]  # no row free: not shown
 
 
+def test_timeline_labels_as_wide_as_their_text_take_rows_apart():
+    assert label_rows([0.0, 3.0, 6.0], 0.0, [8.0, 1.0, 1.0]) == [0, 1, 0]   # the wide one covers 3 s, not 6 s
+    assert label_rows([0.0, 3.0, 6.0], 0.0) == [0, 0, 0]                    # points: one row
+    assert label_rows([0.0, 1.0, 2.0, 9.0], 0.0, [30.0, 2.0, 1.0, 1.0], max_rows=2) == [0, 1, None, 1]
+
+
 def test_refresh_reads_a_session_still_being_recorded_again(qtbot, screen, tmp_path):
     from snreg.session import Session
     assert not screen.refresh_button.isEnabled()

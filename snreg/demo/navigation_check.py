@@ -12,7 +12,7 @@ navigation_log`); this runs them (two at a time: each renders and tracks) and pr
 - the median distance between the pixel drawn (estimated camera pose) and the prediction's pixel from the true pose, as
   a share of the image's width (goal: at most 1 %).
 
-A run that fails (the demo's rests are timed by the wall clock: a loaded computer can miss a node) is listed with its
+A run that fails (a node never held still within the demo's tours, a run past :data:`TIMEOUT_S`) is listed with its
 message and left out of the figures.
 """
 

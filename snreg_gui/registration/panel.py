@@ -27,8 +27,6 @@ listed apart from the hot spots, drawn in the view and given to each run (:mod:`
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout,
@@ -42,7 +40,7 @@ from snreg.registration.report import (mapped_preop, missing_nodes, node_warning
                                        summary_line)
 from snreg.workflow.chain_change import mixed_calibration_note
 from snreg.workflow.guidance import targets_text
-from snreg.workflow.navigation import UPDATING, NavigationState, navigation_state
+from snreg.workflow.navigation import NavigationState
 from snreg.workflow.registration_run import EXPORTS, RunRecord
 from snreg_gui.common import file_places
 from snreg_gui.common.node_views import PREOP_OUT_OF_DATE, NodeScene, make_node_view
@@ -51,6 +49,7 @@ from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.alignment import AlignmentBox
 from snreg_gui.registration.exports import PanelExports
 from snreg_gui.registration.landmarks import LandmarkTable, PanelLandmarks
+from snreg_gui.registration.navigation import PanelNavigation
 from snreg_gui.registration.node_sets import count_text, has_nodes, made_from, without
 from snreg_gui.registration.preop import PreopSourceBox
 from snreg_gui.registration.runs import PanelRuns
@@ -62,15 +61,12 @@ DEFAULT_METHOD = "global"
 VIEW_SHARE = 0.55           # of the results column's height, for the node view when the panel first shows
 
 
-OUT_OF_DATE = "out of date: nodes changed since this registration; register again"
-
-
 def _shown_rows(record: RunRecord) -> list:
     """The record's pairing rows as the panel shows them: preop ids marked "P:" when they repeat intraop ids."""
     return marked_rows(pair_rows(record.preop, record.intraop, record.result), record.preop.ids)
 
 
-class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWidget):
+class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, PanelNavigation, QWidget):
     """Emits ``registered(RegistrationResult)`` after each successful run; ``last_result`` holds the latest shown."""
 
     registered = Signal(object)
@@ -337,11 +333,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
         self.pairing_table.setEnabled(False)
         self._update_exports()
         self._show_start()
-        if self.missing_nodes:                      # no guidance from a result that no longer answers the inputs
-            self.missing_nodes = []
-            self.missing_label.setText("")
-            self.missing_changed.emit([])
-        self._navigation_stale()
+        self._guidance_out_of_date()
         self._refresh_view()
 
     def _refresh_view(self) -> None:
@@ -358,17 +350,6 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
             scene = NodeScene(moved, intraop, preop_caption=PREOP_OUT_OF_DATE if record is not None else None,
                               **self._landmark_scene(None, np.eye(4) if initial is None else initial))
         self.view.show_scene(scene)
-
-    def _set_navigation(self, state: NavigationState) -> None:
-        self.navigation = state
-        self.navigation_changed.emit(state)
-
-    def _navigation_stale(self) -> None:
-        """The feeds' hot spots are no longer current: greyed, "updating" while a run will answer the nodes stored now,
-        else out of date until the technician registers again."""
-        if (self.navigation.targets or self.navigation.found) and not self.navigation.stale:
-            self._set_navigation(self.navigation.updating(UPDATING if self.auto_rerun.isChecked() or self._registering
-                                                          else OUT_OF_DATE))
 
     # -- results -----------------------------------------------------------------
     def pairs_line(self) -> str:
@@ -395,8 +376,7 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, QWi
         self.missing_label.setText("Not found yet (trocar frame):\n" + targets_text(missing) if missing else "")
         self.missing_nodes = missing
         self.missing_changed.emit(missing)
-        self._set_navigation(NavigationState() if record is None else
-                             replace(navigation_state(record.preop, record.result), targets=tuple(missing)))
+        self._set_navigation(self._navigation_of(record, missing, current))
         self._say("" if record is None else record.note)
         if not current:
             self._inputs_changed()

@@ -7,7 +7,8 @@ acquisition screen: the SPECT nodes not found yet and their expected errors (``m
 panel, using its widgets (``run_button``, ``busy_bar``, ``auto_rerun``, ``alignment``, ``method_combo``, bounds,
 the start (``_start_choice``: gravity or the typed alignment, and why),
 ``pairing_table``, ``include_button``) and state (``_session``, ``_intraop``, ``_excluded``, ``_registering``,
-``_rerun_pending``, ``_auto_pending``, ``_tasks``).
+``_rerun_pending``, ``_auto_pending``, ``_tasks``); the feeds hear of each run through
+:mod:`~snreg_gui.registration.navigation` (``_navigation_stale``, ``_run_coming``: "updating" while a run will answer).
 """
 
 from __future__ import annotations
@@ -53,14 +54,19 @@ class PanelRuns:
         """A node was stored: re-read the session's nodes and, when "register again" is ticked and both node sets
         are there and no run is under way, register again (not stored in the session: Run stores the one that
         counts)."""
-        self.refresh_intraop()
-        if not (self.auto_rerun.isChecked() and has_nodes(self.preop_box.nodes) and self._intraop is not None
-                and len(self._intraop) >= needed_nodes(len(self.landmark_pairs()))):
-            return
-        if self._registering:
-            self._auto_pending = True
-        else:
-            self._start(automatic=True)
+        self._run_coming = self.auto_rerun.isChecked()      # the feeds say "updating" meanwhile, not "out of date"
+        try:
+            self.refresh_intraop()
+            if not (self.auto_rerun.isChecked() and has_nodes(self.preop_box.nodes) and self._intraop is not None
+                    and len(self._intraop) >= needed_nodes(len(self.landmark_pairs()))):
+                return
+            if self._registering:
+                self._auto_pending = True
+            else:
+                self._start(automatic=True)
+        finally:
+            self._run_coming = False
+            self._navigation_stale()                        # out of date when no run follows (too few nodes left)
 
     def _start(self, automatic: bool) -> None:
         """Start a run; an automatic one (after a store) is not stored in the session and leaves Run enabled."""
@@ -113,6 +119,7 @@ class PanelRuns:
 
     def _registration_failed(self, message: str) -> None:
         self._registration_ended()
+        self._navigation_stale()                    # out of date unless another run started
         self._say_problem(message)
 
     def _registration_ended(self) -> None:
