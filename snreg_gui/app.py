@@ -34,7 +34,7 @@ from snreg_gui.acquisition.options import AcquisitionOptions
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
 from snreg_gui.common import wheel_guard
-from snreg_gui.common.live_link import LiveLinkControl
+from snreg_gui.common.live_link import LinkState, LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
 from snreg_gui.registration.demo_spect import DemoSpect
 from snreg_gui.registration.panel import RegistrationPanel
@@ -293,12 +293,14 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         if self.acquisition is not None:
             self.acquisition.set_landmark_names(self.registration.preop_box.landmarks)
 
-    def _link_state(self) -> tuple:
+    def _link_state(self) -> LinkState:
         """What a live-link client sees first: the stored nodes and landmarks, the preop nodes and landmarks, the
-        registration shown (with its pairs line; None without one)."""
+        registration shown while it answers them (with its pairs line) and the hot spots it left unfound."""
         records = self.session.intraop_records(kind=None) if self.session is not None else []
-        result, box = self.registration.last_result, self.registration.preop_box
-        return records, box.nodes, box.landmarks, None if result is None else (result, self.registration.pairs_line())
+        result, box = self.registration.current_result, self.registration.preop_box
+        return LinkState(records, box.nodes, box.landmarks,
+                         None if result is None else (result, self.registration.pairs_line()),
+                         list(self.registration.missing_nodes))
 
     def _stop_acquisition(self) -> None:
         self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say

@@ -89,8 +89,8 @@ class LiveLink(LinkServer):
         self._connected = threading.Event()
         self._drained = threading.Event()
         self._closing = False
-        for device in STORED:                             # a client always gets the lists, empty or not
-            self._offer(device, ([], np.zeros((0, 3))))
+        for device in (*STORED, msg.MISSING_HOT_SPOTS):   # a client always gets the lists, empty or not (a Slicer
+            self._offer(device, ([], np.zeros((0, 3))))    # kept open over a restart then shows no stale hot spots)
         self._offer(msg.STATUS, True)
         self._thread = threading.Thread(target=self._serve, name="snreg-live-link", daemon=True)
         self._thread.start()
@@ -165,6 +165,12 @@ class LiveLink(LinkServer):
         if unchecked:
             said += f" ({unchecked})"
         self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float), f"{said}: {pairs}" if pairs else said)
+
+    def clear_registration(self, why: str = "no current registration") -> None:
+        """No registration answers the nodes now (a new session, or nodes stored since): ``TrocarToRas`` is no longer
+        part of the state a joining client gets, so a stale transform is never given as current, and the status says
+        ``why``. A client already connected keeps the last transform it got (OpenIGTLink cannot take one back)."""
+        self._offer(msg.TROCAR_TO_RAS, None, why)
 
     def set_missing(self, targets) -> None:
         """The hot spots the registration left unfound (:class:`~snreg.registration.report.MissingNode`, where it maps

@@ -101,6 +101,9 @@ class LinkServer:
             frames, fixes, last_frame, action = self._frames, self._fixes, self._last_frame, self._action
             n_nodes, n_landmarks = (len(self._points[device]) for device in STORED)
         for device, data in pending.items():
+            if data is None:                                 # cleared (clear_registration): no longer current state
+                self._current.pop(device, None)
+                continue
             try:
                 payload = self._pack(device, data, now, frames, fixes, last_frame, action, n_nodes, n_landmarks)
             except (ValueError, TypeError) as err:                  # bad data from a caller: say so, keep serving
