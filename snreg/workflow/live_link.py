@@ -10,10 +10,10 @@ closes, its handler loops on ``recv() == b""`` until a send fails; all devices s
 
 Threads: the feeding methods (:meth:`LiveLink.show_frame`, :meth:`~LiveLink.add_node`, ...) only put the newest
 state under a lock and wake the server thread, without a socket call; they are safe from any thread. The server
-thread (:mod:`snreg.workflow.live_server`) owns every socket: it accepts clients, packs what changed and writes without blocking. Per client, only the
-newest message of each device waits (latest wins), so a client that stalls holds at most one message per device
-and is dropped after ``stall_drop_s`` without progress; one that connects gets the node and landmark lists, the
-registration and the status at once; probe poses are sent only while someone listens. Stored landmarks (points of
+thread (:mod:`snreg.workflow.live_server`) owns every socket: it accepts clients, packs what changed and writes
+without blocking. Per client, only the newest message of each device waits (latest wins), so a client that stalls
+holds at most one message per device and is dropped after ``stall_drop_s`` without progress; one that connects gets
+the node and landmark lists, the hot spots not found yet, the current registration and the status at once; probe poses are sent only while someone listens. Stored landmarks (points of
 kind ``landmark``) go to ``IntraopLandmarks``, never to ``IntraopNodes``.
 
 >>> link = LiveLink(18944)                  # LiveLinkError when the port is taken
