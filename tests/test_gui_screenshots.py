@@ -96,7 +96,8 @@ def test_the_guides_set_shoots_tabs_at_every_size_and_wizard_pages_at_the_first_
 def test_a_shot_with_a_condition_is_taken_the_moment_the_screen_meets_it_and_the_guide_has_it_at_1366x768(
         qtbot, tmp_path, monkeypatch):
     """The navigation shots wait for the live feed to draw the hot spot not found yet (in the image, or as an edge
-    arrow): the shot shows it; the guide's set takes them at the second size only (1366x768 in the real run)."""
+    arrow): the shot shows it; the guide's set takes them at the second size only (1366x768 in the real run). A moment
+    that never comes stops the run, or, with ``give_up_s``, is said and not taken."""
     from PySide6.QtCore import QTimer
 
     from snreg_gui.common.feed_view import HotSpotLayer, HotSpotMark
@@ -115,3 +116,5 @@ def test_a_shot_with_a_condition_is_taken_the_moment_the_screen_meets_it_and_the
     monkeypatch.setattr(shooter, "WHEN_TIMEOUT_S", 0.5)
     with pytest.raises(SystemExit, match="the arrow"):
         shots.shoot("navigation-off-screen", window, when=lambda: False, what="the arrow")
+    shots.shoot("navigation-off-screen", window, when=lambda: False, what="edge arrow", give_up_s=0.3)
+    assert len(shots.written) == 1 and shots.missed == ["navigation-off-screen-400x300: no edge arrow within 0 s"]

@@ -39,6 +39,7 @@ from snreg_gui.tools.shooter import DOCS_NAVIGATION, DOCS_TABS, FEED_TIMEOUT_S, 
 SIZES = SCREEN_SIZES[:2]           # 1024x700 and 1366x768: where a cut shows first
 STORE_TIMEOUT_S = 900.0           # the demo's four nodes auto-stored, on a loaded machine
 NAVIGATION_NODES = 3              # stored before the navigation shots: the registration leaves the fourth unfound
+NAVIGATION_WAIT_S = 300.0         # for a navigation shot's moment, without a camera tour to time it by
 SURGERY_FIXES = 20                # fixes per node in the surgery demo's shots
 SURGERY_SCALE = 0.25              # its cameras' resolution, of the thesis' 1920x1080
 # the shots, by the part of the run that takes them (--only picks parts of these names)
@@ -85,10 +86,19 @@ def _navigation(shots: Shooter, window) -> None:
         panel.run_button.click()
     wait_until(lambda: bool(panel.navigation.targets) and not panel.navigation.stale and not panel.busy, 120,
                "a registration that leaves a hot spot unfound")
+    tour_s = _tour_seconds(window.rig)           # a whole tour of the camera: what it never brings, it never will
     shots.shoot("navigation-on-screen", window, when=lambda: on_screen(window),
-                what="the hot spot not found yet inside the left image")
+                what="hot spot not found yet inside the left image", give_up_s=tour_s)
     shots.shoot("navigation-off-screen", window, when=lambda: off_screen(window),
-                what="the hot spot not found yet outside the left image (its edge arrow)")
+                what="hot spot not found yet outside the left image (an edge arrow)", give_up_s=tour_s)
+
+
+def _tour_seconds(rig) -> float:
+    """Wall-clock seconds of one whole tour of the demo's scene and a half, a minute more (its feed runs in real
+    time); NAVIGATION_WAIT_S when the scene has no tour."""
+    scene = getattr(rig, "scene", None)
+    cycle = getattr(scene, "cycle", None)
+    return NAVIGATION_WAIT_S if not cycle else 1.5 * cycle / rig.fps + 60.0
 
 
 def _store_and_register(shots: Shooter, window) -> None:
@@ -282,7 +292,10 @@ def main(argv=None) -> int:
         app.processEvents()
         settings.sync()          # written now, so nothing rewrites the folder once it is deleted
         shutil.rmtree(work, ignore_errors=True)
-    print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank", flush=True)
+    print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank; {len(shots.missed)} not taken",
+          flush=True)
+    for reason in shots.missed:
+        print(f"not taken: {reason}", file=sys.stderr)
     for reason in shots.blank:
         print(f"blank: {reason}", file=sys.stderr)
     return 1 if shots.blank or not shots.written else 0

@@ -55,14 +55,22 @@ def spin(seconds: float) -> None:
         time.sleep(0.01)
 
 
-def wait_until(condition, timeout_s: float, what: str) -> None:
-    """Run the event loop until ``condition()`` holds; SystemExit naming ``what`` after ``timeout_s``."""
+def holds_within(condition, timeout_s: float) -> bool:
+    """Run the event loop until ``condition()`` holds (True, returned at once, nothing handled after it) or
+    ``timeout_s`` passes (False)."""
     deadline = time.monotonic() + timeout_s
     while not condition():
         if time.monotonic() > deadline:
-            raise SystemExit(f"screenshots: gave up waiting for {what} after {timeout_s:.0f} s")
+            return False
         QApplication.processEvents()
         time.sleep(0.01)
+    return True
+
+
+def wait_until(condition, timeout_s: float, what: str) -> None:
+    """Run the event loop until ``condition()`` holds; SystemExit naming ``what`` after ``timeout_s``."""
+    if not holds_within(condition, timeout_s):
+        raise SystemExit(f"screenshots: gave up waiting for {what} after {timeout_s:.0f} s")
 
 
 class Shooter:
@@ -73,6 +81,7 @@ class Shooter:
         self.x11 = QApplication.instance().platformName() == "xcb"
         self.written: list[Path] = []
         self.blank: list[str] = []
+        self.missed: list[str] = []              # shots whose moment never came (``give_up_s``), and why
 
     def wanted(self, *names: str) -> bool:
         """Whether any of these shots is asked for (``--only``: parts of their names; ``--docs``: the guide's set;
@@ -82,10 +91,12 @@ class Shooter:
         return not self.only or any(part in name for name in names for part in self.only)
 
     def shoot(self, name: str, widget: QWidget, box: QWidget | None = None, centre_box: bool = True,
-              when=None, what: str = "") -> None:
+              when=None, what: str = "", give_up_s: float | None = None) -> None:
         """``widget`` resized to each size, once its feeds show frames; ``box`` over it, centred on it (as a message
         box opens) or where it stands. ``when``: a condition the live screen must meet at the instant of the shot
-        (``what`` says it in words): the shot is taken as soon as it holds, with no event handled in between."""
+        (``what`` says it in words): the shot is taken as soon as it holds, with no event handled in between; the run
+        stops when it never does, unless ``give_up_s`` is given: then after that long the shot is not taken, and
+        ``missed`` says so (a moment the demo may never bring, said rather than staged)."""
         if not self.wanted(name):
             return
         from snreg_gui.common.feed_view import FeedView
@@ -98,6 +109,10 @@ class Shooter:
             feeds = [f for f in widget.findChildren(FeedView) if f.isVisible()]
             wait_until(lambda: all(f._image is not None for f in feeds), FEED_TIMEOUT_S, f"a frame on {name}'s feeds")
             spin(0.7)
+            if when is not None and give_up_s is not None and not holds_within(when, give_up_s):
+                self.missed.append(f"{name}-{width}x{height}: no {what or name} within {give_up_s:.0f} s")
+                print(f"MISSED {self.missed[-1]}", flush=True)
+                continue
             image = self._grab(widget, box, when, what or name)
             path = self.out / f"{name}-{width}x{height}.png"
             saved = image.convertToFormat(QImage.Format.Format_Indexed8, Qt.ImageConversionFlag.DiffuseDither) \
