@@ -94,6 +94,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self.registration.navigation_changed.connect(self.navigation_for_worker)
         self.wizards = WizardLauncher(self)
         self.live_link = LiveLinkControl(self.settings, self, self._link_state)
+        self.registration.navigation_changed.connect(self.live_link.follow_navigation)
         self._menus()
         self._wire_review()
         self.live_link.failed.connect(self.statusBar().showMessage)

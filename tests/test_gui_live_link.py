@@ -15,6 +15,7 @@ from snreg.demo.scene import Schedule
 from snreg_gui.app import MainWindow
 from snreg.nodes import NodeSet
 from snreg.registration.report import MissingNode
+from snreg.workflow.navigation import NavigationState
 from snreg_gui.common.live_link import ENABLED_KEY, PORT_KEY, LinkState, LiveLinkControl
 
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
@@ -121,5 +122,13 @@ def test_a_restart_or_reset_sends_the_hot_spots_not_found_yet_again_and_never_a_
         assert joiner.wait_for(lambda c: newest_shown(c, "MissingHotSpots") == []
                                and newest_shown(c, "IntraopNodes") == ["SN1"])
         assert joiner.messages("TrocarToRas") == []
+
+        control.set_registration(*registered)        # registered again, then a node stored with "register again" off
+        assert joiner.wait_for(lambda c: c.messages("TrocarToRas"))
+        control.follow_navigation(NavigationState(found=("P1",), stale="out of date: register again"))
+        assert joiner.wait_for(lambda c: c.messages("Status")[-1].string.endswith("out of date: register again"))
+        late = igtl_client(control.link.port)
+        assert late.wait_for(lambda c: newest_shown(c, "IntraopNodes") == ["SN1"])
+        assert late.messages("TrocarToRas") == []
     finally:
         control.stop(remember=False)

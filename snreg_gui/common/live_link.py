@@ -141,6 +141,13 @@ class LiveLinkControl(QObject):
         if self.link is not None:
             self.link.set_registration(result, pairs)
 
+    def follow_navigation(self, state) -> None:
+        """The registration panel's :class:`~snreg.workflow.navigation.NavigationState`: once it says the result no
+        longer answers the nodes stored now (``stale``, e.g. a node stored with "register again" off, or a run under
+        way), the link stops giving that registration to clients that join, and says why."""
+        if self.link is not None and state.stale:
+            self.link.clear_registration(state.stale)
+
     def set_missing(self, targets) -> None:
         """The hot spots not found yet (MissingNode list, trocar frame), sent as ``MissingHotSpots``."""
         if self.link is not None:
