@@ -25,6 +25,7 @@ _ARROW_PX = 14.0                                 # an edge arrow's length on scr
 _HALO = QColor(0, 0, 0, 210)                     # around a hot spot's words: readable on bright tissue
 _TIP_PX = 5.0                                    # the probe tip marker's radius
 _DEPTH_AT = QPointF(9, -9)                       # the probe's depth label, from the tip marker
+_TITLE_AT = QPointF(6, 16)                       # the feed's title ("left"), its baseline's start
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,7 +154,7 @@ class FeedView(QWidget):
                 painter.setPen(_MESSAGE_COLOUR)
                 painter.drawText(target, Qt.AlignmentFlag.AlignCenter, self.message)
         painter.setPen(Qt.GlobalColor.white)
-        painter.drawText(QPointF(6, 16), self.title)
+        painter.drawText(_TITLE_AT, self.title)
         painter.end()
 
     @staticmethod
@@ -172,7 +173,7 @@ class FeedView(QWidget):
 
     def _paint_hot_spots(self, painter: QPainter, target: QRectF, scale: float) -> None:
         """Each mark's region as a dashed ellipse, or an arrow at the border, with its text beside it, clear of the
-        probe's marker and words, the banner, the note and the other marks' text; grey when not current or not
+        title, the probe's marker and words, the banner, the note and the other marks' text; grey when not current or not
         confident; the banner along the top and the found note along the bottom, each wrapped to the image's width."""
         layer = self.hot_spots
         colour = _TARGET_COLOUR if layer.confident else _STALE_COLOUR
@@ -186,7 +187,7 @@ class FeedView(QWidget):
             (layer.note, target.adjusted(6, 0, -6, -4), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignBottom,
              colour)) if said[0]]
         word_boxes = [_box(painter.boundingRect(where, flags | wrap, text)) for text, where, flags, _ in words]
-        taken = np.vstack([self._probe_boxes(target, scale), np.reshape(word_boxes, (-1, 4))])
+        taken = np.vstack([self._drawn_boxes(target, scale), np.reshape(word_boxes, (-1, 4))])
         area = (target.left(), target.top(), target.right(), target.bottom())
         for mark in layer.marks:
             painter.setPen(QPen(colour, 2, Qt.PenStyle.DashLine if layer.confident else Qt.PenStyle.DotLine))
@@ -228,25 +229,39 @@ class FeedView(QWidget):
         xs, ys = [p.x() for p in corners], [p.y() for p in corners]
         return min(xs), min(ys), max(xs), max(ys)
 
-    def _depth_label(self, tip: QPointF) -> tuple[QPointF, str] | None:
-        """Where the probe's depth label is written (its baseline's start) and what, beside the tip at ``tip``."""
-        return None if self._depth_mm is None else (tip + _DEPTH_AT, f"{self._depth_mm:.1f} mm")
+    def _depth_label(self, tip: QPointF, target: QRectF) -> tuple[QPointF, str] | None:
+        """Where the probe's depth label is written (its baseline's start) and what: up and right of the tip at
+        ``tip``, or up and left where the image ``target`` ends first (it was cut at the right edge)."""
+        if self._depth_mm is None:
+            return None
+        text = f"{self._depth_mm:.1f} mm"
+        at = tip + _DEPTH_AT
+        width = self.fontMetrics().horizontalAdvance(text)
+        if at.x() + width > target.right():
+            at = QPointF(tip.x() - _DEPTH_AT.x() - width, at.y())
+        return at, text
 
-    def _probe_boxes(self, target: QRectF, scale: float) -> np.ndarray:
-        """(K, 4) left, top, right, bottom widget px the probe's overlay covers (tip marker, points along its axis,
-        depth label): a hot spot's words keep clear of them. Empty without a fix."""
-        if self._overlay is None:
-            return np.zeros((0, 4))
-        tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
-        along = [tip + (up - tip) * (k / 8) for k in range(1, 9)]
-        boxes = [[p.x() - r, p.y() - r, p.x() + r, p.y() + r]
-                 for p, r in [(tip, _TIP_PX + 2)] + [(p, 3.0) for p in along]]
-        label = self._depth_label(tip)
-        if label is not None:
-            metrics, (at, text) = self.fontMetrics(), label
-            boxes.append([at.x(), at.y() - metrics.ascent(), at.x() + metrics.horizontalAdvance(text),
-                          at.y() + metrics.descent()])
+    def _drawn_boxes(self, target: QRectF, scale: float) -> np.ndarray:
+        """(K, 4) left, top, right, bottom widget px of what the feed draws besides the hot spots: its title and the
+        probe's overlay (tip marker, points along its axis, depth label); a hot spot's words keep clear of them."""
+        boxes = [self._title_box()]
+        if self._overlay is not None:
+            tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
+            along = [tip + (up - tip) * (k / 8) for k in range(1, 9)]
+            boxes += [[p.x() - r, p.y() - r, p.x() + r, p.y() + r]
+                      for p, r in [(tip, _TIP_PX + 2)] + [(p, 3.0) for p in along]]
+            label = self._depth_label(tip, target)
+            if label is not None:
+                metrics, (at, text) = self.fontMetrics(), label
+                boxes.append([at.x(), at.y() - metrics.ascent(), at.x() + metrics.horizontalAdvance(text),
+                              at.y() + metrics.descent()])
         return np.array(boxes, dtype=float)
+
+    def _title_box(self) -> list[float]:
+        """The box the feed's title covers (left, top, right, bottom widget px)."""
+        metrics = self.fontMetrics()
+        return [_TITLE_AT.x(), _TITLE_AT.y() - metrics.ascent(),
+                _TITLE_AT.x() + metrics.horizontalAdvance(self.title), _TITLE_AT.y() + metrics.descent()]
 
     def _paint_overlay(self, painter: QPainter, target: QRectF, scale: float) -> None:
         tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
@@ -255,7 +270,7 @@ class FeedView(QWidget):
         painter.drawLine(tip, up)
         painter.setBrush(_TIP_COLOUR)
         painter.drawEllipse(tip, _TIP_PX, _TIP_PX)
-        label = self._depth_label(tip)
+        label = self._depth_label(tip, target)
         if label is not None:
             painter.drawText(*label)
 
