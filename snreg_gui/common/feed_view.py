@@ -173,8 +173,9 @@ class FeedView(QWidget):
 
     def _paint_hot_spots(self, painter: QPainter, target: QRectF, scale: float) -> None:
         """Each mark's region as a dashed ellipse, or an arrow at the border, with its text beside it, clear of the
-        title, the probe's marker and words, the banner, the note and the other marks' text; grey when not current or not
-        confident; the banner along the top and the found note along the bottom, each wrapped to the image's width."""
+        title, the probe's marker and words, the banner, the note and the other marks' text; grey when not current or
+        not confident; the banner along the top and the found note along the bottom, each wrapped to the image's
+        width."""
         layer = self.hot_spots
         colour = _TARGET_COLOUR if layer.confident else _STALE_COLOUR
         painter.setRenderHint(QPainter.RenderHint.Antialiasing)
