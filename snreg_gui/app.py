@@ -99,8 +99,7 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self._wire_review()
         self.live_link.failed.connect(self.statusBar().showMessage)
         self.options.switched.connect(self._option_switched)
-        self.registration.registered.connect(
-            lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
+        self.registration.registered.connect(self._send_registration)
         self.registration.preop_box.nodes_changed.connect(self._preop_changed)
         self.registration.preop_box.landmarks_changed.connect(      # a landmark file: the live link's PreopLandmarks
             lambda _: self._preop_changed(self.registration.preop_box.nodes))
@@ -293,6 +292,12 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self.live_link.set_preop_landmarks(self.registration.preop_box.landmarks)
         if self.acquisition is not None:
             self.acquisition.set_landmark_names(self.registration.preop_box.landmarks)
+
+    def _send_registration(self, result) -> None:
+        """A registration done goes to 3D Slicer as current only while it answers the nodes stored now: one that a
+        node stored while it ran made out of date is not sent (the link stopped giving the previous one already)."""
+        if self.registration.current_result is result:
+            self.live_link.set_registration(result, self.registration.pairs_line())
 
     def _link_state(self) -> LinkState:
         """What a live-link client sees first: the stored nodes and landmarks, the preop nodes and landmarks, the

@@ -132,3 +132,25 @@ def test_a_restart_or_reset_sends_the_hot_spots_not_found_yet_again_and_never_a_
         assert late.messages("TrocarToRas") == []
     finally:
         control.stop(remember=False)
+
+
+def test_a_registration_out_of_date_when_it_ends_is_not_sent_as_current(qtbot, settings, igtl_client, monkeypatch):
+    from snreg_gui.registration.panel import RegistrationPanel
+    port = free_port()
+    settings.setValue(ENABLED_KEY, True)
+    settings.setValue(PORT_KEY, port)
+    window = MainWindow(settings=settings)                   # no rig, no session: the link starts with the window
+    qtbot.addWidget(window)
+    try:
+        client = igtl_client(port)
+        assert client.wait_for(lambda c: c.messages("Status"))
+        done = SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5, pairing=np.array([0]))
+        window.registration.registered.emit(done)           # a node was stored while it ran: not current
+        window.live_link.link.flush()
+        assert client.messages("TrocarToRas") == []
+        monkeypatch.setattr(RegistrationPanel, "current_result", property(lambda panel: done))
+        monkeypatch.setattr(RegistrationPanel, "pairs_line", lambda panel: "SN1 -> P1")
+        window.registration.registered.emit(done)           # it answers the nodes stored now: sent
+        assert client.wait_for(lambda c: c.messages("TrocarToRas"))
+    finally:
+        window.shutdown()
