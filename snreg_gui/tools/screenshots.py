@@ -3,6 +3,7 @@
     xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python -m snreg_gui.screenshots -o screenshots/
     QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots -o screenshots/ --only trocar
     QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots --docs -o docs/images/   # the guide's set
+    QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots --docs --only navigation -o docs/images/
 
 ``--camera`` picks the demo (default surgery: the camera slides and turns between nodes, its insertion tracked; still:
 the thesis' phantom). ``--docs`` takes the set the technician's guide shows (issue 35: every tab of the surgery demo
