@@ -34,7 +34,7 @@ from snreg_gui.acquisition.options import AcquisitionOptions
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import AcquisitionWorker, start_worker, stop_worker
 from snreg_gui.common import wheel_guard
-from snreg_gui.common.live_link import LiveLinkControl
+from snreg_gui.common.live_link import LinkState, LiveLinkControl
 from snreg_gui.common.recent import RecentSessions
 from snreg_gui.registration.demo_spect import DemoSpect
 from snreg_gui.registration.panel import RegistrationPanel
@@ -94,12 +94,12 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         self.registration.navigation_changed.connect(self.navigation_for_worker)
         self.wizards = WizardLauncher(self)
         self.live_link = LiveLinkControl(self.settings, self, self._link_state)
+        self.registration.navigation_changed.connect(self.live_link.follow_navigation)
         self._menus()
         self._wire_review()
         self.live_link.failed.connect(self.statusBar().showMessage)
         self.options.switched.connect(self._option_switched)
-        self.registration.registered.connect(
-            lambda result: self.live_link.set_registration(result, self.registration.pairs_line()))
+        self.registration.registered.connect(self._send_registration)
         self.registration.preop_box.nodes_changed.connect(self._preop_changed)
         self.registration.preop_box.landmarks_changed.connect(      # a landmark file: the live link's PreopLandmarks
             lambda _: self._preop_changed(self.registration.preop_box.nodes))
@@ -295,12 +295,20 @@ class MainWindow(WindowClosing, SessionActions, CalibrationApplying, QMainWindow
         if self.acquisition is not None:
             self.acquisition.set_landmark_names(self.registration.preop_box.landmarks)
 
-    def _link_state(self) -> tuple:
+    def _send_registration(self, result) -> None:
+        """A registration done goes to 3D Slicer as current only while it answers the nodes stored now: one that a
+        node stored while it ran made out of date is not sent (the link stopped giving the previous one already)."""
+        if self.registration.current_result is result:
+            self.live_link.set_registration(result, self.registration.pairs_line())
+
+    def _link_state(self) -> LinkState:
         """What a live-link client sees first: the stored nodes and landmarks, the preop nodes and landmarks, the
-        registration shown (with its pairs line; None without one)."""
+        registration shown while it answers them (with its pairs line) and the hot spots it left unfound."""
         records = self.session.intraop_records(kind=None) if self.session is not None else []
-        result, box = self.registration.last_result, self.registration.preop_box
-        return records, box.nodes, box.landmarks, None if result is None else (result, self.registration.pairs_line())
+        result, box = self.registration.current_result, self.registration.preop_box
+        return LinkState(records, box.nodes, box.landmarks,
+                         None if result is None else (result, self.registration.pairs_line()),
+                         list(self.registration.missing_nodes))
 
     def _stop_acquisition(self) -> None:
         self._waiting_for_frames = False        # a frame signal still queued after the stop finds nothing to say

@@ -2,15 +2,21 @@
 client (stored nodes, probe poses), shows the clients and address in the stream-health area, and is remembered."""
 
 import socket
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from conftest import shown
 from PySide6.QtCore import QSettings
+from PySide6.QtWidgets import QWidget
 
 from snreg.demo.rig import DemoRig
 from snreg.demo.scene import Schedule
 from snreg_gui.app import MainWindow
-from snreg_gui.common.live_link import ENABLED_KEY, PORT_KEY
+from snreg.nodes import NodeSet
+from snreg.registration.report import MissingNode
+from snreg.workflow.navigation import NavigationState
+from snreg_gui.common.live_link import ENABLED_KEY, PORT_KEY, LinkState, LiveLinkControl
 
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
@@ -81,3 +87,70 @@ def test_the_link_restarts_with_the_app_on_its_port_and_a_taken_port_says_so(qtb
     finally:
         for window in windows:
             window.shutdown()
+
+
+def newest_shown(client, device):
+    """The names a client was last shown on ``device`` (None before any message)."""
+    messages = client.messages(device)
+    return shown(messages[-1])[0] if messages else None
+
+
+def test_a_restart_or_reset_sends_the_hot_spots_not_found_yet_again_and_never_a_stale_registration(qtbot, settings,
+                                                                                                   igtl_client):
+    parent = QWidget()
+    qtbot.addWidget(parent)
+    sn1 = SimpleNamespace(id="SN1", xyz_trocar=np.array([1.0, 2.0, 3.0]), label="", kind="node")
+    preop = NodeSet(["P1", "P2"], ["", ""], [[1, 2, 3], [4, 5, 6]], frame="LPS")
+    registered = (SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5), "SN1 -> P1")
+    state = [LinkState([sn1], preop, None, registered, [MissingNode(1, "P2", "", np.array([12.0, -30.0, 85.0]), 6.0)])]
+    control = LiveLinkControl(settings, parent, lambda: state[0])
+    try:
+        assert control.start(free_port())           # the link starts after the registration (toggled on, app restored)
+        client = igtl_client(control.link.port)
+        assert client.wait_for(lambda c: newest_shown(c, "MissingHotSpots") == ["P2"] and c.messages("TrocarToRas"))
+        assert np.allclose(client.messages("MissingHotSpots")[-1].positions[0], [12.0, -30.0, 85.0])
+        client.stop()                                # 3D Slicer restarted: it gets the list again on connect
+        restarted = igtl_client(control.link.port)
+        assert restarted.wait_for(lambda c: newest_shown(c, "MissingHotSpots") == ["P2"]
+                                  and newest_shown(c, "IntraopNodes") == ["SN1"] and c.messages("TrocarToRas"))
+
+        state[0] = LinkState([sn1], preop)          # a new session: its registration is not current (or none)
+        control.reset_state()
+        assert restarted.wait_for(lambda c: newest_shown(c, "MissingHotSpots") == []
+                                  and "no current registration" in c.messages("Status")[-1].string)
+        joiner = igtl_client(control.link.port)     # joins after the reset: the stale transform is not given
+        assert joiner.wait_for(lambda c: newest_shown(c, "MissingHotSpots") == []
+                               and newest_shown(c, "IntraopNodes") == ["SN1"])
+        assert joiner.messages("TrocarToRas") == []
+
+        control.set_registration(*registered)        # registered again, then a node stored with "register again" off
+        assert joiner.wait_for(lambda c: c.messages("TrocarToRas"))
+        control.follow_navigation(NavigationState(found=("P1",), stale="out of date: register again"))
+        assert joiner.wait_for(lambda c: c.messages("Status")[-1].string.endswith("out of date: register again"))
+        late = igtl_client(control.link.port)
+        assert late.wait_for(lambda c: newest_shown(c, "IntraopNodes") == ["SN1"])
+        assert late.messages("TrocarToRas") == []
+    finally:
+        control.stop(remember=False)
+
+
+def test_a_registration_out_of_date_when_it_ends_is_not_sent_as_current(qtbot, settings, igtl_client, monkeypatch):
+    from snreg_gui.registration.panel import RegistrationPanel
+    port = free_port()
+    settings.setValue(ENABLED_KEY, True)
+    settings.setValue(PORT_KEY, port)
+    window = MainWindow(settings=settings)                   # no rig, no session: the link starts with the window
+    qtbot.addWidget(window)
+    try:
+        client = igtl_client(port)
+        assert client.wait_for(lambda c: c.messages("Status"))
+        done = SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5, pairing=np.array([0]))
+        window.registration.registered.emit(done)           # a node was stored while it ran: not current
+        window.live_link.link.flush()
+        assert client.messages("TrocarToRas") == []
+        monkeypatch.setattr(RegistrationPanel, "current_result", property(lambda panel: done))
+        monkeypatch.setattr(RegistrationPanel, "pairs_line", lambda panel: "SN1 -> P1")
+        window.registration.registered.emit(done)           # it answers the nodes stored now: sent
+        assert client.wait_for(lambda c: c.messages("TrocarToRas"))
+    finally:
+        window.shutdown()

@@ -454,8 +454,10 @@ def test_changed_inputs_grey_the_result_and_disable_exports_until_the_next_run(q
     load_preop(qtbot, panel, renumbered, tmp_path / "renumbered.csv")
     assert not any(b.isEnabled() for b in buttons) and not panel.pairing_table.isEnabled()
     assert panel.summary.text().startswith("OUT OF DATE")
+    assert panel.last_result is not None and panel.current_result is None     # shown, but not sent as current
     click_run(qtbot, panel)
     assert all(b.isEnabled() for b in buttons) and panel.pairing_table.isEnabled()
+    assert panel.current_result is panel.last_result is not None
     assert table_column(panel.pairing_table, 2) == [renumbered.ids[n] for n in truth]
     for change in (lambda: panel.method_combo.setCurrentText("icp"), lambda: panel.labels_check.toggle(),
                    lambda: panel.rotation_bound.setValue(30.0), lambda: panel.translation_bound.setValue(30.0)):

@@ -1,13 +1,14 @@
-"""The screenshot script (python -m snreg_gui.screenshots): its blank-shot detector, and shots that wait for a frame
-on their feeds (the trocar wizard's was once all black, taken before the first frame). The whole run takes minutes:
-it is run by hand (see its docstring), not here."""
+"""The screenshot script (python -m snreg_gui.screenshots; snreg_gui.tools.shooter takes the shots): its blank-shot
+detector, shots that wait for a frame on their feeds (the trocar wizard's was once all black, taken before the first
+frame), and shots taken the moment the screen shows what they are of (the hot spot not found yet on or off screen).
+The whole run takes minutes: it is run by hand (see its docstring), not here."""
 
 import numpy as np
 import pytest
 from PySide6.QtGui import QColor, QImage
 
-from snreg_gui.tools import screenshots
-from snreg_gui.tools.screenshots import UNIFORM_FEED, Shooter, blank_reason, grey_pixels
+from snreg_gui.tools import shooter
+from snreg_gui.tools.shooter import UNIFORM_FEED, Shooter, blank_reason, grey_pixels
 
 
 def test_blank_images_are_told_from_pages_and_frames():
@@ -65,7 +66,7 @@ def test_a_shot_waits_for_the_first_frame_on_its_feeds(qtbot, tmp_path):
 
 def test_a_feed_without_a_frame_is_reported_blank_or_stops_the_run(qtbot, tmp_path, monkeypatch):
     window, feed = _feed_window(qtbot)
-    monkeypatch.setattr(screenshots, "FEED_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(shooter, "FEED_TIMEOUT_S", 0.5)
     with pytest.raises(SystemExit, match="a frame on feed's feeds"):
         Shooter(tmp_path, [(320, 240)], []).shoot("feed", window)
     feed.show_frame(np.zeros((120, 160, 3), np.uint8))                  # a frame, all black
@@ -90,3 +91,30 @@ def test_the_guides_set_shoots_tabs_at_every_size_and_wizard_pages_at_the_first_
                                                "stereo-1-setup-320x240.png"]
     assert all(QImage(str(p)).format() == QImage.Format.Format_Indexed8 for p in shots.written)
     assert shots.blank == []
+
+
+def test_a_shot_with_a_condition_is_taken_the_moment_the_screen_meets_it_and_the_guide_has_it_at_1366x768(
+        qtbot, tmp_path, monkeypatch):
+    """The navigation shots wait for the live feed to draw the hot spot not found yet (in the image, or as an edge
+    arrow): the shot shows it; the guide's set takes them at the second size only (1366x768 in the real run). A moment
+    that never comes stops the run, or, with ``give_up_s``, is said and not taken."""
+    from PySide6.QtCore import QTimer
+
+    from snreg_gui.common.feed_view import HotSpotLayer, HotSpotMark
+    window, feed = _feed_window(qtbot)
+    feed.show_frame(np.full((120, 160, 3), 90, np.uint8))
+    mark = HotSpotLayer((HotSpotMark("P4 8 mm deeper", np.array([80.0, 60.0]), np.array([30.0, 20.0])),))
+    QTimer.singleShot(2500, lambda: feed.show_hot_spots(mark))         # after the shot's own settling time
+    shots = Shooter(tmp_path, [(320, 240), (400, 300)], [], docs=True)
+    shots.shoot("navigation-on-screen", window, when=lambda: feed.hot_spots is not None, what="the mark")
+    assert [p.name for p in shots.written] == ["navigation-on-screen-400x300.png"]
+    pixels = QImage(str(shots.written[0])).convertToFormat(QImage.Format.Format_RGB888)
+    rgb = np.frombuffer(pixels.constBits(), np.uint8, pixels.bytesPerLine() * pixels.height()).reshape(
+        pixels.height(), pixels.bytesPerLine())[:, :3 * pixels.width()].reshape(pixels.height(), pixels.width(), 3)
+    target = np.all(np.abs(rgb.astype(int) - [80, 200, 255]) < 40, axis=2)      # the mark's colour, drawn
+    assert target.sum() > 50
+    monkeypatch.setattr(shooter, "WHEN_TIMEOUT_S", 0.5)
+    with pytest.raises(SystemExit, match="the arrow"):
+        shots.shoot("navigation-off-screen", window, when=lambda: False, what="the arrow")
+    shots.shoot("navigation-off-screen", window, when=lambda: False, what="edge arrow", give_up_s=0.3)
+    assert len(shots.written) == 1 and shots.missed == ["navigation-off-screen-400x300: no edge arrow within 0 s"]

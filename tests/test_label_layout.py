@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from snreg_gui.common.label_layout import MARKER_PX, fit_camera, label_boxes, place_labels
+from snreg_gui.common.label_layout import MARKER_PX, fit_camera, label_boxes, place_beside, place_labels
 
 
 def _overlap_area(a, b) -> float:
@@ -25,6 +25,21 @@ def test_a_lone_label_sits_just_up_right_of_its_marker_and_stays_inside_the_area
     assert 106.0 < corner[0] < 112.0 and 100.0 - 12.0 - 12.0 < corner[1] < 100.0 - 12.0 - 6.0
     corner = place_labels([[195.0, 5.0]], [[30.0, 12.0]], area=(200.0, 100.0))[0]    # top-right corner
     assert corner[0] >= 0 and corner[1] >= 0 and corner[0] + 30.0 <= 200.0
+
+
+def test_a_label_beside_a_region_goes_right_of_it_unless_something_is_drawn_there():
+    region, size = (100.0, 100.0, 140.0, 130.0), (60.0, 14.0)
+    assert np.allclose(place_beside(region, size), [144.0, 108.0])            # right, centred on the region
+    probe = [[140.0, 95.0, 220.0, 135.0]]                                    # the probe's marker and depth words
+    corner = place_beside(region, size, probe)
+    box = label_boxes(corner, size)[0]
+    assert _overlap_area(box, probe[0]) == 0 and _overlap_area(box, region) == 0
+    assert np.allclose(corner, [36.0, 108.0])                               # left of it, the next choice
+    corner = place_beside(region, size, probe, area=(80.0, 0.0, 300.0, 300.0))   # no room on the left
+    box = label_boxes(corner, size)[0]
+    assert box[0] >= 80.0 and _overlap_area(box, probe[0]) == 0 and _overlap_area(box, region) == 0
+    crowded = [[0.0, 0.0, 300.0, 300.0]]                                      # nowhere free: the least covered
+    assert place_beside(region, size, crowded, area=(0.0, 0.0, 300.0, 300.0)) is not None
 
 
 def test_camera_fit_keeps_a_far_node_in_view_from_any_direction():

@@ -105,6 +105,24 @@ def test_the_hot_spots_not_found_yet_go_as_a_point_list_in_the_trocar_frame(link
     assert client.wait_for(lambda c: shown_list(c, "MissingHotSpots") == ([], []))
 
 
+def test_a_fresh_link_sends_an_empty_missing_list_and_a_cleared_registration_is_not_given_to_joiners(link,
+                                                                                                     igtl_client):
+    first = igtl_client(link.port)                  # before any registration: the list, empty (a hidden point)
+    assert first.wait_for(lambda c: shown_list(c, "MissingHotSpots") == ([], []))
+    link.set_registration(SimpleNamespace(transform=np.eye(4), method="global", rms_mm=0.5))
+    assert first.wait_for(lambda c: c.messages("TrocarToRas"))
+    link.clear_registration("registration out of date")
+    link.flush()
+    assert first.wait_for(lambda c: c.messages("Status")[-1].string.endswith("last: registration out of date"))
+    late = igtl_client(link.port)                   # joins after the clear: no stale transform passes for current
+    assert late.wait_for(lambda c: {"IntraopNodes", "MissingHotSpots", "Status"} <= {m.device_name for m in c.log})
+    assert late.messages("TrocarToRas") == []
+    link.set_registration(SimpleNamespace(transform=np.eye(4), method="icp", rms_mm=0.7))   # a current one again
+    link.flush()
+    again = igtl_client(link.port)
+    assert again.wait_for(lambda c: c.messages("TrocarToRas"))
+
+
 def test_landmarks_have_lists_of_their_own(link, igtl_client):
     client = igtl_client(link.port)
     assert client.wait_for(lambda c: shown_list(c, "IntraopLandmarks") == ([], []))      # empty: the hidden point

@@ -10,10 +10,10 @@ closes, its handler loops on ``recv() == b""`` until a send fails; all devices s
 
 Threads: the feeding methods (:meth:`LiveLink.show_frame`, :meth:`~LiveLink.add_node`, ...) only put the newest
 state under a lock and wake the server thread, without a socket call; they are safe from any thread. The server
-thread owns every socket: it accepts clients, packs what changed and writes without blocking. Per client, only the
-newest message of each device waits (latest wins), so a client that stalls holds at most one message per device
-and is dropped after ``stall_drop_s`` without progress; one that connects gets the node and landmark lists, the
-registration and the status at once; probe poses are sent only while someone listens. Stored landmarks (points of
+thread (:mod:`snreg.workflow.live_server`) owns every socket: it accepts clients, packs what changed and writes
+without blocking. Per client, only the newest message of each device waits (latest wins), so a client that stalls
+holds at most one message per device and is dropped after ``stall_drop_s`` without progress; one that connects gets
+the node and landmark lists, the hot spots not found yet, the current registration and the status at once; probe poses are sent only while someone listens. Stored landmarks (points of
 kind ``landmark``) go to ``IntraopLandmarks``, never to ``IntraopNodes``.
 
 >>> link = LiveLink(18944)                  # LiveLinkError when the port is taken
@@ -26,8 +26,6 @@ kind ``landmark``) go to ``IntraopLandmarks``, never to ``IntraopNodes``.
 from __future__ import annotations
 
 import errno
-import logging
-import selectors
 import socket
 import threading
 import time
@@ -38,24 +36,17 @@ from snreg.errors import LiveLinkError
 from snreg.landmarks import LANDMARK, NODE
 from snreg.registration.landmark_report import unchecked_note
 from snreg.workflow import live_messages as msg
-from snreg.workflow.live_client import Client, LinkStats
+from snreg.workflow.live_client import LinkStats
 from snreg.workflow.live_door import MAX_CLIENTS, Door
+from snreg.workflow.live_server import LISTEN, STORED, LinkServer
 
 __all__ = ["LiveLink", "LinkStats", "LiveLinkError", "STALL_DROP_S", "SEND_BUFFER_BYTES", "MAX_CLIENTS"]
 
-log = logging.getLogger(__name__)
-
 STALL_DROP_S = 10.0             # a client that takes nothing for this long while messages wait is dropped
-STATUS_PERIOD_S = 1.0           # the Status string is recomputed (and sent if it changed) this often
 SEND_BUFFER_BYTES = 8 * 1024    # per client (Linux doubles it): bounds how stale the poses a slow reader gets can be
-_STATE = (msg.INTRAOP_NODES, msg.PREOP_NODES, msg.INTRAOP_LANDMARKS, msg.PREOP_LANDMARKS, msg.TROCAR_TO_RAS,
-          msg.MISSING_HOT_SPOTS, msg.STATUS)                                  # re-sent whole to every new client
-_STORED = (msg.INTRAOP_NODES, msg.INTRAOP_LANDMARKS)     # the stored points' lists, by kind
-_PREOP = (msg.PREOP_NODES, msg.PREOP_LANDMARKS)
-_LISTEN, _WAKE = "listen", "wake"
 
 
-class LiveLink:
+class LiveLink(LinkServer):
     """Serves docs/design.md, Contracts "Live link" on ``host:port`` (port 0: any free port; ``self.port`` says which).
 
     ``host`` is 127.0.0.1 by default, so the surgical data stays on this computer; "0.0.0.0" serves the network.
@@ -79,14 +70,14 @@ class LiveLink:
         self._listener.setblocking(False)
         self.host, self.port = self._listener.getsockname()[:2]
         self._on_clients, self._stall_drop_s, self._send_buffer = on_clients, float(stall_drop_s), int(send_buffer_bytes)
-        self._door = Door(self._listener, max_clients, _LISTEN)          # the cap, and no end at EMFILE
+        self._door = Door(self._listener, max_clients, LISTEN)          # the cap, and no end at EMFILE
         self._wake_r, self._wake_w = socket.socketpair()
         for end in (self._wake_r, self._wake_w):
             end.setblocking(False)
         self._lock = threading.Lock()
         self._pending: dict[str, object] = {}          # device -> what to pack next (latest wins); under _lock
         self._woken = False
-        self._points = {device: {} for device in _STORED}   # stored nodes and landmarks by id, trocar frame
+        self._points = {device: {} for device in STORED}   # stored nodes and landmarks by id, trocar frame
         self._action = "link started"
         self._frames = self._fixes = 0
         self._last_frame = None
@@ -98,8 +89,8 @@ class LiveLink:
         self._connected = threading.Event()
         self._drained = threading.Event()
         self._closing = False
-        for device in _STORED:                             # a client always gets the lists, empty or not
-            self._offer(device, ([], np.zeros((0, 3))))
+        for device in (*STORED, msg.MISSING_HOT_SPOTS):   # a client always gets the lists, empty or not (a Slicer
+            self._offer(device, ([], np.zeros((0, 3))))    # kept open over a restart then shows no stale hot spots)
         self._offer(msg.STATUS, True)
         self._thread = threading.Thread(target=self._serve, name="snreg-live-link", daemon=True)
         self._thread.start()
@@ -131,11 +122,11 @@ class LiveLink:
         """All stored points (objects with ``id``, ``xyz_trocar`` and ``kind``: nodes and landmarks apart), e.g. those
         of a continued session (``session.intraop_records(kind=None)``)."""
         with self._lock:
-            for device in _STORED:
+            for device in STORED:
                 self._points[device] = {}
             for r in records:
                 self._points[_stored_device(r)][str(r.id)] = np.array(r.xyz_trocar, dtype=float)
-            counts = [len(self._points[device]) for device in _STORED]
+            counts = [len(self._points[device]) for device in STORED]
         self._offer_points(msg.INTRAOP_LANDMARKS)
         self._offer_points(msg.INTRAOP_NODES, f"{counts[0]} stored nodes and {counts[1]} landmarks loaded")
 
@@ -174,6 +165,12 @@ class LiveLink:
         if unchecked:
             said += f" ({unchecked})"
         self._offer(msg.TROCAR_TO_RAS, np.array(result.transform, dtype=float), f"{said}: {pairs}" if pairs else said)
+
+    def clear_registration(self, why: str = "no current registration") -> None:
+        """No registration answers the nodes now (a new session, or nodes stored since): ``TrocarToRas`` is no longer
+        part of the state a joining client gets, so a stale transform is never given as current, and the status says
+        ``why``. A client already connected keeps the last transform it got (OpenIGTLink cannot take one back)."""
+        self._offer(msg.TROCAR_TO_RAS, None, why)
 
     def set_missing(self, targets) -> None:
         """The hot spots the registration left unfound (:class:`~snreg.registration.report.MissingNode`, where it maps
@@ -245,155 +242,6 @@ class LiveLink:
         except (BlockingIOError, OSError):
             pass                                   # a wake-up is already waiting, or the link is closed
 
-    # -- internals: the server thread ------------------------------------------------------------
-    def _serve(self) -> None:
-        selector = selectors.DefaultSelector()
-        selector.register(self._listener, selectors.EVENT_READ, _LISTEN)
-        selector.register(self._wake_r, selectors.EVENT_READ, _WAKE)
-        self._health = msg.StreamHealth()
-        next_status = time.monotonic() + STATUS_PERIOD_S
-        try:
-            while not self._closing:
-                self._door.resume_if_due(selector)
-                for key, mask in selector.select(max(0.0, self._door.timeout(next_status - time.monotonic()))):
-                    if key.data == _LISTEN:
-                        self._accept(selector)
-                    elif key.data == _WAKE:
-                        self._drain_wake()
-                    elif mask & selectors.EVENT_READ:
-                        self._read(selector, key.data)
-                now = time.monotonic()
-                if now >= next_status:
-                    with self._lock:
-                        self._pending[msg.STATUS] = True
-                    next_status = now + STATUS_PERIOD_S
-                self._distribute(now)
-                self._write_all(selector, now)
-                self._cpu_s = time.thread_time()
-        except Exception:                                        # the link must not die silently
-            log.exception("the live link stopped")
-        finally:
-            for client in list(self._clients):
-                self._drop(selector, client, None)
-            selector.close()
-            for sock in (self._listener, self._wake_r, self._wake_w):
-                sock.close()
-            self._door.close()
-
-    def _accept(self, selector) -> None:
-        for sock, address in self._door.accept(selector, len(self._clients)):
-            try:
-                sock.setblocking(False)
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self._send_buffer)
-            except OSError:
-                sock.close()
-                continue
-            client = Client(sock, address)
-            for device in _STATE:
-                if device in self._current:
-                    client.queue(device, self._current[device])
-            self._clients.append(client)
-            selector.register(sock, selectors.EVENT_READ, client)
-            self._set_count(+1)
-            self._connected.set()
-
-    def _read(self, selector, client: Client) -> None:
-        """Take and ignore what a client sends (Slicer may query or echo); an empty read means it has gone."""
-        try:
-            data = client.sock.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self._drop(selector, client, "disconnected")
-
-    def _distribute(self, now: float) -> None:
-        with self._lock:
-            pending, self._pending, self._woken = self._pending, {}, False
-            frames, fixes, last_frame, action = self._frames, self._fixes, self._last_frame, self._action
-            n_nodes, n_landmarks = (len(self._points[device]) for device in _STORED)
-        for device, data in pending.items():
-            try:
-                payload = self._pack(device, data, now, frames, fixes, last_frame, action, n_nodes, n_landmarks)
-            except (ValueError, TypeError) as err:                  # bad data from a caller: say so, keep serving
-                log.warning("live link: %s not sent: %s", device, err)
-                continue
-            if payload is None:
-                continue
-            if device in _STATE:
-                self._current[device] = payload
-            for client in self._clients:
-                if client.queue(device, payload):
-                    self._count("messages_replaced")
-
-    def _pack(self, device, data, now, frames, fixes, last_frame, action, n_nodes, n_landmarks) -> bytes | None:
-        if device == msg.PROBE_POSE:
-            return msg.probe_pose(*data)
-        if device in _STORED or device == msg.MISSING_HOT_SPOTS:
-            return msg.point_list(device, *data)
-        if device in _PREOP:
-            return msg.preop_points(*data, device=device)
-        if device == msg.TROCAR_TO_RAS:
-            return msg.trocar_to_ras(data)
-        landmarks = f", {n_landmarks} landmark{'s' if n_landmarks != 1 else ''}" if n_landmarks else ""
-        text = f"{self._health.describe(now, frames, fixes, last_frame)}; {n_nodes} stored{landmarks}; last: {action}"
-        if self._current.get(msg.STATUS) is not None and text == self._health.last_text:
-            return None
-        self._health.last_text = text
-        return msg.status(text)
-
-    def _write_all(self, selector, now: float) -> None:
-        for client in list(self._clients):
-            try:
-                done = client.write(now)
-            except OSError:
-                self._drop(selector, client, "disconnected")
-                continue
-            self._count("messages_sent", done)
-            if client.blocked_since is not None and now - client.blocked_since > self._stall_drop_s:
-                log.warning("live link: dropped %s, which took nothing for %.0f s", client.address, self._stall_drop_s)
-                self._drop(selector, client, "dropped_stalled")
-                continue
-            events = selectors.EVENT_READ | (selectors.EVENT_WRITE if client.waiting else 0)
-            if selector.get_key(client.sock).events != events:
-                selector.modify(client.sock, events, client)
-        waiting = sum(len(c.outbox) + (c.current is not None) for c in self._clients)
-        with self._lock:
-            self._waiting = waiting
-            if not self._pending and not waiting:
-                self._drained.set()
-
-    def _drop(self, selector, client: Client, reason: str | None) -> None:
-        self._clients.remove(client)
-        selector.unregister(client.sock)
-        client.sock.close()
-        if reason:
-            self._count(reason)
-        self._set_count(-1)
-
-    def _drain_wake(self) -> None:
-        try:
-            while self._wake_r.recv(4096):
-                pass
-        except (BlockingIOError, InterruptedError):
-            pass
-
-    def _count(self, name: str, n: int = 1) -> None:
-        with self._lock:
-            self._counts[name] += n
-
-    def _set_count(self, change: int) -> None:
-        with self._lock:
-            self._client_count += change
-            if change > 0:
-                self._counts["clients_seen"] += 1
-        if self._on_clients is not None:
-            try:
-                self._on_clients(self._client_count)
-            except Exception:
-                log.exception("live link: the on_clients callback failed")
 
 
 def _stored_device(point) -> str:

@@ -15,11 +15,17 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QColor, QImage, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QSizePolicy, QWidget
 
+from snreg_gui.common.label_layout import place_beside
+
 _TIP_COLOUR = QColor(255, 220, 0)
 _TARGET_COLOUR = QColor(80, 200, 255)            # a missing SPECT node: where to look
 _STALE_COLOUR = QColor(150, 150, 150)            # ... from a registration that is not current or not confident
 _BANNER_COLOUR = QColor(255, 170, 60)
 _ARROW_PX = 14.0                                 # an edge arrow's length on screen
+_HALO = QColor(0, 0, 0, 210)                     # around a hot spot's words: readable on bright tissue
+_TIP_PX = 5.0                                    # the probe tip marker's radius
+_DEPTH_AT = QPointF(9, -9)                       # the probe's depth label, from the tip marker
+_TITLE_AT = QPointF(6, 16)                       # the feed's title ("left"), its baseline's start
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,6 +68,7 @@ class FeedView(QWidget):
         self._image: QImage | None = None
         self._overlay: np.ndarray | None = None
         self.hot_spots: HotSpotLayer | None = None
+        self.hot_spot_words: list[tuple[str, tuple]] = []   # each text the last paint wrote of them, with its box
         self._depth_mm: float | None = None
         self._points: np.ndarray | None = None
         self._heat: np.ndarray | None = None
@@ -130,6 +137,7 @@ class FeedView(QWidget):
     def paintEvent(self, event) -> None:
         painter = QPainter(self)
         painter.fillRect(self.rect(), Qt.GlobalColor.black)
+        self.hot_spot_words = []
         if self._image is not None:
             target = self._target()
             painter.drawImage(target, self._image)
@@ -146,7 +154,7 @@ class FeedView(QWidget):
                 painter.setPen(_MESSAGE_COLOUR)
                 painter.drawText(target, Qt.AlignmentFlag.AlignCenter, self.message)
         painter.setPen(Qt.GlobalColor.white)
-        painter.drawText(QPointF(6, 16), self.title)
+        painter.drawText(_TITLE_AT, self.title)
         painter.end()
 
     @staticmethod
@@ -164,12 +172,24 @@ class FeedView(QWidget):
         painter.drawEllipse(self._at(target, scale, *self._points[0]), 4.5, 4.5)
 
     def _paint_hot_spots(self, painter: QPainter, target: QRectF, scale: float) -> None:
-        """Each mark's region as a dashed ellipse with its text, or an arrow at the border with its text; grey when
-        not current or not confident; the banner along the top and the found note along the bottom."""
+        """Each mark's region as a dashed ellipse, or an arrow at the border, with its text beside it, clear of the
+        title, the probe's marker and words, the banner, the note and the other marks' text; grey when not current or
+        not confident; the banner along the top and the found note along the bottom, each wrapped to the image's
+        width."""
         layer = self.hot_spots
         colour = _TARGET_COLOUR if layer.confident else _STALE_COLOUR
         painter.setRenderHint(QPainter.RenderHint.Antialiasing)
         painter.setBrush(Qt.BrushStyle.NoBrush)
+        metrics = painter.fontMetrics()
+        wrap = Qt.TextFlag.TextWordWrap
+        words = [said for said in (          # (text, rectangle, alignment, colour), those with something to say
+            (layer.banner, target.adjusted(6, 20, -6, 0), Qt.AlignmentFlag.AlignHCenter | Qt.AlignmentFlag.AlignTop,
+             _BANNER_COLOUR),
+            (layer.note, target.adjusted(6, 0, -6, -4), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignBottom,
+             colour)) if said[0]]
+        word_boxes = [_box(painter.boundingRect(where, flags | wrap, text)) for text, where, flags, _ in words]
+        taken = np.vstack([self._drawn_boxes(target, scale), np.reshape(word_boxes, (-1, 4))])
+        area = (target.left(), target.top(), target.right(), target.bottom())
         for mark in layer.marks:
             painter.setPen(QPen(colour, 2, Qt.PenStyle.DashLine if layer.confident else Qt.PenStyle.DotLine))
             if mark.centre is not None:
@@ -180,31 +200,69 @@ class FeedView(QWidget):
                 painter.rotate(mark.angle_deg)
                 painter.drawEllipse(QPointF(0.0, 0.0), a, b)
                 painter.restore()
-                painter.drawText(centre + QPointF(min(a, b) + 4, 4), mark.text)
+                half_w, half_h = _ellipse_half_extent(a, b, mark.angle_deg)
+                bounds = (centre.x() - half_w, centre.y() - half_h, centre.x() + half_w, centre.y() + half_h)
             elif mark.arrow_at is not None:
-                self._paint_arrow(painter, self._at(target, scale, *mark.arrow_at), mark, colour)
-        painter.setPen(_BANNER_COLOUR)
-        if layer.banner:
-            painter.drawText(target.adjusted(6, 20, -6, 0), Qt.AlignmentFlag.AlignHCenter | Qt.AlignmentFlag.AlignTop,
-                             layer.banner)
-        if layer.note:
-            painter.setPen(colour)
-            painter.drawText(target.adjusted(6, 0, -6, -4), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignBottom,
-                             layer.note)
+                bounds = self._paint_arrow(painter, self._at(target, scale, *mark.arrow_at), mark, colour)
+            else:
+                continue
+            size = (metrics.horizontalAdvance(mark.text), metrics.height())
+            corner = place_beside(bounds, size, taken, area=area)
+            _halo_text(painter, QPointF(corner[0], corner[1] + metrics.ascent()), mark.text, colour)
+            box = [corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]]
+            taken = np.vstack([taken, box])
+            self.hot_spot_words.append((mark.text, tuple(box)))
+        for (text, where, flags, pen), box in zip(words, word_boxes):
+            _halo_text(painter, where, text, pen, flags | wrap)
+            self.hot_spot_words.append((text, tuple(box)))
 
     @staticmethod
-    def _paint_arrow(painter: QPainter, tip: QPointF, mark: HotSpotMark, colour: QColor) -> None:
-        """A filled arrow ending at ``tip`` pointing ``mark.arrow_way``, its text just inside it."""
+    def _paint_arrow(painter: QPainter, tip: QPointF, mark: HotSpotMark, colour: QColor) -> tuple:
+        """A filled arrow ending at ``tip`` pointing ``mark.arrow_way``; its bounds (left, top, right, bottom)."""
         way = QPointF(float(mark.arrow_way[0]), float(mark.arrow_way[1]))
         side = QPointF(-way.y(), way.x())
         base = tip - way * _ARROW_PX
+        corners = [tip, base + side * (_ARROW_PX / 2), base - side * (_ARROW_PX / 2)]
         painter.setPen(QPen(colour, 2))
         painter.setBrush(colour)
-        painter.drawPolygon(QPolygonF([tip, base + side * (_ARROW_PX / 2), base - side * (_ARROW_PX / 2)]))
+        painter.drawPolygon(QPolygonF(corners))
         painter.setBrush(Qt.BrushStyle.NoBrush)
-        width = painter.fontMetrics().horizontalAdvance(mark.text)
-        inside = base - way * 6 - QPointF(width / 2, -4) - QPointF(way.x() * width / 2, way.y() * 8)
-        painter.drawText(inside, mark.text)
+        xs, ys = [p.x() for p in corners], [p.y() for p in corners]
+        return min(xs), min(ys), max(xs), max(ys)
+
+    def _depth_label(self, tip: QPointF, target: QRectF) -> tuple[QPointF, str] | None:
+        """Where the probe's depth label is written (its baseline's start) and what: up and right of the tip at
+        ``tip``, or up and left where the image ``target`` ends first (it was cut at the right edge)."""
+        if self._depth_mm is None:
+            return None
+        text = f"{self._depth_mm:.1f} mm"
+        at = tip + _DEPTH_AT
+        width = self.fontMetrics().horizontalAdvance(text)
+        if at.x() + width > target.right():
+            at = QPointF(tip.x() - _DEPTH_AT.x() - width, at.y())
+        return at, text
+
+    def _drawn_boxes(self, target: QRectF, scale: float) -> np.ndarray:
+        """(K, 4) left, top, right, bottom widget px of what the feed draws besides the hot spots: its title and the
+        probe's overlay (tip marker, points along its axis, depth label); a hot spot's words keep clear of them."""
+        boxes = [self._title_box()]
+        if self._overlay is not None:
+            tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
+            along = [tip + (up - tip) * (k / 8) for k in range(1, 9)]
+            boxes += [[p.x() - r, p.y() - r, p.x() + r, p.y() + r]
+                      for p, r in [(tip, _TIP_PX + 2)] + [(p, 3.0) for p in along]]
+            label = self._depth_label(tip, target)
+            if label is not None:
+                metrics, (at, text) = self.fontMetrics(), label
+                boxes.append([at.x(), at.y() - metrics.ascent(), at.x() + metrics.horizontalAdvance(text),
+                              at.y() + metrics.descent()])
+        return np.array(boxes, dtype=float)
+
+    def _title_box(self) -> list[float]:
+        """The box the feed's title covers (left, top, right, bottom widget px)."""
+        metrics = self.fontMetrics()
+        return [_TITLE_AT.x(), _TITLE_AT.y() - metrics.ascent(),
+                _TITLE_AT.x() + metrics.horizontalAdvance(self.title), _TITLE_AT.y() + metrics.descent()]
 
     def _paint_overlay(self, painter: QPainter, target: QRectF, scale: float) -> None:
         tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
@@ -212,6 +270,31 @@ class FeedView(QWidget):
         painter.setPen(QPen(_TIP_COLOUR, 2))
         painter.drawLine(tip, up)
         painter.setBrush(_TIP_COLOUR)
-        painter.drawEllipse(tip, 5, 5)
-        if self._depth_mm is not None:
-            painter.drawText(tip + QPointF(9, -9), f"{self._depth_mm:.1f} mm")
+        painter.drawEllipse(tip, _TIP_PX, _TIP_PX)
+        label = self._depth_label(tip, target)
+        if label is not None:
+            painter.drawText(*label)
+
+
+def _ellipse_half_extent(a: float, b: float, angle_deg: float) -> tuple[float, float]:
+    """Half the width and height of the box around an ellipse of semi-axes ``a`` (along x before turning) and ``b``
+    turned by ``angle_deg``."""
+    c, s = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    return float(np.hypot(a * c, b * s)), float(np.hypot(a * s, b * c))
+
+
+def _box(rect: QRectF) -> list[float]:
+    """A rectangle as (left, top, right, bottom)."""
+    return [rect.left(), rect.top(), rect.right(), rect.bottom()]
+
+
+def _halo_text(painter: QPainter, where, text: str, colour: QColor, flags=None) -> None:
+    """``text`` in ``colour`` with a dark rim, at a baseline point or (``flags``) in a rectangle: a hot spot's words
+    stay readable over bright tissue and over the grey of an unconfident pairing."""
+    for pen, shifts in ((_HALO, ((-1, 0), (1, 0), (0, -1), (0, 1))), (colour, ((0, 0),))):
+        painter.setPen(pen)
+        for dx, dy in shifts:
+            if flags is None:
+                painter.drawText(where + QPointF(dx, dy), text)
+            else:
+                painter.drawText(where.translated(dx, dy), flags, text)

@@ -7,6 +7,7 @@ fixed list of offsets (growing rings around the marker) where it covers no other
 deterministic and are tested directly, since OpenGL may not render where the tests run.
 
 >>> corners = place_labels(anchors_px, sizes_px)             # (N, 2) top-left corners, pixels
+>>> corner = place_beside(bounds_px, size_px, obstacles_px)   # one label beside a region, clear of what is drawn
 >>> centre, distance = fit_camera(xyz_mm, fov_deg=60, width=800, height=400)
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["place_labels", "label_boxes", "fit_camera"]
+__all__ = ["place_labels", "place_beside", "label_boxes", "fit_camera"]
 
 MARKER_PX = 6.0         # half the side of the square a marker is taken to cover
 GAP_PX = MARKER_PX + 2  # between a marker's centre and the nearest edge of its label: clear of its own marker
@@ -79,6 +80,32 @@ def place_labels(anchors, sizes, *, gap: float = GAP_PX, marker: float = MARKER_
         corners[k] = best
         placed = np.vstack([placed, np.r_[best, best + size]])
     return corners
+
+
+def place_beside(bounds, size, obstacles=(), *, area=None, gap: float = 4.0, rings: int = 6) -> np.ndarray:
+    """Top-left corner (2,) px for a label of ``size`` (w, h) px beside a region ``bounds`` (left, top, right, bottom
+    px; e.g. a hot spot's ellipse): right of it, left, below, above, then its corners, ring by ring outwards (one
+    label height apart, ``rings`` of them), the first spot that covers none of ``obstacles`` (K, 4) boxes (the probe's
+    marker and words, labels placed already) and lies inside ``area`` (left, top, right, bottom) when given; else the
+    least covered. Why: a hot spot's words were drawn under the probe's depth label when the probe rested beside it."""
+    (left, top, right, bottom), (w, h) = np.asarray(bounds, float), np.asarray(size, float)
+    obstacles = np.asarray(obstacles, float).reshape(-1, 4)
+    mid_x, mid_y = (left + right - w) / 2, (top + bottom - h) / 2
+    best, best_cost = None, np.inf
+    for ring in range(rings):
+        d = gap + ring * max(h, 1.0)
+        for x, y in ((right + d, mid_y), (left - d - w, mid_y), (mid_x, bottom + d), (mid_x, top - d - h),
+                     (right + d, top - d - h), (left - d - w, top - d - h), (right + d, bottom + d),
+                     (left - d - w, bottom + d)):
+            box = np.array([x, y, x + w, y + h])
+            cost = _overlap(box, obstacles)
+            if area is not None:             # the part outside the area counts as covered, and more
+                cost += 4.0 * (w * h - _overlap(box, np.asarray(area, float).reshape(1, 4)))
+            if cost == 0.0:
+                return box[:2]
+            if cost + ring < best_cost:
+                best, best_cost = box[:2], cost + ring
+    return best
 
 
 def fit_camera(points, *, fov_deg: float, width: float, height: float, margin: float = 1.15,

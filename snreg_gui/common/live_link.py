@@ -9,6 +9,7 @@ through a Qt signal. The toggle and the port are remembered (QSettings) and the 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from PySide6.QtCore import QObject, QSettings, Signal
 from PySide6.QtGui import QAction
@@ -21,6 +22,20 @@ from snreg.workflow.live_messages import DEFAULT_PORT
 ENABLED_KEY, PORT_KEY = "live_link/enabled", "live_link/port"
 
 
+@dataclass(frozen=True)
+class LinkState:
+    """What a live-link client sees first, whenever the link starts or the session changes: the stored nodes and
+    landmarks (records with ``id``, ``xyz_trocar``, ``kind``), the preop nodes and landmarks (patient LPS NodeSets or
+    None), the registration that answers the nodes stored now with its pairs line (None when there is none or the one
+    shown is out of date: it must not reach Slicer as current), and the hot spots it left unfound (MissingNode list)."""
+
+    records: list = field(default_factory=list)
+    preop: object = None
+    preop_landmarks: object = None
+    registration: tuple | None = None
+    missing: list = field(default_factory=list)
+
+
 class LiveLinkControl(QObject):
     """Owns the link while it is on. ``state_changed(str)``: one line for the stream-health area ("" when off);
     ``failed(str)``: why it could not start. ``current_state()`` gives (stored nodes and landmarks, preop NodeSet, preop
@@ -31,7 +46,7 @@ class LiveLinkControl(QObject):
     failed = Signal(str)
     _clients_changed = Signal(int)              # from the link's thread, queued to this object's
 
-    def __init__(self, settings: QSettings, parent: QWidget, current_state: Callable[[], tuple]):
+    def __init__(self, settings: QSettings, parent: QWidget, current_state: Callable[[], LinkState]):
         super().__init__(parent)
         self._settings, self._parent, self._current_state = settings, parent, current_state
         self.link: LiveLink | None = None
@@ -84,15 +99,20 @@ class LiveLinkControl(QObject):
         self._set_checked(False)
 
     def reset_state(self) -> None:
-        """Send the whole current state again (after a session change)."""
+        """Send the whole current state again (the link started, or the session changed): the nodes, the registration
+        only while it answers them (else the one sent before stops being given as current), and the hot spots it
+        left unfound, so a Slicer that connects after a restart of either side finds them all."""
         if self.link is None:
             return
-        records, preop, preop_landmarks, registration = self._current_state()
-        self.link.set_intraop_nodes(records)
-        self.link.set_preop_nodes(preop)
-        self.link.set_preop_landmarks(preop_landmarks)
-        if registration is not None:
-            self.link.set_registration(*registration)
+        state = self._current_state()
+        self.link.set_intraop_nodes(state.records)
+        self.link.set_preop_nodes(state.preop)
+        self.link.set_preop_landmarks(state.preop_landmarks)
+        if state.registration is not None:
+            self.link.set_registration(*state.registration)
+        else:
+            self.link.clear_registration()
+        self.link.set_missing(state.missing)
 
     # -- feeding, in the GUI thread (each call returns at once) ---------------------------
     def show_result(self, result) -> None:
@@ -120,6 +140,13 @@ class LiveLinkControl(QObject):
     def set_registration(self, result, pairs: str = "") -> None:
         if self.link is not None:
             self.link.set_registration(result, pairs)
+
+    def follow_navigation(self, state) -> None:
+        """The registration panel's :class:`~snreg.workflow.navigation.NavigationState`: once it says the result no
+        longer answers the nodes stored now (``stale``, e.g. a node stored with "register again" off, or a run under
+        way), the link stops giving that registration to clients that join, and says why."""
+        if self.link is not None and state.stale:
+            self.link.clear_registration(state.stale)
 
     def set_missing(self, targets) -> None:
         """The hot spots not found yet (MissingNode list, trocar frame), sent as ``MissingHotSpots``."""

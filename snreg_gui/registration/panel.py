@@ -352,6 +352,11 @@ class RegistrationPanel(PanelRuns, PanelStart, PanelExports, PanelLandmarks, Pan
         self.view.show_scene(scene)
 
     # -- results -----------------------------------------------------------------
+    @property
+    def current_result(self):
+        """The result shown while it answers the inputs (the nodes stored now, the preop set, ...); None otherwise."""
+        return self.last_result if self._record_current else None
+
     def pairs_line(self) -> str:
         """The result shown, one line: which hot spot each intraop node came from ("" without a result)."""
         record = self._record

@@ -3,19 +3,24 @@
     xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python -m snreg_gui.screenshots -o screenshots/
     QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots -o screenshots/ --only trocar
     QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots --docs -o docs/images/   # the guide's set
+    QT_QPA_PLATFORM=offscreen .venv/bin/python -m snreg_gui.screenshots --docs --only navigation -o docs/images/
 
 ``--camera`` picks the demo (default surgery: the camera slides and turns between nodes, its insertion tracked; still:
 the thesis' phantom). ``--docs`` takes the set the technician's guide shows (issue 35: every tab of the surgery demo
-with nothing cut, at both sizes; each wizard page at the smallest, where a cut would show first), saved with a
-palette of 256 colours so the set stays small in the repository.
+with nothing cut, at both sizes; each wizard page at the smallest, where a cut would show first; issue 36: the
+acquisition feed with the hot spot not found yet on screen and off screen, at 1366x768), saved with a palette of 256
+colours so the set stays small in the repository.
 
 Why: offscreen tests prove behaviour, not that a screen reads well. This drives the demo as an operator would
-(auto-store the four phantom nodes, register against the phantom SPECT, go through both calibration wizards
-page by page on their rendered scenes and finish them, refuse a store with the IMU unplugged, ask on close,
+(auto-store the four phantom nodes, pausing after three while the registration that follows each store leaves the
+fourth hot spot unfound, to shoot the feed when that hot spot lies in the left image and when it lies outside it
+with its edge arrow, as the camera's tour takes it; register against the phantom SPECT, go through both calibration
+wizards page by page on their rendered scenes and finish them, refuse a store with the IMU unplugged, ask on close,
 review the session) and saves each screen as ``<name>-<W>x<H>.png``. Under X (Xvfb) a shot is what the X
 server shows; offscreen, the widget's own rendering. A shot is taken only once every camera feed on it shows a
 frame, and the run fails (exit status 1) when any shot is blank: the whole image, or a feed's area, one flat
-colour (:func:`blank_reason`), as the trocar wizard's shot once was, taken before its first frame.
+colour (:func:`~snreg_gui.tools.shooter.blank_reason`), as the trocar wizard's shot once was, taken before its
+first frame.
 """
 
 from __future__ import annotations
@@ -24,149 +29,88 @@ import argparse
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
-from PySide6.QtCore import QPoint, QSettings, Qt
-from PySide6.QtGui import QImage, QPainter
-from PySide6.QtWidgets import QApplication, QMessageBox, QWidget, QWizard
+from PySide6.QtCore import QSettings
+from PySide6.QtWidgets import QApplication, QMessageBox, QWizard
 
 from snreg_gui.tools.layout_check import SCREEN_SIZES
+from snreg_gui.tools.shooter import DOCS_NAVIGATION, DOCS_TABS, FEED_TIMEOUT_S, Shooter, spin, wait_until
 
 SIZES = SCREEN_SIZES[:2]           # 1024x700 and 1366x768: where a cut shows first
-FEED_TIMEOUT_S = 180.0            # a rendered scene's first frame, on a loaded machine
 STORE_TIMEOUT_S = 900.0           # the demo's four nodes auto-stored, on a loaded machine
+NAVIGATION_NODES = 3              # stored before the navigation shots: the registration leaves the fourth unfound
+NAVIGATION_WAIT_S = 300.0         # for a navigation shot's moment, without a camera tour to time it by
 SURGERY_FIXES = 20                # fixes per node in the surgery demo's shots
 SURGERY_SCALE = 0.25              # its cameras' resolution, of the thesis' 1920x1080
-UNIFORM_IMAGE = 0.999            # a whole shot this uniform is blank (a page of text is far from it)
-UNIFORM_FEED = 0.985             # a feed's area this uniform shows no frame (a caption on black)
 # the shots, by the part of the run that takes them (--only picks parts of these names)
-PHASES = {"tabs": ("tab-1-acquisition", "tab-2-registration", "tab-3-review"),
+PHASES = {"navigation": DOCS_NAVIGATION,
+          "tabs": DOCS_TABS,
           "stereo": ("stereo-1-setup", "stereo-2-capture", "paused-for-calibration", "stereo-3-calibrate",
                      "stereo-4-save", "stereo-5-applied"),
           "trocar": ("trocar-1-method", "trocar-2-pivot", "trocar-2-tissue", "trocar-3-arc", "trocar-4-manual",
                      "trocar-5-summary", "trocar-6-applied"),
           "refusal": ("refused-store", "close-question"),
           "replay": ("replay-acquisition",)}
-# --docs: the tabs at every size, these wizard pages at the first size only
-DOCS_TABS = PHASES["tabs"]
-DOCS_PAGES = ("stereo-1-setup", "stereo-2-capture", "stereo-3-calibrate", "stereo-4-save", "trocar-1-method",
-              "trocar-2-pivot", "trocar-2-tissue", "trocar-3-arc", "trocar-4-manual", "trocar-5-summary")
 
 
-def blank_reason(grey: np.ndarray, uniform: float = UNIFORM_IMAGE, tolerance: int = 6) -> str | None:
-    """Why a (H, W) 8-bit grey image counts as blank, or None: more than ``uniform`` of its pixels within
-    ``tolerance`` of its median (all black, all grey, a caption on black)."""
-    grey = np.asarray(grey)
-    if grey.size == 0:
-        return "empty image"
-    median = float(np.median(grey))
-    flat = float(np.mean(np.abs(grey.astype(np.int16) - median) <= tolerance))
-    return f"{flat:.1%} of the pixels are the one value {median:.0f}" if flat > uniform else None
+def hot_spot_marks(window) -> tuple:
+    """The marks the acquisition's left feed draws now of the hot spots not found yet (() without any)."""
+    layer = window.acquisition.left_feed.hot_spots
+    return () if layer is None else layer.marks
 
 
-def grey_pixels(image: QImage) -> np.ndarray:
-    """(H, W) uint8 grey levels of a QImage."""
-    grey = image.convertToFormat(QImage.Format.Format_Grayscale8)
-    width, height, stride = grey.width(), grey.height(), grey.bytesPerLine()
-    if width == 0 or height == 0:
-        return np.zeros((0, 0), np.uint8)
-    return np.frombuffer(grey.constBits(), np.uint8, stride * height).reshape(height, stride)[:, :width].copy()
+def on_screen(window) -> bool:
+    """A hot spot not found yet is drawn inside the left image (its 90 % ellipse)."""
+    return any(mark.centre is not None for mark in hot_spot_marks(window))
 
 
-def _spin(seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        QApplication.processEvents()
-        time.sleep(0.01)
+def off_screen(window) -> bool:
+    """A hot spot not found yet lies outside the left image: drawn as an arrow at its edge."""
+    return any(mark.arrow_at is not None for mark in hot_spot_marks(window))
 
 
-def wait_until(condition, timeout_s: float, what: str) -> None:
-    """Run the event loop until ``condition()`` holds; SystemExit naming ``what`` after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise SystemExit(f"screenshots: gave up waiting for {what} after {timeout_s:.0f} s")
-        QApplication.processEvents()
-        time.sleep(0.01)
+def _navigation(shots: Shooter, window) -> None:
+    """Three nodes auto-stored, then auto-store off; once a registration of them leaves a hot spot unfound, the
+    acquisition tab when the left feed draws it inside the image and when it draws it as an edge arrow (the surgery
+    camera's tour decides which, so each shot waits for its own)."""
+    screen, panel = window.acquisition, window.registration
+    wait_until(lambda: screen.nodes.rowCount() >= NAVIGATION_NODES, STORE_TIMEOUT_S,
+               f"{NAVIGATION_NODES} nodes to be stored")
+    screen.auto_store.setChecked(False)
+    if screen.nodes.rowCount() != NAVIGATION_NODES:
+        raise SystemExit(f"screenshots: {screen.nodes.rowCount()} nodes were stored before auto-store was switched "
+                         f"off; the navigation shots need {NAVIGATION_NODES}")
+    wait_until(lambda: panel.preop_box.nodes is not None, 60, "the phantom SPECT")
+    wait_until(lambda: not panel.busy, 120, "the registration after the third store")
+    if not panel.navigation.targets or panel.navigation.stale:   # the SPECT came after the stores: register now
+        panel.run_button.click()
+    wait_until(lambda: bool(panel.navigation.targets) and not panel.navigation.stale and not panel.busy, 120,
+               "a registration that leaves a hot spot unfound")
+    tour_s = _tour_seconds(window.rig)           # a whole tour of the camera: what it never brings, it never will
+    shots.shoot("navigation-on-screen", window, when=lambda: on_screen(window),
+                what="hot spot not found yet inside the left image", give_up_s=tour_s)
+    shots.shoot("navigation-off-screen", window, when=lambda: off_screen(window),
+                what="hot spot not found yet outside the left image (an edge arrow)", give_up_s=tour_s)
 
 
-class Shooter:
-    """Saves shots of a widget (or a window with a box over it) at each size and keeps the blank ones' reasons."""
-
-    def __init__(self, out: Path, sizes, only: list[str], docs: bool = False):
-        self.out, self.sizes, self.only, self.docs = out, sizes, only, docs
-        self.x11 = QApplication.instance().platformName() == "xcb"
-        self.written: list[Path] = []
-        self.blank: list[str] = []
-
-    def wanted(self, *names: str) -> bool:
-        """Whether any of these shots is asked for (``--only``: parts of their names; ``--docs``: the guide's set;
-        neither: all)."""
-        if self.docs and not any(name in DOCS_TABS + DOCS_PAGES for name in names):
-            return False
-        return not self.only or any(part in name for name in names for part in self.only)
-
-    def shoot(self, name: str, widget: QWidget, box: QWidget | None = None, centre_box: bool = True) -> None:
-        """``widget`` resized to each size, once its feeds show frames; ``box`` over it, centred on it (as a message
-        box opens) or where it stands."""
-        if not self.wanted(name):
-            return
-        from snreg_gui.common.feed_view import FeedView
-        for width, height in self.sizes if not self.docs or name in DOCS_TABS else self.sizes[:1]:
-            widget.move(0, 0)                        # all of it on the screen, whatever its size
-            widget.resize(width, height)
-            _spin(0.8)
-            if box is not None and centre_box:
-                box.move(widget.mapToGlobal(widget.rect().center()) - box.rect().center())
-            feeds = [f for f in widget.findChildren(FeedView) if f.isVisible()]
-            wait_until(lambda: all(f._image is not None for f in feeds), FEED_TIMEOUT_S, f"a frame on {name}'s feeds")
-            _spin(0.7)
-            image = self._grab(widget, box)
-            path = self.out / f"{name}-{width}x{height}.png"
-            saved = image.convertToFormat(QImage.Format.Format_Indexed8, Qt.ImageConversionFlag.DiffuseDither) \
-                if self.docs else image
-            saved.save(str(path), quality=0 if self.docs else -1)          # 0: PNG's strongest compression
-            self.written.append(path)
-            self._check(path, image, widget, feeds)
-            print(f"wrote {path} ({image.width()}x{image.height()})", flush=True)
-
-    def _grab(self, widget: QWidget, box: QWidget | None) -> QImage:
-        widget.raise_()
-        widget.activateWindow()
-        if box is not None:
-            box.raise_()
-        _spin(0.3)
-        if self.x11:                                 # what the X server shows: the window and any box over it
-            top = widget.mapToGlobal(QPoint(0, 0))
-            return widget.screen().grabWindow(0, top.x(), top.y(), widget.width(), widget.height()).toImage()
-        image = widget.grab().toImage().convertToFormat(QImage.Format.Format_RGB32)
-        if box is not None:
-            painter = QPainter(image)
-            corner = box.mapToGlobal(QPoint(0, 0)) - widget.mapToGlobal(QPoint(0, 0))
-            painter.drawPixmap(corner, box.grab())
-            painter.end()
-        return image
-
-    def _check(self, path: Path, image: QImage, widget: QWidget, feeds) -> None:
-        grey = grey_pixels(image)
-        problems = [reason for reason in [blank_reason(grey)] if reason]
-        for feed in feeds:
-            corner = feed.mapTo(widget, QPoint(0, 0))
-            area = grey[corner.y():corner.y() + feed.height(), corner.x():corner.x() + feed.width()]
-            reason = blank_reason(area, UNIFORM_FEED)
-            if reason:
-                problems.append(f"feed '{feed.title}': {reason}")
-        for reason in problems:
-            self.blank.append(f"{path.name}: {reason}")
-            print(f"BLANK {path.name}: {reason}", flush=True)
+def _tour_seconds(rig) -> float:
+    """Wall-clock seconds of one whole tour of the demo's scene and a half, a minute more (its feed runs in real
+    time); NAVIGATION_WAIT_S when the scene has no tour."""
+    scene = getattr(rig, "scene", None)
+    cycle = getattr(scene, "cycle", None)
+    return NAVIGATION_WAIT_S if not cycle else 1.5 * cycle / rig.fps + 60.0
 
 
 def _store_and_register(shots: Shooter, window) -> None:
     from snreg.demo.scene import NODE_CENTRES_MM
     screen, panel = window.acquisition, window.registration
     screen.auto_store.setChecked(True)
+    if shots.wanted(*PHASES["navigation"]):
+        _navigation(shots, window)
+        if not shots.wanted(*PHASES["tabs"], *PHASES["refusal"], *PHASES["replay"]):
+            return
+        screen.auto_store.setChecked(True)
     wait_until(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), STORE_TIMEOUT_S, "the four nodes to be stored")
     screen.auto_store.setChecked(False)
     shots.shoot("tab-1-acquisition", window)
@@ -211,7 +155,7 @@ def _shoot_calibration_box(shots: Shooter, window, name: str) -> None:
     shots.shoot(name, window, box=box)
     keep = [b for b in box.buttons() if box.buttonRole(b) == QMessageBox.ButtonRole.RejectRole]
     (keep or box.buttons())[0].click()
-    _spin(0.5)
+    spin(0.5)
 
 
 def _trocar_wizard(shots: Shooter, window) -> None:
@@ -290,7 +234,7 @@ def _review(shots: Shooter, window) -> None:
         window.tabs.setCurrentWidget(window._acquisition_tab)
         wait_until(lambda: window.acquisition.nodes.rowCount() == 0 and window.acquisition._last_result is not None,
                    120, "the replay's first frame")
-        _spin(3.0)
+        spin(3.0)
         shots.shoot("replay-acquisition", window)
 
 
@@ -332,7 +276,7 @@ def main(argv=None) -> int:
     window.resize(*shots.sizes[0])
     window.show()
     try:
-        stored = shots.wanted(*PHASES["tabs"], *PHASES["refusal"])
+        stored = shots.wanted(*PHASES["tabs"], *PHASES["refusal"], *PHASES["navigation"])
         if stored:
             _store_and_register(shots, window)
         if shots.wanted(*PHASES["stereo"]):
@@ -349,7 +293,10 @@ def main(argv=None) -> int:
         app.processEvents()
         settings.sync()          # written now, so nothing rewrites the folder once it is deleted
         shutil.rmtree(work, ignore_errors=True)
-    print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank", flush=True)
+    print(f"{len(shots.written)} screenshots in {out}; {len(shots.blank)} blank; {len(shots.missed)} not taken",
+          flush=True)
+    for reason in shots.missed:
+        print(f"not taken: {reason}", file=sys.stderr)
     for reason in shots.blank:
         print(f"blank: {reason}", file=sys.stderr)
     return 1 if shots.blank or not shots.written else 0
