@@ -8,7 +8,7 @@ import pytest
 
 from snreg.workflow.navigation import NOT_CONFIDENT, UPDATING
 from snreg_gui.common.feed_view import FeedView, HotSpotLayer, HotSpotMark
-from snreg_gui.registration.panel import OUT_OF_DATE            # the longest banner
+from snreg_gui.registration.navigation import OUT_OF_DATE       # the longest banner
 
 
 def _overlap(a, b) -> float:

@@ -15,8 +15,7 @@ from dataclasses import replace
 
 from snreg.workflow.navigation import UPDATING, NavigationState, navigation_state
 
-OUT_OF_DATE = ("out of date: nodes or settings changed since this registration; press Run registration on the "
-               "Registration tab")
+OUT_OF_DATE = "out of date since nodes or settings changed: press Run registration"   # short: it lies over the feeds
 
 
 class PanelNavigation:
