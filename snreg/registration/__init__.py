@@ -29,7 +29,7 @@ from snreg.registration._landmark_fit import checkable
 from snreg.registration._methods import METHOD_TABLE, nearest_claimants
 from snreg.registration._model import source_posterior, squared_distances
 from snreg.registration._problem import make_problem
-from snreg.registration.confidence import claim_confidence, posterior_weights, source_probabilities
+from snreg.registration.confidence import claim_confidence, claim_temperature, posterior_weights, source_probabilities
 from snreg.registration.pairing import RULES, pair, shared
 from snreg.registration.target import target_error_bound
 
@@ -139,12 +139,12 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     problem, correction, base, candidates = fit.problem, fit.correction, fit.base, fit.candidates
 
     ranked, weights = posterior_weights(candidates)
-    sources, extra = source_probabilities(problem, ranked)
+    sources, _ = source_probabilities(problem, ranked)
     # global names the most probable source over its candidates; the others label at their own transform
     own_sources = sources if fit.sources_over_candidates else source_posterior(problem, base)
     pairings = {r: pair(r, problem, correction, own_sources) for r in RULES}
     pairing = pairings[rule]
-    confidence = claim_confidence(pairing, sources, extra)
+    confidence = claim_confidence(pairing, *source_probabilities(problem, ranked, claim_temperature(problem, ranked[0])))
     moved = geometry.apply(correction, problem.preop)
     d2 = squared_distances(moved, problem.intraop)
     # a node from no hot spot: its distance to the nearest mapped hot spot, a remark for screens, not a pairing
