@@ -54,8 +54,14 @@ def test_headless_demo_records_registers_and_reports(tmp_path, capsys):
         assert set(session.calibration()) == {"stereo", "chain"}
         assert all(len(node.left_jpeg) > 0 for node in session.intraop_records())
     assert (tmp_path / "demo-spect.dcm").exists()
+    # the SPECT's report names each hot spot's station, as the label typed at its node's store does
+    assert (tmp_path / "demo-stations.csv").read_text().splitlines()[0] == "id,station"
+    with Session.open(path) as session:
+        preop_labels = dict(zip(session.preop_nodes().ids, session.preop_nodes().labels))
+    assert all(preop_labels[node["preop"]] == node["label"] for node in out["nodes"])
     # the default path needs no typed angle: the SPECT's nodes, then the session, from gravity
-    assert main(["preop", str(tmp_path / "demo-spect.dcm"), "-o", str(tmp_path / "p.csv")]) == 0
+    assert main(["preop", str(tmp_path / "demo-spect.dcm"), "-o", str(tmp_path / "p.csv"), "--stations",
+                 str(tmp_path / "demo-stations.csv")]) == 0
     assert "table tilt 30 deg head down (default)" in capsys.readouterr().out
     assert main(["register", str(tmp_path / "p.csv"), str(path), "--labels", "--json"]) == 0    # README's command
     registered = json.loads(capsys.readouterr().out)

@@ -26,7 +26,7 @@ import numpy as np
 
 from snreg import geometry
 from snreg.demo.navigation_log import NavigationLog, hot_spot_truth
-from snreg.demo.phantom import PHANTOM_LABELS
+from snreg.demo.phantom import PHANTOM_LABELS, hot_spot_of_sources, spect_report, write_station_table
 from snreg.demo.rest_log import RestLog
 from snreg.demo.rig import DEMO_FPS, DemoRig
 from snreg.demo.scene import NODE_CENTRES_MM, Schedule
@@ -120,6 +120,13 @@ def spect_path_for(session_path: str | Path) -> Path:
     return session_path.with_name(session_path.stem + "-spect.dcm")
 
 
+def stations_path_for(session_path: str | Path) -> Path:
+    """Where the demo writes the SPECT's report of stations: beside the session, ``<name>-stations.csv`` (``snreg preop
+    <name>-spect.dcm --stations <name>-stations.csv`` reads the preop nodes as the demo did)."""
+    session_path = Path(session_path)
+    return session_path.with_name(session_path.stem + "-stations.csv")
+
+
 class _TimedLink:
     """Calls into the live link (none without one), with the wall time the calling thread spends in them."""
 
@@ -158,7 +165,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     except DemoError as err:
         raise DemoError(f"{err}; the recording so far is kept in {folder} to look at (delete it when done), and "
                         f"{target.name} was not written, so the same command can run again") from None
-    publish(folder, target, replaceable=(spect_path_for(target).name,))
+    publish(folder, target, replaceable=(spect_path_for(target).name, stations_path_for(target).name))
     return replace(run, session_path=target, spect_path=spect_path_for(target))
 
 
@@ -183,7 +190,11 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
             sources = rig.phantom_sources_lps()         # the SPECT is there before surgery: registered after each store
             spect = rig.write_phantom_spect(spect_path_for(session_path))
             volume = load_volume(spect)
-            preop = segment_nodes(volume, n_nodes=N_NODES).nodes
+            found = segment_nodes(volume, n_nodes=N_NODES).nodes
+            # the SPECT as reported: each hot spot's station, as the labels typed at the stores name theirs
+            stations = spect_report(found.ids, found.xyz, sources)
+            write_station_table(stations_path_for(session_path), stations)
+            preop = segment_nodes(volume, n_nodes=N_NODES, stations=stations).nodes
             session.set_preop_nodes(preop, down=volume_down(volume))
             feed("set_preop_nodes", preop)
             started = time.perf_counter()
@@ -201,11 +212,20 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
             feed("set_missing", missing_nodes(preop, result))
     finally:
         rig.close()
-    truth = _true_pairing(preop.xyz, sources, stored_at)
+    truth = hot_spot_of_sources(preop.xyz, sources)[stored_at]
     return HeadlessResult(session_path, spect, result, intraop.ids, intraop.labels, intraop.xyz, preop.ids,
                           bool(np.array_equal(result.pairing, truth)), frames, rig.nodes_trocar()[stored_at], camera,
                           tracking, recording_s, feed.seconds, feed.calls, intraop.cov,
                           tuple(weighed[side] is not None for side in ("intraop", "preop")), tuple(navigation.entries))
+
+
+def _registered_or_none(register_now) -> RegistrationResult | None:
+    """The registration after a store, or None when the nodes stored so far do not register yet (too few pairs by
+    their sides, no fit within the bounds): the feeds then draw no hot spot, as the app's would, and the tour goes on."""
+    try:
+        return register_now()
+    except ValueError:                  # NoFitError, TooFewPairsError: the next store may answer
+        return None
 
 
 def _register(session: Session, preop) -> RegistrationResult:
@@ -256,7 +276,7 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
                                                    right_jpeg=frame.right))
                 stored_at.append(node)
                 if register_now is not None and navigation is not None and len(stored_at) >= MIN_NODES:
-                    navigation.registered(register_now())
+                    navigation.registered(_registered_or_none(register_now))
                     feed("set_missing", list(navigation.state.targets))
             at_rest = 0 if node is None else at_rest + 1
             if due or at_rest == _GIVE_UP_WINDOWS * fixes_per_node:      # stored, or never still: the probe lifts
@@ -288,9 +308,3 @@ def _wait_for_imu(rig: DemoRig) -> bool:
         time.sleep(0.02)
     return False
 
-
-def _true_pairing(preop_xyz, sources, stored_at: list[int]) -> np.ndarray:
-    """The preop index each stored node should pair with: the segmented node nearest the source the probe rested on
-    when it was stored."""
-    preop_of_source = np.argmin(np.linalg.norm(sources[:, None, :] - preop_xyz[None, :, :], axis=2), axis=1)
-    return preop_of_source[stored_at]

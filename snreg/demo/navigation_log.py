@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snreg import geometry
+from snreg.demo.phantom import hot_spot_of_sources
 from snreg.registration import RegistrationResult
 from snreg.registration.report import MissingNode
 from snreg.workflow.navigation import NavigationState, Project, hot_spot_view, navigation_state
@@ -30,8 +31,7 @@ __all__ = ["NavigationLog", "hot_spot_truth"]
 def hot_spot_truth(preop_xyz, sources, nodes_trocar) -> dict[int, tuple[int, np.ndarray]]:
     """Preop index -> (phantom node, its true trocar position (3,) mm) for each hot spot: the segmented hot spot
     nearest each phantom source is that node's (the correspondence the demo's pairing is scored by)."""
-    preop_xyz, sources = np.asarray(preop_xyz, float), np.asarray(sources, float)
-    nearest = np.argmin(np.linalg.norm(sources[:, None, :] - preop_xyz[None, :, :], axis=2), axis=1)
+    nearest = hot_spot_of_sources(preop_xyz, sources)
     return {int(k): (n, np.asarray(nodes_trocar[n], float)) for n, k in enumerate(nearest)}
 
 
@@ -58,9 +58,11 @@ class NavigationLog:
     result: RegistrationResult | None = None
     state: NavigationState = NavigationState()
 
-    def registered(self, result: RegistrationResult) -> None:
-        """The registration of the nodes stored now: the frames after this one are drawn from it."""
-        self.result, self.state = result, navigation_state(self.preop, result)
+    def registered(self, result: RegistrationResult | None) -> None:
+        """The registration of the nodes stored now: the frames after this one are drawn from it (None: they do not
+        register yet, so nothing is drawn or logged)."""
+        self.result = result
+        self.state = NavigationState() if result is None else navigation_state(self.preop, result)
 
     def frame(self, index: int, t_s: float, camera_from_trocar: np.ndarray, true_camera_from_trocar: np.ndarray,
               tip_trocar, found_nodes: set[int]) -> None:

@@ -96,3 +96,26 @@ def rough_alignment(preop_lps: np.ndarray, intraop_trocar: np.ndarray) -> np.nda
     rotation = invert(setup_patient_from_trocar(NOMINAL_TILT_DEG))[:3, :3]
     shift = np.mean(intraop_trocar, axis=0) - rotation @ np.mean(preop_lps, axis=0)
     return make_transform(rotation, shift)
+
+
+def hot_spot_of_sources(preop_xyz, sources) -> np.ndarray:
+    """(S,) for each phantom source (S, 3) LPS mm, the index of the segmented hot spot nearest it: the correspondence
+    the demo's pairing, its navigation and its SPECT report are judged by."""
+    preop_xyz, sources = np.asarray(preop_xyz, float).reshape(-1, 3), np.asarray(sources, float).reshape(-1, 3)
+    return np.argmin(np.linalg.norm(sources[:, None, :] - preop_xyz[None, :, :], axis=2), axis=1)
+
+
+def spect_report(preop_ids, preop_xyz, sources) -> dict[str, str]:
+    """The phantom SPECT as a nuclear-medicine physician reports it: each hot spot's station (``{"P1": "EXT"}``), the
+    station written on the phantom source it shows (:data:`PHANTOM_LABELS`), as a report names each sentinel node's
+    station on the SPECT/CT (thesis Table 1); a ``snreg preop --stations`` table."""
+    nearest = hot_spot_of_sources(preop_xyz, sources)
+    return {str(preop_ids[k]): PHANTOM_LABELS[n].split()[0] for n, k in enumerate(nearest)}
+
+
+def write_station_table(path: str | Path, stations: dict[str, str]) -> Path:
+    """Write ``stations`` as ``snreg preop --stations`` reads it (CSV ``id,station``)."""
+    path = Path(path)
+    path.write_text("id,station\n" + "".join(f"{i},{station}\n" for i, station in sorted(stations.items())),
+                    encoding="utf-8")
+    return path
