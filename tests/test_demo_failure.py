@@ -102,8 +102,7 @@ def test_the_interactive_demo_rests_leave_seconds_to_press_store_sn_and_the_head
     assert rest_s - window_s >= 10.0                               # "ready" at a full-rate feed
     assert rest_s - 2 * window_s >= 8.0                            # and when the feed processes every other frame
     # the headless demo's rests are held until stored (issue 35): nominally one window at the full rate and a second
-    for camera in ("still", "surgery"):
-        assert headless.rest_frames_for(camera, THESIS_FIXES_PER_NODE) == THESIS_FIXES_PER_NODE + 30
+    assert headless.rest_frames_for(THESIS_FIXES_PER_NODE) == THESIS_FIXES_PER_NODE + 30
 
 
 def test_a_rests_frames_pair_every_left_exposure_with_every_right_one():

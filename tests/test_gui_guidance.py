@@ -133,3 +133,12 @@ def test_the_worker_draws_from_the_cameras_pose_at_the_frames_orientation_and_in
     moved, _, _ = worker._hot_spots(unslid, ImuReading(orientation))
     np.testing.assert_allclose(moved.marks[0].centre, left.marks[0].centre, atol=0.05)   # still on the axis...
     assert moved.marks[0].axes[0] == pytest.approx(left.marks[0].axes[0] * 120.0 / 130.0, rel=0.01)   # 10 mm deeper
+
+
+def test_a_hot_spot_whose_region_is_unknown_says_so_instead_of_a_precise_point():
+    known = MissingNode(2, "P3", "INT R", np.array([10.0, -5.0, 120.0]), 6.0)
+    unknown = MissingNode(3, "P4", "INT L", np.array([-10.0, 5.0, 120.0]), float("nan"))
+    state = NavigationState((known, unknown), (), confident=True)
+    views = navigate(list(state.targets), np.eye(4), StereoTracker(CALIBRATION).project, CALIBRATION.image_size)
+    texts = [mark.text for mark in feed_layer(views, 0, state, DISPLAY_SCALE).marks]
+    assert texts == ["P3", "P4 (region unknown)"]

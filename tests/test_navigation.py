@@ -7,8 +7,8 @@ from snreg import geometry
 from snreg.camera import thesis_calibration
 from snreg.registration.report import MissingNode
 from snreg.tracking.stereo import StereoTracker
-from snreg.workflow.navigation import (EDGE_MARGIN_FRACTION, camera_pose, edge_arrow, hot_spot_view, navigate,
-                                       nearest_words, region_ellipse, view_words)
+from snreg.workflow.navigation import (EDGE_MARGIN_FRACTION, edge_arrow, hot_spot_view, navigate,
+                                       nearest_words, region_ellipse, trocar_from_camera_at, view_words)
 
 FOCAL, SIZE = 1000.0, (1920, 1080)
 CENTRE_PX = np.array([960.0, 540.0])
@@ -115,10 +115,10 @@ def test_the_camera_pose_is_the_chain_at_the_frames_insertion_and_orientation():
 
     chain = surgery_demo_chain()
     orientation = geometry.rotation_from_euler(10.0, 20.0, -5.0)
-    np.testing.assert_allclose(camera_pose(chain, orientation), trocar_from_camera(chain, orientation))
+    np.testing.assert_allclose(trocar_from_camera_at(chain, orientation), trocar_from_camera(chain, orientation))
 
     slid = chain.with_insertion(float(np.linalg.norm(chain.imu_from_camera[:3, 3])) - chain.imu_trocar_mm + 15.0)
     step = type("Step", (), {"chain": slid})()          # an InsertionStep's chain at the frame's insertion
-    moved = camera_pose(chain, orientation, step)
+    moved = trocar_from_camera_at(chain, orientation, step)
     np.testing.assert_allclose(moved, trocar_from_camera(slid, orientation))
-    assert not np.allclose(moved[:3, 3], camera_pose(chain, orientation)[:3, 3])
+    assert not np.allclose(moved[:3, 3], trocar_from_camera_at(chain, orientation)[:3, 3])

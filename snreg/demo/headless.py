@@ -43,7 +43,7 @@ from snreg.registration.wording import confidence_value, labels_given, used_inpu
 from snreg.session import Session
 from snreg.tracking.stereo import StereoTracker
 from snreg.workflow.acquisition import STILL_SPREAD_MM, Acquisition, ImuReading
-from snreg.workflow.navigation import camera_pose
+from snreg.workflow.navigation import trocar_from_camera_at
 from snreg.workflow.node_registration import node_covariances, register_nodes
 from snreg.workflow.registration_start import session_gravity
 
@@ -169,7 +169,7 @@ def run_headless(session_path: str | Path, *, seed: int = 0, fixes_per_node: int
     return replace(run, session_path=target, spect_path=spect_path_for(target))
 
 
-def rest_frames_for(camera: str, fixes_per_node: int) -> int:
+def rest_frames_for(fixes_per_node: int) -> int:
     """The headless demo's rests, in frames, before the technician holds on (:class:`~snreg.demo.held_tour.HeldTour`):
     the frames a node needs at the full rate and a second more (either camera). A rest ends when its node is stored,
     so it is shorter when the computer keeps up, and held longer when the live feed skips frames (a loaded computer):
@@ -180,7 +180,7 @@ def rest_frames_for(camera: str, fixes_per_node: int) -> int:
 def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, link, errors, video: bool, camera: str,
          camera_tracking: bool, fps: float = DEMO_FPS) -> HeadlessResult:
     """:func:`run_headless` into ``session_path`` as it is (the staging folder's)."""
-    schedule = Schedule(rest_frames=rest_frames_for(camera, fixes_per_node))
+    schedule = Schedule(rest_frames=rest_frames_for(fixes_per_node))
     rig = DemoRig(scale=scale, schedule=schedule, seed=seed, errors=errors, camera=camera, fps=fps, hold_rests=True,
                   release_lead_s=_RELEASE_LEAD_S)
     feed = _TimedLink(link)
@@ -265,7 +265,7 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
             feed("show_frame", outcome)
             first_ns = frame.t_left_ns if first_ns is None else first_ns
             if navigation is not None:
-                estimated = geometry.invert(camera_pose(acquisition.chain, reading.earth_from_imu, outcome.insertion))
+                estimated = geometry.invert(trocar_from_camera_at(acquisition.chain, reading.earth_from_imu, outcome.insertion))
                 navigation.frame(frame.index, (frame.t_left_ns - first_ns) * 1e-9, estimated,
                                  geometry.invert(rig.true_trocar_from_camera(tour)), outcome.tip_trocar,
                                  set(stored_at))

@@ -41,7 +41,7 @@ def marked_rows(rows: list[PairRow], preop_ids) -> list[PairRow]:
 
 
 def marked_missing(missing: list[MissingNode], intraop_ids, preop_ids) -> list[MissingNode]:
-    """Missing preop nodes named as :func:`shown_preop_ids` names them (for the guidance and the feeds' circle)."""
+    """Missing preop nodes named as :func:`shown_preop_ids` names them (for the guidance and the hot spots the feeds draw)."""
     if not ids_collide(preop_ids, intraop_ids):
         return list(missing)
     return [replace(node, preop_id=PREOP_MARK + node.preop_id) for node in missing]

@@ -6,7 +6,7 @@ screen, 12 mm deeper").
 Why: the surgeon's question is "where are the hot spots I have not found yet?", and the surgeon looks at the
 endoscope's image, not at the trocar's axes. The registration maps each hot spot into the trocar frame
 (:func:`snreg.registration.report.missing_nodes`); the camera's pose at a frame (the chain at the IMU's orientation
-and the camera's insertion: :func:`camera_pose`) and the stereo calibration's projection carry it onto both images.
+and the camera's insertion: :func:`trocar_from_camera_at`) and the stereo calibration's projection carry it onto both images.
 The 90 % region is the sphere of radius ``bound_mm`` about the mapped position (the registration reports no
 covariance per hot spot); its image is taken through the projection's Jacobian at the centre, the linear image of
 that sphere.
@@ -30,7 +30,7 @@ from snreg.chain import ChainCalibration, trocar_from_camera
 from snreg.registration import CONFIDENT
 from snreg.registration.report import MissingNode, missing_nodes
 
-__all__ = ["Ellipse", "EdgeArrow", "EyeMark", "HotSpotView", "camera_pose", "navigate", "hot_spot_view",
+__all__ = ["Ellipse", "EdgeArrow", "EyeMark", "HotSpotView", "trocar_from_camera_at", "navigate", "hot_spot_view",
            "region_ellipse", "edge_arrow", "view_words", "nearest_words", "NavigationState", "navigation_state",
            "NEAR_PLANE_MM", "EDGE_MARGIN_FRACTION", "NOT_CONFIDENT", "UPDATING"]
 
@@ -105,7 +105,7 @@ class HotSpotView:
         return f"{abs(self.deeper_mm):.0f} mm {'deeper' if self.deeper_mm > 0 else 'nearer'}"
 
 
-def camera_pose(chain: ChainCalibration, earth_from_imu, step=None) -> np.ndarray:
+def trocar_from_camera_at(chain: ChainCalibration, earth_from_imu, step=None) -> np.ndarray:
     """(4, 4) ``trocar_from_camera`` at a frame as acquisition maps it: the chain at the camera's insertion of that
     frame (``step``, an :class:`~snreg.workflow.insertion.InsertionStep`; None: the chain's own distance) at the IMU's
     orientation ``earth_from_imu`` (3, 3)."""

@@ -9,6 +9,8 @@ greyed then, never drawn as if confident.
 
 from __future__ import annotations
 
+import numpy as np
+
 from snreg.workflow.navigation import HotSpotView, NavigationState, nearest_words
 from snreg_gui.common.feed_view import HotSpotLayer, HotSpotMark
 
@@ -21,7 +23,8 @@ def feed_layer(views: list[HotSpotView], eye: int, state: NavigationState, scale
     marks = []
     for view in views:
         mark = view.eyes[eye]
-        text = " ".join(filter(None, (view.target.preop_id, view.depth_words())))
+        unknown = "" if np.isfinite(view.target.bound_mm) else "(region unknown)"   # drawn as a point, not as precise
+        text = " ".join(filter(None, (view.target.preop_id, view.depth_words(), unknown)))
         if mark.ellipse is not None:
             marks.append(HotSpotMark(text, scale * mark.ellipse.centre, scale * mark.ellipse.axes,
                                      mark.ellipse.angle_deg))

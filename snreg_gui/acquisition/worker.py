@@ -34,7 +34,7 @@ from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acqui
                                         StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
 from snreg.workflow.insertion import CameraInsertion
-from snreg.workflow.navigation import NavigationState, camera_pose, navigate
+from snreg.workflow.navigation import NavigationState, navigate, trocar_from_camera_at
 from snreg_gui.acquisition.hot_spots import feed_layer, guidance_text
 
 _AXIS_DRAWN_MM = 50.0
@@ -272,7 +272,7 @@ class AcquisitionWorker(QObject):
         state = self._navigation
         views = []
         if state.targets:
-            pose = camera_pose(self.acquisition.chain, reading.earth_from_imu, outcome.insertion)
+            pose = trocar_from_camera_at(self.acquisition.chain, reading.earth_from_imu, outcome.insertion)
             views = navigate(list(state.targets), geometry.invert(pose), self.acquisition.tracker.project,
                              self.acquisition.tracker.calibration.image_size, outcome.tip_trocar)
         return (*(feed_layer(views, eye, state, DISPLAY_SCALE) for eye in (0, 1)), guidance_text(views, state))
