@@ -26,15 +26,14 @@ import numpy as np
 
 from snreg import geometry
 from snreg.demo.navigation_log import NavigationLog, hot_spot_truth
-from snreg.demo.phantom import PHANTOM_LABELS, hot_spot_of_sources, spect_report, write_station_table
+from snreg.demo.phantom import PHANTOM_LABELS, hot_spot_of_sources
+from snreg.demo.phantom_preop import N_NODES, spect_path_for, stations_path_for, write_phantom_preop
 from snreg.demo.rest_log import RestLog
 from snreg.demo.rig import DEMO_FPS, DemoRig
-from snreg.demo.scene import NODE_CENTRES_MM, Schedule
+from snreg.demo.scene import Schedule
 from snreg.demo.staging import publish, staging_folder
 from snreg.odometry import InsertionTracker
 from snreg.preop.gravity import volume_down
-from snreg.preop.segment import segment_nodes
-from snreg.preop.volume import load_volume
 from snreg.nodes import NodeFile
 from snreg.registration import RegistrationResult
 from snreg.registration.naming import pairs_line
@@ -47,7 +46,6 @@ from snreg.workflow.navigation import trocar_from_camera_at
 from snreg.workflow.node_registration import node_covariances, register_nodes
 from snreg.workflow.registration_start import session_gravity
 
-N_NODES = len(NODE_CENTRES_MM)
 MIN_NODES = 3              # stored nodes a registration needs (the phantom has no landmarks)
 # The demo registers as ``snreg register SESSION.h5`` does (:func:`~snreg.workflow.node_registration.register_nodes`:
 # each node's covariance, the landmarks) with the labels typed on the phantom, which that command uses when asked:
@@ -114,19 +112,6 @@ class HeadlessResult:
                 "spect": str(self.spect_path), "navigation": list(self.navigation)}
 
 
-def spect_path_for(session_path: str | Path) -> Path:
-    """Where the demo writes the phantom's SPECT: beside the session, ``<name>-spect.dcm``."""
-    session_path = Path(session_path)
-    return session_path.with_name(session_path.stem + "-spect.dcm")
-
-
-def stations_path_for(session_path: str | Path) -> Path:
-    """Where the demo writes the SPECT's report of stations: beside the session, ``<name>-stations.csv`` (``snreg preop
-    <name>-spect.dcm --stations <name>-stations.csv`` reads the preop nodes as the demo did)."""
-    session_path = Path(session_path)
-    return session_path.with_name(session_path.stem + "-stations.csv")
-
-
 class _TimedLink:
     """Calls into the live link (none without one), with the wall time the calling thread spends in them."""
 
@@ -188,14 +173,9 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
         with Session.create(session_path, case_id="phantom-demo") as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
             sources = rig.phantom_sources_lps()         # the SPECT is there before surgery: registered after each store
-            spect = rig.write_phantom_spect(spect_path_for(session_path))
-            volume = load_volume(spect)
-            found = segment_nodes(volume, n_nodes=N_NODES).nodes
-            # the SPECT as reported: each hot spot's station, as the labels typed at the stores name theirs
-            stations = spect_report(found.ids, found.xyz, sources)
-            write_station_table(stations_path_for(session_path), stations)
-            preop = segment_nodes(volume, n_nodes=N_NODES, stations=stations).nodes
-            session.set_preop_nodes(preop, down=volume_down(volume))
+            written = write_phantom_preop(rig, session_path)      # the SPECT and its report of stations
+            spect, preop = written.spect_path, written.nodes
+            session.set_preop_nodes(preop, down=volume_down(written.volume))
             feed("set_preop_nodes", preop)
             started = time.perf_counter()
             tracking = camera_tracking and rig.moving_camera
