@@ -12,71 +12,39 @@ from a file of their own, "clear" forgets them (:mod:`snreg_gui.registration.pre
 >>> box.nodes_changed.connect(panel_slot)      # NodeSet, LPS mm for a SPECT
 >>> box.load("spect_folder")                   # or a .csv / .mrk.json node file
 >>> box.load_landmarks("ct_landmarks.mrk.json")  # RAS or LPS; box.landmarks in LPS, landmarks_changed emitted
+>>> box.load_stations("report_stations.csv")    # a SPECT's hot spots labelled "EXT L"... (preop_stations)
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSlider, QSpinBox
 
-from snreg.nodes import NodeSet, read_node_file
-from snreg.preop import Volume, load_volume, segment_nodes
-from snreg.preop.gravity import PreopDown, volume_down
+from snreg.nodes import NodeSet
+from snreg.preop import Volume
+from snreg.preop.gravity import PreopDown
 from snreg_gui.common import file_places
 from snreg_gui.common.workers import WorkerSet, sentence
 from snreg_gui.registration.preop_marks import BoxLandmarks, plural
+from snreg_gui.registration.preop_read import PreopRead, read_preop, segment
+from snreg_gui.registration.preop_stations import BoxStations
 from snreg_gui.registration.tables import NodeTable
 
 DEFAULT_THRESHOLD_PERCENT = 30          # snreg preop's default, 0.3 x maximum
 RESEGMENT_DELAY_MS = 250
-NODE_FILE_SUFFIXES = (".csv", ".json", ".txt")
 
 
-@dataclass(frozen=True)
-class PreopRead:
-    """The outcome of one read or segmentation: nodes, the volume they came from (None for a node file), the node
-    file's landmarks (None for a SPECT or a file without any), and what gives their down: the SPECT's patient position,
-    or the one a node file's comments record (None: none recorded)."""
-
-    generation: int
-    nodes: NodeSet
-    volume: Volume | None
-    source: str
-    landmarks: NodeSet | None = None
-    down: PreopDown | None = None
-
-
-def read_preop(generation: int, path: str, threshold: float, n_nodes: int | None) -> PreopRead:
-    """Read a node file, or load a SPECT (NM) volume and segment it (worker thread)."""
-    location = Path(path)
-    if not location.exists():
-        raise ValueError(f"{location}: no such file or folder; choose a node file or a SPECT DICOM file or folder")
-    if location.is_file() and location.name.lower().endswith(NODE_FILE_SUFFIXES):
-        read = read_node_file(location)
-        return PreopRead(generation, read.nodes, None, location.name,
-                         read.landmarks if len(read.landmarks) else None,
-                         PreopDown.from_comments(read.nodes.comments, location.name))
-    volume = load_volume(location, modality="NM")
-    return segment(generation, volume, threshold, n_nodes, location.name)
-
-
-def segment(generation: int, volume: Volume, threshold: float, n_nodes: int | None, source: str) -> PreopRead:
-    """Segment an already loaded volume (worker thread); its down from its Patient Position (snreg's default tilt)."""
-    return PreopRead(generation, segment_nodes(volume, threshold=threshold, n_nodes=n_nodes).nodes, volume, source,
-                     down=volume_down(volume))
-
-
-class PreopSourceBox(BoxLandmarks, QGroupBox):
+class PreopSourceBox(BoxStations, BoxLandmarks, QGroupBox):
     """Open buttons, threshold slider, node-count box, status line and the table of preop nodes.
 
     Emits ``nodes_changed(NodeSet)`` whenever the preop nodes change (file read, re-segmented, or
     :meth:`set_nodes`); ``down`` is then what gives their down as read (:class:`PreopDown`, None when the source
     records none). ``status`` says how many nodes were found, or what went wrong, in one sentence. Emits
     ``landmarks_changed(NodeSet or None)`` when a landmark file is read or the landmarks cleared (with nodes, the
-    landmarks read with them come with ``nodes_changed``).
+    landmarks read with them come with ``nodes_changed``). A SPECT's hot spots carry the stations of its report once
+    one is read (:meth:`load_stations`, "Stations...": :mod:`snreg_gui.registration.preop_stations`).
     """
 
     nodes_changed = Signal(object)
@@ -120,7 +88,7 @@ class PreopSourceBox(BoxLandmarks, QGroupBox):
 
     def _layout(self) -> None:
         buttons = QHBoxLayout()
-        for button in (self.open_file_button, self.open_spect_button, self.open_folder_button):
+        for button in (self.open_file_button, self.open_spect_button, self.open_folder_button, self._stations_button()):
             buttons.addWidget(button)
         threshold = QHBoxLayout()
         threshold.addWidget(self.threshold_slider)
@@ -144,16 +112,18 @@ class PreopSourceBox(BoxLandmarks, QGroupBox):
 
     @property
     def busy(self) -> bool:
-        return self._loading or self._segmenting or self.marks_reading or self._timer.isActive()
+        return (self._loading or self._segmenting or self.stations_reading or self.marks_reading
+                or self._timer.isActive())
 
-    def load(self, path) -> None:
-        """Read a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker."""
+    def load(self, path, stations=None) -> None:
+        """Read a node file (.csv, .mrk.json) or a SPECT DICOM file or folder, in a worker; a SPECT's hot spots
+        labelled with the station table at ``stations`` when given (the stations of an earlier SPECT never carry over)."""
         self._generation += 1
         self._loading, self._pending = True, False
         self._timer.stop()
         self.status.setText(f"reading {Path(path).name}...")
         self._tasks.start(read_preop, self._generation, str(path), self.threshold, self.n_nodes,
-                          returned=self._read_done, errored=self._failed)
+                          None if stations is None else str(stations), returned=self._read_done, errored=self._failed)
 
     def set_nodes(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None,
                   down: PreopDown | None = None) -> None:
@@ -163,6 +133,7 @@ class PreopSourceBox(BoxLandmarks, QGroupBox):
         self._volume, self._loading, self._pending = None, False, False
         self._timer.stop()
         self._set_spect_controls(False)
+        self.stations, self.stations_source = None, ""
         self._show(nodes, source, landmarks, down, replace_marks=True)
 
     def shutdown(self) -> None:
@@ -197,17 +168,18 @@ class PreopSourceBox(BoxLandmarks, QGroupBox):
     def _set_spect_controls(self, enabled: bool) -> None:
         self.threshold_slider.setEnabled(enabled)
         self.count_spin.setEnabled(enabled)
+        self.stations_button.setEnabled(enabled)
 
     def _resegment(self) -> None:
         if self._volume is None:
             return
-        if self._segmenting:
+        if self._segmenting or self.stations_reading:
             self._pending = True
             return
         self._segmenting = True
         self.status.setText(f"segmenting at {self.threshold:.2f} x maximum...")
         self._tasks.start(segment, self._generation, self._volume, self.threshold, self.n_nodes, self._source,
-                          returned=self._segment_done, errored=self._failed)
+                          self.stations, self.stations_source, returned=self._segment_done, errored=self._failed)
 
     def _read_done(self, read: PreopRead) -> None:
         if read.generation != self._generation:
@@ -215,22 +187,23 @@ class PreopSourceBox(BoxLandmarks, QGroupBox):
         self._loading = False
         self._volume = read.volume
         self._set_spect_controls(read.volume is not None)
-        self._show(read.nodes, read.source, read.landmarks, read.down)
+        self._show_read(read)
 
     def _segment_done(self, read: PreopRead) -> None:
         self._segmenting = False
         if read.generation == self._generation:
-            self._show(read.nodes, read.source, read.landmarks, read.down)
-        if self._pending:
-            self._pending = False
-            self._resegment()
+            self._show_read(read)
+        self._run_pending()
 
     def _failed(self, message: str) -> None:
         self._loading = self._segmenting = False
         self.status.setText(sentence(message))
-        if self._pending:
-            self._pending = False
-            self._resegment()
+        self._run_pending()
+
+    def _show_read(self, read: PreopRead) -> None:
+        """Show a worker's nodes with the stations they were labelled with."""
+        self.stations, self.stations_source = read.stations, read.stations_source
+        self._show(read.nodes, read.source, read.landmarks, read.down)
 
     def _show(self, nodes: NodeSet | None, source: str, landmarks: NodeSet | None = None,
               down: PreopDown | None = None, replace_marks: bool = False) -> None:
@@ -247,7 +220,7 @@ class PreopSourceBox(BoxLandmarks, QGroupBox):
         count = plural(0 if nodes is None else len(nodes), "node")
         marks = self._landmark_text(source)
         if self._volume is not None:
-            text = f"{count} above {self.threshold:.2f} x maximum in {source}"
+            text = f"{count} above {self.threshold:.2f} x maximum in {source}{self._stations_text()}"
         elif nodes is None:
             text = "no preop nodes: open a node file or a SPECT"
         else:
