@@ -31,6 +31,9 @@ def test_demo_store_register_export(qtbot, tmp_path, monkeypatch):
     # held rests end on their stores, however slow the computer: the timeout is a deadline, not a measurement
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == len(NODE_CENTRES_MM), timeout=240_000)
     qtbot.waitUntil(lambda: panel.preop_box.nodes is not None and len(panel.preop_box.nodes) == 4, timeout=20_000)
+    # labelled with the SPECT's report of stations, as snreg demo --headless labels them: they pair on station too
+    assert panel.preop_box.status.text().endswith(", stations from demo-stations.csv")
+    assert sorted(label.split()[0] for label in panel.preop_box.nodes.labels) == ["EXT", "EXT", "OBT", "OBT"]
     window.tabs.setCurrentWidget(panel)
     qtbot.waitUntil(lambda: panel.intraop_table.rowCount() == 4, timeout=5_000)    # the panel follows the stored nodes
     qtbot.waitUntil(lambda: window.session.preop_nodes() is not None, timeout=5_000)  # saved when loaded, before a Run
