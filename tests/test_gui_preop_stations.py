@@ -106,3 +106,20 @@ def test_another_spect_or_a_node_file_drops_the_stations(qtbot, panel, spect, tm
     box.load_stations(tmp_path / "report.csv")                     # no SPECT to label: said, nothing read
     assert box.status.text() == "Load a SPECT first: a station table names the hot spots of a SPECT."
     assert box.nodes.labels == ["EXT L", "OBT R", "INT L"] and not panel.busy
+
+
+def test_a_table_read_while_the_slider_moves_ends_with_both_and_none_while_a_file_is_read(qtbot, panel, spect,
+                                                                                         tmp_path):
+    box = loaded(qtbot, panel, spect)
+    table = write_table(tmp_path / "report.csv", STATIONS)
+    box.threshold_slider.setValue(40)                              # its re-segmentation is due: run after the table
+    box.load_stations(table)
+    box.threshold_slider.setValue(45)                              # moved while the table is read: after it, with it
+    qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+    assert box.status.text() == "3 nodes above 0.45 x maximum in spect.dcm, stations from report.csv"
+    assert stations_of(box.nodes) == [STATIONS[i] for i in box.nodes.ids]
+    box.load(spect)                                                # the stations of a SPECT not shown yet: refused
+    box.load_stations(table)
+    assert box.status.text() == "Wait until the file being read is shown, then read the stations of its SPECT."
+    qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+    assert box.stations is None and set(box.nodes.labels) <= {"L", "R"}

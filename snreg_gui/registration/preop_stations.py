@@ -28,7 +28,7 @@ class BoxStations:
 
     stations: dict[str, str] | None = None
     stations_source = ""
-    stations_reading = False        # a station table is being read and the SPECT re-segmented with it
+    _station_reads = 0              # station tables being read (and the SPECT re-segmented with them)
 
     def _stations_button(self) -> QPushButton:
         self.stations_button = QPushButton("Stations...")
@@ -40,13 +40,16 @@ class BoxStations:
     # -- public --------------------------------------------------------------
     def load_stations(self, path) -> None:
         """Read a station table in a worker and re-segment the loaded SPECT with it; a failure changes nothing."""
+        if self._loading:
+            self.status.setText("Wait until the file being read is shown, then read the stations of its SPECT.")
+            return
         if self._volume is None:
             self.status.setText("Load a SPECT first: a station table names the hot spots of a SPECT.")
             return
-        self._generation += 1           # a re-segmentation under way is for the old stations: dropped, then run again
+        self._generation += 1           # a re-segmentation under way or due is for the old stations: run again after
+        self._pending = self._pending or self._segmenting or self._timer.isActive()
         self._timer.stop()
-        self._pending = self._pending or self._segmenting
-        self.stations_reading = True
+        self._station_reads += 1
         self.status.setText(f"reading stations from {Path(path).name}...")
         self._tasks.start(read_stations, self._generation, str(path), self._volume, self.threshold, self.n_nodes,
                           self._source, returned=self._stations_read, errored=self._stations_failed)
@@ -57,14 +60,19 @@ class BoxStations:
         if path:
             self.load_stations(path)
 
+    @property
+    def stations_reading(self) -> bool:
+        """A station table is being read and the SPECT re-segmented with it."""
+        return self._station_reads > 0
+
     def _stations_read(self, read) -> None:
-        self.stations_reading = False
+        self._station_reads -= 1
         if read.generation == self._generation:
             self._show_read(read)
         self._run_pending()
 
     def _stations_failed(self, message: str) -> None:
-        self.stations_reading = False
+        self._station_reads -= 1
         self.status.setText(sentence(message))
         self._run_pending()
 
