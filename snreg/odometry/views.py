@@ -83,14 +83,10 @@ class EyePair:
             raise ValueError(f"the {eye} image is {image.shape[1]}x{image.shape[0]} but the calibration is for "
                              f"{width}x{height}; use the matching calibration file")
         grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        f = self.factor
-        if f == 1:
+        if self.factor == 1:
             return grey
-        grey = grey[:self.size[1] * f, :self.size[0] * f]
-        if f == 2:          # OpenCV's area reduction is vectorised for halving only
-            return cv2.resize(grey, self.size, interpolation=cv2.INTER_AREA)
-        # the same mean over each f x f block (a box filter read at block centres), at two thirds of the cost for f = 3
-        return np.ascontiguousarray(cv2.blur(grey, (f, f))[f // 2::f, f // 2::f])
+        return cv2.resize(grey[:self.size[1] * self.factor, :self.size[0] * self.factor], self.size,
+                          interpolation=cv2.INTER_AREA)
 
     def normalise(self, px: np.ndarray, eye: int) -> np.ndarray:
         """(N, 2) working pixels of eye 0 (left) or 1 (right) -> normalised coordinates in that camera's frame."""
