@@ -22,7 +22,7 @@ from snreg.geometry import make_transform
 from snreg.probe import ProbeModel
 
 __all__ = ["OdometryParams", "EyePair", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade",
-           "inside", "tissue_corners"]
+           "inside"]
 
 
 @dataclass(frozen=True)
@@ -238,9 +238,11 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
                   rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
                   depth_guess_mm: float = 80.0) -> Keyframe | None:
     """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated)."""
-    left_px = tissue_corners(view, params)
-    if len(left_px) < params.min_points:
+    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
+                                      blockSize=7)
+    if corners is None or len(corners) < params.min_points:
         return None
+    left_px = corners.reshape(-1, 2).astype(np.float32)
     guess = pair.project(np.column_stack([pair.normalise(left_px, 0), np.ones(len(left_px))]) * depth_guess_mm, 1)
     right_px, found = lucas_kanade(view.left, view.right, left_px, guess.astype(np.float32), params, levels=4)
     back, found_back = lucas_kanade(view.right, view.left, right_px, left_px.copy(), params, levels=1)
@@ -256,22 +258,6 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
     return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
                     np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view.coarse,
                     view.coarse_mask)
-
-
-def tissue_corners(view: View, params: OdometryParams) -> np.ndarray:
-    """(N, 2) float32 working pixels of up to ``params.max_features`` tissue corners of the view's left image, at least
-    ``params.min_distance_px`` apart, on its mask. Why at half the working scale: the corner measure over the whole
-    working image was most of a keyframe's cost (about 10 ms of 20 on one core), a quarter of the pixels cost a
-    quarter of that, and where a corner lies within a pixel does not matter: Lucas-Kanade follows the patch about it
-    wherever it is (a corner of the half-scale texture is textured at the working scale too)."""
-    small = cv2.pyrDown(view.left)
-    mask = cv2.resize(view.mask, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST)
-    corners = cv2.goodFeaturesToTrack(small, params.max_features, 0.005, max(params.min_distance_px / 2.0, 1.0),
-                                      mask=mask, blockSize=5)
-    if corners is None:
-        return np.empty((0, 2), np.float32)
-    px = (corners.reshape(-1, 2) * 2.0 + 0.5).astype(np.float32)      # the half-scale pixel's centre
-    return px[inside(view.mask, px)]
 
 
 def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
