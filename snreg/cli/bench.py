@@ -34,6 +34,6 @@ def cmd_bench(args) -> int:
     print(format_tracking(tracking), flush=True)
     print(f"bench: rendering a surgery video of {args.pairs} pairs and tracking the camera's insertion ...",
           file=sys.stderr, flush=True)
-    print("\ncamera insertion (rendered 1920x1080 surgery video, one core):")
+    print("\ncamera insertion (rendered 1920x1080 surgery video, one core, CPU time):")
     print(format_insertion(bench_insertion(pairs=args.pairs), tracking))
     return 0
