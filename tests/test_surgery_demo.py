@@ -121,7 +121,12 @@ def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame_throug
     moved = max(float(rotation_angle_deg(truth[0].T @ rotation)) for rotation in truth)
     assert releases and all(calls[0] and not any(calls[1:]) for calls in releases.values())   # each held, released once
     assert moved > 10.0 and moving.sum() >= 40
-    assert np.median(errors[moving]) < 0.15 and errors.max() < 0.6, (np.median(errors[moving]), errors.max())
+    # the median catches an orientation taken at the wrong time (a frame late at the turn's rate is ~0.7 deg on every
+    # moving frame); a computer loaded four times over its cores stamps a single frame late now and then (measured
+    # with six CPU hogs on 2 cores: lone spikes of 0.3-0.8 deg between frames within 0.1), which p95 and a wide max
+    # let pass while a tour out of step does not
+    spread = (np.median(errors[moving]), np.percentile(errors, 95), errors.max())
+    assert spread[0] < 0.15 and spread[1] < 0.4 and spread[2] < 2.0, spread
 
 
 @pytest.mark.slow
