@@ -8,8 +8,8 @@ All but :class:`UserError` are ``ValueError``s, so code that validates input may
 from __future__ import annotations
 
 __all__ = ["UserError", "NodeFileError", "CalibrationFileError", "SourceError", "ImuPortError", "PreopError",
-           "SessionError", "TrackingError", "StoreError", "NoFitError", "TooFewPairsError", "LiveLinkError", "StoreRefused",
-           "StoreNeedsConfirmation"]
+           "SessionError", "TrackingError", "StoreError", "NoFitError", "TooFewPairsError", "LiveLinkError",
+           "StoreRefused", "StoreNeedsConfirmation"]
 
 
 class UserError(Exception):

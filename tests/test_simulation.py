@@ -187,6 +187,7 @@ def test_a_trial_whose_labels_let_fewer_than_three_nodes_pair_is_refused_not_a_c
     trial = make_trial(patient.name, patient.nodes.xyz, patient.nodes.labels, 5.0, 0, 0, (1, 6, 0, 1, 0))
     left = set(trial.truth[:2].tolist())                 # the hot spots of the first two stored nodes are the left ones
     part = replace(trial, intraop=trial.intraop[:3], truth=trial.truth[:3], source=None, intraop_cov=None,
-                   intraop_labels=["L", "L", "L"], preop_labels=["L" if k in left else "R" for k in range(len(trial.preop))])
+                   intraop_labels=["L", "L", "L"],
+                   preop_labels=["L" if k in left else "R" for k in range(len(trial.preop))])
     outcome = protocol.run_trial(part, "global", use_labels=True)
     assert outcome.row["refused"] and not outcome.row["success"]

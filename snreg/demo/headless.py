@@ -201,7 +201,8 @@ def _run(session_path: Path, *, seed: int, fixes_per_node: int, scale: float, li
 
 def _registered_or_none(register_now) -> RegistrationResult | None:
     """The registration after a store, or None when the nodes stored so far do not register yet (too few pairs by
-    their sides, no fit within the bounds): the feeds then draw no hot spot, as the app's would, and the tour goes on."""
+    their sides, no fit within the bounds): the feeds then draw no hot spot, as the app's would, and the tour goes
+    on."""
     try:
         return register_now()
     except ValueError:                  # NoFitError, TooFewPairsError: the next store may answer
@@ -245,7 +246,8 @@ def _record(rig: DemoRig, session: Session, fixes_per_node: int, feed: _TimedLin
             feed("show_frame", outcome)
             first_ns = frame.t_left_ns if first_ns is None else first_ns
             if navigation is not None:
-                estimated = geometry.invert(trocar_from_camera_at(acquisition.chain, reading.earth_from_imu, outcome.insertion))
+                pose = trocar_from_camera_at(acquisition.chain, reading.earth_from_imu, outcome.insertion)
+                estimated = geometry.invert(pose)
                 navigation.frame(frame.index, (frame.t_left_ns - first_ns) * 1e-9, estimated,
                                  geometry.invert(rig.true_trocar_from_camera(tour)), outcome.tip_trocar,
                                  set(stored_at))

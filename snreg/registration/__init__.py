@@ -144,7 +144,8 @@ def register(preop, intraop, method: str = "global", *, preop_labels=None, intra
     own_sources = sources if fit.sources_over_candidates else source_posterior(problem, base)
     pairings = {r: pair(r, problem, correction, own_sources) for r in RULES}
     pairing = pairings[rule]
-    confidence = claim_confidence(pairing, *source_probabilities(problem, ranked, claim_temperature(problem, ranked[0])))
+    claims = source_probabilities(problem, ranked, claim_temperature(problem, ranked[0]))
+    confidence = claim_confidence(pairing, *claims)
     moved = geometry.apply(correction, problem.preop)
     d2 = squared_distances(moved, problem.intraop)
     # a node from no hot spot: its distance to the nearest mapped hot spot, a remark for screens, not a pairing
