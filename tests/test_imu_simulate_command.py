@@ -63,7 +63,11 @@ def test_the_still_simulator_holds_the_attitude_it_is_given(tmp_path):
                 samples += [item for item in decoder.feed(port.read(4096), time.perf_counter_ns())
                             if hasattr(item, "accel_g")]
     finally:
-        child.terminate()
-        child.wait(10)
+        child.terminate()          # how it ends on SIGTERM: the test above (its parent's end)
+        try:
+            child.wait(10)
+        except subprocess.TimeoutExpired:      # once in CI, not reproduced (12 runs beside four hogs): not this test's
+            child.kill()                       # subject, and a child left running would outlive the suite
+            child.wait(10)
     up = Rotation.from_euler("ZYX", [0.0, 8.0, -95.0], degrees=True).inv().apply([0.0, 0.0, 1.0])
     assert len(samples) >= 20 and all(np.linalg.norm(np.asarray(s.accel_g) - up) < 0.05 for s in samples)
