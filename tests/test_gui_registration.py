@@ -47,6 +47,18 @@ def load_preop(qtbot, panel, nodes: NodeSet, path):
     qtbot.waitUntil(lambda: not panel.busy and panel.preop_box.nodes is not None, timeout=TIMEOUT_MS)
 
 
+def three_stored(qtbot, panel, pelvic_nodes, tmp_path, case_id: str):
+    """The moved case's preop nodes loaded and a session holding its first three intraop nodes given to the panel:
+    (session, intraop)."""
+    preop, intraop, _ = moved_case(pelvic_nodes, 20.0)
+    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
+    session = Session.create(tmp_path / "s.h5", case_id=case_id)
+    for m in range(3):
+        session.add_intraop_node(intraop.ids[m], intraop.labels[m], intraop.xyz[m])
+    panel.set_session(session)
+    return session, intraop
+
+
 def click_run(qtbot, panel):
     with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as blocker:
         qtbot.mouseClick(panel.run_button, Qt.MouseButton.LeftButton)
@@ -391,14 +403,7 @@ def test_missing_nodes_leave_one_out_and_exclude_rerun(qtbot, panel, pelvic_node
 
 
 def test_the_panel_registers_again_after_each_stored_node_when_it_says_so(qtbot, panel, pelvic_nodes, tmp_path):
-    from snreg.session import Session
-
-    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
-    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
-    session = Session.create(tmp_path / "s.h5", case_id="phantom-03")
-    for m in range(3):
-        session.add_intraop_node(intraop.ids[m], intraop.labels[m], intraop.xyz[m])
-    panel.set_session(session)
+    session, intraop = three_stored(qtbot, panel, pelvic_nodes, tmp_path, "phantom-03")
     assert panel.auto_rerun.isChecked()
     session.add_intraop_node(intraop.ids[3], intraop.labels[3], intraop.xyz[3])
     with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS) as first:
@@ -636,12 +641,7 @@ def test_an_undo_that_leaves_too_few_nodes_to_register_says_out_of_date_not_upda
                                                                                         tmp_path):
     from snreg_gui.registration.navigation import OUT_OF_DATE
 
-    preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
-    load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
-    session = Session.create(tmp_path / "s.h5", case_id="phantom-04")
-    for m in range(3):
-        session.add_intraop_node(intraop.ids[m], intraop.labels[m], intraop.xyz[m])
-    panel.set_session(session)
+    session, intraop = three_stored(qtbot, panel, pelvic_nodes, tmp_path, "phantom-04")
     session.add_intraop_node(intraop.ids[3], intraop.labels[3], intraop.xyz[3])
     with qtbot.waitSignal(panel.registered, timeout=TIMEOUT_MS):
         panel.rerun_after_store()
