@@ -103,11 +103,13 @@ def test_timelines_show_fused_yaw_node_markers_and_frames(qtbot, screen, recorde
 
 
 def test_a_recording_gap_is_drawn_as_a_gap(qtbot, screen, tmp_path):
-    """Acquisition paused 60 s (a calibration): the tip and angle curves break there instead of bridging it."""
+    """Acquisition paused 60 s (a calibration): the tip and angle curves break there instead of bridging it, and only
+    there, though the serial reader stamps the IMU's samples on the host in bursts (4 at a time here)."""
     from snreg.session import Session
     t = np.concatenate([np.arange(60) / 30, 62.0 + np.arange(60) / 30])
     t_imu = np.concatenate([np.arange(416) / 208, 62.0 + np.arange(416) / 208])
-    host, host_imu = (np.round(1e12 + v * 1e9).astype(np.int64) for v in (t, t_imu))
+    t_imu_host = np.repeat(t_imu[3::4], 4)                    # each burst stamped when its last sample came
+    host, host_imu = (np.round(1e12 + v * 1e9).astype(np.int64) for v in (t, t_imu_host))
     with Session.create(tmp_path / "gap.h5", case_id="gap-1", stream_flush_s=0) as s:
         s.append_imu(host_imu, (t_imu * 1e9).astype(np.int64), np.tile([0.0, 0.0, 1.0], (len(t_imu), 1)),
                      np.zeros((len(t_imu), 3)))
@@ -120,6 +122,7 @@ def test_a_recording_gap_is_drawn_as_a_gap(qtbot, screen, tmp_path):
     assert len(tip_t) == len(t) + 1 and np.isnan(tip_y[60]) and tip_t[61] == pytest.approx(62.0)
     imu_t, yaw = screen.timelines.imu_curves[0].getOriginalDataset()
     assert len(imu_t) == len(t_imu) + 1 and np.isnan(imu_t[416]) and np.isfinite(yaw[417:]).all()
+    assert np.isfinite(imu_t[:416]).all() and np.isfinite(imu_t[417:]).all()      # one line on each side of the gap
 
 
 def test_a_damaged_file_says_so_and_shows_its_journal(qtbot, screen, recorded, tmp_path):

@@ -16,8 +16,8 @@ from snreg.registration import register
 from snreg.session import Session, SessionError
 from snreg.session.journal import Journal, journal_path, read_journal
 from snreg.session.schema import FORMAT_VERSION
-from snreg.session.timeline import (GAP_PERIODS, clock_figures, frame_series, fuse_imu, fuse_imu_blocks, gap_after,
-                                    load_review, with_gaps)
+from snreg.session.timeline import (GAP_PERIODS, ImuSeries, clock_figures, frame_series, fuse_imu, fuse_imu_blocks,
+                                    gap_after, imu_gap_after, load_review, with_gaps)
 
 T0_NS = 5_000_000_000_000          # host clock at the first IMU sample
 YAW_TURN_DEG = 10.0
@@ -151,6 +151,17 @@ def test_recording_gaps_break_a_curve_instead_of_bridging_it():
     assert len(t_drawn) == 21 and np.isnan(t_drawn[10]) and np.isnan(values[10]).all()
     np.testing.assert_array_equal(values[11:, 1], 2 * t[10:])
     assert len(gap_after(np.arange(10) * 0.01 * (1 + 0.1 * (np.arange(10) % 2)))) == 0    # jitter is not a gap
+
+
+def test_imu_gaps_are_judged_on_the_boards_clock_not_the_bursts_the_host_stamps_them_in():
+    device_us = (1 << 32) - 100_000 + np.arange(600) * 4808            # 208 Hz on the board's clock, which wraps
+    device_us[300:] += 1_000_000                                        # the board paused 1 s after sample 299
+    device_us[450:] -= device_us[450] - 1000                            # and restarted (its clock back to 0) at 450
+    device_us %= 1 << 32
+    host_s = np.repeat(np.arange(120) * 0.024, 5)                       # the reader gets them 5 at a time
+    imu = ImuSeries(host_s, device_us, np.zeros((600, 3)), np.zeros((600, 3)))
+    assert np.median(np.diff(host_s)) == 0 and len(gap_after(host_s)) > 100   # the host's median: a gap everywhere
+    assert list(imu_gap_after(imu)) == [299, 449]
 
 
 def test_fused_yaw_follows_the_applied_turn(recorded):

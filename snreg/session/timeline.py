@@ -23,7 +23,7 @@ import h5py
 import numpy as np
 
 from snreg.imu.fusion import Fusion
-from snreg.imu.protocol import DEFAULT_ODR_HZ
+from snreg.imu.protocol import DEFAULT_ODR_HZ, DEVICE_CLOCK_WRAP_US
 from snreg.landmarks import LANDMARK, NODE
 from snreg.nodes import NodeSet
 from snreg.preop.gravity import PreopDown
@@ -33,8 +33,8 @@ from snreg.session.reader import readable_rows
 from snreg.session.schema import CAMERA_STATES
 
 __all__ = ["ImuSeries", "ProbeSeries", "FrameSeries", "CameraSeries", "ReviewNode", "ReviewRegistration", "SessionReview",
-           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "gap_after", "with_gaps", "lost_stretches",
-           "clock_figures", "GAP_PERIODS"]
+           "load_review", "fuse_imu_blocks", "fuse_imu", "frame_series", "gap_after", "imu_gap_after", "with_gaps",
+           "lost_stretches", "clock_figures", "GAP_PERIODS"]
 
 GAP_PERIODS = 3.0          # an interval longer than this many median frame periods is a gap (>= 2 frames lost)
 FUSION_BLOCK = 65536       # samples fused between progress reports: ~5 min of IMU data, ~0.4 s of work at ~6 us/sample
@@ -256,6 +256,18 @@ def gap_after(t_s: np.ndarray, period_s: float | None = None) -> np.ndarray:
     steps = np.diff(t_s)
     period = float(np.median(steps)) if period_s is None or not np.isfinite(period_s) else float(period_s)
     return np.flatnonzero(steps > GAP_PERIODS * period)
+
+
+def imu_gap_after(imu: ImuSeries) -> np.ndarray:
+    """Indices k (G,) after which the IMU stream has a gap, judged on the board's own sample clock (micros(), modulo
+    2**32, so its wrap is no gap): the host stamps samples as the serial reader gets them, in bursts (most host steps
+    are 0), so a host-time median says nothing of a gap. A board restart (its clock back near 0) is a gap too."""
+    if len(imu.t_device_us) < 2:
+        return np.zeros(0, dtype=int)
+    steps_s = (np.diff(np.asarray(imu.t_device_us, dtype=np.int64)) % DEVICE_CLOCK_WRAP_US) / 1e6
+    ahead = steps_s[steps_s > 0]
+    period = float(np.median(ahead)) if len(ahead) else None
+    return gap_after(np.concatenate([[0.0], np.cumsum(steps_s)]), period)
 
 
 def with_gaps(t_s: np.ndarray, values: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtWidgets import QLabel
 
-from snreg.session.timeline import SessionReview, gap_after, lost_stretches, with_gaps
+from snreg.session.timeline import SessionReview, gap_after, imu_gap_after, lost_stretches, with_gaps
 from snreg_gui.common.node_scene import LANDMARK_COLOUR     # green, as the node views draw landmarks
 
 _XYZ_COLOURS = ("#e6550d", "#31a354", "#3182bd")        # yaw/x, pitch/y, roll/z
@@ -187,7 +187,7 @@ class TimelinePlots(pg.GraphicsLayoutWidget):
         self.rate_curve.setData(frames.rate_edges_s, frames.rate_hz, stepMode="center")
         self.gap_curve.setData(np.column_stack([frames.gaps_s[:, 0], frames.gaps_s.sum(axis=1)]).ravel(),
                                np.zeros(2 * len(frames.gaps_s)))
-        imu_gaps = gap_after(review.imu.t_s)
+        imu_gaps = imu_gap_after(review.imu)
         self._imu_t, _ = with_gaps(review.imu.t_s, np.zeros(len(review.imu.t_s)), imu_gaps)
         samples = np.arange(len(review.imu.t_s))
         self._imu_rows = samples + np.searchsorted(imu_gaps, samples, side="left")   # each sample's row after the NaNs
