@@ -102,6 +102,15 @@ def test_bad_input_gives_a_clear_tracking_error(scene):
         tracker.track(left, None)
 
 
+def test_a_probe_running_out_of_the_image_is_said_to_instead_of_what_its_stripes_left_in_view_show(scene):
+    calibration, probe, renderer = scene
+    tracker = StereoTracker(calibration, probe)
+    left, right = renderer.render(pose_at(150, x=120))               # the stripes' far end beyond the right edge
+    with pytest.raises(TrackingError, match="its stripes run out of the left image .*bring the probe further into"):
+        tracker.track(left, right)
+    tracker.track(*renderer.render(pose_at(150, x=110)))             # all in view: a fix
+
+
 def test_fix_filter_rejects_outliers_and_detects_stillness():
     rng = np.random.default_rng(0)
     flt = FixFilter(window=5, outlier_mm=5.0, reset_after=3, still_frames=10, still_mm=1.0)

@@ -23,7 +23,8 @@ import numpy as np
 
 from snreg.probe import ProbeModel
 
-__all__ = ["Stripes", "find_stripes", "find_stripe_candidates", "stripe_mask", "detect_scale", "DETECT_WIDTH"]
+__all__ = ["Stripes", "find_stripes", "find_stripe_candidates", "stripe_mask", "stripe_cut_by_border", "detect_scale",
+           "DETECT_WIDTH"]
 
 DETECT_WIDTH = 480          # coarse detection runs at about this many pixels across (1920 px: a quarter)
 _MIN_AREA_PX = 6            # at the detection scale
@@ -70,6 +71,16 @@ def stripe_mask(image_bgr: np.ndarray, probe: ProbeModel) -> np.ndarray:
     hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
     mask = cv2.inRange(hsv, np.array(probe.hsv_low, np.uint8), np.array(probe.hsv_high, np.uint8))
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
+
+
+def stripe_cut_by_border(image_bgr: np.ndarray, probe: ProbeModel, band_px: int = 4, min_run_px: int = 6) -> bool:
+    """Whether the stripe colour crosses the image's border (over ``min_run_px`` of it, seen in a ``band_px`` band):
+    the probe runs out of the view there. A blob touching the border may be cut off, so it is never used
+    (:func:`find_stripe_candidates`); a pair without a fix then owes it to the border, whatever the stripes left in
+    view showed."""
+    bands = (image_bgr[:band_px], image_bgr[-band_px:], image_bgr[:, :band_px], image_bgr[:, -band_px:])
+    return any(np.count_nonzero(stripe_mask(np.ascontiguousarray(band), probe)) >= band_px * min_run_px
+               for band in bands)
 
 
 def find_stripes(image_bgr: np.ndarray, probe: ProbeModel, search_box: tuple[int, int, int, int] | None = None) -> Stripes | None:

@@ -28,12 +28,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from snreg.camera import StereoCalibration
 from snreg.errors import TrackingError
 from snreg.probe import ProbeModel, default_probe_model
-from snreg.tracking.markers import Stripes, find_stripe_candidates
+from snreg.tracking.cylinder import onto_cylinder
+from snreg.tracking.markers import Stripes, find_stripe_candidates, stripe_cut_by_border
 from snreg.tracking.plausibility import ProbeTolerances, check_flat_bands, check_shape, measure_shape
 
 __all__ = ["ProbeFix", "SGBMParams", "StereoTracker", "TrackingError", "METHODS"]
@@ -118,7 +118,9 @@ class StereoTracker:
                 return self._track_candidate(left, right, stripes_left)
             except TrackingError as err:
                 reasons.append(str(err))
-        raise _no_probe(reasons)
+        cut = next((eye for eye, image in (("left", left), ("right", right))
+                    if stripe_cut_by_border(image, self.probe)), None)
+        raise _no_probe(reasons, cut)
 
     def _track_candidate(self, left: np.ndarray, right: np.ndarray, stripes_left: Stripes) -> ProbeFix:
         """The fix from one left candidate, or TrackingError why it is not the probe."""
@@ -137,7 +139,7 @@ class StereoTracker:
         tip_first = self._tip_first(verdicts)
         if self.method == "sgbm":
             surface = self._sgbm_surface(left, right, stripes_left, float(np.median(disparity)))
-            points = self._onto_cylinder(points, surface)
+            points = onto_cylinder(points, surface, self.probe.radius_mm)
         return self._fit_axis(points, s, tip_first)
 
     def _match_right(self, right: np.ndarray, stripes_left: Stripes) -> tuple[Stripes, np.ndarray, np.ndarray]:
@@ -305,35 +307,6 @@ class StereoTracker:
         homog = np.column_stack([xs + xa - extra, ys + y0, disparity[ys, xs], np.ones(len(xs))]) @ self.calibration.Q.T
         return self._to_camera(homog[:, :3] / homog[:, 3:])
 
-    def _onto_cylinder(self, axis_points: np.ndarray, surface: np.ndarray) -> np.ndarray:
-        """Refine the axis so the SGBM surface points lie one radius from it (robust least squares).
-
-        The along-axis positions of the stripes stay those of ``axis_points``; depth and
-        lateral position come from the surface fit.
-        """
-        if len(axis_points) < 2:
-            return axis_points
-        centre = axis_points.mean(axis=0)
-        direction = np.linalg.svd(axis_points - centre)[2][0]
-        e1 = np.cross(direction, [0.0, 0.0, 1.0] if abs(direction[2]) < 0.9 else [1.0, 0.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(direction, e1)
-        radius = self.probe.radius_mm
-
-        def line(params):
-            c = centre + params[0] * e1 + params[1] * e2
-            u = direction + params[2] * e1 + params[3] * e2
-            return c, u / np.linalg.norm(u)
-
-        def residual(params):
-            c, u = line(params)
-            rel = surface - c
-            return np.linalg.norm(rel - (rel @ u)[:, None] * u, axis=1) - radius
-
-        fit = least_squares(residual, np.zeros(4), loss="soft_l1", f_scale=0.5, method="trf")
-        c, u = line(fit.x)
-        return c + ((axis_points - c) @ u)[:, None] * u
-
     def _stripe_positions(self, points: np.ndarray) -> np.ndarray:
         """(k,) model positions (mm from the tip) of the k stripe points, in the image order: all stripes, or for
         two the pair whose spacing is nearer the measured gap (neighbours, or the ends with the middle hidden)."""
@@ -398,8 +371,12 @@ class StereoTracker:
         return None
 
 
-def _no_probe(reasons: list[str]) -> TrackingError:
-    """The error for a pair without a fix: "no probe: " and why the best candidate was not the probe."""
+def _no_probe(reasons: list[str], cut_eye: str | None = None) -> TrackingError:
+    """The error for a pair without a fix: "no probe: " and why the best candidate was not the probe; when a stripe
+    runs out of an image (``cut_eye``), that is why, whatever the stripes left in view showed."""
+    if cut_eye is not None:
+        return TrackingError(f"no probe: its stripes run out of the {cut_eye} image (a stripe cut by the edge is not "
+                             "used); bring the probe further into view")
     if not reasons:
         return TrackingError("no probe stripe found in the left image")
     first = reasons[0] if reasons[0].startswith("no probe") else f"no probe: {reasons[0]}"
