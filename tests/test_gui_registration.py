@@ -652,3 +652,50 @@ def test_an_undo_that_leaves_too_few_nodes_to_register_says_out_of_date_not_upda
         panel.rerun_after_store()
     assert panel.navigation.stale == OUT_OF_DATE and panel.navigation.banner() == OUT_OF_DATE
     session.close()
+
+
+def test_a_store_behind_another_tab_places_no_labels_until_the_registration_tab_is_shown(qtbot, panel, pelvic_nodes,
+                                                                                       tmp_path, monkeypatch):
+    """Issue 36: each store redrew the hidden registration tab's view, placing its labels on the GUI thread (tens of
+    ms per store during acquisition). Hidden, the view takes the new node but places no label; shown, it labels the
+    new node beside its marker, clear of the others."""
+    from PySide6.QtWidgets import QLabel, QTabWidget
+
+    from snreg_gui.common import three_view
+
+    if not isinstance(panel.view, ThreeViewPlot):
+        pytest.skip("the labels placed in Python are the three projections' (no OpenGL here)")
+    placed = []
+    real = three_view.place_labels
+    monkeypatch.setattr(three_view, "place_labels", lambda *a, **k: placed.append(1) or real(*a, **k))
+    tabs = QTabWidget()
+    qtbot.addWidget(tabs)
+    tabs.addTab(QLabel("acquisition"), "Acquisition")
+    tabs.addTab(panel, "Registration")
+    tabs.resize(1024, 700)
+    tabs.show()
+    qtbot.waitExposed(tabs)
+    session, intraop = three_stored(qtbot, panel, pelvic_nodes, tmp_path, "gui-hidden-01")
+    placed.clear()
+    session.add_intraop_node(intraop.ids[3], intraop.labels[3], intraop.xyz[3])     # a store, as the app sees it
+    panel.refresh_intraop()
+    assert intraop.ids[3] in panel.view.scene_shown.intraop.ids and intraop.ids[3] in panel.view.label_texts(0)[1]
+    assert placed == [] and panel.view.unplaced == {0, 1, 2}
+    tabs.setCurrentWidget(panel)
+    qtbot.waitUntil(lambda: panel.view.isVisible() and not panel.view.unplaced, timeout=TIMEOUT_MS)
+    assert placed
+    for k, (h, v) in enumerate([(0, 1), (0, 2), (1, 2)]):
+        boxes = panel.view.label_boxes(k)
+        assert _overlaps(boxes) == []
+        preop_texts, intraop_texts = panel.view.label_texts(k)
+        new = boxes[len(preop_texts) + intraop_texts.index(intraop.ids[3])]
+        marker = panel.view.plots[k].vb.mapViewToScene(pg_point(intraop.xyz[3, h], intraop.xyz[3, v]))
+        gap = max(new[0] - marker.x(), marker.x() - new[2], new[1] - marker.y(), marker.y() - new[3])
+        assert 0 < gap < 60, (k, gap)                    # beside its own marker, not on it, not far from it
+    panel.setParent(None)                                # the fixture's panel outlives the tabs
+    session.close()
+
+
+def pg_point(x: float, y: float):
+    from PySide6.QtCore import QPointF
+    return QPointF(float(x), float(y))

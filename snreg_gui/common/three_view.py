@@ -2,7 +2,10 @@
 
 Why: pyqtgraph's OpenGL view needs PyOpenGL and a working OpenGL context, which remote desktops, virtual machines and
 offscreen test runs often lack; this view shows the same :class:`~snreg_gui.common.node_scene.NodeScene` with plain
-2D plots (items made once, then ``setData``).
+2D plots (items made once, then ``setData``). Its labels are placed (each against every other, in pixels: the costly
+part of a redraw) only while the view is visible: a node stored during acquisition redraws the registration tab's view
+behind the acquisition tab, and placing its labels there cost the GUI thread tens of milliseconds per store (issue 36);
+a hidden view places them when it is next shown, or when asked where they are (:meth:`ThreeViewPlot.label_boxes`).
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         self.ellipses: list[dict[str, pg.PlotDataItem]] = []       # per projection: "preop", "missing", "intraop"
         self._labels: list[tuple[list[pg.TextItem], list[pg.TextItem], list[pg.TextItem]]] = []   # + landmarks
         self._anchors: list[np.ndarray] = []
+        self.unplaced: set[int] = set()     # projections whose labels wait for the view to be shown
         for column, (name, h, v) in enumerate(VIEWS):
             plot = self.addPlot(row=1, col=column, title=f"{name} ({'xyz'[h]}-{'xyz'[v]})")
             plot.setAspectLocked(True)
@@ -77,6 +81,11 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             self._labels.append(([], [], []))
             self._anchors.append(np.zeros((0, 2)))
             plot.vb.sigTransformChanged.connect(lambda _=None, k=column: self._place_labels(k))
+
+    def showEvent(self, event) -> None:                          # noqa: N802 (Qt's name)
+        """Place the labels that changed while the view was hidden."""
+        super().showEvent(event)
+        self._place_unplaced()
 
     def resizeEvent(self, event) -> None:                        # noqa: N802 (Qt's name)
         """The legend wrapped to the view's width, so it never holds the three projections past the view's edge."""
@@ -143,9 +152,17 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         for item, text, colour in zip(pool, texts, colours):
             item.setText(text, color=colour)
 
-    def _place_labels(self, k: int) -> None:
+    def _place_unplaced(self) -> None:
+        for k in sorted(self.unplaced):
+            self._place_labels(k, hidden_too=True)
+
+    def _place_labels(self, k: int, hidden_too: bool = False) -> None:
         """Put projection ``k``'s labels beside their markers (in pixels, none covering another), after every
-        change of its range or size."""
+        change of its range or size; while the view is hidden (unless ``hidden_too``) only note that they wait."""
+        if not (hidden_too or self.isVisible()):
+            self.unplaced.add(k)
+            return
+        self.unplaced.discard(k)
         preop_labels, intraop_labels, mark_labels = self._labels[k]
         items = preop_labels + intraop_labels + mark_labels
         anchors = self._anchors[k]
@@ -171,7 +188,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
 
     def label_boxes(self, view: int = 0) -> np.ndarray:
         """(N, 4) scene rectangles (left, top, right, bottom, px) of projection ``view``'s labels, preop first, then
-        intraop, then landmarks."""
+        intraop, then landmarks; placed now if they waited for the view to be shown."""
+        self._place_unplaced()
         preop, intraop, marks = self._labels[view]
         rects = [item.sceneBoundingRect() for item in preop + intraop + marks]
         return np.array([[r.left(), r.top(), r.right(), r.bottom()] for r in rects]).reshape(-1, 4)
