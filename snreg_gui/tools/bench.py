@@ -1,6 +1,6 @@
 """How long the GUI thread is blocked during acquisition, and whether the recording keeps one clock:
 ``python -m snreg_gui.bench [--seconds S] [--json] [--keep SESSION.h5] [--no-video] [--camera still|surgery]
-[--stalls]``.
+[--rendered] [--stalls]``.
 
 Why: the technician's screen must never freeze while frames are tracked and nodes stored (issue 6: no stall
 over 50 ms). A 10 ms heartbeat timer on the GUI thread ticks while the demo acquires (rendered feeds tracked
@@ -11,8 +11,9 @@ recorded as the app records them (``--no-video``: not), and the video's cost is 
 the encoder's CPU seconds per second of video (the cores it keeps busy), with how many pairs the worker processed
 per second while measured, and the CPU each thread spent (in cores: the GUI thread, the acquisition worker, the demo's
 renderer, the rest of the process; :mod:`snreg_gui.tools.thread_cpu`), so the app's own cost is seen apart from the
-simulated camera's. ``--stalls``: where the GUI thread was while it stalled (:mod:`snreg_gui.tools.stall_stacks`).
-``--keep`` records into SESSION.h5 and leaves it there; without it
+simulated camera's; ``--rendered`` starts measuring once the surgery demo has rendered its whole tour (it renders as
+it plays, about a core until then), so the figures are the app's alone. ``--stalls``: where the GUI thread was while
+it stalled (:mod:`snreg_gui.tools.stall_stacks`). ``--keep`` records into SESSION.h5 and leaves it there; without it
 everything the run wrote (session, journal, videos, SPECT, settings) is deleted at the end. Runs offscreen unless a
 display is set; the numbers belong here, not in timed tests.
 """
@@ -67,6 +68,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-video", action="store_true", help="do not record the feeds (to measure what it costs)")
     parser.add_argument("--camera", choices=("still", "surgery"), default="still", help="the demo's camera: still "
                         "(default) or surgery (sliding and turning between nodes, its insertion tracked)")
+    parser.add_argument("--rendered", action="store_true", help="measure once the surgery demo has rendered its "
+                        "whole tour: the simulated camera's rendering (about a core until then) is then not measured")
     parser.add_argument("--stalls", action="store_true", help="sample the GUI thread's stack during stalls and list "
                         "where it was most often")
     args = parser.parse_args(argv)
@@ -93,8 +96,8 @@ def _run(args, app, work: Path) -> int:
     settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
     settings.setValue("acquisition/record_video", not args.no_video)
     # 8 s rests: the live feed skips frames when the worker lags, so a loaded machine still gathers 60 fixes per node
-    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240),
-                                                                  camera=args.camera), settings=settings)
+    rig = DemoRig(schedule=Schedule(rest_frames=240), camera=args.camera)
+    window = MainWindow(str(session_path), demo=True, rig=rig, settings=settings)
     window.show()
     frames: list[int] = []
     processed_at: list[float] = []           # when each processed pair reached the GUI thread
@@ -109,7 +112,7 @@ def _run(args, app, work: Path) -> int:
     window.acquisition.auto_store.setChecked(True)
     stopped: list[str] = []
     window.worker.source_stopped.connect(stopped.append)
-    while not frames:                                   # the scene is pre-rendered before the first frame
+    while not frames or (args.rendered and rig.preparing):     # the first frame comes once the IMU holds still
         if stopped:
             window.shutdown()
             raise SystemExit(f"bench: the demo feed did not start: {stopped[0]}")
@@ -144,7 +147,8 @@ def _run(args, app, work: Path) -> int:
     window.shutdown()
     settings.sync()              # written now, so nothing rewrites the folder once it is deleted
     video = _video_figures(session_path, encoder)
-    result = {"seconds": args.seconds, "camera": args.camera, "frames": len(frames), "nodes_stored": stored,
+    result = {"seconds": args.seconds, "camera": args.camera, "rendered_first": args.rendered, "frames": len(frames),
+              "nodes_stored": stored,
               "ticks": len(gaps) + 1, "processed_fps": round(fps, 1),
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
               "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),

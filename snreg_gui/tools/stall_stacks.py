@@ -55,7 +55,9 @@ class StallSampler:
 def _app_or_pyqtgraph(filename: str) -> bool:
     """A frame of the app's code or pyqtgraph's: not the standard library's, not another package's, not the bench's own
     (its entry and its event loop call lie under every sample)."""
-    if "snreg_gui/tools/" in filename or filename.endswith("snreg_gui/bench.py") or filename.startswith(_STDLIB):
+    if filename.startswith((_STDLIB, "<frozen")):
+        return False
+    if "snreg_gui/tools/" in filename or filename.endswith("snreg_gui/bench.py"):
         return False
     return "site-packages" not in filename or "pyqtgraph" in filename
 
