@@ -52,7 +52,7 @@ def test_cores_share_out_the_process_time_and_keep_the_rest_as_other_threads():
 def _stalled_here(sampler: StallSampler) -> None:
     """Hold this thread in Python (so the sampler gets its turns) until the sampler has seen it here, 30 s at most."""
     deadline = time.monotonic() + 30.0
-    while not any("_stalled_here" in stack for stack in sampler.samples) and time.monotonic() < deadline:
+    while not any("_stalled_here" in stack for stack, _ in sampler.top()) and time.monotonic() < deadline:
         pass
 
 

@@ -30,6 +30,7 @@ class StallSampler:
         self._target = threading.get_ident()
         self._last_tick, self._late_s = last_tick, late_ms / 1e3
         self.samples: Counter[str] = Counter()
+        self._lock = threading.Lock()       # top() may be read while the watchdog samples
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="bench-stall-sampler", daemon=True)
         self._thread.start()
@@ -40,7 +41,8 @@ class StallSampler:
 
     def top(self, n: int = 8) -> list[tuple[str, int]]:
         """The ``n`` stacks sampled most often, with their sample counts (each sample is ``SAMPLE_S`` of stall)."""
-        return self.samples.most_common(n)
+        with self._lock:
+            return self.samples.most_common(n)
 
     def _watch(self) -> None:
         while not self._stop.wait(SAMPLE_S):
@@ -49,7 +51,9 @@ class StallSampler:
                 continue
             frame = sys._current_frames().get(self._target)      # noqa: SLF001 - the interpreter's one way to it
             if frame is not None:
-                self.samples[_summary(frame)] += 1
+                stack = _summary(frame)
+                with self._lock:
+                    self.samples[stack] += 1
 
 
 def _app_or_pyqtgraph(filename: str) -> bool:
