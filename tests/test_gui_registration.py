@@ -448,6 +448,37 @@ def test_wheel_over_an_unfocused_spin_box_changes_nothing(qtbot, qapp, panel):
     assert spin.value() == 63.0
 
 
+def test_a_spin_box_made_after_the_guard_is_guarded_and_no_other_widget_s_events_pass_through_it(qtbot, qapp,
+                                                                                                  monkeypatch):
+    """Issue 36: the guard was an application-wide filter in Python: every event of every widget (paints, timers,
+    queued signals) took the interpreter lock on the GUI thread. Now only the guarded widgets' events reach it, and a
+    widget made after it is installed is guarded as it is polished."""
+    from PySide6.QtWidgets import QLabel, QSpinBox, QVBoxLayout, QWidget
+
+    from snreg_gui.common import wheel_guard
+    seen = []
+    filter_events = wheel_guard.WheelGuard.eventFilter
+    monkeypatch.setattr(wheel_guard.WheelGuard, "eventFilter",
+                        lambda self, obj, event: seen.append(obj) or filter_events(self, obj, event))
+    monkeypatch.setattr(wheel_guard, "_guard", None)     # a guard of its own, made with the counting filter
+    wheel_guard.install(qapp)
+    window = QWidget()
+    qtbot.addWidget(window)
+    spin, label = QSpinBox(), QLabel("0")
+    for widget in (spin, label):
+        QVBoxLayout(window).addWidget(widget) if window.layout() is None else window.layout().addWidget(widget)
+    spin.setValue(5)
+    window.show()
+    qtbot.waitExposed(window)
+    assert spin.focusPolicy() == Qt.FocusPolicy.StrongFocus and not spin.hasFocus()
+    wheel_over(spin)
+    assert spin.value() == 5 and any(obj is spin for obj in seen)
+    for k in range(20):
+        label.setText(str(k))
+        label.repaint()
+    assert not any(obj is label or obj is window for obj in seen)
+
+
 def test_changed_inputs_grey_the_result_and_disable_exports_until_the_next_run(qtbot, panel, pelvic_nodes, tmp_path):
     preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
     load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
