@@ -10,9 +10,10 @@ probe and IMU streams end, the longest frame gap, how far each stored node is fr
 recorded as the app records them (``--no-video``: not), and the video's cost is reported: frames written and dropped,
 the encoder's CPU seconds per second of video (the cores it keeps busy), with how many pairs the worker processed
 per second while measured, and the CPU each thread spent (in cores: the GUI thread, the acquisition worker, the demo's
-renderer, the rest of the process; :mod:`snreg_gui.tools.thread_cpu`), so the app's own cost is seen apart from the
-simulated camera's; ``--rendered`` starts measuring once the surgery demo has rendered its whole tour (it renders as
-it plays, about a core until then), so the figures are the app's alone. ``--stalls``: where the GUI thread was while
+renderer, the rest of the process; :mod:`snreg_gui.tools.thread_cpu`), in all and per processed pair (the budget of
+a pair), so the app's own cost is seen apart from the simulated camera's; ``--rendered`` starts measuring once the
+surgery demo has rendered its whole tour (it renders as it plays, about a core until then), so the figures are the
+app's alone. ``--stalls``: where the GUI thread was while
 it stalled (:mod:`snreg_gui.tools.stall_stacks`). ``--keep`` records into SESSION.h5 and leaves it there; without it
 everything the run wrote (session, journal, videos, SPECT, settings) is deleted at the end. Runs offscreen unless a
 display is set; the numbers belong here, not in timed tests.
@@ -153,6 +154,7 @@ def _run(args, app, work: Path) -> int:
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
               "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),
               "clock": clock_figures(session_path), "video": video, "cores": cores,
+              "cpu_ms_per_pair": {name: round(1e3 * value / fps, 1) for name, value in cores.items()} if fps else {},
               "stalls": [{"stack": stack, "samples": n} for stack, n in sampler.top()] if sampler else None,
               "session": str(session_path) if args.keep else None}
     if args.json:
@@ -169,7 +171,9 @@ def _run(args, app, work: Path) -> int:
                   f"minute ({video['frame_size'][0]}x{video['frame_size'][1]})")
         if cores:
             print("CPU while measured, cores: " + ", ".join(f"{name} {value}" for name, value in cores.items())
-                  + " (the demo renderer is the simulated camera, not the app; the encoder is its own process)")
+                  + " (the demo renderer is the simulated camera, not the app; the encoder is its own process); "
+                  "per processed pair, ms: " + ", ".join(f"{name} {value}" for name, value in
+                                                           result["cpu_ms_per_pair"].items()))
         for stack, n in (sampler.top() if sampler else []):
             print(f"stalled {n * SAMPLE_S * 1e3:.0f} ms in: {stack}")
         print(f"targets (issue 36, a quiet machine): stalls at most {TARGET_STALL_MS} ms, at least {TARGET_FPS} pairs "
