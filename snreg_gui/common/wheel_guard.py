@@ -18,7 +18,8 @@ from __future__ import annotations
 
 from PySide6.QtCore import QEvent, QObject, Qt
 from PySide6.QtGui import QWheelEvent
-from PySide6.QtWidgets import QAbstractSlider, QAbstractSpinBox, QApplication, QComboBox, QProxyStyle, QScrollBar
+from PySide6.QtWidgets import (QAbstractSlider, QAbstractSpinBox, QApplication, QComboBox, QProxyStyle, QScrollBar,
+                               QWidget)
 
 _GUARDED = (QAbstractSpinBox, QAbstractSlider, QComboBox)
 
@@ -57,7 +58,7 @@ class _GuardingStyle(QProxyStyle):
 
     def polish(self, *args):
         """Qt's polish (of a widget, a palette or the application) as the base style does it; a widget guarded."""
-        if len(args) == 1 and isinstance(args[0], (QAbstractSpinBox, QAbstractSlider, QComboBox)):
+        if len(args) == 1 and isinstance(args[0], QWidget):
             self._guard.guard(args[0])
         return super().polish(*args)
 
