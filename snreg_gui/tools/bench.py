@@ -10,8 +10,10 @@ probe and IMU streams end, the longest frame gap, how far each stored node is fr
 recorded as the app records them (``--no-video``: not), and the video's cost is reported: frames written and dropped,
 the encoder's CPU seconds per second of video (the cores it keeps busy), with how many pairs the worker processed
 per second while measured, and the CPU each thread spent (in cores: the GUI thread, the acquisition worker, the
-insertion's thread beside it, the demo's renderer, the rest of the process; :mod:`snreg_gui.tools.thread_cpu`), in all
-and per processed pair (the budget of a pair), so the app's own cost is seen apart from the simulated camera's;
+insertion's thread beside it, the IMU reader, the demo's renderer, the rest of the process;
+:mod:`snreg_gui.tools.thread_cpu`), in all and per processed pair (the budget of a pair; what a thread spends per
+second whatever the pairs, the IMU reader's, weighs more per pair when few are processed), so the app's own cost is
+seen apart from the simulated camera's;
 ``--rendered`` starts measuring once the surgery demo has rendered its whole tour (it renders as it plays, about a core
 until then), so the figures are the app's alone. ``--stalls``: where the GUI thread was while it stalled
 (:mod:`snreg_gui.tools.stall_stacks`). ``--keep`` records into SESSION.h5 and leaves it there; without it everything
@@ -38,8 +40,10 @@ from snreg_gui.tools.stall_stacks import SAMPLE_S, StallSampler
 from snreg_gui.tools.thread_cpu import cores_by_role, thread_cpu_s
 
 TICK_MS = 10
-RENDERER_THREAD = "demo-tour-renderer"      # the surgery demo's renderer thread (snreg.demo.rig), by its name
-INSERTION_THREAD = "snreg-insertion"        # the insertion's images made beside the worker (snreg.workflow.insertion)
+# threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the worker
+# (snreg.workflow.insertion), the IMU's serial reader and fusion (snreg.imu.reader), the surgery demo's renderer, the
+# simulated camera (snreg.demo.rig)
+NAMED_THREADS = {"insertion": "snreg-insertion", "imu reader": "imu-reader", "demo renderer": "demo-tour-renderer"}
 TARGET_STALL_MS, TARGET_FPS, TARGET_ENCODER_CORES = 33.0, 25.0, 1.0      # issue 36: the live loop at 30 Hz
 
 
@@ -123,8 +127,8 @@ def _run(args, app, work: Path) -> int:
     encoder = window.session.video_state()             # updated in place until the session closes
     heartbeat = Heartbeat()
     sampler = StallSampler(lambda: heartbeat.ticks[-1] if heartbeat.ticks else None) if args.stalls else None
-    renderer = next((t.native_id for t in threading.enumerate() if t.name == RENDERER_THREAD), None)
-    insertion = next((t.native_id for t in threading.enumerate() if t.name.startswith(INSERTION_THREAD)), None)
+    named = {role: next((t.native_id for t in threading.enumerate() if t.name.startswith(prefix)), None)
+             for role, prefix in NAMED_THREADS.items()}
     cpu_before, cpu_after = thread_cpu_s(), {}       # the latest reading of each thread (one may end meanwhile)
     cpu_timer = QTimer(interval=1000, timeout=lambda: cpu_after.update(thread_cpu_s()))
     cpu_timer.start()
@@ -141,8 +145,7 @@ def _run(args, app, work: Path) -> int:
     QTimer.singleShot(round(args.seconds * 1000), end)
     app.exec()                                          # the app's own event loop, as in use
     gaps = heartbeat.gaps_ms()
-    roles = {"gui": threading.get_native_id(), "worker": min(worker_thread, default=None), "insertion": insertion,
-             "demo renderer": renderer}
+    roles = {"gui": threading.get_native_id(), "worker": min(worker_thread, default=None), **named}
     cores = cores_by_role(cpu_before, cpu_after, roles, heartbeat.ticks[-1] - heartbeat.ticks[0],
                           process_spent[0] if process_spent else None)
     measured = [t for t in processed_at if heartbeat.ticks[0] <= t <= heartbeat.ticks[-1]]
