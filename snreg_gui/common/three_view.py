@@ -2,7 +2,12 @@
 
 Why: pyqtgraph's OpenGL view needs PyOpenGL and a working OpenGL context, which remote desktops, virtual machines and
 offscreen test runs often lack; this view shows the same :class:`~snreg_gui.common.node_scene.NodeScene` with plain
-2D plots (items made once, then ``setData``).
+2D plots (items made once, then ``setData``). Its labels (their texts, then their places, each against every other in
+pixels: most of a redraw's cost) are laid out only while the view is visible: a node stored during acquisition redraws
+the registration tab's view behind the acquisition tab twice (the new node, then its registration), and laying its
+labels out there cost the GUI thread ~40 ms per store (issue 36). A hidden view sets its markers, lines and range at
+once and lays its labels out when it is next shown, or when asked for them (:meth:`ThreeViewPlot.label_texts`,
+:meth:`~ThreeViewPlot.label_boxes`).
 """
 
 from __future__ import annotations
@@ -51,6 +56,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         self.ellipses: list[dict[str, pg.PlotDataItem]] = []       # per projection: "preop", "missing", "intraop"
         self._labels: list[tuple[list[pg.TextItem], list[pg.TextItem], list[pg.TextItem]]] = []   # + landmarks
         self._anchors: list[np.ndarray] = []
+        self._texts: tuple = ([], [], [], [], [])           # preop texts, their colours, intraop, landmarks, colours
+        self.unplaced: set[int] = set()     # projections whose labels wait for the view to be shown
         for column, (name, h, v) in enumerate(VIEWS):
             plot = self.addPlot(row=1, col=column, title=f"{name} ({'xyz'[h]}-{'xyz'[v]})")
             plot.setAspectLocked(True)
@@ -78,6 +85,11 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             self._anchors.append(np.zeros((0, 2)))
             plot.vb.sigTransformChanged.connect(lambda _=None, k=column: self._place_labels(k))
 
+    def showEvent(self, event) -> None:                          # noqa: N802 (Qt's name)
+        """Lay out the labels that changed while the view was hidden."""
+        super().showEvent(event)
+        self._lay_out_unplaced()
+
     def resizeEvent(self, event) -> None:                        # noqa: N802 (Qt's name)
         """The legend wrapped to the view's width, so it never holds the three projections past the view's edge."""
         if getattr(self, "legend", None) is not None and not self.closed:   # pyqtgraph resizes before __init__
@@ -98,6 +110,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         shown = {"preop": (preop_centres[~missing], None if preop_cov is None else preop_cov[~missing]),
                  "missing": (preop_centres[missing], None if preop_cov is None else preop_cov[missing]),
                  "intraop": intraop_ellipsoids}
+        self._texts = (preop_texts, [MISSING_COLOUR if m else PREOP_COLOUR for m in missing], intraop_texts,
+                       mark_texts, mark_colours)
         for k, (_, h, v) in enumerate(VIEWS):
             outlines = [np.zeros((0, 2))]
             for side, (centres, covariances) in shown.items():
@@ -110,15 +124,25 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             self.pair_lines[k].setData(x=segments[:, h], y=segments[:, v], connect="pairs")
             for item, xyz in zip(self.landmark_dots[k], (marks_ct, marks_touched)):
                 item.setData(x=xyz[:, h], y=xyz[:, v])
-            preop_labels, intraop_labels, mark_labels = self._labels[k]
-            colours = [MISSING_COLOUR if m else PREOP_COLOUR for m in missing]
-            self._sync_labels(self.plots[k], preop_labels, preop_texts, colours)
-            self._sync_labels(self.plots[k], intraop_labels, intraop_texts, [INTRAOP_COLOUR] * len(intraop_texts))
-            self._sync_labels(self.plots[k], mark_labels, mark_texts, mark_colours)
             self._anchors[k] = np.vstack([preop[:, [h, v]], intraop[:, [h, v]], marks_ct[:, [h, v]],
                                           marks_touched[:, [h, v]]])
+            self.unplaced.add(k)
             self._fit(self.plots[k], np.vstack([self._anchors[k]] + outlines))
-            self._place_labels(k)
+            if self.isVisible():
+                self._lay_out(k)
+
+    def _lay_out(self, k: int) -> None:
+        """Projection ``k``'s labels: their texts, then their places."""
+        preop_texts, preop_colours, intraop_texts, mark_texts, mark_colours = self._texts
+        preop_labels, intraop_labels, mark_labels = self._labels[k]
+        self._sync_labels(self.plots[k], preop_labels, preop_texts, preop_colours)
+        self._sync_labels(self.plots[k], intraop_labels, intraop_texts, [INTRAOP_COLOUR] * len(intraop_texts))
+        self._sync_labels(self.plots[k], mark_labels, mark_texts, mark_colours)
+        self._place_labels(k, hidden_too=True)
+
+    def _lay_out_unplaced(self) -> None:
+        for k in sorted(self.unplaced):
+            self._lay_out(k)
 
     @staticmethod
     def _fit(plot, points: np.ndarray) -> None:
@@ -143,9 +167,14 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
         for item, text, colour in zip(pool, texts, colours):
             item.setText(text, color=colour)
 
-    def _place_labels(self, k: int) -> None:
+    def _place_labels(self, k: int, hidden_too: bool = False) -> None:
         """Put projection ``k``'s labels beside their markers (in pixels, none covering another), after every
-        change of its range or size."""
+        change of its range or size; while the view is hidden (unless ``hidden_too``) only note that they wait (laid
+        out in full when shown)."""
+        if not (hidden_too or self.isVisible()):
+            self.unplaced.add(k)
+            return
+        self.unplaced.discard(k)
         preop_labels, intraop_labels, mark_labels = self._labels[k]
         items = preop_labels + intraop_labels + mark_labels
         anchors = self._anchors[k]
@@ -161,17 +190,21 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             item.setPos(box.mapSceneToView(QPointF(float(x), float(y))))
 
     def label_texts(self, view: int = 0) -> tuple[list[str], list[str]]:
-        """The (preop, intraop) label texts drawn in projection ``view``."""
+        """The (preop, intraop) label texts drawn in projection ``view`` (laid out now if they waited)."""
+        self._lay_out_unplaced()
         preop, intraop, _ = self._labels[view]
         return [item.toPlainText() for item in preop], [item.toPlainText() for item in intraop]
 
     def landmark_texts(self, view: int = 0) -> list[str]:
-        """The landmark label texts drawn in projection ``view`` (CT ones first, then the touched ones)."""
+        """The landmark label texts drawn in projection ``view`` (CT ones first, then the touched ones; laid out now if
+        they waited)."""
+        self._lay_out_unplaced()
         return [item.toPlainText() for item in self._labels[view][2]]
 
     def label_boxes(self, view: int = 0) -> np.ndarray:
         """(N, 4) scene rectangles (left, top, right, bottom, px) of projection ``view``'s labels, preop first, then
-        intraop, then landmarks."""
+        intraop, then landmarks; laid out now if they waited for the view to be shown."""
+        self._lay_out_unplaced()
         preop, intraop, marks = self._labels[view]
         rects = [item.sceneBoundingRect() for item in preop + intraop + marks]
         return np.array([[r.left(), r.top(), r.right(), r.bottom()] for r in rects]).reshape(-1, 4)

@@ -1,5 +1,6 @@
 """How long the GUI thread is blocked during acquisition, and whether the recording keeps one clock:
-``python -m snreg_gui.bench [--seconds S] [--json] [--keep SESSION.h5] [--no-video] [--camera still|surgery]``.
+``python -m snreg_gui.bench [--seconds S] [--json] [--keep SESSION.h5] [--no-video] [--camera still|surgery]
+[--rendered] [--stalls]``.
 
 Why: the technician's screen must never freeze while frames are tracked and nodes stored (issue 6: no stall
 over 50 ms). A 10 ms heartbeat timer on the GUI thread ticks while the demo acquires (rendered feeds tracked
@@ -8,9 +9,16 @@ recorded session is then read back (:func:`~snreg.session.timeline.clock_figures
 probe and IMU streams end, the longest frame gap, how far each stored node is from a probe fix. Both feeds are
 recorded as the app records them (``--no-video``: not), and the video's cost is reported: frames written and dropped,
 the encoder's CPU seconds per second of video (the cores it keeps busy), with how many pairs the worker processed
-per second while measured. ``--keep`` records into SESSION.h5 and leaves it there; without it
-everything the run wrote (session, journal, videos, SPECT, settings) is deleted at the end. Runs offscreen unless a
-display is set; the numbers belong here, not in timed tests.
+per second while measured, and the CPU each thread spent (in cores: the GUI thread, the acquisition worker, the
+insertion's thread beside it, the IMU reader, the demo's renderer, the rest of the process;
+:mod:`snreg_gui.tools.thread_cpu`), in all and per processed pair (the budget of a pair; what a thread spends per
+second whatever the pairs, the IMU reader's, weighs more per pair when few are processed), so the app's own cost is
+seen apart from the simulated camera's;
+``--rendered`` starts measuring once the surgery demo has rendered its whole tour (it renders as it plays, about a core
+until then), so the figures are the app's alone. ``--stalls``: where the GUI thread was while it stalled
+(:mod:`snreg_gui.tools.stall_stacks`). ``--keep`` records into SESSION.h5 and leaves it there; without it everything
+the run wrote (session, journal, videos, SPECT, settings) is deleted at the end. Runs offscreen unless a display is set;
+the numbers belong here, not in timed tests.
 """
 
 from __future__ import annotations
@@ -21,13 +29,21 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import QSettings, Qt, QTimer
 
+from snreg_gui.tools.stall_stacks import SAMPLE_S, StallSampler
+from snreg_gui.tools.thread_cpu import cores_by_role, thread_cpu_s
+
 TICK_MS = 10
+# threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the worker
+# (snreg.workflow.insertion), the IMU's serial reader and fusion (snreg.imu.reader), the surgery demo's renderer, the
+# simulated camera (snreg.demo.rig)
+NAMED_THREADS = {"insertion": "snreg-insertion", "imu reader": "imu-reader", "demo renderer": "demo-tour-renderer"}
 TARGET_STALL_MS, TARGET_FPS, TARGET_ENCODER_CORES = 33.0, 25.0, 1.0      # issue 36: the live loop at 30 Hz
 
 
@@ -58,6 +74,10 @@ def main(argv=None) -> int:
     parser.add_argument("--no-video", action="store_true", help="do not record the feeds (to measure what it costs)")
     parser.add_argument("--camera", choices=("still", "surgery"), default="still", help="the demo's camera: still "
                         "(default) or surgery (sliding and turning between nodes, its insertion tracked)")
+    parser.add_argument("--rendered", action="store_true", help="measure once the surgery demo has rendered its "
+                        "whole tour: the simulated camera's rendering (about a core until then) is then not measured")
+    parser.add_argument("--stalls", action="store_true", help="sample the GUI thread's stack during stalls and list "
+                        "where it was most often")
     args = parser.parse_args(argv)
     if args.keep and Path(args.keep).exists():
         parser.error(f"{args.keep} exists already; choose a new file name for the kept session")
@@ -82,20 +102,23 @@ def _run(args, app, work: Path) -> int:
     settings = QSettings(str(work / "settings.ini"), QSettings.Format.IniFormat)
     settings.setValue("acquisition/record_video", not args.no_video)
     # 8 s rests: the live feed skips frames when the worker lags, so a loaded machine still gathers 60 fixes per node
-    window = MainWindow(str(session_path), demo=True, rig=DemoRig(schedule=Schedule(rest_frames=240),
-                                                                  camera=args.camera), settings=settings)
+    rig = DemoRig(schedule=Schedule(rest_frames=240), camera=args.camera)
+    window = MainWindow(str(session_path), demo=True, rig=rig, settings=settings)
     window.show()
     frames: list[int] = []
     processed_at: list[float] = []           # when each processed pair reached the GUI thread
+    worker_thread: set[int] = set()          # the worker's native thread id (its signal, called where it is emitted)
 
     def processed(result) -> None:
         frames.append(result.outcome.index)
         processed_at.append(time.perf_counter())
     window.worker.frame_processed.connect(processed)
+    window.worker.frame_processed.connect(lambda _: worker_thread.add(threading.get_native_id()),
+                                          Qt.ConnectionType.DirectConnection)
     window.acquisition.auto_store.setChecked(True)
     stopped: list[str] = []
     window.worker.source_stopped.connect(stopped.append)
-    while not frames:                                   # the scene is pre-rendered before the first frame
+    while not frames or (args.rendered and rig.preparing):     # the first frame comes once the IMU holds still
         if stopped:
             window.shutdown()
             raise SystemExit(f"bench: the demo feed did not start: {stopped[0]}")
@@ -103,24 +126,42 @@ def _run(args, app, work: Path) -> int:
         time.sleep(0.01)
     encoder = window.session.video_state()             # updated in place until the session closes
     heartbeat = Heartbeat()
+    sampler = StallSampler(lambda: heartbeat.ticks[-1] if heartbeat.ticks else None) if args.stalls else None
+    named = {role: next((t.native_id for t in threading.enumerate() if t.name.startswith(prefix)), None)
+             for role, prefix in NAMED_THREADS.items()}
+    cpu_before, cpu_after = thread_cpu_s(), {}       # the latest reading of each thread (one may end meanwhile)
+    cpu_timer = QTimer(interval=1000, timeout=lambda: cpu_after.update(thread_cpu_s()))
+    cpu_timer.start()
+    process_before, process_spent = _process_cpu_s(), []
 
     def end() -> None:          # the heartbeat stops first: closing the window (0.5 s) is not acquisition
         heartbeat.stop()
+        if sampler is not None:
+            sampler.stop()
+        cpu_timer.stop()
+        cpu_after.update(thread_cpu_s())
+        process_spent.append(_process_cpu_s() - process_before)
         window.quit_without_asking()
     QTimer.singleShot(round(args.seconds * 1000), end)
     app.exec()                                          # the app's own event loop, as in use
     gaps = heartbeat.gaps_ms()
+    roles = {"gui": threading.get_native_id(), "worker": min(worker_thread, default=None), **named}
+    cores = cores_by_role(cpu_before, cpu_after, roles, heartbeat.ticks[-1] - heartbeat.ticks[0],
+                          process_spent[0] if process_spent else None)
     measured = [t for t in processed_at if heartbeat.ticks[0] <= t <= heartbeat.ticks[-1]]
     fps = len(measured) / max(heartbeat.ticks[-1] - heartbeat.ticks[0], 1e-9)
     stored = window.acquisition.nodes.rowCount()
     window.shutdown()
     settings.sync()              # written now, so nothing rewrites the folder once it is deleted
     video = _video_figures(session_path, encoder)
-    result = {"seconds": args.seconds, "camera": args.camera, "frames": len(frames), "nodes_stored": stored,
+    result = {"seconds": args.seconds, "camera": args.camera, "rendered_first": args.rendered, "frames": len(frames),
+              "nodes_stored": stored,
               "ticks": len(gaps) + 1, "processed_fps": round(fps, 1),
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
               "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),
-              "clock": clock_figures(session_path), "video": video,
+              "clock": clock_figures(session_path), "video": video, "cores": cores,
+              "cpu_ms_per_pair": {name: round(1e3 * value / fps, 1) for name, value in cores.items()} if fps else {},
+              "stalls": [{"stack": stack, "samples": n} for stack, n in sampler.top()] if sampler else None,
               "session": str(session_path) if args.keep else None}
     if args.json:
         print(json.dumps(result))
@@ -134,6 +175,13 @@ def _run(args, app, work: Path) -> int:
             print(f"video: {video['frames']} frames recorded, {video['dropped']} dropped; encoder "
                   f"{video['encoder_cpu_s_per_video_s']} CPU s per s of video (cores), {video['mb_per_min']} MB per "
                   f"minute ({video['frame_size'][0]}x{video['frame_size'][1]})")
+        if cores:
+            print("CPU while measured, cores: " + ", ".join(f"{name} {value}" for name, value in cores.items())
+                  + " (the demo renderer is the simulated camera, not the app; the encoder is its own process); "
+                  "per processed pair, ms: " + ", ".join(f"{name} {value}" for name, value in
+                                                           result["cpu_ms_per_pair"].items()))
+        for stack, n in (sampler.top() if sampler else []):
+            print(f"stalled {n * SAMPLE_S * 1e3:.0f} ms in: {stack}")
         print(f"targets (issue 36, a quiet machine): stalls at most {TARGET_STALL_MS} ms, at least {TARGET_FPS} pairs "
               f"processed per second, the encoder at most {TARGET_ENCODER_CORES} core")
         print(f"one clock: streams end at {clock['ends_s']} s (spread {clock['end_spread_s']} s), longest frame gap "
@@ -141,6 +189,12 @@ def _run(args, app, work: Path) -> int:
               + (f"; session kept in {session_path}" if args.keep else ""))
     return 0
 
+
+
+def _process_cpu_s() -> float:
+    """CPU seconds this process spent so far, every thread's, ended ones' too (not its child processes')."""
+    times = os.times()
+    return times.user + times.system
 
 
 def _video_figures(session_path: Path, encoder) -> dict | None:

@@ -1,0 +1,74 @@
+"""Where the GUI thread is while it stalls: the bench's ``--stalls`` sampler.
+
+Why: a stall's length says nothing of its cause. A watchdog thread samples the GUI thread's Python stack whenever the
+heartbeat has not ticked for ``late_ms``; the stacks seen most often are where to look. A stack that is only the event
+loop (``app.exec``) means the thread was in Qt's own code (painting, layout) or waiting for the interpreter lock
+another thread held. The watchdog itself needs that lock to sample, so a stall under a long call that holds the lock
+is seen once it is released; the samples are where the thread was, not a profile.
+"""
+
+from __future__ import annotations
+
+import sys
+import sysconfig
+import threading
+import time
+import traceback
+from collections import Counter
+from collections.abc import Callable
+
+SAMPLE_S = 0.01
+_STDLIB = sysconfig.get_paths()["stdlib"]
+FRAMES_KEPT = 4             # the innermost frames of the app's code and pyqtgraph's, per sample
+
+
+class StallSampler:
+    """Samples the stack of the thread that creates it (the GUI thread) while ``last_tick()`` (perf_counter seconds)
+    is over ``late_ms`` old; :meth:`stop`, then :meth:`top`."""
+
+    def __init__(self, last_tick: Callable[[], float | None], late_ms: float = 50.0):
+        self._target = threading.get_ident()
+        self._last_tick, self._late_s = last_tick, late_ms / 1e3
+        self.samples: Counter[str] = Counter()
+        self._lock = threading.Lock()       # top() may be read while the watchdog samples
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="bench-stall-sampler", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def top(self, n: int = 8) -> list[tuple[str, int]]:
+        """The ``n`` stacks sampled most often, with their sample counts (each sample is ``SAMPLE_S`` of stall)."""
+        with self._lock:
+            return self.samples.most_common(n)
+
+    def _watch(self) -> None:
+        while not self._stop.wait(SAMPLE_S):
+            tick = self._last_tick()
+            if tick is None or time.perf_counter() - tick < self._late_s:
+                continue
+            frame = sys._current_frames().get(self._target)      # noqa: SLF001 - the interpreter's one way to it
+            if frame is not None:
+                stack = _summary(frame)
+                with self._lock:
+                    self.samples[stack] += 1
+
+
+def _app_or_pyqtgraph(filename: str) -> bool:
+    """A frame of the app's code or pyqtgraph's: not the standard library's, not another package's, not the bench's own
+    (its entry and its event loop call lie under every sample)."""
+    if filename.startswith((_STDLIB, "<frozen")):
+        return False
+    if "snreg_gui/tools/" in filename or filename.endswith("snreg_gui/bench.py"):
+        return False
+    return "site-packages" not in filename or "pyqtgraph" in filename
+
+
+def _summary(frame) -> str:
+    """The innermost frames of a stack as "file:line function" lines, the app's and its libraries' only."""
+    kept = [f"{entry.filename.rsplit('site-packages/', 1)[-1]}:{entry.lineno} {entry.name}"
+            for entry in traceback.extract_stack(frame)
+            if _app_or_pyqtgraph(entry.filename)]
+    return " <- ".join(reversed(kept[-FRAMES_KEPT:])) or "event loop (Qt's own work, or waiting for the GIL)"

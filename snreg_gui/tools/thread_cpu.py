@@ -1,0 +1,49 @@
+"""CPU time per thread of this process, read from Linux's ``/proc/self/task``: where the live loop's cores go.
+
+Why: the bench's pairs per second (issue 36) are bounded by what each thread costs on a machine of few cores: the GUI
+thread, the acquisition worker (tracking, the insertion, session writes), the demo's renderer (the simulated camera,
+not the app), the encoder (a process of its own, measured by the session). A thread's CPU time is what it costs
+however loaded the machine is; wall times taken beside other work are not. Elsewhere than Linux there is no figure.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+_TASKS = Path("/proc/self/task")
+
+
+def thread_cpu_s() -> dict[int, float]:
+    """{native thread id: CPU seconds (user + system) so far} for every thread of this process; {} where
+    ``/proc`` is missing."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    times = {}
+    try:
+        tasks = list(_TASKS.iterdir())
+    except OSError:
+        return {}
+    for task in tasks:
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:                       # the thread ended meanwhile
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()      # after the name, which may hold spaces
+        times[int(task.name)] = (int(fields[11]) + int(fields[12])) / ticks     # utime, stime (fields 14 and 15)
+    return times
+
+
+def cores_by_role(before: dict[int, float], after: dict[int, float], roles: dict[str, int | None],
+                  seconds: float, process_s: float | None = None) -> dict[str, float]:
+    """CPU seconds per second (cores) each named thread (``roles``: name -> native id, None when unknown) spent
+    between two readings of :func:`thread_cpu_s` (``after``: each thread's latest, taken while it lived), the
+    process's over the same time (``process_s``, CPU seconds, ended threads' included; else the threads' sum) as
+    "process", and what the named threads leave of it as "other threads"; {} without readings."""
+    if not after or seconds <= 0:
+        return {}
+    spent = {tid: after[tid] - before.get(tid, 0.0) for tid in after}
+    figures = {name: round(spent[tid] / seconds, 3) for name, tid in roles.items() if tid is not None and tid in spent}
+    total = sum(spent.values()) if process_s is None else process_s
+    figures["other threads"] = round(max(total / seconds - sum(figures.values()), 0.0), 3)
+    figures["process"] = round(total / seconds, 3)
+    return figures

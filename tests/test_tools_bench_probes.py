@@ -1,0 +1,75 @@
+"""The GUI bench's probes: CPU per thread (``snreg_gui.tools.thread_cpu``) and where the GUI thread stalls
+(``snreg_gui.tools.stall_stacks``). Neither test is timed: each waits on CPU spent or on a sample taken."""
+
+import sys
+import threading
+import time
+
+import pytest
+
+from conftest import poll
+from snreg_gui.tools.stall_stacks import StallSampler
+from snreg_gui.tools.thread_cpu import cores_by_role, thread_cpu_s
+
+linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread CPU is read from /proc")
+
+
+def _spin(cpu_s: float, ids: list) -> None:
+    ids.append(threading.get_native_id())
+    start = time.thread_time()
+    while time.thread_time() - start < cpu_s:
+        pass
+
+
+@linux_only
+def test_a_busy_thread_is_charged_its_cpu_and_an_idle_one_none():
+    before = thread_cpu_s()
+    busy_ids, idle_ids = [], []
+    busy = threading.Thread(target=_spin, args=(0.3, busy_ids))
+    stop = threading.Event()
+    idle = threading.Thread(target=lambda: (idle_ids.append(threading.get_native_id()), stop.wait()))
+    busy.start()
+    idle.start()
+    assert poll(lambda: busy_ids and idle_ids)
+    last = {}
+    while busy.is_alive():                      # its last reading before it ends, as the bench keeps it
+        last.update(thread_cpu_s())
+        busy.join(0.05)
+    last.update({tid: t for tid, t in thread_cpu_s().items() if tid == idle_ids[0]})
+    stop.set()
+    idle.join()
+    cores = cores_by_role(before, last, {"busy": busy_ids[0], "idle": idle_ids[0], "gone": None}, 1.0)
+    assert 0.2 <= cores["busy"] <= 1.0 and cores["idle"] < 0.05 and "gone" not in cores
+    assert cores["process"] >= cores["busy"] and cores["other threads"] >= 0.0
+
+
+def test_cores_share_out_the_process_time_and_keep_the_rest_as_other_threads():
+    cores = cores_by_role({1: 1.0, 2: 0.0}, {1: 3.0, 2: 1.0, 3: 0.5}, {"gui": 1, "worker": 2}, 2.0, process_s=5.0)
+    assert cores == {"gui": 1.0, "worker": 0.5, "other threads": 1.0, "process": 2.5}
+    assert cores_by_role({}, {}, {"gui": 1}, 2.0) == {}
+
+
+def _stalled_here(sampler: StallSampler) -> None:
+    """Hold this thread in Python (so the sampler gets its turns) until the sampler has seen it here, 30 s at most."""
+    deadline = time.monotonic() + 30.0
+    while not any("_stalled_here" in stack for stack, _ in sampler.top()) and time.monotonic() < deadline:
+        pass
+
+
+def test_the_sampler_names_the_function_the_stalled_thread_is_in():
+    ticks = [time.perf_counter() - 1.0]                  # the heartbeat is a second late
+    sampler = StallSampler(lambda: ticks[-1], late_ms=20.0)
+    try:
+        _stalled_here(sampler)
+    finally:
+        sampler.stop()
+    (stack, count), *_ = sampler.top()
+    assert "_stalled_here" in stack and count >= 1
+
+
+def test_the_sampler_samples_nothing_before_the_first_tick():
+    asked = []
+    sampler = StallSampler(lambda: asked.append(1), late_ms=0.0)     # no tick yet (None), however late
+    assert poll(lambda: len(asked) >= 5)
+    sampler.stop()
+    assert sampler.top() == []
