@@ -18,7 +18,7 @@ import av
 import numpy as np
 
 from snreg.session.video import VideoSegment, free_bytes
-from snreg.session.video_writer import RECORDING, VideoFileWriter
+from snreg.session.video_writer import VideoFileWriter, recording_encoding
 
 
 def main(argv: list[str]) -> int:
@@ -73,7 +73,8 @@ def _say(line: str) -> None:
 
 class _Encoder:
     """The two open files of a segment (in the encoder process), written side by side: OpenCV's JPEG encoder lets go
-    of the GIL, so the eyes encode in parallel and a full-HD pair takes about half the time of one after the other."""
+    of the GIL, so the eyes encode in parallel and a full-HD pair takes about half the time of one after the other.
+    The encoding is :func:`~snreg.session.video_writer.recording_encoding`'s for the segment's size."""
 
     def __init__(self, session_path: str, segment: VideoSegment):
         self._writers: list[VideoFileWriter] = []
@@ -81,7 +82,7 @@ class _Encoder:
         try:
             for side in range(2):
                 self._writers.append(VideoFileWriter(segment.path(session_path, side), segment.width, segment.height,
-                                                     segment.fps, RECORDING))
+                                                     segment.fps, recording_encoding(segment.width, segment.height)))
         except (av.FFmpegError, OSError, ValueError, KeyError):
             self.close()
             raise

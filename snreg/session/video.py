@@ -2,12 +2,12 @@
 
 Why these: tracking the decoded frames must give the nodes within 0.3 mm of tracking the originals, a file cut short
 by a kill or a full disk must stay readable up to its last frame, and the encoder must take under a core at full-HD
-stereo (docs/guide/review.md, "Recorded video", has the measurements). Each frame is a JPEG in 4:4:4 chroma (the
-stripe colours keep their edges: 4:2:0 moved the nodes 0.4-1.1 mm) from OpenCV's libjpeg-turbo at quality 95
-(:mod:`snreg.session.video_writer` writes it); every frame is a key frame and leaves the encoder at once; Matroska
-clusters of at most a quarter second, flushed as written, so a kill loses about the last quarter second. Sessions
-recorded before issue 36 hold x264 4:4:4 (CRF 18, tune psnr): they are read the same way, the readers decode
-whatever codec a file holds, and each segment records its ``codec``.
+stereo (docs/guide/review.md, "Recorded video", has the measurements). From 960x540 up each frame is a JPEG in
+4:4:4 chroma (the stripe colours keep their edges: 4:2:0 moved the nodes 0.4-1.1 mm) from OpenCV's libjpeg-turbo;
+smaller frames are x264 4:4:4 at CRF 18 tuned for PSNR, as every recording was before issue 36
+(:mod:`snreg.session.video_writer` says why and writes them). Matroska clusters of at most a quarter second, flushed
+as written, so a kill loses about the last quarter second. Each segment records its ``codec``; the readers decode
+whatever codec a file holds, so older sessions read as before.
 
 Frame k of each file is row k - ``first_row`` of ``streams/frames`` (0 for a session's first segment), at pts k at the
 nominal ``fps``: the true grab times are the rows'. :class:`StereoRecorder` takes pairs on the acquisition thread and
@@ -31,7 +31,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from snreg.session.video_writer import CONTAINER, RECORDING, SUFFIX
+from snreg.session.video_writer import CONTAINER, SUFFIX, recording_encoding
 
 QUEUE_PAIRS = 12                 # pairs waiting for the encoder (0.4 s at 30 Hz) before one is dropped
 MIN_FREE_BYTES = 2 * 10**9       # below this free space recording stops (the session goes on)
@@ -51,7 +51,7 @@ class VideoSegment:
     fps: float
     width: int
     height: int
-    codec: str = RECORDING.describe()
+    codec: str = ""                 # as recorded; a new segment: what recording_encoding gives for its size
     container: str = CONTAINER
     closed: bool = False
     frames: tuple[int, int] = (0, 0)
@@ -59,6 +59,10 @@ class VideoSegment:
     sha256: tuple[str, str] = ("", "")
     dropped: int = 0
     stopped: str = ""
+
+    def __post_init__(self):
+        if not self.codec:
+            object.__setattr__(self, "codec", recording_encoding(self.width, self.height).describe())
 
     def to_json(self) -> dict:
         return {key: list(value) if isinstance(value, tuple) else value for key, value in self.__dict__.items()}

@@ -26,7 +26,7 @@ from snreg.camera import thesis_calibration
 from snreg.demo.scene import PhantomScene, Schedule
 from snreg.demo.surgery_scene import SurgeryScene
 from snreg.probe import default_probe_model
-from snreg.session.video_writer import OPENCV_JPEG, RECORDING, Encoding, VideoFileWriter
+from snreg.session.video_writer import JPEG_444, OPENCV_JPEG, Encoding, VideoFileWriter
 from snreg.tracking import StereoTracker, TrackingError, summarise
 
 FPS = 30.0
@@ -53,7 +53,7 @@ CANDIDATES = [
     ("OpenCV JPEG 4:4:4 quality 95 (MKV)", "av", ".mkv", Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "95"})),
     ("OpenCV JPEG 4:4:4 luma 75 chroma 93 (MKV)", "av", ".mkv",
      Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "75", "chroma_quality": "93"})),
-    ("OpenCV JPEG 4:4:4 luma 75 chroma 95, the recording's (MKV)", "av", ".mkv", RECORDING),
+    ("OpenCV JPEG 4:4:4 luma 75 chroma 95, the recording's from 960x540 (MKV)", "av", ".mkv", JPEG_444),
 ]
 
 
