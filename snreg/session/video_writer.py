@@ -32,7 +32,7 @@ ENCODER_THREADS = 2              # x264's threads per eye (its frame threads del
 class Encoding:
     """How frames become a file's packets: ``codec`` an FFmpeg encoder through PyAV (``options`` its AVOptions,
     ``pixel_format`` what it encodes), or :data:`OPENCV_JPEG` (``options["quality"]`` 1-100, ``"chroma_quality"``
-    the colour planes' when it differs; ``yuvj444p`` 4:4:4, ``yuvj420p`` 4:2:0)."""
+    the colour planes' when it differs; ``pixel_format`` ``yuvj444p``, full-range 4:4:4 as JPEG has it)."""
 
     codec: str
     pixel_format: str
@@ -67,7 +67,7 @@ class VideoFileWriter:
 
     def __init__(self, path: str | Path, width: int, height: int, fps: float, encoding: Encoding,
                  threads: int = ENCODER_THREADS):
-        self.encoding, self._width, self._height = encoding, width, height
+        self.encoding = encoding
         self._container = av.open(str(path), "w", format=CONTAINER, container_options=CONTAINER_OPTIONS)
         try:
             rate = Fraction(fps).limit_denominator(1001)
@@ -77,10 +77,10 @@ class VideoFileWriter:
             self._stream.width, self._stream.height, self._stream.pix_fmt = width, height, encoding.pixel_format
             if self._jpeg:
                 self._time_base = 1 / rate
-                sampling = {"yuvj444p": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
-                            "yuvj420p": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420}[encoding.pixel_format]
+                if encoding.pixel_format != "yuvj444p":
+                    raise ValueError(f"OpenCV's JPEG is written in yuvj444p here, not {encoding.pixel_format}")
                 self._params = [cv2.IMWRITE_JPEG_QUALITY, int(encoding.options["quality"]),
-                                cv2.IMWRITE_JPEG_SAMPLING_FACTOR, sampling]
+                                cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
                 if "chroma_quality" in encoding.options:
                     self._params += [cv2.IMWRITE_JPEG_LUMA_QUALITY, int(encoding.options["quality"]),
                                      cv2.IMWRITE_JPEG_CHROMA_QUALITY, int(encoding.options["chroma_quality"])]
