@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from multiprocessing import resource_tracker, shared_memory
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import av
 import numpy as np
 
 from snreg.session.video import VideoSegment, free_bytes
-from snreg.session.video_writer import VideoFileWriter, recording_encoding
+from snreg.session.video_writer import RECORDING, VideoFileWriter
 
 
 def main(argv: list[str]) -> int:
@@ -72,25 +71,21 @@ def _say(line: str) -> None:
 
 
 class _Encoder:
-    """The two open files of a segment (in the encoder process), written side by side: OpenCV's JPEG encoder lets go
-    of the GIL, so the eyes encode in parallel and a full-HD pair takes about half the time of one after the other.
-    The encoding is :func:`~snreg.session.video_writer.recording_encoding`'s for the segment's size."""
+    """The two open files of a segment (in the encoder process), in :data:`~snreg.session.video_writer.RECORDING`."""
 
     def __init__(self, session_path: str, segment: VideoSegment):
         self._writers: list[VideoFileWriter] = []
-        self._pool = ThreadPoolExecutor(2, thread_name_prefix="snreg-encode")
         try:
             for side in range(2):
                 self._writers.append(VideoFileWriter(segment.path(session_path, side), segment.width, segment.height,
-                                                     segment.fps, recording_encoding(segment.width, segment.height)))
+                                                     segment.fps, RECORDING))
         except (av.FFmpegError, OSError, ValueError, KeyError):
             self.close()
             raise
 
     def encode(self, left: np.ndarray, right: np.ndarray, pts: int) -> None:
-        sides = [self._pool.submit(writer.write, image, pts) for writer, image in zip(self._writers, (left, right))]
-        for side in sides:
-            side.result()
+        for writer, image in zip(self._writers, (left, right)):
+            writer.write(image, pts)
 
     def close(self) -> None:
         """Close both files (the second also when the first fails; the first failure is raised)."""
@@ -100,7 +95,6 @@ class _Encoder:
                 writer.close()
             except (av.FFmpegError, OSError, ValueError) as err:
                 failures.append(err)
-        self._pool.shutdown()
         if failures:
             raise failures[0]
 

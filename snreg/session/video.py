@@ -1,13 +1,13 @@
-"""The stereo video recorded beside a session: two Matroska files, one per eye, written off the caller's thread.
+"""The stereo video recorded beside a session: two Matroska files of H.264 4:4:4, written off the caller's thread.
 
-Why these: tracking the decoded frames must give the nodes within 0.3 mm of tracking the originals, a file cut short
-by a kill or a full disk must stay readable up to its last frame, and the encoder must take under a core at full-HD
-stereo (docs/guide/review.md, "Recorded video", has the measurements). From 960x540 up each frame is a JPEG in
-4:4:4 chroma (the stripe colours keep their edges: 4:2:0 moved the nodes 0.4-1.1 mm) from OpenCV's libjpeg-turbo;
-smaller frames are x264 4:4:4 at CRF 18 tuned for PSNR, as every recording was before issue 36
-(:mod:`snreg.session.video_writer` says why and writes them). Matroska clusters of at most a quarter second, flushed
-as written, so a kill loses about the last quarter second. Each segment records its ``codec``; the readers decode
-whatever codec a file holds, so older sessions read as before.
+Why these: tracking the decoded frames must give the nodes within 0.3 mm of tracking the originals, and a file cut
+short by a kill or a full disk must stay readable up to its last frame (docs/guide/review.md, "Recorded video", has the
+measurements). x264 at CRF 18 tuned for PSNR (its default psychovisual tuning trades the stripes' edges for
+apparent detail: 0.3 mm at CRF 14), 4:4:4 chroma (the stripe colours keep their edges; 4:2:0 MJPEG or MPEG-4 moved
+the nodes 0.4-1.1 mm), preset ultrafast (no B-frames or look-ahead: a frame leaves the encoder at once), a key frame
+every second; Matroska clusters of at most a quarter second, flushed as written, so a kill loses about the last quarter
+second. :mod:`snreg.session.video_writer` writes the files (and says why issue 36's cheaper JPEG was not taken);
+each segment records its ``codec`` and the readers decode whatever codec a file holds.
 
 Frame k of each file is row k - ``first_row`` of ``streams/frames`` (0 for a session's first segment), at pts k at the
 nominal ``fps``: the true grab times are the rows'. :class:`StereoRecorder` takes pairs on the acquisition thread and
@@ -31,7 +31,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from snreg.session.video_writer import CONTAINER, SUFFIX, recording_encoding
+from snreg.session.video_writer import CONTAINER, RECORDING, SUFFIX
 
 QUEUE_PAIRS = 12                 # pairs waiting for the encoder (0.4 s at 30 Hz) before one is dropped
 MIN_FREE_BYTES = 2 * 10**9       # below this free space recording stops (the session goes on)
@@ -51,7 +51,7 @@ class VideoSegment:
     fps: float
     width: int
     height: int
-    codec: str = ""                 # as recorded; a new segment: what recording_encoding gives for its size
+    codec: str = RECORDING.describe()
     container: str = CONTAINER
     closed: bool = False
     frames: tuple[int, int] = (0, 0)
@@ -59,10 +59,6 @@ class VideoSegment:
     sha256: tuple[str, str] = ("", "")
     dropped: int = 0
     stopped: str = ""
-
-    def __post_init__(self):
-        if not self.codec:
-            object.__setattr__(self, "codec", recording_encoding(self.width, self.height).describe())
 
     def to_json(self) -> dict:
         return {key: list(value) if isinstance(value, tuple) else value for key, value in self.__dict__.items()}

@@ -2,14 +2,11 @@
 
 Why here: the recorder's encoder process (:mod:`snreg.session.encoder`) and the codec study
 (:mod:`snreg.simulation.video_bench`) write files the same way, so what the study measures is what the recorder does.
-The recording's encoding (:func:`recording_encoding`; issue 36, docs/guide/review.md "Recorded video"): from
-960x540 up each frame a baseline JPEG in 4:4:4 from OpenCV's libjpeg-turbo (:data:`JPEG_444`), its colour planes
-at quality 95 (the tracker finds the stripes by their hue: chroma at 90 moved a node 0.66 mm) and its brightness at
-75, in a Matroska MJPEG stream of quarter-second clusters: at full HD less than half the CPU of x264 4:4:4 at CRF
-18 (:data:`X264_444`, over a core for full-HD stereo) for four times the size, the nodes within 0.07 mm. Smaller
-frames keep x264: there the JPEG blocks are coarse against the probe's stripes (nodes moved 0.5-0.9 mm at 480x270,
-x264 0.03 mm) and x264 is cheap. Sessions recorded with x264 at any size stay readable: readers decode whatever
-codec a file holds.
+The recording's encoding is :data:`RECORDING`, x264 4:4:4 at CRF 18 tuned for PSNR (docs/guide/review.md,
+"Recorded video"). Issue 36 looked for one under a core at full-HD stereo: :data:`JPEG_444` (each frame a 4:4:4
+JPEG from OpenCV's libjpeg-turbo, its colour at quality 95, its brightness at 75, muxed as Matroska MJPEG) takes
+about 40 % of x264's CPU and keeps the phantom's nodes within 0.1 mm, but on the surgery scene at full HD it moved a
+node 0.32-0.43 mm (x264 0.13-0.15), so the recording stays x264; the study keeps JPEG as a candidate.
 """
 
 from __future__ import annotations
@@ -50,13 +47,7 @@ class Encoding:
 
 JPEG_444 = Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "75", "chroma_quality": "95"})
 X264_444 = Encoding("libx264", "yuv444p", {"crf": "18", "tune": "psnr", "preset": "ultrafast", "g": "30"})
-JPEG_MIN_PIXELS = 960 * 540      # frames this large or larger are recorded as JPEG, smaller ones with x264
-
-
-def recording_encoding(width: int, height: int) -> Encoding:
-    """How the recorder encodes frames of this size: :data:`JPEG_444` from :data:`JPEG_MIN_PIXELS` up, else
-    :data:`X264_444` (see the module's docstring)."""
-    return JPEG_444 if width * height >= JPEG_MIN_PIXELS else X264_444
+RECORDING = X264_444             # what the recorder writes (see the module's docstring)
 
 
 class VideoFileWriter:

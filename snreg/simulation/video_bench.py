@@ -53,7 +53,7 @@ CANDIDATES = [
     ("OpenCV JPEG 4:4:4 quality 95 (MKV)", "av", ".mkv", Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "95"})),
     ("OpenCV JPEG 4:4:4 luma 75 chroma 93 (MKV)", "av", ".mkv",
      Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "75", "chroma_quality": "93"})),
-    ("OpenCV JPEG 4:4:4 luma 75 chroma 95, the recording's from 960x540 (MKV)", "av", ".mkv", JPEG_444),
+    ("OpenCV JPEG 4:4:4 luma 75 chroma 95 (MKV)", "av", ".mkv", JPEG_444),
 ]
 
 
