@@ -10,15 +10,14 @@ from __future__ import annotations
 
 import sys
 import time
-from fractions import Fraction
 from multiprocessing import resource_tracker, shared_memory
 from pathlib import Path
 
 import av
 import numpy as np
 
-from snreg.session.video import (CODEC, CODEC_OPTIONS, CONTAINER, CONTAINER_OPTIONS, ENCODER_THREADS, PIXEL_FORMAT,
-                                 VideoSegment, free_bytes)
+from snreg.session.video import VideoSegment, free_bytes
+from snreg.session.video_writer import RECORDING, VideoFileWriter
 
 
 def main(argv: list[str]) -> int:
@@ -72,39 +71,32 @@ def _say(line: str) -> None:
 
 
 class _Encoder:
-    """The two open files of a segment (in the encoder process)."""
+    """The two open files of a segment (in the encoder process), in :data:`~snreg.session.video_writer.RECORDING`."""
 
     def __init__(self, session_path: str, segment: VideoSegment):
-        self._containers, self._streams = [], []
+        self._writers: list[VideoFileWriter] = []
         try:
             for side in range(2):
-                container = av.open(str(segment.path(session_path, side)), "w", format=CONTAINER,
-                                    container_options=CONTAINER_OPTIONS)
-                self._containers.append(container)
-                stream = container.add_stream(CODEC, rate=Fraction(segment.fps).limit_denominator(1001),
-                                              options=CODEC_OPTIONS)
-                stream.width, stream.height, stream.pix_fmt = segment.width, segment.height, PIXEL_FORMAT
-                stream.thread_count = ENCODER_THREADS
-                self._streams.append(stream)
-        except (av.FFmpegError, OSError, ValueError):
+                self._writers.append(VideoFileWriter(segment.path(session_path, side), segment.width, segment.height,
+                                                     segment.fps, RECORDING))
+        except (av.FFmpegError, OSError, ValueError, KeyError):
             self.close()
             raise
 
     def encode(self, left: np.ndarray, right: np.ndarray, pts: int) -> None:
-        for stream, container, image in zip(self._streams, self._containers, (left, right)):
-            frame = av.VideoFrame.from_ndarray(image, format="bgr24")
-            frame.pts = pts
-            for packet in stream.encode(frame):
-                container.mux(packet)
+        for writer, image in zip(self._writers, (left, right)):
+            writer.write(image, pts)
 
     def close(self) -> None:
-        try:
-            for stream, container in zip(self._streams, self._containers):
-                for packet in stream.encode():
-                    container.mux(packet)
-        finally:
-            for container in self._containers:
-                container.close()
+        """Close both files (the second also when the first fails; the first failure is raised)."""
+        failures = []
+        for writer in self._writers:
+            try:
+                writer.close()
+            except (av.FFmpegError, OSError, ValueError) as err:
+                failures.append(err)
+        if failures:
+            raise failures[0]
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@ short by a kill or a full disk must stay readable up to its last frame (docs/gui
 measurements). x264 at CRF 18 tuned for PSNR (its default psychovisual tuning trades the stripes' edges for
 apparent detail: 0.3 mm at CRF 14), 4:4:4 chroma (the stripe colours keep their edges; 4:2:0 MJPEG or MPEG-4 moved
 the nodes 0.4-1.1 mm), preset ultrafast (no B-frames or look-ahead: a frame leaves the encoder at once), a key frame
-every second; Matroska clusters of at most a quarter second, flushed as written, so a kill loses about the last quarter second.
+every second; Matroska clusters of at most a quarter second, flushed as written, so a kill loses about the last quarter
+second. :mod:`snreg.session.video_writer` writes the files (and says why issue 36's cheaper JPEG was not taken);
+each segment records its ``codec`` and the readers decode whatever codec a file holds.
 
 Frame k of each file is row k - ``first_row`` of ``streams/frames`` (0 for a session's first segment), at pts k at the
 nominal ``fps``: the true grab times are the rows'. :class:`StereoRecorder` takes pairs on the acquisition thread and
@@ -29,11 +31,9 @@ from pathlib import Path
 import av
 import numpy as np
 
-CODEC, PIXEL_FORMAT, CONTAINER, SUFFIX = "libx264", "yuv444p", "matroska", ".mkv"
-CODEC_OPTIONS = {"crf": "18", "tune": "psnr", "preset": "ultrafast", "g": "30"}
-CONTAINER_OPTIONS = {"cluster_time_limit": "250", "cluster_size_limit": "4000000", "flush_packets": "1"}
+from snreg.session.video_writer import CONTAINER, RECORDING, SUFFIX
+
 QUEUE_PAIRS = 12                 # pairs waiting for the encoder (0.4 s at 30 Hz) before one is dropped
-ENCODER_THREADS = 2              # x264's threads per eye (its frame threads delay output by about as many frames)
 MIN_FREE_BYTES = 2 * 10**9       # below this free space recording stops (the session goes on)
 SIDES = ("left", "right")
 
@@ -51,7 +51,7 @@ class VideoSegment:
     fps: float
     width: int
     height: int
-    codec: str = f"{CODEC} {PIXEL_FORMAT} crf {CODEC_OPTIONS['crf']} tune {CODEC_OPTIONS['tune']}"
+    codec: str = RECORDING.describe()
     container: str = CONTAINER
     closed: bool = False
     frames: tuple[int, int] = (0, 0)
