@@ -111,6 +111,14 @@ def test_a_probe_running_out_of_the_image_is_said_to_instead_of_what_its_stripes
     tracker.track(*renderer.render(pose_at(150, x=110)))             # all in view: a fix
 
 
+def test_a_probe_whose_tip_end_cannot_be_told_has_no_fix_rather_than_a_guess(scene):
+    """Tip at the bottom edge, back end beyond the right edge: the three stripes read the same from either end; the
+    old guess put the tip 60 mm off, at the back end."""
+    calibration, probe, renderer = scene
+    with pytest.raises(TrackingError, match="which end is the tip cannot be told"):
+        StereoTracker(calibration, probe).track(*renderer.render(ProbePose.make([55.0, 50.0, 100.0], AXIS)))
+
+
 def test_fix_filter_rejects_outliers_and_detects_stillness():
     rng = np.random.default_rng(0)
     flt = FixFilter(window=5, outlier_mm=5.0, reset_after=3, still_frames=10, still_mm=1.0)

@@ -137,6 +137,9 @@ class StereoTracker:
             raise TrackingError("no probe: two neighbouring stripes seen, and which two cannot be told with the tip out "
                                 "of view; show more of the probe")
         tip_first = self._tip_first(verdicts)
+        if tip_first is None:       # the stripes alone read the same from either end: a guess would be 2 x 30 mm off
+            raise TrackingError("no probe: which end is the tip cannot be told (neither end shows tissue beyond it "
+                                "in view); show the tip's end")
         if self.method == "sgbm":
             surface = self._sgbm_surface(left, right, stripes_left, float(np.median(disparity)))
             points = onto_cylinder(points, surface, self.probe.radius_mm)
@@ -319,10 +322,10 @@ class StereoTracker:
             return s_all[[0, -1]] if abs(gap - (s_all[-1] - s_all[0])) < abs(gap - (s_all[1] - s_all[0])) else s_all[:2]
         raise TrackingError(f"{n} stripe(s) seen; the axis needs at least two")
 
-    def _fit_axis(self, points: np.ndarray, s: np.ndarray, tip_first: bool | None) -> ProbeFix:
+    def _fit_axis(self, points: np.ndarray, s: np.ndarray, tip_first: bool) -> ProbeFix:
         probe = self.probe
         n = len(points)
-        if tip_first is False:
+        if not tip_first:
             points = points[::-1]
         design = np.column_stack([np.ones(n), s])
         coef, *_ = np.linalg.lstsq(design, points, rcond=None)
@@ -330,7 +333,7 @@ class StereoTracker:
         tip = np.mean(points - s[:, None] * axis, axis=0)
         residual = points - (tip + s[:, None] * axis)
         rms = float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
-        quality = (n / len(probe.stripe_centres_mm)) * float(np.exp(-0.5 * (rms / 1.5) ** 2)) * (0.5 if tip_first is None else 1.0)
+        quality = (n / len(probe.stripe_centres_mm)) * float(np.exp(-0.5 * (rms / 1.5) ** 2))
         return ProbeFix(tip, tip + probe.band_centre_mm * axis, axis, quality, self.method, n)
 
     def _end_verdicts(self, left: np.ndarray, points: np.ndarray) -> tuple[bool | None, bool | None]:
