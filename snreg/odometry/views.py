@@ -83,11 +83,17 @@ class EyePair:
         if image.shape[1] != width or image.shape[0] != height:
             raise ValueError(f"the {eye} image is {image.shape[1]}x{image.shape[0]} but the calibration is for "
                              f"{width}x{height}; use the matching calibration file")
-        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         if self.factor == 1:
-            return grey
-        return cv2.resize(grey[:self.size[1] * self.factor, :self.size[0] * self.factor], self.size,
-                          interpolation=cv2.INTER_AREA)
+            return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        crop = image[:self.size[1] * self.factor, :self.size[0] * self.factor]
+        if self.factor == 2 or (self.factor == 3 and self.size[0] % 2 == 0 and self.size[1] % 2 == 0):
+            # halved first (INTER_LINEAR at exactly half is the 2 x 2 mean) and made grey on the quarter of the pixels:
+            # a full-HD frame's colour conversion and reduction cost half as much; a third is that half reduced by 1.5
+            # (INTER_LINEAR: a 4-pixel kernel centred, as the 3 x 3 mean, on full pixel 3x + 1, and as quiet)
+            half = cv2.cvtColor(cv2.resize(crop, (crop.shape[1] // 2, crop.shape[0] // 2),
+                                           interpolation=cv2.INTER_LINEAR), cv2.COLOR_BGR2GRAY)
+            return half if self.factor == 2 else cv2.resize(half, self.size, interpolation=cv2.INTER_LINEAR)
+        return cv2.resize(cv2.cvtColor(crop, cv2.COLOR_BGR2GRAY), self.size, interpolation=cv2.INTER_AREA)
 
     def normalise(self, px: np.ndarray, eye: int) -> np.ndarray:
         """(N, 2) working pixels of eye 0 (left) or 1 (right) -> normalised coordinates in that camera's frame."""
