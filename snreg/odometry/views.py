@@ -343,11 +343,16 @@ def _cut_probe(mask: np.ndarray, pair: EyePair, eye: int, tip: np.ndarray, axis:
     limit = 20.0 * max(mask.shape)                   # beyond this the probe is far outside the image
     drawable = np.isfinite(centres).all(axis=1) & (np.abs(centres).max(axis=1) < limit)
     centres, radii = centres[drawable], radii[drawable]
-    for k in range(len(centres)):
-        cv2.circle(mask, tuple(int(round(v)) for v in centres[k]), int(np.ceil(min(radii[k], limit))), 0, -1)
+    # each sample a disc, each two neighbours joined by the quadrilateral tangent to both sides (made at once)
+    along = np.diff(centres, axis=0)
+    lengths = np.maximum(np.hypot(along[:, 0], along[:, 1]), 1e-9)
+    normals = np.column_stack([-along[:, 1], along[:, 0]]) / lengths[:, None]
+    quads = np.round(np.stack([centres[:-1] + radii[:-1, None] * normals, centres[1:] + radii[1:, None] * normals,
+                               centres[1:] - radii[1:, None] * normals, centres[:-1] - radii[:-1, None] * normals],
+                              axis=1)).astype(np.int32)
+    discs = np.round(centres).astype(int).tolist()
+    sizes = np.ceil(np.minimum(radii, limit)).astype(int).tolist()
+    for k in range(len(discs)):
+        cv2.circle(mask, tuple(discs[k]), sizes[k], 0, -1)
         if k:
-            along = centres[k] - centres[k - 1]
-            normal = np.array([-along[1], along[0]]) / max(float(np.hypot(*along)), 1e-9)
-            quad = [centres[k - 1] + radii[k - 1] * normal, centres[k] + radii[k] * normal,
-                    centres[k] - radii[k] * normal, centres[k - 1] - radii[k - 1] * normal]
-            cv2.fillConvexPoly(mask, np.round(quad).astype(np.int32), 0)
+            cv2.fillConvexPoly(mask, quads[k - 1], 0)
