@@ -149,7 +149,7 @@ class PairImages:
         coarse, factor = plain_left, 1
         while coarse.shape[1] > COARSE_MAX_WIDTH:
             coarse, factor = cv2.pyrDown(coarse), 2 * factor
-        return cls(grey_left, grey_right, deviation, float(plain_left.mean()), band_pass(coarse), factor)
+        return cls(grey_left, grey_right, deviation, cv2.mean(plain_left)[0], band_pass(coarse), factor)
 
 
 @dataclass(eq=False)
