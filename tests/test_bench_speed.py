@@ -31,8 +31,10 @@ def test_the_insertion_rows_say_how_well_the_timed_tracker_tracked():
 
 @pytest.mark.slow
 def test_the_timed_insertion_tracker_follows_the_rendered_truth():
-    # the bench's own seeded full-HD surgery video (a few pairs): every pair tracked, both ways, to a tenth of a mm
+    # the bench's own seeded full-HD surgery video (a few pairs): every pair tracked, both ways, within 0.02 mm (the
+    # tracker before issue 36's cuts, as after them: 0.006 mm at most on 6 pairs; a tracker made faster by tracking
+    # worse would show here)
     rows = bench_insertion(pairs=4)
     assert [r.tracked for r in rows] == [4, 4]
-    assert all(r.error_max_mm < 0.1 for r in rows), rows
+    assert all(r.error_max_mm < 0.02 for r in rows), rows
     assert rows[0].error_mean_mm == pytest.approx(rows[1].error_mean_mm, abs=1e-9)     # the images made beside: same

@@ -2,6 +2,7 @@
 app runs, where the pair is reduced to a third (the working width, reduction factor 3), which the quarter-size renders
 of the other odometry tests never take."""
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -11,6 +12,7 @@ from snreg.demo.camera_path import CameraPath
 from snreg.demo.surgery_video import SurgeryVideo, VideoOptions, surgery_chain
 from snreg.demo.tissue import TissueScene, TissueSurface
 from snreg.odometry import InsertionTracker
+from snreg.odometry.views import EyePair
 from snreg.probe import default_probe_model
 
 START_MM = 158.0
@@ -36,3 +38,22 @@ def test_full_hd_pairs_are_tracked_at_a_third_of_their_size_against_truth():
     assert np.abs(errors).max() < 0.3, errors
     assert all(e.change_sd_mm < 0.3 and e.quality > 0.5 for e in estimates[1:])
     assert estimates[0].sd_mm == pytest.approx(tracker.start_sd_mm)
+
+
+@pytest.mark.parametrize("factor", [2, 3])
+def test_a_frame_halved_before_its_colour_is_dropped_gives_the_grey_of_its_mean(factor):
+    # the working image is made from the frame reduced first (issue 36: a full-HD frame's colour conversion and its
+    # reduction were half the images' time); it must stay close to the grey frame's mean over each factor x factor
+    # block, centred where the working pixels map back to: on this noise (a pixel or two wide) the 4-pixel kernel of
+    # a third differs from the 3 x 3 mean by 3 grey levels on average, an image shifted by a full pixel by 10 (99 %
+    # within 34), one sampled without averaging by 14
+    calibration = thesis_calibration().scaled(2.0 / 3.0) if factor == 2 else thesis_calibration()
+    pair = EyePair(calibration, 640)
+    assert pair.factor == factor
+    width, height = calibration.image_size
+    frame = np.random.default_rng(36).integers(0, 256, (height, width, 3), dtype=np.uint8)
+    frame = cv2.GaussianBlur(frame, (0, 0), 0.7)                 # texture of a pixel or two, as tissue's
+    block_mean = cv2.resize(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY).astype(np.float32), pair.size,
+                            interpolation=cv2.INTER_AREA)
+    difference = np.abs(pair.grey(frame, "left").astype(np.float32) - block_mean)
+    assert difference.mean() < 4.0 and np.percentile(difference, 99) < 15.0, (difference.mean(), difference.max())

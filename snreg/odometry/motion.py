@@ -34,9 +34,9 @@ __all__ = ["Observations", "MotionFit", "fit_pivot", "fit_free", "pivot_departur
 _PHASES = (4.0, 1.0, None)    # Huber thresholds (px): wide (a poor start), narrow; then the inliers alone
 _PHASE_STEPS = 4              # Gauss-Newton steps per phase at most
 _INLIER_PX = 2.0              # a point whose worse eye is farther than this (at the working scale) is an outlier
-_CONVERGED = 1e-7
-# the last phase has settled when its last step moved the rotation less than this (rad) and the insertion less than
-# this (mm): far below the fit's own errors (0.5 deg prior, tracked insertions to 0.05-0.3 mm)
+# a phase has settled when its last step moved the rotation less than this (rad) and the insertion less than this
+# (mm): far below the fit's own errors (0.5 deg prior, tracked insertions to 0.05-0.3 mm); the last phase stops there
+# too (issue 36: it went on to steps of 1e-7, a step more in about half the fits for changes under 1e-8 mm)
 _SETTLED_RAD, _SETTLED_MM = 1e-4, 1e-3
 _MAX_CONDITION = 1e10         # a normal matrix less well conditioned than this: the motion is not determined
 
@@ -113,8 +113,9 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
         insertion += step[3]
         steps += 1
         final = phase == len(_PHASES) - 1
-        if np.abs(step).max() < (_CONVERGED if final else _SETTLED_RAD) or steps == _PHASE_STEPS:   # settled: next
-            if final and not (np.abs(step[:3]).max() < _SETTLED_RAD and abs(step[3]) < _SETTLED_MM):
+        settled = np.abs(step[:3]).max() < _SETTLED_RAD and abs(step[3]) < _SETTLED_MM
+        if (settled if final else np.abs(step).max() < _SETTLED_RAD) or steps == _PHASE_STEPS:   # settled: next
+            if final and not settled:
                 failure = (f"the motion fit did not settle in {_PHASE_STEPS} steps (its last step moved the insertion "
                            f"{abs(step[3]):.3f} mm)")
             phase, steps = phase + 1, 0

@@ -126,9 +126,10 @@ class InsertionTracker:
         self._searched = 0                        # wide searches so far: which keyframe the next one tries
 
     def prepare(self, left: np.ndarray, right: np.ndarray) -> PairImages:
-        """The pair's images that need neither its probe fix nor this tracker's state (a tenth to a fifth of its
-        cost), to hand to :meth:`update`: made beside the probe tracker, in another thread, they cost the pair no time
-        (OpenCV releases the GIL). ValueError for frames of another size than the calibration's."""
+        """The pair's images that need neither its probe fix nor this tracker's state (about a third of its cost on
+        a full-HD pair, ``snreg bench``'s two insertion rows), to hand to :meth:`update`: made beside the probe
+        tracker, in another thread, they cost the pair no time (OpenCV releases the GIL). ValueError for frames of
+        another size than the calibration's."""
         return PairImages.of(self.pair, left, right)
 
     def update(self, left: np.ndarray, right: np.ndarray, earth_from_imu: np.ndarray, *,
@@ -273,9 +274,7 @@ class InsertionTracker:
         """Keyframes close enough in scale and turn to follow into this view at this rotation and insertion, with
         enough of their points in view, the one whose insertion is known best first (ties: the closest)."""
         p, scored = self.params, []
-        for keyframe in self.keyframes:
-            angle = float(rotation_angle_deg(rotation.T @ keyframe.rotation))
-            scale = abs(np.log(self._depth_ratio(keyframe, rotation, insertion_mm)))
+        for keyframe, angle, scale in zip(self.keyframes, *self._turns_and_scales(rotation, insertion_mm)):
             if angle > p.usable_angle_deg or scale > p.usable_scale:
                 continue
             rotation_imu = rotation.T @ keyframe.rotation
@@ -286,11 +285,16 @@ class InsertionTracker:
                 scored.append((keyframe.variance_mm2 + (0.1 * closeness) ** 2, keyframe.number, keyframe))
         return [keyframe for *_, keyframe in sorted(scored, key=lambda item: item[:2])]
 
-    def _depth_ratio(self, keyframe: Keyframe, rotation: np.ndarray, insertion_mm: float) -> float:
-        """How much farther the keyframe's tissue is from the camera now than from the keyframe (median depth)."""
-        rotation_imu = rotation.T @ keyframe.rotation
-        now = rotation_imu @ (keyframe.centre + keyframe.insertion_mm * self.shaft) - insertion_mm * self.shaft
-        return max(float(now[2]), 1.0) / max(keyframe.median_depth_mm, 1.0)
+    def _turns_and_scales(self, rotation: np.ndarray, insertion_mm: float) -> tuple[list[float], list[float]]:
+        """Each keyframe's turn from the camera's ``rotation`` (degrees) and the log of how much farther its tissue is
+        from the camera at ``insertion_mm`` than from the keyframe (median depth, absolute): every keyframe at once,
+        as this runs for each of them twice a pair."""
+        relative = rotation.T @ np.array([k.rotation for k in self.keyframes])        # current_from_keyframe (K, 3, 3)
+        levers = np.array([k.centre + k.insertion_mm * self.shaft for k in self.keyframes])
+        now = np.einsum("kj,kj->k", relative[:, 2, :], levers) - insertion_mm * self.shaft[2]
+        then = np.array([k.median_depth_mm for k in self.keyframes])
+        scales = np.abs(np.log(np.maximum(now, 1.0) / np.maximum(then, 1.0)))
+        return rotation_angle_deg(relative).tolist(), scales.tolist()
 
     def _renew(self, view: View, rotation: np.ndarray, step: _Step) -> None:
         """A new keyframe from this pair when no keyframe is fresh for it, with the camera's rotation the motion fit
@@ -298,9 +302,7 @@ class InsertionTracker:
         IMU's lag behind the grab time) would otherwise stay in every later pair's relative rotation from this
         keyframe, a pivot residual of the insertion times that error where nothing moves (issue 35)."""
         p = self.params
-        for keyframe in self.keyframes:
-            angle = float(rotation_angle_deg(rotation.T @ keyframe.rotation))
-            scale = abs(np.log(self._depth_ratio(keyframe, rotation, step.insertion_mm)))
+        for keyframe, angle, scale in zip(self.keyframes, *self._turns_and_scales(rotation, step.insertion_mm)):
             if angle <= p.fresh_angle_deg and scale <= p.fresh_scale and (
                     keyframe is not step.keyframe or step.points >= 0.6 * len(keyframe.points)):
                 return
