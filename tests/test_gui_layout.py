@@ -24,7 +24,7 @@ PREOP_XYZ = np.array([[-55.0, 20.0, 30.0], [-45.0, 42.0, 8.0], [-47.0, 78.0, 50.
                       [44.0, 45.0, 12.0], [12.0, 100.0, 72.0]])
 LABELS = ("EXT R", "OBT R", "INT R", "EXT L", "OBT L", "SAC L")
 LANDMARK_XYZ = np.array([[-30.0, 60.0, 90.0], [30.0, 60.0, 90.0], [0.0, 40.0, 120.0]])
-# status lines in their longest states (the texts of snreg.workflow.acquisition.video_text, health and insertion)
+# status lines in their longest states (the texts of snreg.session.video.video_text, health and insertion)
 CAMERA_LINE = ("camera: 29.8 fps, skew +0.4 ms, tracking 14 ms + insertion 9 ms  STALE 12.4 s\n"
                "video: recording, 5498 frames, 21 DROPPED (encoder behind), 412 GB free")
 IMU_LINE = "IMU: stale, 0 Hz, 3 corrupt  STALE (no sample for 4.2 s: check the USB cable of the IMU and its port)"

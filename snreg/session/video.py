@@ -305,3 +305,17 @@ class RecordedPairs:
             for reader in readers:
                 reader.close()
         self._open = {}
+
+
+def video_text(state, problem: str = "") -> str:
+    """The video recording in words, for stream health: frames written, pairs dropped (the encoder was behind), free
+    space, or why it is not recorded."""
+    if state is None:
+        return "video: off (turned off in the settings)" if problem == "off" else f"video: not recorded ({problem})"
+    free = f", {state.free_bytes / 1e9:.0f} GB free" if state.free_bytes >= 0 else ""
+    dropped = f", {state.dropped} DROPPED (encoder behind)" if state.dropped else ""
+    if state.problem:
+        return f"video: STOPPED after {state.written} frames{dropped}: {state.problem}"
+    if not state.started:
+        return "video: starting the encoder"
+    return f"video: recording, {state.written} frames{dropped}{free}"

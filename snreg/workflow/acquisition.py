@@ -47,6 +47,7 @@ from snreg.odometry import InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
+from snreg.session.video import video_text
 from snreg.sources import StereoFrame
 from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
 from snreg.tracking.uncertainty import NodeUncertainty, node_covariance_sources, summed_covariance
@@ -54,7 +55,7 @@ from snreg.workflow.insertion import CameraInsertion, InsertionStep, insertion_t
 from snreg.workflow.store_guard import StoreCheck, StoreLimits, nearest_node, same_landmark
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
-           "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT", "video_text"]
+           "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT"]
 
 THESIS_FIXES_PER_NODE = 60
 STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below this spread (RMS about the median)
@@ -71,7 +72,7 @@ class FrameOutcome:
     ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
     a fix; the live link to 3D Slicer streams it. ``store_check``: what Store SN would meet now (the guard's
     refusal in words, or the near node to confirm); ``imu_gap_s``: from the frame's grab time to the nearest IMU
-    sample; ``video``: the recording's state in words (:func:`video_text`). With insertion tracking: ``insertion``,
+    sample; ``video``: the recording's state in words (:func:`~snreg.session.video.video_text`). With insertion tracking: ``insertion``,
     the tracker's estimate at this pair and the insertion the pair was mapped with (held from the last tracked pair
     when lost), ``insertion_text`` in words (:func:`~snreg.workflow.insertion.insertion_text`) and ``insertion_ms``
     what it adds to the pair's time (its images are made beside the probe tracker); None, "" and 0 without."""
@@ -393,16 +394,3 @@ class Acquisition:
                                 np.array([s.t_device_us for s in samples], dtype=np.int64) * 1000,
                                 np.array([s.accel_g for s in samples]), np.array([s.gyro_dps for s in samples]))
 
-
-def video_text(state, problem: str = "") -> str:
-    """The video recording in words, for stream health: frames written, pairs dropped (the encoder was behind), free
-    space, or why it is not recorded."""
-    if state is None:
-        return "video: off (turned off in the settings)" if problem == "off" else f"video: not recorded ({problem})"
-    free = f", {state.free_bytes / 1e9:.0f} GB free" if state.free_bytes >= 0 else ""
-    dropped = f", {state.dropped} DROPPED (encoder behind)" if state.dropped else ""
-    if state.problem:
-        return f"video: STOPPED after {state.written} frames{dropped}: {state.problem}"
-    if not state.started:
-        return "video: starting the encoder"
-    return f"video: recording, {state.written} frames{dropped}{free}"
