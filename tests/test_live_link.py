@@ -309,6 +309,7 @@ from snreg.workflow.live_link import LiveLink
 resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
 link = LiveLink(0, max_clients=10_000, stall_drop_s=60.0)
 good = socket.create_connection(("127.0.0.1", link.port))
+assert link.wait_for_client(30.0)                # served before the flood: a client still waiting is not yet served
 received = []
 
 def read():
