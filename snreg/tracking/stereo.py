@@ -138,8 +138,8 @@ class StereoTracker:
                                 "of view; show more of the probe")
         tip_first = self._tip_first(verdicts)
         if tip_first is None:       # the stripes alone read the same from either end: a guess would be 2 x 30 mm off
-            raise TrackingError("no probe: which end is the tip cannot be told (neither end shows tissue beyond it "
-                                "in view); show the tip's end")
+            raise TrackingError("no probe: which end is the tip cannot be told (both ends look alike or lie out of "
+                                "view); show the tip's end")
         if self.method == "sgbm":
             surface = self._sgbm_surface(left, right, stripes_left, float(np.median(disparity)))
             points = onto_cylinder(points, surface, self.probe.radius_mm)
