@@ -238,9 +238,9 @@ def bench_insertion(pairs: int = 40, seed: int = 1, rounds: int = 3, *, rendered
 
     The insertion runs on ``pairs`` renders of a surgery video (tissue, the camera sliding and turning, the probe in
     view and masked by its true pose as the acquisition's fix does), the probe tracker on its own ``pairs`` renders
-    (:func:`probe_frames`, or ``rendered``: what it returned). Why alternately, pair by pair, in one loop: this machine's speed drifts by a quarter over
-    tens of seconds, so timing one tracker's pairs and then the other's measured the drift between two moments as
-    much as the code. Each round is a fresh tracker of each kind, each warmed up alike (one untimed call on its
+    (:func:`probe_frames`, or ``rendered``: what it returned). Why alternately, pair by pair, in one loop: a
+    machine's speed can drift by a quarter over tens of seconds (this one's did), so timing one tracker's pairs and
+    then the other's measured the drift between two moments as much as the code. Each round is a fresh tracker of each kind, each warmed up alike (one untimed call on its
     first pair by a tracker thrown away), then every pair: the probe tracker, the whole insertion update, and the
     update of a second insertion tracker given the pair's images made beforehand (:meth:`~snreg.odometry.
     InsertionTracker.prepare`, as acquisition makes them beside the probe tracker: what the insertion adds to a pair's
