@@ -22,18 +22,19 @@ def add_bench_parser(subparsers) -> None:
 
 def cmd_bench(args) -> int:
     from snreg.simulation.bench import (bench_insertion, bench_registration, bench_tracking, format_insertion,
-                                        format_rows, format_tracking)
+                                        format_rows, format_tracking, probe_frames)
 
     print("bench: timing the registration methods ...", file=sys.stderr, flush=True)
     rows = bench_registration(reps=args.reps, compare=args.compare)
     print("registration (simulated cases, one process):")
     print(format_rows(rows), flush=True)
     print(f"bench: rendering and tracking {args.pairs} stereo pairs ...", file=sys.stderr, flush=True)
-    print("\ntracking (rendered 1920x1080 pairs, one process):")
-    tracking = bench_tracking(pairs=args.pairs)
-    print(format_tracking(tracking), flush=True)
-    print(f"bench: rendering a surgery video of {args.pairs} pairs and tracking the camera's insertion ...",
-          file=sys.stderr, flush=True)
-    print("\ncamera insertion (rendered 1920x1080 surgery video, one core, CPU time):")
-    print(format_insertion(bench_insertion(pairs=args.pairs), tracking))
+    print("\ntracking (rendered 1920x1080 pairs, one process, OpenCV's threads, wall time):")
+    rendered = probe_frames(args.pairs)
+    print(format_tracking(bench_tracking(pairs=args.pairs, rendered=rendered)), flush=True)
+    print(f"bench: rendering a surgery video of {args.pairs} pairs and timing the camera's insertion against the probe "
+          "tracker ...", file=sys.stderr, flush=True)
+    print("\ncamera insertion against the probe tracker (rendered 1920x1080 surgery video and probe renders, one core, "
+          "CPU time, the trackers taking turns pair by pair, every round's pairs pooled):")
+    print(format_insertion(bench_insertion(pairs=args.pairs, rendered=rendered)))
     return 0

@@ -25,7 +25,7 @@ import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.geometry import invert, make_transform, rotation_angle_deg
-from snreg.odometry.motion import MotionFit, Observations, _both_eyes, _minus_cross, _rms, _rotation, _rotvec
+from snreg.odometry.motion import MotionFit, Observations, _both_eyes, _rms, _rotation, _rotvec, _turn_rows
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography
 from snreg.odometry.views import EyePair, Keyframe, OdometryParams, View, follow, inside, make_keyframe
 from snreg.probe import ProbeModel
@@ -86,10 +86,11 @@ def fit_rigid(obs: Observations, rotation: np.ndarray, translation: np.ndarray) 
     keep = np.ones(len(obs), bool)
     for iteration in range(len(huber) + _FINAL_ITERATIONS):
         turned = obs.points @ rotation.T
-        d_q = np.zeros((len(obs), 3, 6))
-        d_q[:, :, :3] = _minus_cross(turned)
-        d_q[:, :, 3:] = np.eye(3)
-        rows, values, error = _both_eyes(turned + translation, d_q, obs, right_rotation, right_translation)
+        values, d_q, error = _both_eyes(turned + translation, obs, right_rotation, right_translation)
+        rows = np.empty((len(turned), 4, 6))
+        _turn_rows(turned, d_q, rows[:, :, :3])
+        rows[:, :, 3:] = d_q
+        rows = rows.reshape(-1, 6)
         final = iteration >= len(huber)
         if final:
             keep = error < np.clip(_CUT_MEDIANS * float(np.median(error)), *_CUT_PX)
