@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import start_video
 from surgery_frames import NODE_A, NODE_B, START_MM, SlidingWorld, slide_then_rest
 
 from snreg.cli import main
@@ -32,6 +33,7 @@ def recorded(tmp_path_factory):
         path = folder / f"{name}.h5"
         with Session.create(path, case_id=name) as session:
             session.set_calibration(stereo=world.calibration, chain=world.chain)
+            start_video(session, 30.0, *world.calibration.image_size)     # every pair in the video, however loaded
             acquisition = Acquisition(world.calibration, world.probe, world.chain, session, fixes_per_node=WINDOW,
                                       video_fps=30.0, insertion=tracker, clock=lambda: pairs[-1].frame.t_left_ns)
             for k, pair in enumerate(pairs):
