@@ -205,6 +205,13 @@ class Fusion:
                 self._bias_calibrated = True
 
     @property
+    def quaternion_wxyz(self) -> np.ndarray:
+        """(4,) current orientation, sensor to earth (NWU), as imufusion gives it: a unit quaternion w, x, y, z (scalar
+        first; scipy's is last). The live 208 Hz path keeps these as they come: a scipy Rotation per sample cost
+        more than the fusion itself."""
+        return self._ahrs.get_quaternion()
+
+    @property
     def rotation(self) -> Rotation:
         """Current orientation, sensor to earth (NWU), as a scipy Rotation."""
         w, x, y, z = self._ahrs.get_quaternion()
