@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from snreg.geometry import euler_from_rotation
 from snreg.imu import Fusion, ImuSample, SerialImuReader
+from snreg.imu.fusion import euler_of_wxyz
 from snreg.imu.reader import DEFAULT_BAUD
 
 STALE_AFTER_S = 1.0
@@ -138,5 +138,6 @@ class ImuMonitor:
         state = self._reader.state
         counts = self._reader.counts
         earth_from_imu = Rotation.from_quat(last[1][_XYZW]).as_matrix() if last else np.eye(3)
-        return ImuSnapshot(state.value, self._reader.problem, float(recent), age_s,
-                           euler_from_rotation(earth_from_imu), earth_from_imu, counts.samples, counts.corrupt)
+        euler = tuple(float(angle) for angle in euler_of_wxyz(last[1][None])[0]) if last else (0.0, 0.0, 0.0)
+        return ImuSnapshot(state.value, self._reader.problem, float(recent), age_s, euler, earth_from_imu,
+                           counts.samples, counts.corrupt)
