@@ -1,10 +1,48 @@
 """What keeps the live acquisition screen cheap on the GUI thread (issue 36), and still right: the IMU plot's y range
-moves rarely and in whole steps, yet always holds the angles."""
+moves rarely and in whole steps, yet always holds the angles; Store SN's state and reason are set again only when
+they change; a status line counts its lines without laying out what fits on one, as a full layout would."""
+
+import time
 
 import numpy as np
 import pytest
+from PySide6.QtCore import QEvent, QObject, QRect, Qt
 
+from snreg.imu.monitor import ImuSnapshot
+from snreg.workflow.acquisition import FrameOutcome
 from snreg_gui.acquisition.orientation_plot import MIN_SPAN_DEG, RANGE_STEP_DEG, OrientationPlot, y_range
+from snreg_gui.acquisition.screen import AcquisitionScreen
+from snreg_gui.acquisition.status import StatusLine
+from snreg_gui.acquisition.worker import FrameResult
+
+
+class StillImu:
+    """An IMU stand-in that always reports a fresh, level sample."""
+
+    def snapshot(self):
+        return ImuSnapshot("streaming", "", 208.0, 0.0, (0.0, 0.0, 0.0), np.eye(3), 1, 0)
+
+
+def _without_fix(reason: str) -> FrameResult:
+    rgb = np.zeros((54, 96, 3), np.uint8)
+    outcome = FrameOutcome(0, None, reason, None, 0, float("nan"), False, False, 5.0)
+    return FrameResult(outcome, rgb, rgb, None, None, StillImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
+
+
+class Changes(QObject):
+    """Counts the tooltip and enabled-state changes its watched widgets are told of."""
+
+    WATCHED = (QEvent.Type.ToolTipChange, QEvent.Type.EnabledChange)
+
+    def __init__(self, *widgets):
+        super().__init__()
+        self.count = 0
+        for widget in widgets:
+            widget.installEventFilter(self)
+
+    def eventFilter(self, watched, event):              # noqa: N802 (Qt's name)
+        self.count += event.type() in self.WATCHED
+        return False
 
 
 def test_the_y_range_holds_the_angles_in_whole_steps_and_stays_while_they_stay_inside():
@@ -37,3 +75,47 @@ def test_the_plot_sets_its_range_only_when_the_angles_leave_it(qtbot):
     plot.append((55.0, -3.0, 2.0))                                # a turn beyond the range
     plot.redraw()
     assert plot.range_changes == 2 and plot.getViewBox().viewRange()[1][1] >= 55.0
+
+
+def test_store_sn_is_set_again_only_when_its_state_changes_and_is_right_after_a_change(qtbot):
+    screen = AcquisitionScreen(StillImu(), fixes_per_node=5)
+    qtbot.addWidget(screen)
+    screen.show_result(_without_fix("no probe stripe found in the left image"))
+    said = "not ready: collecting fixes, 0 of 5 (no valid fix: no probe stripe found in the left image)"
+    assert screen.store_reason.text() == said == screen.store_reason.toolTip() == screen.store_button.toolTip()
+    changes = Changes(screen.store_reason, screen.store_button, screen.landmark_picker.button)
+    for _ in range(20):                                           # pair after pair saying the same
+        screen.show_result(_without_fix("no probe stripe found in the left image"))
+    assert changes.count == 0
+    screen.show_result(_without_fix("the probe is out of view"))
+    said = "not ready: collecting fixes, 0 of 5 (no valid fix: the probe is out of view)"
+    assert screen.store_reason.text() == said == screen.store_reason.toolTip() == screen.store_button.toolTip()
+    assert changes.count > 0 and screen.store_button.isEnabled()
+    screen.set_paused(True)                                       # a change of state, not only of words
+    assert not screen.store_button.isEnabled() and not screen.landmark_picker.button.isEnabled()
+    assert screen.store_reason.text() == "paused for calibration"
+
+
+def _wrapped(line, text: str, width: int) -> int:
+    """The lines ``text`` takes in ``line``'s font, word-wrapped at ``width`` px, laid out in full."""
+    metrics = line.fontMetrics()
+    return -(-metrics.boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap, text).height()
+             // metrics.lineSpacing())
+
+
+def test_a_status_line_counts_its_lines_as_a_full_layout_would_at_each_width_and_font(qtbot):
+    reserve = "camera 999.9 mm, +99.9 mm since calibration, tracked\\nthe camera is off the pivot model: check both"
+    line = StatusLine("camera 171.0 mm", 1, min_width=100, reserve=reserve)
+    qtbot.addWidget(line)
+    for width in (600, 220, 120):
+        line.resize(width, line.height())
+        inner = line.contentsRect().width()
+        for text in ("camera 171.0 mm", "two\\nlines", "a status that says a good deal more than fits on one line "
+                     "of a narrow side column, so that it wraps"):
+            line.setText(text)
+            assert line.needed_lines() == max(1, _wrapped(line, text, inner), _wrapped(line, reserve, inner))
+    font = line.font()
+    font.setPointSizeF(font.pointSizeF() * 2)
+    line.setFont(font)                                            # the reserve takes more lines in a larger font
+    inner = line.contentsRect().width()
+    assert line.needed_lines() == max(_wrapped(line, line.text(), inner), _wrapped(line, reserve, inner))
