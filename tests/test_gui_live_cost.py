@@ -1,12 +1,14 @@
 """What keeps the live acquisition screen cheap on the GUI thread (issue 36), and still right: the IMU plot's y range
 moves rarely and in whole steps, yet always holds the angles; Store SN's state and reason are set again only when
-they change; a status line counts its lines without laying out what fits on one, as a full layout would."""
+they change; a status line counts its lines without laying out what fits on one, as a full layout would, and a new
+text of as many lines is a repaint, not a relayout."""
 
 import time
 
 import numpy as np
 import pytest
 from PySide6.QtCore import QEvent, QObject, QRect, Qt
+from PySide6.QtWidgets import QApplication
 
 from snreg.imu.monitor import ImuSnapshot
 from snreg.workflow.acquisition import FrameOutcome
@@ -119,3 +121,51 @@ def test_a_status_line_counts_its_lines_as_a_full_layout_would_at_each_width_and
     line.setFont(font)                                            # the reserve takes more lines in a larger font
     inner = line.contentsRect().width()
     assert line.needed_lines() == max(_wrapped(line, line.text(), inner), _wrapped(line, reserve, inner))
+
+
+class LayoutRequests(QObject):
+    """Counts the layout requests the application delivers anywhere."""
+
+    def __init__(self):
+        super().__init__()
+        self.count = 0
+        QApplication.instance().installEventFilter(self)
+
+    def eventFilter(self, watched, event):              # noqa: N802 (Qt's name)
+        self.count += event.type() == QEvent.Type.LayoutRequest
+        return False
+
+    def settle(self, rounds: int = 50) -> None:
+        """Process events until a round delivers no layout request (the window's first layout done), then count
+        from 0."""
+        for _ in range(rounds):
+            before = self.count
+            QApplication.processEvents()
+            if self.count == before:
+                break
+        self.count = 0
+
+
+def test_a_new_status_text_is_painted_without_laying_the_column_out_again(qtbot):
+    screen = AcquisitionScreen(StillImu(), fixes_per_node=5)
+    qtbot.addWidget(screen)
+    screen.resize(1280, 760)
+    screen.show()
+    qtbot.waitExposed(screen)
+    line = screen.tip_trocar
+    line.setText("no fix yet, first")
+    requests = LayoutRequests()
+    requests.settle()
+    painted = []
+    line.paintEvent = lambda event: painted.append(line.text()) or StatusLine.paintEvent(line, event)
+    for k in range(10):                                           # one line of text each, changing every time
+        line.setText(f"no fix (no probe stripe found, pair {k})")
+        line.repaint()
+    QApplication.processEvents()
+    assert requests.count == 0
+    assert painted[-1] == line.text() == line.toolTip() == "no fix (no probe stripe found, pair 9)"
+    line.setText("a status that says a good deal more than fits on one line of the side column, so that it wraps "
+                 "over more lines than the line reserves, as a long refusal does")
+    assert line.shown_lines == line.needed_lines() > 1
+    QApplication.processEvents()
+    assert requests.count > 0                                     # a taller line: then the column is laid out again

@@ -4,7 +4,9 @@ Why: the technician reads the tip position, the endoscope angles and the store s
 away, while the values change at video rate. A number sits in a label of fixed size (wide enough for its widest
 value), so a new value never relayouts the window (a relayout per frame would stall the GUI thread); a status line
 word-wraps over the lines it reserves and takes more when its text needs them: never cut, never elided (its advice
-at the end was once only in a tooltip at 1366x768).
+at the end was once only in a tooltip at 1366x768). A status line keeps and paints its own text, so a new text is a
+repaint of that line, not a relayout of the column. (Filling its own background would also save the repaint of the
+group box beneath, but Fusion's group boxes are a shade darker than the window: the lines showed as light bands.)
 """
 
 from __future__ import annotations
@@ -66,7 +68,10 @@ class StatusLine(QLabel):
     lines (rare, so the layout is not redone at video rate), or grows when the label is first given a width."""
 
     def __init__(self, text: str = "", lines: int = 1, min_width: int = 160, reserve: str = ""):
-        super().__init__(text)
+        super().__init__()
+        # the text is kept and painted here, never given to QLabel: QLabel's setText asks the layouts above it to
+        # be redone (its width is not fixed), about 0.8 ms of the GUI thread per new text, several texts a pair
+        self._text = text
         self.lines, self.reserve = lines, reserve
         self._reserved: tuple = (None, 0)        # (width and font it was laid out at, the reserve's lines)
         # wrapped when painted: QLabel's own word wrap would give the layout a height-for-width, and a scroll area
@@ -76,11 +81,15 @@ class StatusLine(QLabel):
         self.setToolTip(text)
         self._set_lines(lines)
 
+    def text(self) -> str:
+        return self._text
+
     def setText(self, text: str) -> None:                       # noqa: N802 (Qt's name)
-        if text != self.text():
-            super().setText(text)
+        if text != self._text:
+            self._text = text
             self.setToolTip(text)
             self._set_lines(self.needed_lines())
+            self.update()
 
     def resizeEvent(self, event) -> None:                       # noqa: N802
         super().resizeEvent(event)
