@@ -14,7 +14,7 @@ from snreg.imu.monitor import ImuSnapshot
 from snreg.workflow.acquisition import FrameOutcome
 from snreg_gui.acquisition.orientation_plot import MIN_SPAN_DEG, RANGE_STEP_DEG, OrientationPlot, y_range
 from snreg_gui.acquisition.screen import AcquisitionScreen
-from snreg_gui.acquisition.status import StatusLine
+from snreg_gui.acquisition.status import BigNumber, StatusLine
 from snreg_gui.acquisition.worker import FrameResult
 
 
@@ -169,3 +169,15 @@ def test_a_new_status_text_is_painted_without_laying_the_column_out_again(qtbot)
     assert line.shown_lines == line.needed_lines() > 1
     QApplication.processEvents()
     assert requests.count > 0                                     # a taller line: then the column is laid out again
+
+
+def test_a_big_number_shown_again_unchanged_is_still_right_after_each_change(qtbot):
+    number = BigNumber("-888.8")
+    qtbot.addWidget(number)
+    shown = []
+    for value in (12.34, 12.31, 12.31, 12.46, float("nan"), None, -0.01, 3.0, 3.0):
+        number.show_value(value)
+        shown.append(number.text())
+    assert shown == ["12.3", "12.3", "12.3", "12.5", "\u2014", "\u2014", "0.0", "3.0", "3.0"]
+    number.show_value(7.25, 2)
+    assert number.text() == "7.25"

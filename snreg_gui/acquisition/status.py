@@ -44,6 +44,7 @@ class BigNumber(QLabel):
 
     def __init__(self, widest: str, colour: str = ""):
         super().__init__(NO_VALUE)
+        self._shown = NO_VALUE         # the text show_value set last
         self.setFont(big_font(self.font()))
         self.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
         metrics = self.fontMetrics()
@@ -55,9 +56,13 @@ class BigNumber(QLabel):
         set_style(self, f"color: {colour}" if colour else "")
 
     def show_value(self, value: float | None, decimals: int = 1) -> None:
-        """The value with ``decimals`` decimals, or a dash for None or NaN."""
+        """The value with ``decimals`` decimals, or a dash for None or NaN; Qt is not called when the text shown
+        stays the same (each call into Qt from the GUI thread may wait for the interpreter lock a worker holds)."""
         missing = value is None or not math.isfinite(value)
-        self.setText(NO_VALUE if missing else f"{round(value, decimals) + 0.0:.{decimals}f}")   # never "-0.0"
+        text = NO_VALUE if missing else f"{round(value, decimals) + 0.0:.{decimals}f}"      # never "-0.0"
+        if text != self._shown:
+            self._shown = text
+            self.setText(text)
 
 
 class StatusLine(QLabel):
