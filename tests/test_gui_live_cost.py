@@ -77,6 +77,12 @@ def test_the_plot_sets_its_range_only_when_the_angles_leave_it(qtbot):
     plot.append((55.0, -3.0, 2.0))                                # a turn beyond the range
     plot.redraw()
     assert plot.range_changes == 2 and plot.getViewBox().viewRange()[1][1] >= 55.0
+    yaw = plot.listDataItems()[0].getData()
+    assert yaw[0][-1] == 0 and yaw[1][-1] == 55.0 and yaw[1][-2] == pytest.approx(40.0, abs=0.3)
+    assert np.isnan(yaw[1][0]) and np.isfinite(yaw[1][-121:]).all() and np.isnan(yaw[1][:-121]).all()
+    for k in range(400):                                          # once the ring is full, the oldest go
+        plot.append((float(k), 0.0, 0.0))
+    np.testing.assert_array_equal(plot.values[:, 0], np.arange(100.0, 400.0))
 
 
 def test_store_sn_is_set_again_only_when_its_state_changes_and_is_right_after_a_change(qtbot):

@@ -59,19 +59,26 @@ class OrientationPlot(pg.PlotWidget):
         self.setMouseEnabled(x=False, y=False)
         self.shown_range: tuple[float, float] | None = None       # the y range set last
         self.range_changes = 0                                     # how often it was set
-        self._values = np.full((span, 3), np.nan)
+        self._values = np.full((span, 3), np.nan)     # a ring: row ``_next`` is the oldest
+        self._next = 0
         self._x = np.arange(-span + 1, 1)
         self._curves = [self.plot(name=name, pen=pg.mkPen(colour)) for name, colour in ANGLE_COLOURS.items()]
 
     def append(self, euler_deg) -> None:
-        """Add one frame's (yaw, pitch, roll) in degrees; shown at the next :meth:`redraw`."""
-        self._values = np.roll(self._values, -1, axis=0)
-        self._values[-1] = euler_deg
+        """Add one frame's (yaw, pitch, roll) in degrees, in place (every pair); shown at the next :meth:`redraw`."""
+        self._values[self._next] = euler_deg
+        self._next = (self._next + 1) % len(self._values)
+
+    @property
+    def values(self) -> np.ndarray:
+        """(span, 3) yaw, pitch, roll of the last ``span`` frames, oldest first (NaN before the first)."""
+        return np.roll(self._values, -self._next, axis=0)
 
     def redraw(self) -> None:
-        for curve, column in zip(self._curves, self._values.T):
+        values = self.values
+        for curve, column in zip(self._curves, values.T):
             curve.setData(self._x, column, connect="finite")
-        shown = y_range(self._values, self.shown_range)
+        shown = y_range(values, self.shown_range)
         if shown is not None and shown != self.shown_range:
             self.shown_range = shown
             self.range_changes += 1
