@@ -16,6 +16,7 @@ from snreg_gui.acquisition.orientation_plot import MIN_SPAN_DEG, RANGE_STEP_DEG,
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.status import BigNumber, StatusLine
 from snreg_gui.acquisition.worker import FrameResult
+from snreg_gui.common.feed_view import FeedView
 
 
 class StillImu:
@@ -187,3 +188,20 @@ def test_a_big_number_shown_again_unchanged_is_still_right_after_each_change(qtb
     assert shown == ["12.3", "12.3", "12.3", "12.5", "\u2014", "\u2014", "0.0", "3.0", "3.0"]
     number.show_value(7.25, 2)
     assert number.text() == "7.25"
+
+
+def test_the_probes_boxes_a_hot_spots_words_keep_clear_of_are_where_its_marker_and_axis_are_drawn(qtbot):
+    feed = FeedView("left")
+    qtbot.addWidget(feed)
+    feed.resize(292, 164)
+    feed.show_frame(np.full((108, 192, 3), 140, np.uint8), np.array([[100.0, 60.0], [150.0, 40.0]]), 114.8)
+    target = feed._target()
+    scale = target.width() / 192
+    tip, up = (feed._at(target, scale, x, y) for x, y in ([100.0, 60.0], [150.0, 40.0]))   # as painted
+    centres = [(tip.x() + (up.x() - tip.x()) * k / 8, tip.y() + (up.y() - tip.y()) * k / 8) for k in range(9)]
+    radii = [7.0] + [3.0] * 8
+    drawn = feed._drawn_boxes(target, scale)
+    assert len(drawn) == 1 + 9 + 1                                # the title, the tip and 8 axis points, the depth
+    np.testing.assert_allclose(drawn[1:10], [[x - r, y - r, x + r, y + r] for (x, y), r in zip(centres, radii)])
+    at, text = feed._depth_label(tip, target)
+    assert drawn[10][0] == pytest.approx(at.x()) and text == "114.8 mm"
