@@ -79,6 +79,10 @@ class StatusLine(QLabel):
         self._text = text
         self.lines, self.reserve = lines, reserve
         self._reserved: tuple = (None, 0)        # (width and font it was laid out at, the reserve's lines)
+        # the font's metrics and the height set, kept: a new text then calls Qt a few times, not a dozen
+        # (each call from the GUI thread may wait for the interpreter lock a worker holds)
+        self._height = -1
+        self._take_font()
         # wrapped when painted: QLabel's own word wrap would give the layout a height-for-width, and a scroll area
         # around it would size to that
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
@@ -103,34 +107,40 @@ class StatusLine(QLabel):
     def changeEvent(self, event) -> None:                       # noqa: N802
         super().changeEvent(event)
         if event.type() == QEvent.Type.FontChange:               # e.g. a style made it bold: its text takes more room
+            self._take_font()
             self._set_lines(self.needed_lines())
+
+    def _take_font(self) -> None:
+        """Keep the metrics of the font it has now."""
+        self._metrics = self.fontMetrics()
+        self._spacing = self._metrics.lineSpacing()
+        self._font_key = (self._spacing, self._metrics.averageCharWidth())
 
     def needed_lines(self, width: int | None = None) -> int:
         """The lines its text (and the reserved text) take at ``width`` px (default: its own), at least ``lines``."""
         width = self.contentsRect().width() if width is None else width
         if width <= 0:
             return self.lines
-        metrics = self.fontMetrics()
-        key = (width, metrics.lineSpacing(), metrics.averageCharWidth())
+        key = (width, self._font_key)
         if self._reserved[0] != key:             # the reserve's lines, laid out once per width and font
             self._reserved = (key, self._wrapped_lines(self.reserve, width))
-        return max(self.lines, self._reserved[1], self._wrapped_lines(self.text(), width))
+        return max(self.lines, self._reserved[1], self._wrapped_lines(self._text, width))
 
     def _wrapped_lines(self, text: str, width: int) -> int:
         """The lines ``text`` takes word-wrapped at ``width`` px: a line that fits is not laid out (at video rate the
         wrapping cost the GUI thread a fifth of a millisecond per text)."""
         if not text:
             return 0
-        metrics = self.fontMetrics()
-        if "\n" not in text and metrics.horizontalAdvance(text) <= width:
+        if "\n" not in text and self._metrics.horizontalAdvance(text) <= width:
             return 1
-        rect = metrics.boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap, text)
-        return math.ceil(rect.height() / metrics.lineSpacing())
+        rect = self._metrics.boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap, text)
+        return math.ceil(rect.height() / self._spacing)
 
     def _set_lines(self, lines: int) -> None:
         self.shown_lines = lines
-        height = self.fontMetrics().lineSpacing() * lines + 4
-        if self.maximumHeight() != height or self.minimumHeight() != height:
+        height = self._spacing * lines + 4
+        if height != self._height:
+            self._height = height
             self.setFixedHeight(height)
 
     def paintEvent(self, event) -> None:                        # noqa: N802
