@@ -1,11 +1,19 @@
-"""The IMU orientation at a frame's grab time (snreg.imu.monitor.interpolate_orientation), not the latest one."""
+"""The IMU orientation at a frame's grab time (snreg.imu.monitor.interpolate_orientation), not the latest one; the
+monitor that keeps it from the serial stream."""
+
+import os
+import tty
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from conftest import poll
+
 from snreg.geometry import euler_from_rotation
-from snreg.imu.monitor import ImuAt, interpolate_orientation
+from snreg.imu.fusion import Fusion
+from snreg.imu.monitor import ImuAt, ImuMonitor, interpolate_orientation
+from snreg.imu.protocol import format_line, parse_line
 
 
 def _history(yaws_deg, t0_ns=10**12, step_ns=4_807_692):
@@ -32,3 +40,53 @@ def test_outside_the_samples_the_nearest_is_used_and_the_gap_says_how_far():
     none, gap_s = interpolate_orientation(np.zeros(0, np.int64), np.zeros((0, 4)), 5)
     np.testing.assert_array_equal(none, np.eye(3))
     assert gap_s == float("inf")
+
+
+def _burst(first_us, n, rate_dps=30.0, step_us=4808):
+    """``n`` sample lines of a sensor rolled 30 degrees and rolling on at ``rate_dps`` (its orientation moves from one
+    sample to the next, also while imufusion holds the heading at start), device times from ``first_us``."""
+    return [format_line(first_us + k * step_us, [0.0, 0.5, 0.866], [rate_dps, 0.0, 0.0]) for k in range(n)]
+
+
+def test_the_monitor_keeps_each_sample_fused_and_answers_with_the_orientation_at_a_time():
+    """Two bursts on a pty: the latest orientation is the fusion's after the last sample, the orientation at a time
+    between the bursts is slerped between the samples around it, and every raw sample is handed on for recording."""
+    lines = _burst(1000, 6) + _burst(1000 + 6 * 4808, 6)
+    offline = Fusion(208.0)
+    quats = []
+    for sample in (parse_line(line) for line in lines):
+        offline.advance(sample)
+        quats.append(offline.rotation.as_quat())
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    monitor = ImuMonitor(os.ttyname(slave))
+    try:
+        monitor.start()
+        assert poll(lambda: monitor.snapshot().state == "connecting")
+        os.write(master, b"".join(lines[:6]))
+        assert poll(lambda: monitor.snapshot().samples == 6)
+        first = monitor.take_samples()
+        os.write(master, b"".join(lines[6:]))
+        assert poll(lambda: monitor.snapshot().samples == 12)
+        second = monitor.take_samples()
+        snapshot = monitor.snapshot()
+        between = (first[-1].t_host_ns + second[0].t_host_ns) // 2
+        at = monitor.orientation_at(between)
+        after = monitor.orientation_at(second[-1].t_host_ns + 500_000_000)
+    finally:
+        monitor.stop()
+        os.close(master)
+        os.close(slave)
+    assert [s.t_device_us for s in first + second] == [parse_line(line).t_device_us for line in lines]
+    np.testing.assert_allclose(snapshot.earth_from_imu, Rotation.from_quat(quats[-1]).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(snapshot.euler_deg, offline.euler, atol=1e-9)
+    assert abs(snapshot.euler_deg[2]) > 0.1
+    assert snapshot.rate_hz == 12.0                 # samples received within the last second
+    np.testing.assert_allclose(after.earth_from_imu, snapshot.earth_from_imu, atol=1e-12)
+    assert after.gap_s == pytest.approx(0.5)
+    # the host stamps are the bursts' arrivals: between them, slerped from the first burst's last sample to the second's
+    # first, at its share of the way
+    expected, _ = interpolate_orientation(np.array([first[-1].t_host_ns, second[0].t_host_ns]),
+                                          np.array([quats[5], quats[6]]), between)
+    np.testing.assert_allclose(at.earth_from_imu, expected, atol=1e-12)
+    assert not np.allclose(at.earth_from_imu, after.earth_from_imu, atol=1e-6)

@@ -108,6 +108,30 @@ def test_silence_makes_the_stream_stale_and_data_revives_it():
         os.close(slave)
 
 
+def test_a_burst_of_lines_is_decoded_in_one_go_and_yields_every_sample():
+    """A device sends lines whole: the reader decodes a burst that arrived at once in one delivery (it once decoded the
+    first byte alone, then the rest), with one host stamp, and yields every sample of it in order."""
+    bursts = [b"".join(format_line(5000 * (10 * b + k), [0, 0, 1], [0, 0, k]) for k in range(10)) for b in range(3)]
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    got, fed = [], []
+    try:
+        reader = SerialImuReader(os.ttyname(slave), rate_hz=200, on_sample=got.append)
+        feed = reader._decoder.feed
+        reader._decoder.feed = lambda data, t_ns: fed.append(data) or feed(data, t_ns)     # noqa: SLF001
+        with reader:
+            assert poll(lambda: reader.state is ImuState.CONNECTING)
+            for n, burst in enumerate(bursts, 1):
+                os.write(master, burst)
+                assert poll(lambda n=n: reader.counts.samples == 10 * n)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert fed == bursts
+    assert [s.t_device_us for s in got] == [5000 * k for k in range(30)] and reader.counts.corrupt == 0
+    assert [len({s.t_host_ns for s in got[10 * b:10 * b + 10]}) for b in range(3)] == [1, 1, 1]
+
+
 def test_a_port_that_cannot_be_opened_says_what_to_do(tmp_path):
     with pytest.raises(ImuPortError, match="Cannot open the IMU port .*check that the IMU is plugged in") as info:
         SerialImuReader(str(tmp_path / "ttyACM9")).start()

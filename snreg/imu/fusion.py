@@ -33,7 +33,7 @@ from snreg.geometry import euler_from_rotation
 if TYPE_CHECKING:
     from snreg.imu.protocol import ImuSample
 
-__all__ = ["Fusion", "FusionStatus", "fuse_arrays"]
+__all__ = ["Fusion", "FusionStatus", "euler_of_wxyz", "fuse_arrays"]
 
 _WRAP_US = 1 << 32            # the device clock is Arduino micros(): unsigned 32 bit, wraps after 71.6 min
 _MAX_GAP_US = 1_000_000       # a larger step between device stamps is a device restart, not elapsed time
@@ -170,7 +170,7 @@ class Fusion:
         for k, (t_us, accel, gyro) in enumerate(zip(t_device_us, accel_g, gyro_dps)):
             self._advance(int(t_us), accel, gyro)
             quaternions[k] = self._ahrs.get_quaternion()
-        return _euler_of_wxyz(quaternions)
+        return euler_of_wxyz(quaternions)
 
     def step(self, gyro_dps: np.ndarray, accel_g: np.ndarray, dt_s: float) -> tuple[float, float, float]:
         """Fuse one reading (gyro (3,) deg/s, accel (3,) g) taken ``dt_s`` seconds after the last; returns the angles."""
@@ -203,6 +203,13 @@ class Fusion:
             if np.all(self._initial_max - mean < self._still_threshold) and np.all(mean - self._initial_min < self._still_threshold):
                 self._bias.set_offset(mean)
                 self._bias_calibrated = True
+
+    @property
+    def quaternion_wxyz(self) -> np.ndarray:
+        """(4,) current orientation, sensor to earth (NWU), as imufusion gives it: a unit quaternion w, x, y, z (scalar
+        first; scipy's is last). The live 208 Hz path keeps these as they come: a scipy Rotation per sample cost
+        more than the fusion itself."""
+        return self._ahrs.get_quaternion()
 
     @property
     def rotation(self) -> Rotation:
@@ -258,11 +265,12 @@ def fuse_arrays(t_s: np.ndarray, gyro_dps: np.ndarray, accel_g: np.ndarray, *,
     for k, (g, a, d) in enumerate(zip(gyro_dps, accel_g, dt)):
         fusion._step(g, a, d)
         quaternions[k] = fusion._ahrs.get_quaternion()
-    return _euler_of_wxyz(quaternions)
+    return euler_of_wxyz(quaternions)
 
 
-def _euler_of_wxyz(quaternions: np.ndarray) -> np.ndarray:
-    """(n, 3) yaw, pitch, roll in degrees of imufusion quaternions (n, 4) given as w, x, y, z."""
+def euler_of_wxyz(quaternions: np.ndarray) -> np.ndarray:
+    """(n, 3) yaw, pitch, roll in degrees of imufusion quaternions (n, 4) given as w, x, y, z (no detour through a
+    matrix, which scipy must make orthonormal first: the live path's angles come from here)."""
     if len(quaternions) == 0:
         return np.zeros((0, 3))
     return Rotation.from_quat(np.asarray(quaternions)[:, [1, 2, 3, 0]]).as_euler("ZYX", degrees=True)

@@ -5,11 +5,14 @@ orientation and the stream's health, taken at its own pace under a lock, and the
 into the session (:meth:`ImuMonitor.take_samples`). A fix is mapped with the orientation at its frame's grab
 time, not the latest (:meth:`ImuMonitor.orientation_at`: the last ``HISTORY_S`` seconds of fused orientations,
 interpolated on the host clock), so a tracking loop that runs late still pairs each frame with its own pose.
-Sample times are host receive times: they trail the sensor by the serial latency (a few ms).
+Sample times are host receive times: they trail the sensor by the serial latency (a few ms). The reader thread
+only fuses and keeps each sample's quaternion as imufusion gives it: a scipy rotation per sample (208 Hz) once cost
+more than the fusion itself; rotations and angles are made when a frame or the screen asks.
 """
 
 from __future__ import annotations
 
+import bisect
 import threading
 import time
 from collections import deque
@@ -18,12 +21,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from snreg.geometry import euler_from_rotation
 from snreg.imu import Fusion, ImuSample, SerialImuReader
+from snreg.imu.fusion import euler_of_wxyz
 from snreg.imu.reader import DEFAULT_BAUD
 
 STALE_AFTER_S = 1.0
 HISTORY_S = 2.0           # fused orientations kept for :meth:`ImuMonitor.orientation_at`
+_XYZW = [1, 2, 3, 0]      # a w, x, y, z quaternion's parts in scipy's order
 KEPT_SAMPLES_S = 10.0     # raw samples wait this long for :meth:`ImuMonitor.take_samples` before the oldest go
 
 
@@ -73,6 +77,11 @@ def interpolate_orientation(times_ns: np.ndarray, quats_xyzw: np.ndarray, t_ns: 
     return rotation.as_matrix(), min(int(t_ns) - int(pair[0]), int(pair[1]) - int(t_ns)) / 1e9
 
 
+def _time_of(entry: tuple[int, np.ndarray]) -> int:
+    """A history entry's host time (ns)."""
+    return entry[0]
+
+
 class ImuMonitor:
     """Reads ``port`` at ``baudrate`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`;
     thread-safe :meth:`snapshot`."""
@@ -80,10 +89,10 @@ class ImuMonitor:
     def __init__(self, port: str, sample_rate_hz: float = 208.0, *, baudrate: int = DEFAULT_BAUD):
         self._lock = threading.Lock()
         self._fusion = Fusion(sample_rate_hz)
-        self._arrivals: deque[int] = deque(maxlen=int(sample_rate_hz * 2))
         self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
+        # (host receive time ns, fused quaternion w, x, y, z as imufusion gives it) per sample, oldest first: the
+        # orientations to interpolate, the latest orientation and the measured rate
         self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=int(sample_rate_hz * HISTORY_S))
-        self._rotation = Rotation.identity()
         self._reader = SerialImuReader(port, baudrate, on_sample=self._on_sample)
         self.started = False
 
@@ -96,21 +105,20 @@ class ImuMonitor:
         self._reader.stop()
 
     def _on_sample(self, sample: ImuSample) -> None:
-        self._fusion.advance(sample)            # angles only when a snapshot asks: 208 Hz stays cheap
-        rotation = self._fusion.rotation
-        quat = rotation.as_quat()
+        # 208 times a second in the reader thread: the quaternion only; rotations and angles when someone asks
+        self._fusion.advance(sample)
+        quat = self._fusion.quaternion_wxyz
         with self._lock:
-            self._rotation = rotation
-            self._arrivals.append(sample.t_host_ns)
             self._pending.append(sample)
             self._history.append((sample.t_host_ns, quat))
 
     def orientation_at(self, t_host_ns: int) -> ImuAt:
         """The fused orientation at host time ``t_host_ns`` (a frame's grab time), interpolated between samples."""
-        with self._lock:
-            history = list(self._history)
-        times = np.array([t for t, _ in history], dtype=np.int64)
-        quats = np.array([q for _, q in history]).reshape(-1, 4)
+        with self._lock:        # the two samples around it (one at either end), found by bisection, not copied all
+            k = bisect.bisect_left(self._history, t_host_ns, key=_time_of)
+            around = [self._history[i] for i in range(max(k - 1, 0), min(k + 1, len(self._history)))]
+        times = np.array([t for t, _ in around], dtype=np.int64)
+        quats = np.array([q for _, q in around]).reshape(-1, 4)[:, _XYZW]
         earth_from_imu, gap_s = interpolate_orientation(times, quats, t_host_ns)
         return ImuAt(earth_from_imu, gap_s, self._reader.state.value)
 
@@ -124,12 +132,12 @@ class ImuMonitor:
     def snapshot(self) -> ImuSnapshot:
         now = time.perf_counter_ns()
         with self._lock:
-            arrivals = list(self._arrivals)
-            rotation = self._rotation
-        recent = [t for t in arrivals if now - t <= 1_000_000_000]
-        age_s = (now - arrivals[-1]) / 1e9 if arrivals else float("inf")
+            recent = len(self._history) - bisect.bisect_left(self._history, now - 1_000_000_000, key=_time_of)
+            last = self._history[-1] if self._history else None
+        age_s = (now - last[0]) / 1e9 if last else float("inf")
         state = self._reader.state
         counts = self._reader.counts
-        earth_from_imu = rotation.as_matrix()
-        return ImuSnapshot(state.value, self._reader.problem, float(len(recent)), age_s,
-                           euler_from_rotation(earth_from_imu), earth_from_imu, counts.samples, counts.corrupt)
+        earth_from_imu = Rotation.from_quat(last[1][_XYZW]).as_matrix() if last else np.eye(3)
+        euler = tuple(float(angle) for angle in euler_of_wxyz(last[1][None])[0]) if last else (0.0, 0.0, 0.0)
+        return ImuSnapshot(state.value, self._reader.problem, float(recent), age_s, euler, earth_from_imu,
+                           counts.samples, counts.corrupt)

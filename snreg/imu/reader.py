@@ -143,7 +143,7 @@ class SerialImuReader:
                 self._reconnect()
                 continue
             try:
-                data = self._serial.read(max(1, self._serial.in_waiting))
+                data = self._read()
             except (serial.SerialException, OSError) as err:
                 self._close()
                 self._set_state(ImuState.DISCONNECTED, f"the IMU port {self.port} went away ({err}); "
@@ -157,6 +157,13 @@ class SerialImuReader:
                                 "check the sensor, its cable and the baud rate")
         self._close()
         self._set_state(ImuState.STOPPED)
+
+    def _read(self) -> bytes:
+        """What the port holds, waiting (at most ``read_timeout_s``) for its first byte: a line that arrives at once,
+        as a device sends it, is read in one wake-up of this thread, not its first byte apart from the rest."""
+        data = self._serial.read(1)
+        waiting = self._serial.in_waiting if data else 0
+        return data + self._serial.read(waiting) if waiting else data
 
     def _reconnect(self) -> None:
         if self._stop.wait(self.retry_interval_s):

@@ -2,9 +2,14 @@
 
 Why: the operator must see the endoscope is held still while a node is stored (its orientation enters
 the trocar position). Three curves are made once and fed from a fixed-size ring of recent values.
+The y range is set here, in whole steps, and only when the angles leave it or fill a small part of it
+(:func:`y_range`): pyqtgraph's auto-range moved it at nearly every redraw, and each move re-laid its
+axis (about 10 ms of the GUI thread per redraw).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pyqtgraph as pg
@@ -13,13 +18,34 @@ ANGLE_COLOURS = {"yaw": "#e6550d", "pitch": "#31a354", "roll": "#3182bd"}
 
 
 MIN_SPAN_DEG = 4.0      # the y axis never zooms in further: sensor noise must not look like motion
+RANGE_STEP_DEG = 5.0    # the y range's ends are whole multiples of this
+RANGE_PAD_DEG = 1.0     # room kept between the angles and the range's ends when it is set
+
+
+def y_range(values: np.ndarray, current: tuple[float, float] | None) -> tuple[float, float] | None:
+    """The y range (low, high) in degrees to show ``values`` (any shape, NaN ignored) in: ``current`` while every
+    value lies within it and it is less than twice as tall as a new one would be; else a new one around them,
+    ``RANGE_PAD_DEG`` beyond them, at least ``MIN_SPAN_DEG`` tall, its ends on multiples of ``RANGE_STEP_DEG``.
+    None without a finite value and no current range."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if finite.size == 0:
+        return current
+    low, high = float(finite.min()), float(finite.max())
+    middle, half = (low + high) / 2, max((high - low) / 2 + RANGE_PAD_DEG, MIN_SPAN_DEG / 2)
+    wanted = (math.floor((middle - half) / RANGE_STEP_DEG) * RANGE_STEP_DEG,
+              math.ceil((middle + half) / RANGE_STEP_DEG) * RANGE_STEP_DEG)
+    if current is not None and current[0] <= low and high <= current[1] \
+            and current[1] - current[0] < 2 * (wanted[1] - wanted[0]):
+        return current
+    return wanted
 
 
 class OrientationPlot(pg.PlotWidget):
     """Yaw, pitch and roll (degrees) over the last ``span`` frames.
 
-    Cheap to redraw: the x range is fixed, the y axis zooms no closer than ``MIN_SPAN_DEG`` (so its ticks
-    rarely change) and has no SI prefix, the pens are cosmetic (wide pens are slow in Qt's raster engine).
+    Cheap to redraw: the x range is fixed, the y range moves rarely and in whole steps (:func:`y_range`; no closer
+    than ``MIN_SPAN_DEG``) and has no SI prefix, the pens are cosmetic (wide pens are slow in Qt's raster engine).
     """
 
     def __init__(self, span: int = 300):
@@ -29,18 +55,31 @@ class OrientationPlot(pg.PlotWidget):
         self.getAxis("left").enableAutoSIPrefix(False)
         self.addLegend(offset=(5, 5))
         self.setXRange(-span + 1, 0, padding=0)
-        self.enableAutoRange(x=False)
-        self.setLimits(minYRange=MIN_SPAN_DEG)
+        self.enableAutoRange(x=False, y=False)
         self.setMouseEnabled(x=False, y=False)
-        self._values = np.full((span, 3), np.nan)
+        self.shown_range: tuple[float, float] | None = None       # the y range set last
+        self.range_changes = 0                                     # how often it was set
+        self._values = np.full((span, 3), np.nan)     # a ring: row ``_next`` is the oldest
+        self._next = 0
         self._x = np.arange(-span + 1, 1)
         self._curves = [self.plot(name=name, pen=pg.mkPen(colour)) for name, colour in ANGLE_COLOURS.items()]
 
     def append(self, euler_deg) -> None:
-        """Add one frame's (yaw, pitch, roll) in degrees; shown at the next :meth:`redraw`."""
-        self._values = np.roll(self._values, -1, axis=0)
-        self._values[-1] = euler_deg
+        """Add one frame's (yaw, pitch, roll) in degrees, in place (every pair); shown at the next :meth:`redraw`."""
+        self._values[self._next] = euler_deg
+        self._next = (self._next + 1) % len(self._values)
+
+    @property
+    def values(self) -> np.ndarray:
+        """(span, 3) yaw, pitch, roll of the last ``span`` frames, oldest first (NaN before the first)."""
+        return np.roll(self._values, -self._next, axis=0)
 
     def redraw(self) -> None:
-        for curve, column in zip(self._curves, self._values.T):
+        values = self.values
+        for curve, column in zip(self._curves, values.T):
             curve.setData(self._x, column, connect="finite")
+        shown = y_range(values, self.shown_range)
+        if shown is not None and shown != self.shown_range:
+            self.shown_range = shown
+            self.range_changes += 1
+            self.setYRange(*shown, padding=0)

@@ -146,6 +146,7 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         self._draws = 0
         self._draw_timer = QTimer(self, interval=DRAW_INTERVAL_MS, timeout=self._draw)
         self._draw_timer.start()
+        self._store_state: tuple | None = None     # (enabled, reason, style) shown now
         self._set_store_enabled(False, "waiting for the first frame")
 
     def _layout(self) -> None:
@@ -373,11 +374,16 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         self._set_store_enabled(line.enabled, line.text, line.style)
 
     def _set_store_enabled(self, enabled: bool, reason: str, style: str = "") -> None:
+        """Store SN's state, its reason and the reason's tone; the widgets are touched only when one of them changed
+        (this runs for every pair, and mostly says what it said already)."""
+        state = (enabled, reason, style)
+        if state == self._store_state:
+            return
+        self._store_state = state
         self.store_button.setEnabled(enabled)
         self.landmark_picker.button.setEnabled(enabled)
         self.store_button.setToolTip(reason)
-        self.store_reason.setText(reason)
-        self.store_reason.setToolTip(reason)
+        self.store_reason.setText(reason)          # its tooltip with it
         set_style(self.store_reason, style)
 
     # -- health --------------------------------------------------------------

@@ -4,7 +4,9 @@ Why: the technician reads the tip position, the endoscope angles and the store s
 away, while the values change at video rate. A number sits in a label of fixed size (wide enough for its widest
 value), so a new value never relayouts the window (a relayout per frame would stall the GUI thread); a status line
 word-wraps over the lines it reserves and takes more when its text needs them: never cut, never elided (its advice
-at the end was once only in a tooltip at 1366x768).
+at the end was once only in a tooltip at 1366x768). A status line keeps and paints its own text, so a new text is a
+repaint of that line, not a relayout of the column. (Filling its own background would also save the repaint of the
+group box beneath, but Fusion's group boxes are a shade darker than the window: the lines showed as light bands.)
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ class BigNumber(QLabel):
 
     def __init__(self, widest: str, colour: str = ""):
         super().__init__(NO_VALUE)
+        self._shown = NO_VALUE         # the text show_value set last
         self.setFont(big_font(self.font()))
         self.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
         metrics = self.fontMetrics()
@@ -53,9 +56,13 @@ class BigNumber(QLabel):
         set_style(self, f"color: {colour}" if colour else "")
 
     def show_value(self, value: float | None, decimals: int = 1) -> None:
-        """The value with ``decimals`` decimals, or a dash for None or NaN."""
+        """The value with ``decimals`` decimals, or a dash for None or NaN; Qt is not called when the text shown
+        stays the same (each call into Qt from the GUI thread may wait for the interpreter lock a worker holds)."""
         missing = value is None or not math.isfinite(value)
-        self.setText(NO_VALUE if missing else f"{round(value, decimals) + 0.0:.{decimals}f}")   # never "-0.0"
+        text = NO_VALUE if missing else f"{round(value, decimals) + 0.0:.{decimals}f}"      # never "-0.0"
+        if text != self._shown:
+            self._shown = text
+            self.setText(text)
 
 
 class StatusLine(QLabel):
@@ -66,8 +73,16 @@ class StatusLine(QLabel):
     lines (rare, so the layout is not redone at video rate), or grows when the label is first given a width."""
 
     def __init__(self, text: str = "", lines: int = 1, min_width: int = 160, reserve: str = ""):
-        super().__init__(text)
+        super().__init__()
+        # the text is kept and painted here, never given to QLabel: QLabel's setText asks the layouts above it to
+        # be redone (its width is not fixed), about 0.8 ms of the GUI thread per new text, several texts a pair
+        self._text = text
         self.lines, self.reserve = lines, reserve
+        self._reserved: tuple = (None, 0)        # (width and font it was laid out at, the reserve's lines)
+        # the font's metrics and the height set, kept: a new text then calls Qt a few times, not a dozen
+        # (each call from the GUI thread may wait for the interpreter lock a worker holds)
+        self._height = -1
+        self._take_font()
         # wrapped when painted: QLabel's own word wrap would give the layout a height-for-width, and a scroll area
         # around it would size to that
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Fixed)
@@ -75,11 +90,15 @@ class StatusLine(QLabel):
         self.setToolTip(text)
         self._set_lines(lines)
 
+    def text(self) -> str:
+        return self._text
+
     def setText(self, text: str) -> None:                       # noqa: N802 (Qt's name)
-        if text != self.text():
-            super().setText(text)
+        if text != self._text:
+            self._text = text
             self.setToolTip(text)
             self._set_lines(self.needed_lines())
+            self.update()
 
     def resizeEvent(self, event) -> None:                       # noqa: N802
         super().resizeEvent(event)
@@ -88,23 +107,40 @@ class StatusLine(QLabel):
     def changeEvent(self, event) -> None:                       # noqa: N802
         super().changeEvent(event)
         if event.type() == QEvent.Type.FontChange:               # e.g. a style made it bold: its text takes more room
+            self._take_font()
             self._set_lines(self.needed_lines())
+
+    def _take_font(self) -> None:
+        """Keep the metrics of the font it has now."""
+        self._metrics = self.fontMetrics()
+        self._spacing = self._metrics.lineSpacing()
+        self._font_key = (self._spacing, self._metrics.averageCharWidth())
 
     def needed_lines(self, width: int | None = None) -> int:
         """The lines its text (and the reserved text) take at ``width`` px (default: its own), at least ``lines``."""
         width = self.contentsRect().width() if width is None else width
         if width <= 0:
             return self.lines
-        spacing = self.fontMetrics().lineSpacing()
-        needed = [math.ceil(self.fontMetrics().boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap,
-                                                            text).height() / spacing)
-                  for text in (self.text(), self.reserve) if text]
-        return max([self.lines, *needed])
+        key = (width, self._font_key)
+        if self._reserved[0] != key:             # the reserve's lines, laid out once per width and font
+            self._reserved = (key, self._wrapped_lines(self.reserve, width))
+        return max(self.lines, self._reserved[1], self._wrapped_lines(self._text, width))
+
+    def _wrapped_lines(self, text: str, width: int) -> int:
+        """The lines ``text`` takes word-wrapped at ``width`` px: a line that fits is not laid out (at video rate the
+        wrapping cost the GUI thread a fifth of a millisecond per text)."""
+        if not text:
+            return 0
+        if "\n" not in text and self._metrics.horizontalAdvance(text) <= width:
+            return 1
+        rect = self._metrics.boundingRect(QRect(0, 0, width, 10_000), Qt.TextFlag.TextWordWrap, text)
+        return math.ceil(rect.height() / self._spacing)
 
     def _set_lines(self, lines: int) -> None:
         self.shown_lines = lines
-        height = self.fontMetrics().lineSpacing() * lines + 4
-        if self.maximumHeight() != height or self.minimumHeight() != height:
+        height = self._spacing * lines + 4
+        if height != self._height:
+            self._height = height
             self.setFixedHeight(height)
 
     def paintEvent(self, event) -> None:                        # noqa: N802

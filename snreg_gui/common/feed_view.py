@@ -246,12 +246,12 @@ class FeedView(QWidget):
         """(K, 4) left, top, right, bottom widget px of what the feed draws besides the hot spots: its title and the
         probe's overlay (tip marker, points along its axis, depth label); a hot spot's words keep clear of them."""
         boxes = [self._title_box()]
-        if self._overlay is not None:
-            tip, up = (self._at(target, scale, x, y) for x, y in self._overlay)
-            along = [tip + (up - tip) * (k / 8) for k in range(1, 9)]
-            boxes += [[p.x() - r, p.y() - r, p.x() + r, p.y() + r]
-                      for p, r in [(tip, _TIP_PX + 2)] + [(p, 3.0) for p in along]]
-            label = self._depth_label(tip, target)
+        if self._overlay is not None:       # in numpy: each Qt call here (once ~50 a paint) may wait for the GIL
+            ends = (np.asarray(self._overlay, dtype=float) + 0.5) * scale + (target.x(), target.y())
+            centres = ends[0] + (ends[1] - ends[0]) * (np.arange(9) / 8)[:, None]     # the tip, 8 points up the axis
+            radii = np.r_[_TIP_PX + 2, np.full(8, 3.0)][:, None]
+            boxes += np.hstack([centres - radii, centres + radii]).tolist()
+            label = self._depth_label(QPointF(*ends[0]), target)
             if label is not None:
                 metrics, (at, text) = self.fontMetrics(), label
                 boxes.append([at.x(), at.y() - metrics.ascent(), at.x() + metrics.horizontalAdvance(text),
