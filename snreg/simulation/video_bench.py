@@ -138,7 +138,7 @@ def run(scale: float = 0.5, seed: int | tuple[int, ...] = 0, match: str = "", sc
 
 
 def _one_seed(scale, seed, chosen, scene, noise, rounds, rests_only, found) -> float:
-    """Render one seed's tour, write and decode it with each chosen candidate, add to ``found``; its seconds of video."""
+    """Render one seed's tour, write and decode it with each chosen candidate into ``found``; its seconds of video."""
     cameras, probe = thesis_calibration().scaled(scale), default_probe_model()
     kind_of_scene = {"phantom": PhantomScene, "surgery": SurgeryScene}[scene]
     tour = kind_of_scene(cameras, probe, Schedule(rest_frames=30, move_frames=5), seed=seed, noise_sigma=noise)
