@@ -5,7 +5,7 @@ Why here: the recorder's encoder process (:mod:`snreg.session.encoder`) and the 
 The recording's encoding depends on the frame size (:func:`recording`; docs/guide/review.md, "Recorded video").
 Above a megapixel per eye (full HD), since issue 36, :data:`JPEG_444`: each frame a 4:4:4 JPEG from OpenCV's
 libjpeg-turbo (brightness at quality 85, colour at 95) muxed as Matroska MJPEG, about 0.8 CPU s per s of full-HD
-stereo where x264 4:4:4 CRF 18 (:data:`X264_444`) took about 2, at about five times x264's disk (70 GB per hour).
+stereo where x264 4:4:4 CRF 18 (:data:`X264_444`) took about 2, at about five times x264's disk (65-73 GB per hour).
 The tracker finds the stripes by colour thresholds; compression moves a few of a stripe's edge pixels across them,
 which shifts its centroid by hundredths of a pixel and the tip's depth by tenths of a millimetre: at brightness
 quality 75 a node moved 0.3-0.4 mm on the surgery scene at full HD; at 85, over six seeds, at most 0.15 mm. Smaller
