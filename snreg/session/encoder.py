@@ -17,7 +17,7 @@ import av
 import numpy as np
 
 from snreg.session.video import VideoSegment, free_bytes
-from snreg.session.video_writer import RECORDING, VideoFileWriter
+from snreg.session.video_writer import VideoFileWriter, recording
 
 
 def main(argv: list[str]) -> int:
@@ -71,14 +71,15 @@ def _say(line: str) -> None:
 
 
 class _Encoder:
-    """The two open files of a segment (in the encoder process), in :data:`~snreg.session.video_writer.RECORDING`."""
+    """The two open files of a segment (in the encoder process), in :func:`~snreg.session.video_writer.recording`'s
+    encoding for its size."""
 
     def __init__(self, session_path: str, segment: VideoSegment):
         self._writers: list[VideoFileWriter] = []
         try:
             for side in range(2):
                 self._writers.append(VideoFileWriter(segment.path(session_path, side), segment.width, segment.height,
-                                                     segment.fps, RECORDING))
+                                                     segment.fps, recording(segment.width, segment.height)))
         except (av.FFmpegError, OSError, ValueError, KeyError):
             self.close()
             raise

@@ -1,13 +1,15 @@
-"""The stereo video recorded beside a session: two Matroska files of H.264 4:4:4, written off the caller's thread.
+"""The stereo video recorded beside a session: two Matroska files, written off the caller's thread.
 
-Why these: tracking the decoded frames must give the nodes within 0.3 mm of tracking the originals, and a file cut
-short by a kill or a full disk must stay readable up to its last frame (docs/guide/review.md, "Recorded video", has the
-measurements). x264 at CRF 18 tuned for PSNR (its default psychovisual tuning trades the stripes' edges for
-apparent detail: 0.3 mm at CRF 14), 4:4:4 chroma (the stripe colours keep their edges; 4:2:0 MJPEG or MPEG-4 moved
-the nodes 0.4-1.1 mm), preset ultrafast (no B-frames or look-ahead: a frame leaves the encoder at once), a key frame
-every second; Matroska clusters of at most a quarter second, flushed as written, so a kill loses about the last quarter
-second. :mod:`snreg.session.video_writer` writes the files (and says why issue 36's cheaper JPEG was not taken);
-each segment records its ``codec`` and the readers decode whatever codec a file holds.
+Why these: tracking the decoded frames must give the nodes within 0.3 mm of tracking the originals, a file cut short
+by a kill or a full disk must stay readable up to its last frame, and (issue 36) the encoder must take under a core at
+full-HD stereo (docs/guide/review.md, "Recorded video", has the measurements). Full-HD frames (above a megapixel)
+are each a JPEG of their own, 4:4:4, brightness at quality 85 and colour at 95 (at brightness 75 the surgery scene's
+nodes moved up to 0.43 mm); smaller ones x264 4:4:4 at CRF 18 tuned for PSNR, preset ultrafast, a key frame every
+second, as every size was before issue 36 (:func:`~snreg.session.video_writer.recording` chooses, and says why).
+Both keep the stripe colours' edges in 4:4:4 (4:2:0 moved the nodes 0.4-1.1 mm) and let a frame leave the encoder at
+once; Matroska clusters of at most a quarter second, flushed as written, so a kill loses about the last quarter
+second. :mod:`snreg.session.video_writer` writes the files; each segment records its ``codec`` and the readers
+decode whatever codec a file holds.
 
 Frame k of each file is row k - ``first_row`` of ``streams/frames`` (0 for a session's first segment), at pts k at the
 nominal ``fps``: the true grab times are the rows'. :class:`StereoRecorder` takes pairs on the acquisition thread and
@@ -31,7 +33,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from snreg.session.video_writer import CONTAINER, RECORDING, SUFFIX
+from snreg.session.video_writer import CONTAINER, SUFFIX, recording
 
 QUEUE_PAIRS = 12                 # pairs waiting for the encoder (0.4 s at 30 Hz) before one is dropped
 MIN_FREE_BYTES = 2 * 10**9       # below this free space recording stops (the session goes on)
@@ -51,7 +53,7 @@ class VideoSegment:
     fps: float
     width: int
     height: int
-    codec: str = RECORDING.describe()
+    codec: str = ""              # "": the recorder's encoding for this size (video_writer.recording)
     container: str = CONTAINER
     closed: bool = False
     frames: tuple[int, int] = (0, 0)
@@ -59,6 +61,10 @@ class VideoSegment:
     sha256: tuple[str, str] = ("", "")
     dropped: int = 0
     stopped: str = ""
+
+    def __post_init__(self):
+        if not self.codec:
+            object.__setattr__(self, "codec", recording(self.width, self.height).describe())
 
     def to_json(self) -> dict:
         return {key: list(value) if isinstance(value, tuple) else value for key, value in self.__dict__.items()}

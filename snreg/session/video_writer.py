@@ -2,11 +2,15 @@
 
 Why here: the recorder's encoder process (:mod:`snreg.session.encoder`) and the codec study
 (:mod:`snreg.simulation.video_bench`) write files the same way, so what the study measures is what the recorder does.
-The recording's encoding is :data:`RECORDING`, x264 4:4:4 at CRF 18 tuned for PSNR (docs/guide/review.md,
-"Recorded video"). Issue 36 looked for one under a core at full-HD stereo: :data:`JPEG_444` (each frame a 4:4:4
-JPEG from OpenCV's libjpeg-turbo, its colour at quality 95, its brightness at 75, muxed as Matroska MJPEG) takes
-about 40 % of x264's CPU and keeps the phantom's nodes within 0.1 mm, but on the surgery scene at full HD it moved a
-node 0.32-0.43 mm (x264 0.13-0.15), so the recording stays x264; the study keeps JPEG as a candidate.
+The recording's encoding depends on the frame size (:func:`recording`; docs/guide/review.md, "Recorded video").
+Above a megapixel per eye (full HD), since issue 36, :data:`JPEG_444`: each frame a 4:4:4 JPEG from OpenCV's
+libjpeg-turbo (brightness at quality 85, colour at 95) muxed as Matroska MJPEG, about 0.8 CPU s per s of full-HD
+stereo where x264 4:4:4 CRF 18 (:data:`X264_444`) took about 2, at about five times x264's disk (65-73 GB per hour).
+The tracker finds the stripes by colour thresholds; compression moves a few of a stripe's edge pixels across them,
+which shifts its centroid by hundredths of a pixel and the tip's depth by tenths of a millimetre: at brightness
+quality 75 a node moved 0.3-0.4 mm on the surgery scene at full HD; at 85, over six seeds, at most 0.15 mm. Smaller
+frames keep x264: it takes under a core there (its CPU goes with the pixels), and JPEG's 8x8 blocks are coarse
+against smaller stripes (0.5-0.9 mm at 480x270). The readers decode whatever codec a file holds.
 """
 
 from __future__ import annotations
@@ -45,9 +49,16 @@ class Encoding:
         return f"{self.codec} {self.pixel_format} {shown}".strip()
 
 
-JPEG_444 = Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "75", "chroma_quality": "95"})
+JPEG_444 = Encoding(OPENCV_JPEG, "yuvj444p", {"quality": "85", "chroma_quality": "95"})
 X264_444 = Encoding("libx264", "yuv444p", {"crf": "18", "tune": "psnr", "preset": "ultrafast", "g": "30"})
-RECORDING = X264_444             # what the recorder writes (see the module's docstring)
+JPEG_ABOVE_PIXELS = 1_000_000    # per eye: x264 at about 1 CPU s per s of stereo per megapixel takes a core here
+
+
+def recording(width: int, height: int) -> Encoding:
+    """What the recorder writes frames of ``width`` x ``height`` in: :data:`JPEG_444` above
+    :data:`JPEG_ABOVE_PIXELS` (full HD), :data:`X264_444` below (see the module's docstring). Before issue 36 every
+    size was recorded in x264."""
+    return JPEG_444 if width * height > JPEG_ABOVE_PIXELS else X264_444
 
 
 class VideoFileWriter:
