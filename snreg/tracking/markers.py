@@ -30,7 +30,7 @@ DETECT_WIDTH = 480          # coarse detection runs at about this many pixels ac
 _MIN_AREA_PX = 6            # at the detection scale
 _MAX_BLOBS = 8              # the largest blobs considered for candidate groups
 _NEAR_SIZES = 8             # blobs of one group lie within this many lead-blob sizes of the lead
-_REBUILD_PX = 10            # crops are padded by this many pixels more, for the stripes' edges
+_EDGE_PAD_PX = 10           # segmentation crops are padded this much more, for the stripes' thin edges
 _REBUILD_GROWTH = 1.5       # a stripe rebuilt from the colour connected to it grows at most this many times
 _SQUARE = np.ones((2, 2), np.uint8)
 
@@ -205,7 +205,7 @@ def _segment(image_bgr: np.ndarray, probe: ProbeModel, group: list[_Blob], scale
     largest components (at least 15% of the largest) whose centroid lies in one of its boxes, none touching the
     image border."""
     height, width = image_bgr.shape[:2]
-    pad = int(2 / scale) + _REBUILD_PX       # the coarse boxes miss a stripe's thin edges: none cut by the crop
+    pad = int(2 / scale) + _EDGE_PAD_PX      # the coarse boxes miss a stripe's thin edges: none cut by the crop
     x0 = max(min(b.box[0] for b in group) - pad, 0)
     y0 = max(min(b.box[1] for b in group) - pad, 0)
     x1 = min(max(b.box[2] for b in group) + pad, width)
@@ -239,7 +239,6 @@ def _segment(image_bgr: np.ndarray, probe: ProbeModel, group: list[_Blob], scale
     for rank, k in enumerate(np.array(keep)[order]):
         relabel[k] = rank + 1
     return Stripes(cents[order], areas[order], direction, relabel[labels], (x0, y0, x1, y1))
-
 
 
 def _rebuilt(labels: np.ndarray, stats: np.ndarray, centroids: np.ndarray, keep: list[int], colour: np.ndarray
