@@ -3,33 +3,16 @@ moves rarely and in whole steps, yet always holds the angles; Store SN's state a
 they change; a status line counts its lines without laying out what fits on one, as a full layout would, and a new
 text of as many lines is a repaint, not a relayout."""
 
-import time
-
 import numpy as np
 import pytest
 from PySide6.QtCore import QEvent, QObject, QRect, Qt
 from PySide6.QtWidgets import QApplication
+from test_gui_acquisition import StillImu, frame_without_fix
 
-from snreg.imu.monitor import ImuSnapshot
-from snreg.workflow.acquisition import FrameOutcome
 from snreg_gui.acquisition.orientation_plot import MIN_SPAN_DEG, RANGE_STEP_DEG, OrientationPlot, y_range
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.status import BigNumber, StatusLine
-from snreg_gui.acquisition.worker import FrameResult
 from snreg_gui.common.feed_view import FeedView
-
-
-class StillImu:
-    """An IMU stand-in that always reports a fresh, level sample."""
-
-    def snapshot(self):
-        return ImuSnapshot("streaming", "", 208.0, 0.0, (0.0, 0.0, 0.0), np.eye(3), 1, 0)
-
-
-def _without_fix(reason: str) -> FrameResult:
-    rgb = np.zeros((54, 96, 3), np.uint8)
-    outcome = FrameOutcome(0, None, reason, None, 0, float("nan"), False, False, 5.0)
-    return FrameResult(outcome, rgb, rgb, None, None, StillImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
 
 
 class Changes(QObject):
@@ -89,14 +72,14 @@ def test_the_plot_sets_its_range_only_when_the_angles_leave_it(qtbot):
 def test_store_sn_is_set_again_only_when_its_state_changes_and_is_right_after_a_change(qtbot):
     screen = AcquisitionScreen(StillImu(), fixes_per_node=5)
     qtbot.addWidget(screen)
-    screen.show_result(_without_fix("no probe stripe found in the left image"))
+    screen.show_result(frame_without_fix("no probe stripe found in the left image"))
     said = "not ready: collecting fixes, 0 of 5 (no valid fix: no probe stripe found in the left image)"
     assert screen.store_reason.text() == said == screen.store_reason.toolTip() == screen.store_button.toolTip()
     changes = Changes(screen.store_reason, screen.store_button, screen.landmark_picker.button)
     for _ in range(20):                                           # pair after pair saying the same
-        screen.show_result(_without_fix("no probe stripe found in the left image"))
+        screen.show_result(frame_without_fix("no probe stripe found in the left image"))
     assert changes.count == 0
-    screen.show_result(_without_fix("the probe is out of view"))
+    screen.show_result(frame_without_fix("the probe is out of view"))
     said = "not ready: collecting fixes, 0 of 5 (no valid fix: the probe is out of view)"
     assert screen.store_reason.text() == said == screen.store_reason.toolTip() == screen.store_button.toolTip()
     assert changes.count > 0 and screen.store_button.isEnabled()

@@ -102,12 +102,11 @@ def fit_pivot(obs: Observations, rotation_imu: np.ndarray, shaft: np.ndarray, ke
     lever = obs.points + keyframe_mm * shaft
     prior_weight = noise_px / np.radians(rotation_sd_deg)     # a rotation of one sd costs as much as noise_px
     rotation, insertion = rotation_imu.copy(), float(guess_mm)
-    right_rotation, right_translation = obs.right_from_left[:3, :3], obs.right_from_left[:3, 3]
     keep = np.ones(len(obs), bool)
     phase, steps, failure = 0, 0, ""
     while phase < len(_PHASES):
         turned = lever @ rotation.T
-        values, d_q, error = _both_eyes(turned - insertion * shaft, obs, right_rotation, right_translation)
+        values, d_q, error = _both_eyes(turned - insertion * shaft, obs)
         rows = np.empty((len(turned), 4, 4))
         _turn_rows(turned, d_q, rows[:, :, :3])
         rows[:, :, 3] = (d_q.reshape(-1, 3) @ -shaft).reshape(-1, 4)
@@ -174,15 +173,15 @@ def pivot_departure_mm(free: MotionFit, rotation_imu: np.ndarray, shaft: np.ndar
     return float(np.linalg.norm(offset - (offset @ shaft) * shaft))
 
 
-def _both_eyes(q: np.ndarray, obs: Observations, right_rotation: np.ndarray, right_translation: np.ndarray):
+def _both_eyes(q: np.ndarray, obs: Observations):
     """Reprojection residuals (4N,) px of points ``q`` (N, 3, the current left camera frame) in both eyes, their
     derivatives with respect to ``q`` (N, 4, 3), and each point's worse eye (N,). Row order per point: left x, left
     y, right x, right y. Both eyes in one pass of array operations: this runs a few hundred times a second, and on
     a fit's hundred or two points each numpy call costs more than its arithmetic."""
     eyes = np.empty((len(q), 2, 3))
     eyes[:, 0] = q
-    np.matmul(q, right_rotation.T, out=eyes[:, 1])
-    eyes[:, 1] += right_translation
+    np.matmul(q, obs.right_from_left[:3, :3].T, out=eyes[:, 1])
+    eyes[:, 1] += obs.right_from_left[:3, 3]
     inverse_z = 1.0 / eyes[:, :, 2:]
     xy = eyes[:, :, :2] * inverse_z
     values = obs.focal_px * (xy - obs.seen)                                          # (N, 2 eyes, 2)

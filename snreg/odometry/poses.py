@@ -81,12 +81,11 @@ def fit_rigid(obs: Observations, rotation: np.ndarray, translation: np.ndarray) 
     product of many) is made one first: the fit keeps what it is given."""
     rotation = _rotation(_rotvec(np.asarray(rotation, float)))
     translation = np.asarray(translation, float).copy()
-    right_rotation, right_translation = obs.right_from_left[:3, :3], obs.right_from_left[:3, 3]
     huber = np.repeat(_HUBER_PX, 4)
     keep = np.ones(len(obs), bool)
     for iteration in range(len(huber) + _FINAL_ITERATIONS):
         turned = obs.points @ rotation.T
-        values, d_q, error = _both_eyes(turned + translation, obs, right_rotation, right_translation)
+        values, d_q, error = _both_eyes(turned + translation, obs)
         rows = np.empty((len(turned), 4, 6))
         _turn_rows(turned, d_q, rows[:, :, :3])
         rows[:, :, 3:] = d_q

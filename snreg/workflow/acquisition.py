@@ -72,9 +72,9 @@ class FrameOutcome:
     ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
     a fix; the live link to 3D Slicer streams it. ``store_check``: what Store SN would meet now (the guard's
     refusal in words, or the near node to confirm); ``imu_gap_s``: from the frame's grab time to the nearest IMU
-    sample; ``video``: the recording's state in words (:func:`~snreg.session.video.video_text`). With insertion tracking: ``insertion``,
-    the tracker's estimate at this pair and the insertion the pair was mapped with (held from the last tracked pair
-    when lost), ``insertion_text`` in words (:func:`~snreg.workflow.insertion.insertion_text`) and ``insertion_ms``
+    sample; ``video``: the recording's state in words (:func:`~snreg.session.video.video_text`). With insertion
+    tracking: ``insertion``, the tracker's estimate at this pair and the insertion the pair was mapped with (held from
+    the last tracked pair when lost), ``insertion_text`` in words (:func:`~snreg.workflow.insertion.insertion_text`) and ``insertion_ms``
     what it adds to the pair's time (its images are made beside the probe tracker); None, "" and 0 without."""
 
     index: int

@@ -159,8 +159,14 @@ class FeedView(QWidget):
 
     @staticmethod
     def _at(target: QRectF, scale: float, x: float, y: float) -> QPointF:
-        """Widget position of image pixel coordinates (pixel centres at whole numbers)."""
-        return QPointF(target.x() + (x + 0.5) * scale, target.y() + (y + 0.5) * scale)
+        """Widget position of image pixel coordinates (:meth:`_widget_xy`)."""
+        return QPointF(*FeedView._widget_xy(target, scale, (x, y)))
+
+    @staticmethod
+    def _widget_xy(target: QRectF, scale: float, xy) -> np.ndarray:
+        """Widget positions (..., 2) of image pixel coordinates (..., 2), pixel centres at whole numbers; :meth:`_at`
+        for one point as a QPointF."""
+        return (np.asarray(xy, dtype=float) + 0.5) * scale + (target.x(), target.y())
 
     def _paint_points(self, painter: QPainter, target: QRectF, scale: float) -> None:
         painter.setRenderHint(QPainter.RenderHint.Antialiasing)
@@ -247,7 +253,7 @@ class FeedView(QWidget):
         probe's overlay (tip marker, points along its axis, depth label); a hot spot's words keep clear of them."""
         boxes = [self._title_box()]
         if self._overlay is not None:       # in numpy: each Qt call here (once ~50 a paint) may wait for the GIL
-            ends = (np.asarray(self._overlay, dtype=float) + 0.5) * scale + (target.x(), target.y())
+            ends = self._widget_xy(target, scale, self._overlay)
             centres = ends[0] + (ends[1] - ends[0]) * (np.arange(9) / 8)[:, None]     # the tip, 8 points up the axis
             radii = np.r_[_TIP_PX + 2, np.full(8, 3.0)][:, None]
             boxes += np.hstack([centres - radii, centres + radii]).tolist()
