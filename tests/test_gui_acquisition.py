@@ -1,6 +1,8 @@
 """The demo acquisition screen end to end, offscreen: rendered feeds tracked in a worker, nodes stored
-durably near the rendered truth, undo, auto-store, and no gross stall of the GUI thread."""
+durably near the rendered truth, undo, auto-store, and the tracking and stores on the worker's thread,
+not the GUI's."""
 
+import threading
 import time
 
 import numpy as np
@@ -18,13 +20,10 @@ from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.worker import FrameResult
 from snreg_gui.app import MainWindow
 from snreg_gui.common.node_error import ERROR_CAPTION
-from snreg_gui.tools.bench import Heartbeat
 
 pytestmark = pytest.mark.realtime            # a live feed at its own pace: runs alone (tests/conftest.py)
 
 FIXES = 20                      # a short store window keeps the test quick (thesis: 60)
-GROSS_STALL_MS = 250.0          # a guard against blocking work on the GUI thread; the 50 ms figure is measured by
-                                # 'python -m snreg_gui.bench' (numbers live in benchmarks, not timed tests)
 
 
 @pytest.fixture
@@ -64,11 +63,14 @@ def test_store_nodes_in_demo(qtbot, demo_window):
     results = []
     window.worker.frame_processed.connect(results.append)
     qtbot.waitUntil(lambda: len(results) > 0, timeout=30_000)      # the scene is rendered: acquisition runs
-    heartbeat = Heartbeat()
+    # the tracking and the store's durable write run on the worker's thread, never blocking the GUI's (how long the
+    # GUI thread stalls is measured by 'python -m snreg_gui.bench': numbers live in benchmarks, not timed tests)
+    worked_in = set()
+    for signal in (window.worker.frame_processed, window.worker.node_stored):
+        signal.connect(lambda _: worked_in.add(threading.get_ident()), Qt.ConnectionType.DirectConnection)
     first = store_when_settled(qtbot, window, results)
     second = store_when_settled(qtbot, window, results, other_than=first)
-    heartbeat.stop()
-    assert heartbeat.max_gap_ms() < GROSS_STALL_MS
+    assert worked_in and threading.get_ident() not in worked_in
     assert [screen.nodes.item(row, 0).text() for row in range(2)] == ["SN1", "SN2"]
     qtbot.waitUntil(lambda: set(window.error_sources) == {"SN1", "SN2"}, timeout=5_000)   # each node's error by source
     qtbot.mouseClick(screen.undo_button, Qt.MouseButton.LeftButton)          # take SN2 back, then store it again
