@@ -4,6 +4,7 @@ headers are whole, and a node's label does not carry over to the next node."""
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,12 +15,14 @@ from snreg.demo.scene import Schedule
 from snreg.imu.monitor import ImuSnapshot
 from snreg.registration.report import MissingNode
 from snreg.session import IntraopNode
+from snreg.session.video import RECENT_DROP_PAIRS, RecorderState, video_text
 from snreg.tracking import ProbeFix
 from snreg.workflow.acquisition import FrameOutcome, StoreCheck
+from snreg_gui.acquisition.health import camera_health
 from snreg_gui.acquisition.live_view import PLOT_MIN, arrange
 from snreg_gui.acquisition.node_table import NODE_COLUMNS
 from snreg_gui.acquisition.screen import AcquisitionScreen
-from snreg_gui.acquisition.status import (NO_VALUE, SPREAD_BAD, SPREAD_GOOD, SPREAD_NONE, StatusLine,
+from snreg_gui.acquisition.status import (BAD, NO_VALUE, SPREAD_BAD, SPREAD_GOOD, SPREAD_NONE, StatusLine,
                                           spread_colour)
 from snreg_gui.acquisition.worker import FrameResult, StoreRequest
 from snreg_gui.app import MainWindow
@@ -83,6 +86,14 @@ def stored(node_id: str, label: str, counts: float = math.nan) -> IntraopNode:
     """A stored node whose covariance's longest axis has an sd of 4 mm: a 90 % radius of 4 x 2.50 = 10.0 mm."""
     return IntraopNode(node_id, label, 0, np.array([1.0, 2.0, 250.0]), np.array([1.0, 2.0, 2.0]), 0.3, 60, counts,
                        cov_trocar_mm2=np.diag([1.0, 4.0, 16.0]))
+
+
+def test_the_camera_line_is_red_while_the_encoder_drops_pairs_and_not_for_drops_long_past():
+    now = RecorderState(started=True, written=300, dropped=4, written_at_drop=300)
+    past = RecorderState(started=True, written=300 + RECENT_DROP_PAIRS, dropped=4, written_at_drop=300)
+    styles = [camera_health(replace(frame(), outcome=replace(frame().outcome, video=video_text(state))), 0.0)[1]
+              for state in (now, past)]
+    assert styles == [BAD, ""]
 
 
 def test_the_label_typed_for_a_node_does_not_carry_over_to_the_next(qtbot, screen):

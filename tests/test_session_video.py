@@ -23,7 +23,7 @@ from snreg.probe import default_probe_model
 from snreg.session import Session, SessionError
 from snreg.session.export import session_info
 from snreg.session.integrity import verify
-from snreg.session.video import VideoReader, count_frames
+from snreg.session.video import RECENT_DROP_PAIRS, RecorderState, VideoReader, count_frames, video_text
 from snreg.sources import CallableSource
 from snreg.workflow.acquisition import Acquisition, ImuReading
 from snreg.workflow.retrack import retrack, store_retracked
@@ -218,11 +218,23 @@ def test_pairs_the_encoder_cannot_keep_up_with_are_counted_and_leave_no_row(tmp_
         taken = [session.append_frame_pair(k, k, k, image, image) for k in range(40)]
         state = session.video_state()
         assert state.dropped == taken.count(False) > 0
+        assert "DROPPED (encoder behind)" in video_text(state)       # the last drop is news: the line's alarm
     with Session.open(path) as session:
         [segment] = session.videos()
         rows = session.stream("frames")["index"][()]
     assert segment.dropped == taken.count(False) and segment.frames == (len(rows), len(rows))
     assert list(rows) == [k for k, ok in enumerate(taken) if ok]
+
+
+def test_drops_are_an_alarm_while_recent_and_history_once_the_encoder_keeps_up():
+    state = RecorderState(started=True, written=300, dropped=4, written_at_drop=300, free_bytes=56 * 10**9)
+    assert video_text(state) == "video: recording, 300 frames, 4 DROPPED (encoder behind), 56 GB free"
+    state.written = 300 + RECENT_DROP_PAIRS - 1
+    assert "4 DROPPED (encoder behind)" in video_text(state)
+    state.written = 300 + RECENT_DROP_PAIRS
+    assert video_text(state) == f"video: recording, {state.written} frames, 4 dropped earlier, 56 GB free"
+    assert "DROPPED" in video_text(RecorderState(started=True, written=10, dropped=1, written_at_drop=10))
+    assert "dropped" not in video_text(RecorderState(started=True, written=10))
 
 
 def test_too_little_free_space_records_no_video_and_says_so(tmp_path, monkeypatch):

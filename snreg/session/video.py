@@ -36,6 +36,7 @@ import numpy as np
 from snreg.session.video_writer import CONTAINER, SUFFIX, recording
 
 QUEUE_PAIRS = 12                 # pairs waiting for the encoder (0.4 s at 30 Hz) before one is dropped
+RECENT_DROP_PAIRS = 150          # a drop within this many pairs written (5 s at 30 Hz) is news; older ones are history
 MIN_FREE_BYTES = 2 * 10**9       # below this free space recording stops (the session goes on)
 SIDES = ("left", "right")
 
@@ -108,12 +109,14 @@ def count_frames(path: str | Path) -> int:
 
 @dataclass
 class RecorderState:
-    """What the encoder has done, for stream health: pairs written and dropped, pairs waiting, why it stopped, free
-    space on the session's disk (bytes, -1 until measured) and the encoder process's CPU time (s)."""
+    """What the encoder has done, for stream health: pairs written and dropped (and how many were written when the
+    last was dropped), pairs waiting, why it stopped, free space on the session's disk (bytes, -1 until measured) and
+    the encoder process's CPU time (s)."""
 
     started: bool = False        # the encoder has opened its files and takes pairs
     written: int = 0
     dropped: int = 0
+    written_at_drop: int = 0
     queued: int = 0
     problem: str = ""
     free_bytes: int = -1
@@ -168,6 +171,7 @@ class StereoRecorder:
             self.state.queued = QUEUE_PAIRS - len(self._free)
         if slot is None:
             self.state.dropped += 1
+            self.state.written_at_drop = self.state.written
             return False
         view = np.ndarray((2, *left.shape), np.uint8, self._memory.buf, slot * self._pair_bytes)
         view[0], view[1] = left, right
@@ -314,12 +318,16 @@ class RecordedPairs:
 
 
 def video_text(state, problem: str = "") -> str:
-    """The video recording in words, for stream health: frames written, pairs dropped (the encoder was behind), free
+    """The video recording in words, for stream health: frames written, pairs dropped (in capitals, the screen's
+    alarm, while the last drop is under :data:`RECENT_DROP_PAIRS` pairs old: the encoder is behind now; "dropped
+    earlier" once it keeps up again, so a few pairs lost while it started do not keep the line red all session), free
     space, or why it is not recorded."""
     if state is None:
         return "video: off (turned off in the settings)" if problem == "off" else f"video: not recorded ({problem})"
     free = f", {state.free_bytes / 1e9:.0f} GB free" if state.free_bytes >= 0 else ""
-    dropped = f", {state.dropped} DROPPED (encoder behind)" if state.dropped else ""
+    recent = state.written - state.written_at_drop < RECENT_DROP_PAIRS
+    dropped = ("" if not state.dropped else f", {state.dropped} DROPPED (encoder behind)" if recent
+               else f", {state.dropped} dropped earlier")
     if state.problem:
         return f"video: STOPPED after {state.written} frames{dropped}: {state.problem}"
     if not state.started:
