@@ -33,6 +33,7 @@ class OdometryParams:
 
     work_width: int = 640                 # the pair is reduced by the largest whole factor keeping it this wide
     max_features: int = 220               # tissue corners per keyframe
+    max_followed: int = 220               # of them followed into a pair at most (the strongest in view)
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
     lk_window_px: int = 17
