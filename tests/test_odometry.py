@@ -65,9 +65,11 @@ def synthetic_motion(insertion_mm, keyframe_mm=150.0, lateral_mm=(0.0, 0.0, 0.0)
     return obs, rotation, shaft
 
 
-def test_the_band_pass_is_the_one_with_opencvs_own_kernel_for_its_sigma_to_the_bit():
+def test_the_band_pass_is_the_one_with_opencvs_own_kernels_for_its_sigmas():
     # issue 36: its fine blur takes 5 taps, not the 7 OpenCV picks for sigma 0.8, at half the cost; on uint8 the outer
-    # taps' fixed-point weights are 0, so no image may change (noise: the strongest texture an image can have)
+    # taps' fixed-point weights are 0, so no image may change (noise: the strongest texture an image can have); its wide
+    # blur is OpenCV's kernel by sepFilter2D, rounded otherwise than GaussianBlur's bit-exact path now and then: one
+    # grey level of the wide blur (three after the gain) in a few pixels of a hundred, nothing else
     import cv2
 
     from snreg.odometry.views import band_pass
@@ -76,7 +78,8 @@ def test_the_band_pass_is_the_one_with_opencvs_own_kernel_for_its_sigma_to_the_b
         small = cv2.GaussianBlur(cv2.pyrDown(cv2.pyrDown(grey)), (0, 0), 2.0)
         coarse = cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
         reference = cv2.addWeighted(cv2.GaussianBlur(grey, (0, 0), 0.8), 3.0, coarse, -3.0, 128.0)
-        assert np.array_equal(band_pass(grey), reference)
+        difference = np.abs(band_pass(grey).astype(int) - reference)
+        assert difference.max() <= 3 and np.mean(difference > 0) < 0.05, (difference.max(), np.mean(difference > 0))
 
 
 def test_the_pivot_fit_finds_the_insertion_and_corrects_the_imu_rotation():
@@ -162,7 +165,7 @@ def test_a_pair_follows_at_most_max_followed_of_its_keyframes_points_the_stronge
     follow = tracker_module.follow
     monkeypatch.setattr(tracker_module, "follow", spy)
     calibration, probe, scene, chain = rig
-    path = straight_path(np.linspace(START_MM, START_MM + 6, 5))
+    path = straight_path(np.linspace(START_MM, START_MM + 4, 5))          # within one keyframe's freshness
     video = SurgeryVideo(scene, path, chain, VideoOptions(seed=1))
     tracker = InsertionTracker(calibration, chain, probe=probe, params=OdometryParams(max_followed=60))
     estimates = [tracker.update(*video.pair(k), video.earth_from_imu(k)) for k in range(len(video))]
@@ -171,6 +174,8 @@ def test_a_pair_follows_at_most_max_followed_of_its_keyframes_points_the_stronge
     assert followed and all(len(rows) == 60 < total for total, rows in followed)
     assert all(rows.max() < 80 for _, rows in followed)           # the strongest: first in the keyframe's order
     assert all(0 < e.points <= 60 for e in estimates[1:])
+    # a keyframe is renewed when too few of its points in view agree, not because only some of them were followed
+    assert len(tracker.keyframes) == 1
 
 
 def test_the_keyframes_followed_are_the_best_scored_of_all_though_not_all_are_projected(rig):

@@ -33,7 +33,7 @@ class OdometryParams:
 
     work_width: int = 640                 # the pair is reduced by the largest whole factor keeping it this wide
     max_features: int = 220               # tissue corners per keyframe
-    max_followed: int = 220               # of them followed into a pair at most (the strongest in view)
+    max_followed: int = 130               # of them followed into a pair at most (the strongest in view)
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
     lk_window_px: int = 17
@@ -57,6 +57,10 @@ _FINE_PX, _COARSE_PX, _GAIN = 0.8, 8.0, 3.0      # band-pass of the working imag
 # the fine blur's kernel: 5 taps, not the 7 OpenCV picks for sigma 0.8 (issue 36): on uint8 its fixed-point weights
 # of the outer two are 0, so the image is the same to the bit (tests/test_odometry.py) at half the blur's cost
 _FINE_TAPS = 5
+# the wide blur (sigma 2 on the image a quarter the size) by OpenCV's own 13-tap kernel for it, applied by sepFilter2D:
+# GaussianBlur's bit-exact uint8 path cost four times as much on so small an image (issue 36); 1 pixel in 140 differs
+# by one grey level (a smooth change of the light, which the band-pass removes anyway)
+_WIDE_KERNEL = cv2.getGaussianKernel(13, _COARSE_PX / 4.0)
 _MID = 128
 _UNWARPED = 0.01                                     # a homography this close to a shift is not warped for
 _NEAR_MM, _PROBE_SAMPLES = 5.0, 8                   # the probe's outline in the masks
@@ -64,7 +68,7 @@ _EDGE_CAP = 24                                       # band-pass deviations coun
 COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
 # Lucas-Kanade stops after this many steps or at a step this small (px); 10 and 0.03 (issue 36) cut about a tenth of
 # its time but raised the median error of snreg experiment camera --seeds 7,8 (0.019 to 0.022, 0.011 to 0.014 mm)
-_LK_STEPS, _LK_EPS_PX = 20, 0.01
+_LK_STEPS, _LK_EPS_PX = 10, 0.03
 
 
 class EyePair:
@@ -313,7 +317,7 @@ def band_pass(grey: np.ndarray) -> np.ndarray:
     about mid-grey (uint8). The endoscope's light moves with the camera, so a view's brightness changes under the
     tissue; Lucas-Kanade on the raw image follows the light by pixels, on this by a tenth of one."""
     fine = cv2.GaussianBlur(grey, (_FINE_TAPS, _FINE_TAPS), _FINE_PX)
-    small = cv2.GaussianBlur(cv2.pyrDown(cv2.pyrDown(grey)), (0, 0), _COARSE_PX / 4.0)     # a wide blur, cheaply
+    small = cv2.sepFilter2D(cv2.pyrDown(cv2.pyrDown(grey)), -1, _WIDE_KERNEL, _WIDE_KERNEL)    # a wide blur, cheaply
     coarse = cv2.resize(small, (grey.shape[1], grey.shape[0]), interpolation=cv2.INTER_LINEAR)
     return cv2.addWeighted(fine, _GAIN, coarse, -_GAIN, 128.0)
 
