@@ -66,8 +66,9 @@ _UNWARPED = 0.01                                     # a homography this close t
 _NEAR_MM, _PROBE_SAMPLES = 5.0, 8                   # the probe's outline in the masks
 _EDGE_CAP = 24                                       # band-pass deviations counted towards the texture, at most
 COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
-# Lucas-Kanade stops after this many steps or at a step this small (px); 10 and 0.03 (issue 36) cut about a tenth of
-# its time but raised the median error of snreg experiment camera --seeds 7,8 (0.019 to 0.022, 0.011 to 0.014 mm)
+# Lucas-Kanade stops after this many steps or at a step this small (px): 10 and 0.03, not 20 and 0.01 (issue 36: about
+# a tenth of its time; with at most 130 points a pair, snreg experiment camera --seeds 7,8,9,10 stayed within 0.015 mm
+# median and 0.041 mm at most, docs/method/insertion.md)
 _LK_STEPS, _LK_EPS_PX = 10, 0.03
 
 
