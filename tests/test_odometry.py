@@ -65,9 +65,11 @@ def synthetic_motion(insertion_mm, keyframe_mm=150.0, lateral_mm=(0.0, 0.0, 0.0)
     return obs, rotation, shaft
 
 
-def test_the_band_pass_is_the_one_with_opencvs_own_kernel_for_its_sigma_to_the_bit():
+def test_the_band_pass_is_the_one_with_opencvs_own_kernels_for_its_sigmas():
     # issue 36: its fine blur takes 5 taps, not the 7 OpenCV picks for sigma 0.8, at half the cost; on uint8 the outer
-    # taps' fixed-point weights are 0, so no image may change (noise: the strongest texture an image can have)
+    # taps' fixed-point weights are 0, so no image may change (noise: the strongest texture an image can have); its wide
+    # blur is OpenCV's kernel by sepFilter2D, rounded otherwise than GaussianBlur's bit-exact path now and then: one
+    # grey level of the wide blur (three after the gain) in a few pixels of a hundred, nothing else
     import cv2
 
     from snreg.odometry.views import band_pass
@@ -76,7 +78,8 @@ def test_the_band_pass_is_the_one_with_opencvs_own_kernel_for_its_sigma_to_the_b
         small = cv2.GaussianBlur(cv2.pyrDown(cv2.pyrDown(grey)), (0, 0), 2.0)
         coarse = cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
         reference = cv2.addWeighted(cv2.GaussianBlur(grey, (0, 0), 0.8), 3.0, coarse, -3.0, 128.0)
-        assert np.array_equal(band_pass(grey), reference)
+        difference = np.abs(band_pass(grey).astype(int) - reference)
+        assert difference.max() <= 3 and np.mean(difference > 0) < 0.05, (difference.max(), np.mean(difference > 0))
 
 
 def test_the_pivot_fit_finds_the_insertion_and_corrects_the_imu_rotation():
@@ -143,6 +146,66 @@ def test_returning_to_the_start_view_returns_to_the_start_insertion(rig):
     last = estimates[-1]
     assert last.tracked and last.keyframe == 0                  # measured against the first view, not a chain of them
     assert abs(last.trocar_camera_mm - START_MM) < 0.2
+
+
+def test_a_pair_follows_at_most_max_followed_of_its_keyframes_points_the_strongest(rig, monkeypatch):
+    # issue 36: Lucas-Kanade and the fits cost per point; a pair follows at most params.max_followed of the keyframe's
+    # points in view, the first ones (goodFeaturesToTrack's strongest), and is still held to the truth
+    import snreg.odometry.tracker as tracker_module
+    from snreg.odometry import OdometryParams
+
+    followed = []
+
+    def spy(keyframe, eye, after, points, predicted, params):
+        if eye == 0:
+            rows = np.flatnonzero((keyframe.left_px[:, None] == points[None]).all(axis=2).any(axis=1))
+            followed.append((len(keyframe.points), rows))
+        return follow(keyframe, eye, after, points, predicted, params)
+
+    follow = tracker_module.follow
+    monkeypatch.setattr(tracker_module, "follow", spy)
+    calibration, probe, scene, chain = rig
+    path = straight_path(np.linspace(START_MM, START_MM + 4, 5))          # within one keyframe's freshness
+    video = SurgeryVideo(scene, path, chain, VideoOptions(seed=1))
+    tracker = InsertionTracker(calibration, chain, probe=probe, params=OdometryParams(max_followed=60))
+    estimates = [tracker.update(*video.pair(k), video.earth_from_imu(k)) for k in range(len(video))]
+    assert all(e.tracked for e in estimates), [e.reason for e in estimates]
+    assert np.abs(errors(estimates, video)).max() < 0.3
+    assert followed and all(len(rows) == 60 < total for total, rows in followed)
+    assert all(rows.max() < 80 for _, rows in followed)           # the strongest: first in the keyframe's order
+    assert all(0 < e.points <= 60 for e in estimates[1:])
+    # a keyframe is renewed when too few of its points in view agree, not because only some of them were followed
+    assert len(tracker.keyframes) == 1
+
+
+def test_the_keyframes_followed_are_the_best_scored_of_all_though_not_all_are_projected(rig):
+    # issue 36: keyframes are scored best-first from a bound their points in view can only raise, and their points
+    # projected only while they could still be among the two followed; those two must be the best of all scored
+    from snreg.odometry.views import View
+
+    calibration, probe, scene, chain = rig
+    path = surgery_path(40, START_MM, seed=4, slide_mm=30.0, turn_deg=20.0)
+    video = SurgeryVideo(scene, path, chain, VideoOptions(seed=1))
+    tracker = InsertionTracker(calibration, chain, probe=probe)
+    checked = 0
+    for k in range(11):
+        left, right = video.pair(k)
+        if len(tracker.keyframes) >= 3:
+            rotation = surgery_chain(START_MM).trocar_from_earth[:3, :3] @ video.earth_from_imu(k) \
+                @ tracker._camera_from_imu
+            view = View.of(tracker.pair, left, right, tracker.params)
+            guess = tracker._predicted()
+            every = tracker._usable(view, rotation, guess, wanted=len(tracker.keyframes))
+            projected = []
+            project = tracker.pair.project
+            tracker.pair.project = lambda points, eye: projected.append(eye) or project(points, eye)
+            best = tracker._usable(view, rotation, guess)
+            del tracker.pair.project
+            assert [found[0] for found in best] == [found[0] for found in every[:2]]
+            assert all(np.array_equal(a[2], b[2]) for a, b in zip(best, every))
+            checked += len(projected) < len(every)
+        tracker.update(left, right, video.earth_from_imu(k))
+    assert len(tracker.keyframes) >= 3 and checked > 0         # keyframes to choose from, and some left unprojected
 
 
 def test_covered_and_blurred_pairs_are_lost_not_a_number(rig):

@@ -57,3 +57,33 @@ def test_a_frame_halved_before_its_colour_is_dropped_gives_the_grey_of_its_mean(
                             interpolation=cv2.INTER_AREA)
     difference = np.abs(pair.grey(frame, "left").astype(np.float32) - block_mean)
     assert difference.mean() < 4.0 and np.percentile(difference, 99) < 15.0, (difference.mean(), difference.max())
+
+
+def test_the_coarse_image_is_made_only_when_asked_for_and_as_it_was_made_every_pair():
+    # issue 36: only a searched view or keyframe needs the coarse image, so a pair no longer makes it up front; made
+    # on demand it must be the one every pair made before: the plain grey left image pyramid-reduced to at most 400
+    # wide, band-passed, limited about mid-grey and mid-grey where the mask leaves out the probe
+    from snreg.odometry.views import COARSE_MAX_WIDTH, OdometryParams, PairImages, View, band_pass
+
+    calibration, probe = thesis_calibration(), default_probe_model()
+    scene = TissueScene(calibration, probe, TissueSurface(depth_mm=240.0, seed=17, texture_seed=171))
+    path = CameraPath(np.array([START_MM]), Rotation.identity(1), np.zeros(1))
+    video = SurgeryVideo(scene, path, surgery_chain(START_MM), VideoOptions(seed=17))
+    pair = EyePair(calibration, 640)
+    left, right = video.pair(0)
+    pose = video.probe_pose(0)
+    images = PairImages.of(pair, left, right)
+    view = View.of(pair, left, right, OdometryParams(), pose.tip, pose.axis, probe, images=images)
+    assert "coarse" not in vars(images) and "coarse" not in vars(view)          # nothing made yet
+    grey = pair.grey(left, "left")
+    small, factor = grey, 1
+    while small.shape[1] > COARSE_MAX_WIDTH:
+        small, factor = cv2.pyrDown(small), 2 * factor
+    small = band_pass(small)
+    mask = cv2.resize(view.mask, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST)
+    assert (mask == 0).sum() > (mask == 0)[:4].sum() + (mask == 0)[-4:].sum()  # the probe is cut out of it
+    limit = 3.0 * max(float(cv2.absdiff(small, 128)[mask > 0].mean()), 1.0)
+    eager = np.clip(small, 128 - limit, 128 + limit).astype(np.uint8)
+    eager[mask == 0] = 128
+    assert view.coarse_factor == factor == 2
+    assert np.array_equal(view.coarse_mask, mask) and np.array_equal(view.coarse, eager)

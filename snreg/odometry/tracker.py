@@ -93,6 +93,8 @@ class _Step:
     depth_mm: float          # median depth of the agreeing points now
     keyframe: Keyframe
     rotation: np.ndarray     # (3, 3) the camera's trocar_from_camera rotation now, as the motion fit says
+    kept: float              # of the keyframe's points in view, how many agree (``points`` scaled up by the share
+    #                          followed when not all were: :meth:`InsertionTracker._followed`)
 
 
 class InsertionTracker:
@@ -165,7 +167,7 @@ class InsertionTracker:
         if keyframe is None:
             return self._lost("too few tissue features to start from")
         self._last = _Step(self.start_mm, 0.0, 0.0, 1.0, len(keyframe.points), keyframe.median_depth_mm, keyframe,
-                           keyframe.rotation)
+                           keyframe.rotation, len(keyframe.points))
         self._last_index = self._index
         return InsertionEstimate(self._index, TRACKED, self.start_mm, 1.0, self.start_sd_mm, 0.0, START_REASON,
                                  len(keyframe.points), keyframe.number, 0.0)
@@ -176,12 +178,12 @@ class InsertionTracker:
         guess = self._predicted()
         usable = self._usable(view, rotation, guess)
         reasons = []
-        for keyframe in usable[:2]:
-            step, reason = self._measure(view, rotation, keyframe, guess)
+        for keyframe, predicted, left in usable:
+            step, reason = self._measure(view, rotation, keyframe, guess, (predicted, left))
             if step is not None:
                 return step, ""
             reasons.append(reason)
-        for keyframe, candidates in self._search_plan(rotation, guess, usable):
+        for keyframe, candidates in self._search_plan(rotation, guess, [keyframe for keyframe, *_ in usable]):
             for found in search_insertion(self.pair, view, keyframe, rotation.T @ keyframe.rotation, self.shaft,
                                           candidates):
                 step, reason = self._measure(view, rotation, keyframe, found)
@@ -214,22 +216,27 @@ class InsertionTracker:
             step = 2.0 * _SEARCH_STEP * keyframe.median_depth_mm
             yield keyframe, keyframe.insertion_mm + step * np.arange(-np.ceil(reach / step), np.ceil(reach / step) + 1)
 
-    def _measure(self, view: View, rotation: np.ndarray, keyframe: Keyframe,
-                 guess_mm: float) -> tuple[_Step | None, str]:
+    def _measure(self, view: View, rotation: np.ndarray, keyframe: Keyframe, guess_mm: float,
+                 projected: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[_Step | None, str]:
         """Follow the keyframe's points into this pair from the motion predicted at ``guess_mm`` and fit it; when
-        that fails, once more from the prediction moved by the shift the coarse images show (the IMU's error)."""
+        that fails, once more from the prediction moved by the shift the coarse images show (the IMU's error).
+        ``projected``: the points predicted at ``guess_mm`` and their left pixels when made already (:meth:`_usable`)."""
         p = self.params
         if view.contrast * p.max_blur_ratio < keyframe.contrast:
             return None, (f"the view is blurred ({keyframe.contrast / view.contrast:.1f} times less sharp than the "
                           "tissue seen there before)")
         rotation_imu = rotation.T @ keyframe.rotation              # current_from_keyframe, as the IMU says
-        predicted = (keyframe.points + keyframe.insertion_mm * self.shaft) @ rotation_imu.T - guess_mm * self.shaft
-        guess_left, guess_right = self.pair.project(predicted, 0), self.pair.project(predicted, 1)
+        if projected is None:
+            predicted = (keyframe.points + keyframe.insertion_mm * self.shaft) @ rotation_imu.T - guess_mm * self.shaft
+            projected = predicted, self.pair.project(predicted, 0)
+        predicted, guess_left = projected
+        guess_right = self.pair.project(predicted, 1)
         usable = (predicted[:, 2] > 1.0) & inside(view.mask, guess_left) & inside(view.right_mask, guess_right)
         if usable.sum() < p.min_points:
             return None, f"only {int(usable.sum())} tissue points of the keyframe are in view"
+        in_view, usable = int(usable.sum()), self._followed(usable)
         step, reason = self._fit(view, keyframe, usable, guess_left[usable], guess_right[usable], rotation_imu,
-                                 guess_mm)
+                                 guess_mm, in_view)
         if step is not None:
             return step, ""
         homography = predicted_homography(keyframe.left_px[usable], guess_left[usable])
@@ -237,12 +244,20 @@ class InsertionTracker:
             shift, response = coarse_shift(view, keyframe, homography)
             if response >= MIN_RESPONSE and np.hypot(*shift) > 1.0:
                 step, _ = self._fit(view, keyframe, usable, guess_left[usable] + shift, guess_right[usable] + shift,
-                                    rotation_imu, guess_mm)
+                                    rotation_imu, guess_mm, in_view)
         return step, "" if step is not None else reason
 
+    def _followed(self, usable: np.ndarray) -> np.ndarray:
+        """Of a keyframe's ``usable`` points (N,) bool, the ones to follow: at most ``max_followed``, the strongest."""
+        usable = usable.copy()
+        usable[np.flatnonzero(usable)[self.params.max_followed:]] = False     # the strongest corners come first
+        return usable
+
     def _fit(self, view: View, keyframe: Keyframe, usable: np.ndarray, guess_left: np.ndarray,
-             guess_right: np.ndarray, rotation_imu: np.ndarray, guess_mm: float) -> tuple[_Step | None, str]:
-        """The keyframe's ``usable`` points followed from where they are expected in each eye, and the motion fitted."""
+             guess_right: np.ndarray, rotation_imu: np.ndarray, guess_mm: float,
+             in_view: int) -> tuple[_Step | None, str]:
+        """The keyframe's ``usable`` points followed from where they are expected in each eye, and the motion fitted;
+        ``in_view``: how many of its points are in view (``usable`` may be some of them)."""
         p = self.params
         left_px, found_left = follow(keyframe, 0, view.left, keyframe.left_px[usable], guess_left, p)
         right_px, found_right = follow(keyframe, 1, view.right, keyframe.right_px[usable], guess_right, p)
@@ -268,22 +283,37 @@ class InsertionTracker:
         residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
         now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
         return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe,
-                     keyframe.rotation @ fit.rotation.T), ""
+                     keyframe.rotation @ fit.rotation.T, fit.n_inliers * in_view / int(usable.sum())), ""
 
-    def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float) -> list[Keyframe]:
-        """Keyframes close enough in scale and turn to follow into this view at this rotation and insertion, with
-        enough of their points in view, the one whose insertion is known best first (ties: the closest)."""
-        p, scored = self.params, []
+    def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float,
+                wanted: int = 2) -> list[tuple[Keyframe, np.ndarray, np.ndarray]]:
+        """The best ``wanted`` keyframes (all that are followed or searched from) close enough in scale and turn to
+        follow into this view at this rotation and insertion, with enough of their points in view, the one whose
+        insertion is known best first (ties: the closest); each with its points predicted now (N, 3, left camera
+        frame, mm) and their left working pixels, for :meth:`_measure`.
+
+        A keyframe's score is at least its variance and its turn's and scale's part of the closeness (its points in
+        view only add to it), so keyframes are taken in that order and their points projected only while they could
+        still be among the best (issue 36: this projected every keyframe in reach, several a pair); the result is the
+        one scoring every keyframe gives."""
+        p, candidates, scored = self.params, [], []
         for keyframe, angle, scale in zip(self.keyframes, *self._turns_and_scales(rotation, insertion_mm)):
-            if angle > p.usable_angle_deg or scale > p.usable_scale:
-                continue
+            if angle <= p.usable_angle_deg and scale <= p.usable_scale:
+                near = scale / p.usable_scale + angle / p.usable_angle_deg
+                candidates.append((keyframe.variance_mm2 + (0.1 * near) ** 2, keyframe.number, near, keyframe))
+        for *least, near, keyframe in sorted(candidates, key=lambda item: item[:2]):
+            if len(scored) >= wanted and tuple(least) > scored[wanted - 1][:2]:
+                break
             rotation_imu = rotation.T @ keyframe.rotation
             predicted = (keyframe.points + keyframe.insertion_mm * self.shaft) @ rotation_imu.T - insertion_mm * self.shaft
-            seen = int(np.sum((predicted[:, 2] > 1.0) & inside(view.mask, self.pair.project(predicted, 0))))
+            left = self.pair.project(predicted, 0)
+            seen = int(np.sum((predicted[:, 2] > 1.0) & inside(view.mask, left)))
             if seen >= p.min_points:
-                closeness = scale / p.usable_scale + angle / p.usable_angle_deg + 1.0 - seen / len(keyframe.points)
-                scored.append((keyframe.variance_mm2 + (0.1 * closeness) ** 2, keyframe.number, keyframe))
-        return [keyframe for *_, keyframe in sorted(scored, key=lambda item: item[:2])]
+                closeness = near + 1.0 - seen / len(keyframe.points)
+                scored.append((keyframe.variance_mm2 + (0.1 * closeness) ** 2, keyframe.number,
+                               (keyframe, predicted, left)))
+                scored.sort(key=lambda item: item[:2])
+        return [found for *_, found in scored[:wanted]]
 
     def _turns_and_scales(self, rotation: np.ndarray, insertion_mm: float) -> tuple[list[float], list[float]]:
         """Each keyframe's turn from the camera's ``rotation`` (degrees) and the log of how much farther its tissue is
@@ -304,7 +334,7 @@ class InsertionTracker:
         p = self.params
         for keyframe, angle, scale in zip(self.keyframes, *self._turns_and_scales(rotation, step.insertion_mm)):
             if angle <= p.fresh_angle_deg and scale <= p.fresh_scale and (
-                    keyframe is not step.keyframe or step.points >= 0.6 * len(keyframe.points)):
+                    keyframe is not step.keyframe or step.kept >= 0.6 * len(keyframe.points)):
                 return
         self._add_keyframe(view, step.rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm)
 

@@ -14,6 +14,7 @@ and triangulated; later pairs are compared with it, not with their predecessor, 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -32,6 +33,7 @@ class OdometryParams:
 
     work_width: int = 640                 # the pair is reduced by the largest whole factor keeping it this wide
     max_features: int = 220               # tissue corners per keyframe
+    max_followed: int = 130               # of them followed into a pair at most (the strongest in view)
     min_distance_px: int = 16             # between them
     border_px: int = 14                   # none this close to the image border
     lk_window_px: int = 17
@@ -55,14 +57,19 @@ _FINE_PX, _COARSE_PX, _GAIN = 0.8, 8.0, 3.0      # band-pass of the working imag
 # the fine blur's kernel: 5 taps, not the 7 OpenCV picks for sigma 0.8 (issue 36): on uint8 its fixed-point weights
 # of the outer two are 0, so the image is the same to the bit (tests/test_odometry.py) at half the blur's cost
 _FINE_TAPS = 5
+# the wide blur (sigma 2 on the image a quarter the size) by OpenCV's own 13-tap kernel for it, applied by sepFilter2D:
+# GaussianBlur's bit-exact uint8 path cost four times as much on so small an image (issue 36); 1 pixel in 140 differs
+# by one grey level (a smooth change of the light, which the band-pass removes anyway)
+_WIDE_KERNEL = cv2.getGaussianKernel(13, _COARSE_PX / 4.0)
 _MID = 128
 _UNWARPED = 0.01                                     # a homography this close to a shift is not warped for
 _NEAR_MM, _PROBE_SAMPLES = 5.0, 8                   # the probe's outline in the masks
 _EDGE_CAP = 24                                       # band-pass deviations counted towards the texture, at most
 COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid levels down to at most this wide
-# Lucas-Kanade stops after this many steps or at a step this small (px); 10 and 0.03 (issue 36) cut about a tenth of
-# its time but raised the median error of snreg experiment camera --seeds 7,8 (0.019 to 0.022, 0.011 to 0.014 mm)
-_LK_STEPS, _LK_EPS_PX = 20, 0.01
+# Lucas-Kanade stops after this many steps or at a step this small (px): 10 and 0.03, not 20 and 0.01 (issue 36: about
+# a tenth of its time; with at most 130 points a pair, snreg experiment camera --seeds 7,8,9,10 stayed within 0.015 mm
+# median and 0.041 mm at most, docs/method/insertion.md)
+_LK_STEPS, _LK_EPS_PX = 10, 0.03
 
 
 class EyePair:
@@ -134,14 +141,13 @@ class PairImages:
     """What a pair's view needs that the probe's fix does not change, so it can be made beside the probe tracker (a
     thread of its own: OpenCV releases the GIL): both eyes band-passed at the working scale (:func:`band_pass`), the
     left one's deviation from mid-grey (every other pixel, capped: the probe's edges count once) and its plain
-    brightness, and the left image band-passed ``coarse_factor`` times smaller (at most ``COARSE_MAX_WIDTH`` wide)."""
+    brightness, and the plain left grey image, from which :attr:`coarse` is made when first asked for."""
 
     left: np.ndarray
     right: np.ndarray
     deviation: np.ndarray
     brightness: float
-    coarse: np.ndarray
-    coarse_factor: int
+    plain_left: np.ndarray
 
     @classmethod
     def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray) -> "PairImages":
@@ -149,10 +155,18 @@ class PairImages:
         plain_left = pair.grey(left, "left")
         grey_left, grey_right = band_pass(plain_left), band_pass(pair.grey(right, "right"))
         deviation = np.minimum(cv2.absdiff(grey_left[::2, ::2], _MID), _EDGE_CAP)
-        coarse, factor = plain_left, 1
+        return cls(grey_left, grey_right, deviation, cv2.mean(plain_left)[0], plain_left)
+
+    @cached_property
+    def coarse(self) -> tuple[np.ndarray, int]:
+        """The left image band-passed ``factor`` times smaller (at most ``COARSE_MAX_WIDTH`` wide), and ``factor``.
+        Made when first asked for (issue 36): only a view that is searched for (:mod:`snreg.odometry.search`) or a
+        keyframe that is searched in needs it, a few pairs in a hundred, and every pair made it (about 0.4 ms of the
+        images' 6 on the bench video). The keyframe made of a view keeps it, so ``plain_left`` stays with it."""
+        coarse, factor = self.plain_left, 1
         while coarse.shape[1] > COARSE_MAX_WIDTH:
             coarse, factor = cv2.pyrDown(coarse), 2 * factor
-        return cls(grey_left, grey_right, deviation, cv2.mean(plain_left)[0], band_pass(coarse), factor)
+        return band_pass(coarse), factor
 
 
 @dataclass(eq=False)
@@ -162,7 +176,7 @@ class View:
     band-pass's mean deviation, grey levels) and how sharp (that per grey level of brightness, so a brighter or
     darker light does not count as sharper or blurred); ``coarse``: the left image band-passed
     ``coarse_factor`` times smaller (at most ``COARSE_MAX_WIDTH`` wide), with its mask, for
-    :mod:`snreg.odometry.search`."""
+    :mod:`snreg.odometry.search`, made when first asked for from the pair's ``images``."""
 
     left: np.ndarray
     right: np.ndarray
@@ -170,9 +184,7 @@ class View:
     right_mask: np.ndarray
     texture: float
     contrast: float
-    coarse: np.ndarray
-    coarse_mask: np.ndarray
-    coarse_factor: int
+    images: PairImages
 
     @classmethod
     def of(cls, pair: EyePair, left: np.ndarray, right: np.ndarray, params: OdometryParams,
@@ -192,21 +204,34 @@ class View:
         tissue = masks[0][::2, ::2] > 0
         texture = float(images.deviation[tissue].mean()) / _GAIN if tissue.any() else 0.0
         contrast = texture / max(images.brightness, 1.0)
-        coarse = images.coarse
-        coarse_mask = cv2.resize(masks[0], (coarse.shape[1], coarse.shape[0]), interpolation=cv2.INTER_NEAREST)
+        return cls(images.left, images.right, masks[0], masks[1], texture, contrast, images)
+
+    @property
+    def coarse_factor(self) -> int:
+        return self.images.coarse[1]
+
+    @cached_property
+    def coarse_mask(self) -> np.ndarray:
+        coarse = self.images.coarse[0]
+        return cv2.resize(self.mask, (coarse.shape[1], coarse.shape[0]), interpolation=cv2.INTER_NEAREST)
+
+    @cached_property
+    def coarse(self) -> np.ndarray:
+        coarse, coarse_mask = self.images.coarse[0], self.coarse_mask
         # the probe's strong edges would outweigh the tissue: left out where known, limited everywhere
         limit = 3.0 * max(float(cv2.absdiff(coarse, _MID)[coarse_mask > 0].mean()), 1.0) if coarse_mask.any() else 1.0
         coarse = np.clip(coarse, _MID - limit, _MID + limit).astype(np.uint8)
         coarse[coarse_mask == 0] = _MID
-        return cls(images.left, images.right, masks[0], masks[1], texture, contrast, coarse, coarse_mask,
-                   images.coarse_factor)
+        return coarse
 
 
 @dataclass(eq=False)
 class Keyframe:
     """Tissue points (N, 3, left camera frame, mm) of one pair with where they are in it (working pixels, both
-    eyes), the pair's band-passed images (and the coarse left one with its mask), its camera rotation (``trocar_from_camera``, 3 x 3: the IMU's at the first, the motion fit's after), insertion
-    (mm) and that insertion's variance (mm², from the keyframes it was measured from), and its contrast."""
+    eyes), the pair's band-passed images (and the coarse left one with its mask, made when first asked for: from the
+    ``view`` it was made of), its camera rotation (``trocar_from_camera``, 3 x 3: the IMU's at the first, the motion
+    fit's after), insertion (mm) and that insertion's variance (mm², from the keyframes it was measured from), and its
+    contrast."""
 
     number: int
     frame: int
@@ -219,8 +244,7 @@ class Keyframe:
     insertion_mm: float
     variance_mm2: float
     contrast: float
-    coarse: np.ndarray
-    coarse_mask: np.ndarray
+    view: View = field(repr=False)
     centre: np.ndarray = field(init=False)       # the points' median (3,), mm
     _warps: dict = field(init=False, default_factory=dict, repr=False)
 
@@ -240,6 +264,14 @@ class Keyframe:
                                     borderMode=cv2.BORDER_CONSTANT, borderValue=_MID)
         self._warps[eye] = (homography, image, size)
         return image
+
+    @property
+    def coarse(self) -> np.ndarray:
+        return self.view.coarse
+
+    @property
+    def coarse_mask(self) -> np.ndarray:
+        return self.view.coarse_mask
 
     @property
     def median_depth_mm(self) -> float:
@@ -268,8 +300,7 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
     if ahead.sum() < params.min_points:
         return None
     return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
-                    np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view.coarse,
-                    view.coarse_mask)
+                    np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view)
 
 
 def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
@@ -287,7 +318,7 @@ def band_pass(grey: np.ndarray) -> np.ndarray:
     about mid-grey (uint8). The endoscope's light moves with the camera, so a view's brightness changes under the
     tissue; Lucas-Kanade on the raw image follows the light by pixels, on this by a tenth of one."""
     fine = cv2.GaussianBlur(grey, (_FINE_TAPS, _FINE_TAPS), _FINE_PX)
-    small = cv2.GaussianBlur(cv2.pyrDown(cv2.pyrDown(grey)), (0, 0), _COARSE_PX / 4.0)     # a wide blur, cheaply
+    small = cv2.sepFilter2D(cv2.pyrDown(cv2.pyrDown(grey)), -1, _WIDE_KERNEL, _WIDE_KERNEL)    # a wide blur, cheaply
     coarse = cv2.resize(small, (grey.shape[1], grey.shape[0]), interpolation=cv2.INTER_LINEAR)
     return cv2.addWeighted(fine, _GAIN, coarse, -_GAIN, 128.0)
 
