@@ -5,10 +5,10 @@ insertion tracker back in this process. Rendered pairs of tests/surgery_frames.p
 
 import os
 import signal
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import process_gone, shared_memory_segments
 from surgery_frames import NODE_A, START_MM, SlidingWorld, slide_then_rest
 
 from snreg.odometry import InsertionTracker
@@ -63,18 +63,6 @@ def same_estimates(a, b):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
-def shared_memory_segments() -> set[str]:
-    return {p.name for p in Path("/dev/shm").glob("psm_*")} if Path("/dev/shm").is_dir() else set()
-
-
-def gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return False
-
-
 def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_frame_order(world, pairs, tmp_path):
     with Session.create(tmp_path / "here.h5", case_id="here-1", stream_flush_s=0) as session:
         inline = acquisition(world, session, False)
@@ -84,7 +72,7 @@ def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_
     with Session.create(tmp_path / "there.h5", case_id="there-1", stream_flush_s=0) as session:
         acq = acquisition(world, session, True)
         pid = acq.tracking_pid
-        assert pid != os.getpid() and not gone(pid)
+        assert pid != os.getpid() and not process_gone(pid)
         there = run_ahead(acq, pairs, ahead=2)
         acq.close()
         camera = session.stream("camera")[()]
@@ -102,7 +90,7 @@ def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_
     assert all(o.insertion.estimate.tracked for o in there[:-2])
     assert len(camera) == len(pairs)
     # closed: no process, no shared memory of its own left
-    assert gone(pid) and not shared_memory_segments() - segments_before
+    assert process_gone(pid) and not shared_memory_segments() - segments_before
 
 
 def test_closing_hands_the_insertion_tracker_back_to_go_on_with(world, pairs, tmp_path):
