@@ -64,8 +64,9 @@ class InsertionStep:
 
 
 class CameraInsertion:
-    """The insertion during acquisition: ``tracker`` fed pair by pair, ``chain`` (the trocar calibration) moved to
-    each pair's insertion, and what the store guard needs (the last tracked pair's grab time and IMU orientation)."""
+    """The insertion during acquisition: ``tracker`` fed pair by pair (here, or in the tracking process, which hands
+    it back when it ends), ``chain`` (the trocar calibration) moved to each pair's insertion, and what the store guard
+    needs (the last tracked pair's grab time and IMU orientation)."""
 
     def __init__(self, tracker: InsertionTracker, chain: ChainCalibration):
         self.tracker, self.chain = tracker, chain
@@ -77,6 +78,12 @@ class CameraInsertion:
         self._now_ns = 0
         self._now_orientation = np.eye(3)
         self._chain_at = (self.start_mm, chain.with_insertion(self.start_mm))
+
+    def update(self, left: np.ndarray, right: np.ndarray, t_ns: int, earth_from_imu: np.ndarray,
+               probe_fix=None) -> InsertionStep:
+        """Track the insertion at this pair (grabbed at ``t_ns``, host clock; ``probe_fix`` left out of the tissue)
+        with :attr:`tracker`, here, and give the chain to map it with (:meth:`step`)."""
+        return self.step(self.tracker.update(left, right, earth_from_imu, probe_fix=probe_fix), t_ns, earth_from_imu)
 
     def step(self, estimate: InsertionEstimate, t_ns: int, earth_from_imu: np.ndarray) -> InsertionStep:
         """The insertion a pair grabbed at ``t_ns`` (host clock) is mapped with, from the tracker's ``estimate`` at
