@@ -5,10 +5,13 @@ insertion tracker back in this process. Rendered pairs of tests/surgery_frames.p
 
 import os
 import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import process_gone, shared_memory_segments
+from conftest import poll, process_gone, shared_memory_segments
 from surgery_frames import NODE_A, START_MM, SlidingWorld, slide_then_rest
 
 from snreg.odometry import InsertionTracker
@@ -144,3 +147,30 @@ def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_ever
         nodes = [n.id for n in session.intraop_records()]
     assert "tracking_process_stopped" in events and nodes == [first.id, second.id]
     assert not shared_memory_segments() - segments_before
+
+
+ROOT = Path(__file__).resolve().parents[1]
+KILLED_PARENT = """
+import os, signal, sys
+from snreg.camera import thesis_calibration
+from snreg.probe import default_probe_model
+from snreg.workflow.tracking_process import TrackingProcess
+tracking = TrackingProcess(thesis_calibration().scaled(0.25), default_probe_model(), None)
+print(tracking.pid, tracking._memory.name, flush=True)
+sys.stdin.readline()
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_killed_parent_leaves_neither_its_tracking_process_nor_its_shared_memory(tmp_path):
+    parent = subprocess.Popen([sys.executable, "-c", KILLED_PARENT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        pid, memory = parent.stdout.readline().split()
+        assert not process_gone(int(pid)) and memory.lstrip("/") in shared_memory_segments()
+        parent.stdin.write("\n")
+        parent.stdin.flush()
+        assert parent.wait(30) == -signal.SIGKILL
+    finally:
+        parent.kill()
+    assert poll(lambda: process_gone(int(pid)) and memory.lstrip("/") not in shared_memory_segments())
