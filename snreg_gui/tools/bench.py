@@ -41,8 +41,8 @@ from snreg_gui.tools.stall_stacks import SAMPLE_S, StallSampler
 from snreg_gui.tools.thread_cpu import cores_by_role, process_cpu_s, thread_cpu_s
 
 TICK_MS = 10
-# threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the worker
-# (snreg.workflow.insertion), the IMU's serial reader and fusion (snreg.imu.reader), the surgery demo's renderer, the
+# threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the probe
+# tracker (snreg.workflow.pair_tracking; in this process only when the worker tracks the pairs itself), the IMU's serial reader and fusion (snreg.imu.reader), the surgery demo's renderer, the
 # simulated camera (snreg.demo.rig)
 NAMED_THREADS = {"insertion": "snreg-insertion", "imu reader": "imu-reader", "demo renderer": "demo-tour-renderer"}
 # the live loop's tracking process (snreg.workflow.tracking_process), a row of its own beside this process's threads
