@@ -65,6 +65,22 @@ def poll(predicate, timeout_s: float = 30.0, interval_s: float = 0.01) -> bool:
     return holds(predicate)
 
 
+def shared_memory_segments() -> set[str]:
+    """The names of the shared memory segments Python made on this machine (Linux: /dev/shm), to see none is left."""
+    from pathlib import Path
+    return {p.name for p in Path("/dev/shm").glob("psm_*")} if Path("/dev/shm").is_dir() else set()
+
+
+def process_gone(pid: int) -> bool:
+    """The process ``pid`` ended and was waited for (no zombie left either)."""
+    import os
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
 @pytest.fixture
 def qtbot(qtbot):
     """pytest-qt's qtbot whose waits cannot be failed by a race: ``waitUntil``'s callback may only fail by

@@ -14,7 +14,6 @@ from snreg.odometry import InsertionTracker
 from snreg.session import Session
 from snreg.session.pose_streams import insertions_at
 from snreg.workflow.acquisition import Acquisition
-from snreg.workflow.insertion import CameraInsertion
 
 WINDOW = 4
 
@@ -108,22 +107,6 @@ def test_the_insertion_begun_beside_the_probe_tracker_is_the_serial_one_pair_for
         assert outcome.insertion.estimate == expected and expected.tracked
         assert outcome.insertion.estimate.index == pair.frame.index
         assert outcome.insertion.used_mm == expected.trocar_camera_mm           # the pair mapped at its own insertion
-
-
-def test_pairs_begun_ahead_are_finished_in_their_own_order_with_their_own_images(world, sliding):
-    """Several pairs begun before the first is finished (a caller that runs ahead) still give the serial estimates:
-    each update takes its own pair's images, whatever the thread made meanwhile."""
-    ahead = CameraInsertion(InsertionTracker(world.calibration, world.chain, probe=world.probe), world.chain)
-    serial = InsertionTracker(world.calibration, world.chain, probe=world.probe)
-    pairs = sliding[WINDOW - 1:WINDOW + 3]          # the last still pair, then the slide
-    begun = [ahead.begin(p.frame.left, p.frame.right) for p in pairs]
-    for pair, future in zip(pairs, begun):
-        step = ahead.update(pair.frame.left, pair.frame.right, pair.frame.t_left_ns, pair.imu.earth_from_imu,
-                            begun=future)
-        assert step.estimate == serial.update(pair.frame.left, pair.frame.right, pair.imu.earth_from_imu)
-    with pytest.raises(ValueError, match="calibration"):            # a wrong pair's error is raised where it is used
-        ahead.update(pairs[0].frame.left[::2], pairs[0].frame.right[::2], 0, np.eye(3),
-                     begun=ahead.begin(pairs[0].frame.left[::2], pairs[0].frame.right[::2]))
 
 
 def test_without_tracking_a_node_after_a_slide_lands_displaced_by_the_slide(world, sliding, tmp_path):

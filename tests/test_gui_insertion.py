@@ -8,16 +8,20 @@ The rig renders the camera of tests/surgery_frames.py over tissue fixed in the t
 blurred ones (4 px) lose the insertion while the probe stays tracked, so the guard's refusal holds as long as they last.
 """
 
+import os
+import signal
+
 import numpy as np
 import pytest
 from PySide6.QtCore import QSettings, Qt
 from scipy.spatial.transform import Rotation
+from conftest import process_gone, shared_memory_segments
 from surgery_frames import NODE_A, PROBE_AXIS, START_MM, SlidingWorld
 
 from snreg.chain import camera_to_trocar
 from snreg.demo.renderer import ProbePose, RenderOptions
 from snreg.imu.monitor import ImuAt, ImuSnapshot
-from snreg.odometry import InsertionEstimate
+from snreg.odometry import START_REASON, InsertionEstimate
 from snreg.session import Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 from snreg.sources import CallableSource
@@ -182,9 +186,14 @@ def test_the_insertion_goes_on_across_a_restart_and_starts_again_under_a_new_tro
     window = open_window(SlidingRig(world, pairs))
     qtbot.waitUntil(lambda: window.acquisition.insertion_line.state == "tracked", timeout=TIMEOUT_MS)
     followed = window.worker.acquisition.insertion
+    sent = followed.tracker                 # a copy went to the tracking process, which followed the pairs
     window.restart_acquisition()                           # e.g. video recording switched, or a wizard cancelled
     qtbot.waitUntil(lambda: window.worker.acquisition is not None, timeout=TIMEOUT_MS)
     assert window.worker.acquisition.insertion is followed                    # its keyframes, its last insertion
+    assert followed.tracker is not sent     # handed back when the first worker stopped, and sent on from there
+    stopped_at = followed.last.estimate.index
+    qtbot.waitUntil(lambda: followed.last.estimate.index != stopped_at, timeout=TIMEOUT_MS)
+    assert followed.last.estimate.index == stopped_at + 1 and followed.last.estimate.reason != START_REASON
     new = world.chain.with_insertion(START_MM + 12.0)
     window.session.set_calibration(chain=new)              # what the trocar wizard does, then the app applies it
     window.apply_chain(new)
@@ -339,3 +348,29 @@ def test_the_review_shows_the_insertion_over_time_with_the_lost_stretch_and_the_
     x, _ = plots.insertion_curve.getOriginalDataset()
     assert x is None or len(x) == 0
     assert screen.node_table.item(0, column).text() == "" and "insertion not tracked" in screen.header.text()
+
+
+def test_a_killed_tracking_process_is_said_and_a_stopped_worker_leaves_no_process_nor_shared_memory(
+        qtbot, open_window, world, pairs):
+    segments_before = shared_memory_segments()
+    window = open_window(SlidingRig(world, pairs))
+    screen = window.acquisition
+    qtbot.waitUntil(lambda: screen.store_reason.text().startswith("ready"), timeout=TIMEOUT_MS)
+    press(qtbot, screen, Qt.Key.Key_F5)
+    qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=TIMEOUT_MS)
+    os.kill(window.worker.acquisition.tracking_pid, signal.SIGKILL)
+    qtbot.waitUntil(lambda: screen.store_status.text().startswith("Tracking: the tracking process stopped"),
+                    timeout=TIMEOUT_MS)
+    assert screen.store_status.text().endswith("the camera's insertion is no longer tracked.")
+    qtbot.waitUntil(lambda: screen.insertion_line.text().startswith("camera LOST (the tracking process stopped"),
+                    timeout=TIMEOUT_MS)
+    fixes = len(window.session.stream("probe"))
+    qtbot.waitUntil(lambda: len(window.session.stream("probe")) > fixes, timeout=TIMEOUT_MS)   # tracked here now
+    assert [n.id for n in window.session.intraop_records()] == ["SN1"]
+    assert len(window.session.events("tracking_process_stopped")) == 1
+    window.restart_acquisition()                        # a new worker, a new tracking process
+    qtbot.waitUntil(lambda: window.worker.acquisition is not None, timeout=TIMEOUT_MS)
+    pid = window.worker.acquisition.tracking_pid
+    assert pid is not None and not process_gone(pid)
+    window.shutdown()
+    assert process_gone(pid) and not shared_memory_segments() - segments_before

@@ -1,6 +1,7 @@
 """The GUI bench's probes: CPU per thread (``snreg_gui.tools.thread_cpu``) and where the GUI thread stalls
 (``snreg_gui.tools.stall_stacks``). Neither test is timed: each waits on CPU spent or on a sample taken."""
 
+import subprocess
 import sys
 import threading
 import time
@@ -9,7 +10,7 @@ import pytest
 
 from conftest import poll
 from snreg_gui.tools.stall_stacks import StallSampler
-from snreg_gui.tools.thread_cpu import cores_by_role, thread_cpu_s
+from snreg_gui.tools.thread_cpu import cores_by_role, process_cpu_s, thread_cpu_s
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread CPU is read from /proc")
 
@@ -41,6 +42,20 @@ def test_a_busy_thread_is_charged_its_cpu_and_an_idle_one_none():
     cores = cores_by_role(before, last, {"busy": busy_ids[0], "idle": idle_ids[0], "gone": None}, 1.0)
     assert 0.2 <= cores["busy"] <= 1.0 and cores["idle"] < 0.05 and "gone" not in cores
     assert cores["process"] >= cores["busy"] and cores["other threads"] >= 0.0
+
+
+@linux_only
+def test_another_process_is_charged_its_cpu_and_a_gone_one_none():
+    child = subprocess.Popen([sys.executable, "-c", "import time\nstart = time.process_time()\n"
+                              "while time.process_time() - start < 0.3: pass\nprint(1, flush=True)\ninput()"],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "1"            # it has spent its 0.3 s
+        assert 0.25 <= process_cpu_s(child.pid) < 5.0            # (/proc counts in clock ticks)
+    finally:
+        child.stdin.close()
+        child.wait()
+    assert process_cpu_s(child.pid) is None
 
 
 def test_cores_share_out_the_process_time_and_keep_the_rest_as_other_threads():

@@ -43,16 +43,19 @@ from snreg.chain import ChainCalibration, camera_from_probe, camera_to_trocar, t
 from snreg.errors import StoreError, StoreNeedsConfirmation, StoreRefused
 from snreg.imu.protocol import ImuSample
 from snreg.landmarks import LANDMARK, NODE, landmark_name
-from snreg.odometry import InsertionTracker
+from snreg.odometry import LOST, InsertionEstimate, InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.session import IntraopNode, Session, calibration_version
 from snreg.session.schema import stereo_to_dict
 from snreg.session.video import video_text
 from snreg.sources import StereoFrame
-from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
+from snreg.tracking import StereoTracker, summarise
 from snreg.tracking.uncertainty import NodeUncertainty, node_covariance_sources, summed_covariance
-from snreg.workflow.insertion import CameraInsertion, InsertionStep, insertion_text
+from snreg.workflow.insertion import CameraInsertion, insertion_text
+from snreg.workflow.outcome import FrameOutcome, ImuReading
+from snreg.workflow.pair_tracking import TrackedPair
 from snreg.workflow.store_guard import StoreCheck, StoreLimits, nearest_node, same_landmark
+from snreg.workflow.tracking_process import InlineTracking, TrackingProcess, TrackingStopped
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
            "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT"]
@@ -62,55 +65,6 @@ STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below 
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
 IMU_ABSENT = "absent"            # the IMU state of a rig run without one (chosen in the device dialog)
 VIDEO_START_WAIT_S = 10.0        # for the video encoder to start before the first frame (it runs in its own process)
-
-
-@dataclass(frozen=True, eq=False)
-class FrameOutcome:
-    """What one pair gave: the fix (None with the ``reason``), the tip in the trocar frame (mm), and the store
-    window: how many valid fixes it holds (at most N), their spread (mm, NaN until full), whether that is still,
-    and whether the auto-store rule (full, still, and over ``AUTO_STORE_SEPARATION_MM`` from every stored node) would store it now.
-    ``trocar_from_probe`` (4, 4): the probe pose at the frame's IMU orientation (tip, axis backwards as z), None without
-    a fix; the live link to 3D Slicer streams it. ``store_check``: what Store SN would meet now (the guard's
-    refusal in words, or the near node to confirm); ``imu_gap_s``: from the frame's grab time to the nearest IMU
-    sample; ``video``: the recording's state in words (:func:`~snreg.session.video.video_text`). With insertion
-    tracking: ``insertion``, the tracker's estimate at this pair and the insertion the pair was mapped with (held from
-    the last tracked pair when lost), ``insertion_text`` in words (:func:`~snreg.workflow.insertion.insertion_text`) and ``insertion_ms``
-    what it adds to the pair's time (its images are made beside the probe tracker); None, "" and 0 without."""
-
-    index: int
-    fix: ProbeFix | None
-    reason: str
-    tip_trocar: np.ndarray | None
-    valid_fixes: int
-    window_spread_mm: float
-    still: bool
-    auto_store_due: bool
-    track_ms: float
-    trocar_from_probe: np.ndarray | None = None
-    store_check: StoreCheck = StoreCheck("waiting for the first frame")
-    imu_gap_s: float = 0.0
-    video: str = ""
-    insertion: InsertionStep | None = None
-    insertion_text: str = ""
-    insertion_ms: float = 0.0
-
-
-@dataclass(frozen=True)
-class ImuReading:
-    """The endoscope orientation at a frame's grab time: ``earth_from_imu`` (3, 3), how far (s) the nearest IMU
-    sample is from that time (``gap_s``), the IMU's ``state``, and the raw samples since the last frame."""
-
-    earth_from_imu: np.ndarray
-    samples: Sequence[ImuSample] = ()
-    gap_s: float = 0.0
-    state: str = "open"
-
-    @classmethod
-    def at_frame(cls, imu, frame: StereoFrame) -> "ImuReading":
-        """From an :class:`~snreg.rig.protocols.Imu`: the orientation interpolated at the frame's left grab time,
-        and the samples it received since the last call."""
-        at = imu.orientation_at(frame.t_left_ns)
-        return cls(at.earth_from_imu, imu.take_samples(), at.gap_s, at.state)
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,15 +92,18 @@ class Acquisition:
     acquisition followed on the same calibration and chain (the app restarting its worker) goes on from where it
     stopped: its keyframes, the last insertion tracked and when, so a camera that slid meanwhile is not taken to be
     back at the start. ``uncertainty``: the magnitudes each stored node's covariance is made of (their cited
-    defaults unless given).
+    defaults unless given). ``tracking_process``: the pairs are tracked in a process of their own
+    (:class:`~snreg.workflow.tracking_process.TrackingProcess`: the live app, so its GUI thread never waits for the
+    trackers' GIL), the same steps as in this thread (the default); :meth:`close` ends it.
     """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
                  *, fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
                  imu_required: bool = True, clock: Callable[[], int] = time.perf_counter_ns,
                  video_fps: float | None = None, insertion: InsertionTracker | CameraInsertion | None = None,
-                 uncertainty: NodeUncertainty = NodeUncertainty()):
+                 uncertainty: NodeUncertainty = NodeUncertainty(), tracking_process: bool = False):
         self.tracker = StereoTracker(calibration, probe)
+        self.tracking_problem = ""                 # why the tracking process stopped ("" while it runs, or none)
         self.uncertainty = uncertainty
         self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
         self.insertion = CameraInsertion(insertion, chain) if isinstance(insertion, InsertionTracker) else insertion
@@ -157,6 +114,10 @@ class Acquisition:
         self._fixes: deque[_Fix] = deque(maxlen=self.fixes_per_node)
         self._last_reason = ""
         self._last_imu: ImuReading | None = None
+        self._in_flight: deque[tuple[StereoFrame, ImuReading]] = deque()     # pairs begun, not finished
+        tracked_insertion = None if self.insertion is None else self.insertion.tracker
+        self._tracking = (TrackingProcess(calibration, probe, tracked_insertion) if tracking_process else
+                          InlineTracking(self.tracker, tracked_insertion))
         self._stored_here: list[str] = []          # ids stored through this object, for undo
         self.error_sources: dict[str, dict] = {}   # node id -> its covariance by source (nodes stored here)
         self.video_fps, self.video_problem = video_fps, "" if video_fps else "off"
@@ -177,20 +138,49 @@ class Acquisition:
     def process(self, frame: StereoFrame, imu: ImuReading) -> FrameOutcome:
         """Track one pair at the IMU orientation of its grab time (and the camera's insertion at it, when tracked),
         record the frame, probe, IMU and camera streams (the probe and camera rows at the frame's own time), update
-        the window."""
+        the window: :meth:`begin` and :meth:`finish` of the same pair."""
+        self.begin(frame, imu)
+        return self.finish()
+
+    def begin(self, frame: StereoFrame, imu: ImuReading) -> None:
+        """Record the pair's IMU samples and frame row (and video) and hand it to the trackers; :meth:`finish` gives
+        its outcome. With a tracking process the pair is tracked there while the caller goes on (read and begin
+        the next pair, say): outcomes come back in the order pairs were begun."""
         self._record_imu(imu.samples)
-        self._last_imu = imu
         self._record_frame(frame)
-        begun = self.insertion.begin(frame.left, frame.right) if self.insertion is not None else None
-        started = time.perf_counter()
-        fix, reason, tip_trocar, pose = None, "", None, None
+        self._in_flight.append((frame, imu))
         try:
-            fix = self.tracker.track(frame.left, frame.right)
-        except TrackingError as err:
-            reason = str(err)
-        track_ms = (time.perf_counter() - started) * 1e3
+            self._tracking.submit(frame.left, frame.right, imu.earth_from_imu)
+        except TrackingStopped as err:
+            self._track_here(str(err))         # this pair and those in flight, here
+        except BaseException:
+            self._in_flight.pop()              # tracked here, it raised (a pair of another size): never begun
+            raise
+
+    @property
+    def in_flight(self) -> int:
+        """Pairs begun and not finished yet."""
+        return len(self._in_flight)
+
+    def ready(self) -> bool:
+        """The oldest pair begun has been tracked (:meth:`finish` returns at once)."""
+        return bool(self._in_flight) and self._tracking.ready()
+
+    def finish(self) -> FrameOutcome:
+        """The outcome of the oldest pair begun (waiting for its tracking): its probe fix mapped into the trocar
+        frame at its IMU orientation and insertion, its probe and camera rows recorded, the store window updated."""
+        frame, imu = self._in_flight.popleft()
+        try:
+            tracked = self._tracking.result()          # its error (a pair of another size) is raised here
+        except TrackingStopped as err:
+            self._in_flight.appendleft((frame, imu))
+            self._track_here(str(err))
+            self._in_flight.popleft()
+            tracked = self._tracking.result()
+        self._last_imu = imu
+        fix, reason, tip_trocar, pose = tracked.fix, tracked.reason, None, None
         self._last_reason = reason
-        step, insertion_ms = self._follow_insertion(frame, imu, fix, begun)
+        step = self._follow_insertion(frame, imu, tracked)
         chain = self.chain if step is None else step.chain
         if fix is not None:
             tip_trocar = camera_to_trocar(chain, imu.earth_from_imu, fix.tip)
@@ -207,23 +197,49 @@ class Acquisition:
         still = bool(spread <= STILL_SPREAD_MM)
         check = self.check_store(window)
         due = still and not check.refusal and self._away_from_stored(window.xyz)
-        return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still, due, track_ms,
-                            pose, check, float(imu.gap_s), video_text(self.session.video_state(), self.video_problem),
-                            step, insertion_text(step, self.insertion.start_mm) if step else "", insertion_ms)
+        return FrameOutcome(frame.index, fix, reason, tip_trocar, len(self._fixes), spread, still, due,
+                            tracked.track_ms, pose, check, float(imu.gap_s),
+                            video_text(self.session.video_state(), self.video_problem), step,
+                            insertion_text(step, self.insertion.start_mm) if step else "", tracked.insertion_ms)
 
-    def _follow_insertion(self, frame: StereoFrame, imu: ImuReading, fix: ProbeFix | None, begun):
-        """(the insertion at this pair, ms it took after the probe tracker: what it adds to the pair's time), its
-        ``streams/camera`` row recorded; (None, 0) without tracking. ``begun``: the pair's insertion started beside
-        the probe tracker (:meth:`~snreg.workflow.insertion.CameraInsertion.begin`)."""
+    def _follow_insertion(self, frame: StereoFrame, imu: ImuReading, tracked: TrackedPair):
+        """The insertion at this pair, its ``streams/camera`` row recorded; None without tracking. Lost, in words,
+        once the tracking process stopped (its keyframes went with it)."""
         if self.insertion is None:
-            return None, 0.0
-        started = time.perf_counter()
-        step = self.insertion.update(frame.left, frame.right, frame.t_left_ns, imu.earth_from_imu, probe_fix=fix,
-                                     begun=begun)
-        estimate = step.estimate
+            return None
+        estimate = tracked.estimate
+        if estimate is None:
+            estimate = InsertionEstimate(frame.index, LOST, float("nan"), 0.0, float("nan"), float("nan"),
+                                         self.tracking_problem)
+        step = self.insertion.step(estimate, frame.t_left_ns, imu.earth_from_imu)
         self.session.append_camera(frame.t_left_ns, frame.t_right_ns, estimate.trocar_camera_mm, estimate.state,
                                    estimate.quality, estimate.residual_mm, estimate.sd_mm)
-        return step, (time.perf_counter() - started) * 1e3
+        return step
+
+    def _track_here(self, problem: str) -> None:
+        """The tracking process stopped: say so (``tracking_problem``, on record), and track the pairs in flight and
+        every pair after in this thread, the probe alone (the insertion tracker's keyframes went with the process)."""
+        self.tracking_problem = (f"{problem}; the probe is tracked in the acquisition's thread from now on (slower) "
+                                 "and the camera's insertion is no longer tracked")
+        self.session.log_event("tracking_process_stopped", reason=self.tracking_problem)
+        self._tracking = InlineTracking(self.tracker, None)
+        for frame, imu in self._in_flight:
+            self._tracking.submit(frame.left, frame.right, imu.earth_from_imu)
+
+    @property
+    def tracking_pid(self) -> int | None:
+        """The tracking process's id (None when pairs are tracked in this process)."""
+        return self._tracking.pid
+
+    def close(self) -> None:
+        """Finish the pairs in flight (their rows recorded, their outcomes dropped) and end the tracking process; the
+        insertion tracker it followed comes back into :attr:`insertion` (a later acquisition goes on with it)."""
+        while self._in_flight:
+            self.finish()
+        tracker = self._tracking.close()
+        if self.insertion is not None and tracker is not None:
+            self.insertion.tracker = tracker
+        self._tracking = InlineTracking(self.tracker, None if self.insertion is None else self.insertion.tracker)
 
     def _start_video(self, width: int, height: int, wait_s: float = 0.0) -> None:
         try:

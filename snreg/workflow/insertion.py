@@ -13,17 +13,15 @@ the node covariance uses), and the store guard refuses (:meth:`CameraInsertion.s
 the camera may have moved: turned more than :data:`MOVED_TURN_DEG`, lost for more than :data:`MOVED_AFTER_S` (long
 enough for an unseen slide), or a mix of both.
 
-Beside the probe tracker, not after it (issue 36): :meth:`CameraInsertion.begin` makes the part of a pair's insertion
-that needs neither the probe's fix nor the tracker's state (the pair's band-passed images,
-:meth:`~snreg.odometry.InsertionTracker.prepare`) in a thread of its own while the caller tracks the probe (OpenCV
-releases the GIL), and :meth:`CameraInsertion.update` finishes it with the fix: each pair's insertion is the very
-estimate the serial order gives, in frame order, and every pair is mapped with its own.
+Where the trackers run (issue 36): the insertion tracker's estimate of a pair comes from
+:func:`~snreg.workflow.pair_tracking.track_pair` (in the acquisition's thread, or in the live loop's tracking process,
+:mod:`snreg.workflow.tracking_process`); :meth:`CameraInsertion.step` turns it into the insertion the pair is mapped
+with, here, where the store guard needs it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +32,8 @@ from snreg.geometry import rotation_angle_deg
 from snreg.odometry import InsertionEstimate, InsertionTracker
 from snreg.odometry.held import MOVED_AFTER_S, MOVED_TURN_DEG, held_sd_mm, may_have_moved
 from snreg.probe import ProbeModel
-from snreg.tracking import StereoTracker, TrackingError
+from snreg.tracking import StereoTracker
+from snreg.workflow.pair_tracking import track_pair
 
 __all__ = ["follow_insertion", "CameraInsertion", "InsertionStep", "MOVED_TURN_DEG", "MOVED_AFTER_S",
            "LARGE_RESIDUAL_MM", "insertion_text", "residual_text"]
@@ -65,8 +64,9 @@ class InsertionStep:
 
 
 class CameraInsertion:
-    """The insertion during acquisition: ``tracker`` fed pair by pair, ``chain`` (the trocar calibration) moved to
-    each pair's insertion, and what the store guard needs (the last tracked pair's grab time and IMU orientation)."""
+    """The insertion during acquisition: ``tracker`` fed pair by pair (here, or in the tracking process, which hands
+    it back when it ends), ``chain`` (the trocar calibration) moved to each pair's insertion, and what the store guard
+    needs (the last tracked pair's grab time and IMU orientation)."""
 
     def __init__(self, tracker: InsertionTracker, chain: ChainCalibration):
         self.tracker, self.chain = tracker, chain
@@ -79,18 +79,16 @@ class CameraInsertion:
         self._now_orientation = np.eye(3)
         self._chain_at = (self.start_mm, chain.with_insertion(self.start_mm))
 
-    def begin(self, left: np.ndarray, right: np.ndarray) -> Future:
-        """Start this pair's insertion beside the caller: its images (:meth:`InsertionTracker.prepare`) made in the
-        insertion's own thread; hand the future to :meth:`update` for this same pair."""
-        return _BESIDE.submit(self.tracker.prepare, left, right)
-
     def update(self, left: np.ndarray, right: np.ndarray, t_ns: int, earth_from_imu: np.ndarray,
-               probe_fix=None, begun: Future | None = None) -> InsertionStep:
+               probe_fix=None) -> InsertionStep:
         """Track the insertion at this pair (grabbed at ``t_ns``, host clock; ``probe_fix`` left out of the tissue)
-        and give the chain to map it with; ``begun``: :meth:`begin` of this pair (waited for here; its error, such as
-        a frame of another size, is raised here)."""
-        images = begun.result() if begun is not None else None
-        estimate = self.tracker.update(left, right, earth_from_imu, probe_fix=probe_fix, images=images)
+        with :attr:`tracker`, here, and give the chain to map it with (:meth:`step`)."""
+        return self.step(self.tracker.update(left, right, earth_from_imu, probe_fix=probe_fix), t_ns, earth_from_imu)
+
+    def step(self, estimate: InsertionEstimate, t_ns: int, earth_from_imu: np.ndarray) -> InsertionStep:
+        """The insertion a pair grabbed at ``t_ns`` (host clock) is mapped with, from the tracker's ``estimate`` at
+        it (:func:`~snreg.workflow.pair_tracking.track_pair`, wherever it ran) and the IMU's ``earth_from_imu``;
+        pairs in frame order."""
         orientation = np.asarray(earth_from_imu, dtype=float)[:3, :3]
         self._now_ns, self._now_orientation = int(t_ns), orientation
         if estimate.tracked or self._known_ns is None:
@@ -128,11 +126,6 @@ class CameraInsertion:
                 "record)")
 
 
-# the one thread every acquisition makes its pairs' images in (started on first use, idle between pairs): one thread
-# keeps the pairs in order, and one acquisition runs at a time
-_BESIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="snreg-insertion")
-
-
 def insertion_text(step: InsertionStep | None, start_mm: float) -> str:
     """The insertion in words for the screens and the live link's status, e.g. "camera 171.0 mm, +13.0 mm since
     calibration, tracked" or "camera LOST (no tissue texture ...): 171.0 mm held"; "" without tracking."""
@@ -163,9 +156,4 @@ def follow_insertion(pairs: Iterable[tuple[np.ndarray, np.ndarray]], orientation
     tracker = InsertionTracker(calibration, chain, start_mm=start_mm, probe=probe)
     probe_tracker = StereoTracker(calibration, probe)
     for (left, right), earth_from_imu in zip(pairs, orientations):
-        images = _BESIDE.submit(tracker.prepare, left, right)          # beside the probe tracker, as acquisition does
-        try:
-            fix = probe_tracker.track(left, right)
-        except TrackingError:
-            fix = None
-        yield tracker.update(left, right, earth_from_imu, probe_fix=fix, images=images.result())
+        yield track_pair(probe_tracker, tracker, left, right, earth_from_imu).estimate      # as acquisition does

@@ -9,14 +9,23 @@ must be confirmed first (``store_confirm``: the question naming the near node, a
 offered instead (``store_override_offered``: the refusal and the request to send back with ``override=True``), unless
 auto-store asked: auto-store never overrides. Connect the signals before :func:`start_worker`.
 
-With ``track_insertion`` the camera's insertion is followed in this thread too (:class:`~snreg.odometry.
-InsertionTracker`, built here: its cost never lands on the GUI thread), from the trocar calibration's distance, or
-from where ``resume_insertion`` (what an earlier worker followed on the same calibration and chain) left it.
+With ``track_insertion`` the camera's insertion is followed too (:class:`~snreg.odometry.InsertionTracker`, built
+here: its cost never lands on the GUI thread), from the trocar calibration's distance, or from where
+``resume_insertion`` (what an earlier worker followed on the same calibration and chain) left it.
+
+Where the pairs are tracked (issue 36): with ``tracking_process`` (the app's) the probe tracker and the insertion
+tracker run in a process of their own (:class:`~snreg.workflow.tracking_process.TrackingProcess`), so their Python
+never holds the GIL the GUI thread waits for, and the worker reads and records the next pair while one is tracked
+(``AHEAD`` pairs in flight at most; every pair's result is emitted in frame order, once it is back). The insertion
+tracker comes back from that process when the worker stops, for :attr:`AcquisitionWorker.kept_insertion`. A tracking
+process that dies is said in ``store_failed`` (the probe is then tracked in this thread); without
+``tracking_process`` each pair is tracked here as it is read.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -38,6 +47,7 @@ from snreg.workflow.navigation import NavigationState, navigate, trocar_from_cam
 from snreg_gui.acquisition.hot_spots import feed_layer, guidance_text
 
 _AXIS_DRAWN_MM = 50.0
+AHEAD = 1              # pairs tracked in the tracking process while the worker reads the next (module docstring)
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,7 +112,8 @@ class KeptInsertion:
 class AcquisitionWorker(QObject):
     """Frame loop, node store and undo. ``make_source`` runs in the worker thread (a renderer may take time to build);
     ``record_video``: both feeds go into the session's video (its encoder works in a process of its own);
-    ``track_insertion``, ``resume_insertion``: follow the camera's insertion (module docstring)."""
+    ``track_insertion``, ``resume_insertion``: follow the camera's insertion; ``tracking_process``: track the pairs in
+    a process of their own (module docstring)."""
 
     frame_processed = Signal(object)     # FrameResult
     node_stored = Signal(object)         # snreg.session.IntraopNode
@@ -117,10 +128,13 @@ class AcquisitionWorker(QObject):
                  chain: ChainCalibration, imu: ImuMonitor, session: Session, fps: float,
                  fixes_per_node: int = THESIS_FIXES_PER_NODE, limits: StoreLimits = StoreLimits(),
                  record_video: bool = True, *, track_insertion: bool = False,
-                 resume_insertion: CameraInsertion | None = None):
+                 resume_insertion: CameraInsertion | None = None, tracking_process: bool = True):
         super().__init__()
         self._make_source, self._imu, self._fps, self._record_video = make_source, imu, fps, record_video
         self._track_insertion, self._resume_insertion = track_insertion, resume_insertion
+        self._tracking_process = tracking_process
+        self._pending: deque[tuple] = deque()     # per pair begun, not emitted yet: (frame, IMU snapshot, reading, ns)
+        self._tracking_said = False
         self._setup = (calibration, probe, chain, session, fixes_per_node, limits)
         self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
@@ -138,7 +152,8 @@ class AcquisitionWorker(QObject):
                      if self._track_insertion else None)
         self.acquisition = Acquisition(calibration, probe, chain, session, fixes_per_node=fixes, limits=limits,
                                        imu_required=not without_imu,
-                                       video_fps=self._fps if self._record_video else None, insertion=insertion)
+                                       video_fps=self._fps if self._record_video else None, insertion=insertion,
+                                       tracking_process=self._tracking_process)
         try:
             session.log_event("acquisition_started", imu="none (chosen)" if without_imu else "required",
                               insertion=self._insertion_started(),
@@ -179,6 +194,12 @@ class AcquisitionWorker(QObject):
             self._timer.stop()
         if self._source is not None:
             self._source.close()
+        if self.acquisition is not None:        # the pairs in flight recorded (not shown), the tracking process
+            self._pending.clear()               # ended, its insertion tracker back in ours (kept_insertion)
+            try:
+                self.acquisition.close()
+            except (SessionError, OSError, ValueError) as err:
+                self.store_failed.emit(f"The last pairs were not recorded: {err}")
         self.moveToThread(QCoreApplication.instance().thread())
 
     @Slot(int)
@@ -235,11 +256,13 @@ class AcquisitionWorker(QObject):
 
     @Slot()
     def _step(self) -> None:
+        self._emit_tracked(ahead=AHEAD, wait=False)        # pairs tracked meanwhile
         frame = self._source.read()
         if frame is None and self._source.state is SourceState.OPEN:
             return                               # none this tick (a camera that missed a grab)
         if frame is None:
             self._timer.stop()
+            self._emit_tracked(ahead=0)
             self.source_stopped.emit(self._source.problem)
             return
         now = time.perf_counter_ns()
@@ -249,7 +272,23 @@ class AcquisitionWorker(QObject):
         self._last_ns, self._last_frame = now, frame
         imu = self._imu.snapshot()
         reading = ImuReading.at_frame(self._imu, frame)
-        outcome = self.acquisition.process(frame, reading)
+        self.acquisition.begin(frame, reading)
+        self._pending.append((frame, imu, reading, now))
+        self._emit_tracked(ahead=AHEAD if self.acquisition.tracking_pid is not None else 0)
+
+    def _emit_tracked(self, ahead: int, wait: bool = True) -> None:
+        """Emit the pairs tracked, oldest first, until at most ``ahead`` are in flight (waiting for them unless
+        ``wait`` is False: then only those tracked already)."""
+        while self._pending and (len(self._pending) > ahead or self.acquisition.ready()):
+            if not wait and not self.acquisition.ready():
+                return
+            frame, imu, reading, now = self._pending.popleft()
+            self._emit(self.acquisition.finish(), frame, imu, reading, now)
+            if self.acquisition.tracking_problem and not self._tracking_said:
+                self._tracking_said = True
+                self.store_failed.emit(f"Tracking: {self.acquisition.tracking_problem}.")
+
+    def _emit(self, outcome: FrameOutcome, frame, imu: ImuSnapshot, reading: ImuReading, now: int) -> None:
         overlay_left = overlay_right = None
         tracker = self.acquisition.tracker
         if outcome.fix is not None:

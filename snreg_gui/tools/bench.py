@@ -10,8 +10,9 @@ probe and IMU streams end, the longest frame gap, how far each stored node is fr
 recorded as the app records them (``--no-video``: not), and the video's cost is reported: frames written and dropped,
 the encoder's CPU seconds per second of video (the cores it keeps busy), with how many pairs the worker processed
 per second while measured, and the CPU each thread spent (in cores: the GUI thread, the acquisition worker, the
-insertion's thread beside it, the IMU reader, the demo's renderer, the rest of the process;
-:mod:`snreg_gui.tools.thread_cpu`), in all and per processed pair (the budget of a pair; what a thread spends per
+insertion's thread beside it, the IMU reader, the demo's renderer, the rest of the process, and the tracking process
+where the pairs are tracked (issue 36) with "app" the two processes together; :mod:`snreg_gui.tools.thread_cpu`), in
+all and per processed pair (the budget of a pair; what a thread spends per
 second whatever the pairs, the IMU reader's, weighs more per pair when few are processed), so the app's own cost is
 seen apart from the simulated camera's;
 ``--rendered`` starts measuring once the surgery demo has rendered its whole tour (it renders as it plays, about a core
@@ -37,13 +38,16 @@ import numpy as np
 from PySide6.QtCore import QSettings, Qt, QTimer
 
 from snreg_gui.tools.stall_stacks import SAMPLE_S, StallSampler
-from snreg_gui.tools.thread_cpu import cores_by_role, thread_cpu_s
+from snreg_gui.tools.thread_cpu import cores_by_role, process_cpu_s, thread_cpu_s
 
 TICK_MS = 10
-# threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the worker
-# (snreg.workflow.insertion), the IMU's serial reader and fusion (snreg.imu.reader), the surgery demo's renderer, the
+# threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the probe
+# tracker (snreg.workflow.pair_tracking; in this process only when the worker tracks the pairs itself), the IMU's serial reader and fusion (snreg.imu.reader), the surgery demo's renderer, the
 # simulated camera (snreg.demo.rig)
 NAMED_THREADS = {"insertion": "snreg-insertion", "imu reader": "imu-reader", "demo renderer": "demo-tour-renderer"}
+# the live loop's tracking process (snreg.workflow.tracking_process), a row of its own beside this process's threads
+# (its own "snreg-insertion" thread included), and "app": this process and it together (the encoder apart)
+TRACKING_PROCESS = "tracking process"
 TARGET_STALL_MS, TARGET_FPS, TARGET_ENCODER_CORES = 33.0, 25.0, 1.0      # issue 36: the live loop at 30 Hz
 
 
@@ -130,7 +134,15 @@ def _run(args, app, work: Path) -> int:
     named = {role: next((t.native_id for t in threading.enumerate() if t.name.startswith(prefix)), None)
              for role, prefix in NAMED_THREADS.items()}
     cpu_before, cpu_after = thread_cpu_s(), {}       # the latest reading of each thread (one may end meanwhile)
-    cpu_timer = QTimer(interval=1000, timeout=lambda: cpu_after.update(thread_cpu_s()))
+    tracking_pid = window.worker.acquisition.tracking_pid       # the tracking process (None: tracked in the worker)
+    tracking_cpu = [process_cpu_s(tracking_pid)] if tracking_pid is not None else []
+
+    def read_cpu() -> None:
+        cpu_after.update(thread_cpu_s())
+        if tracking_cpu:
+            spent = process_cpu_s(tracking_pid)
+            tracking_cpu[1:] = [spent] if spent is not None else tracking_cpu[1:]     # its latest, while it lived
+    cpu_timer = QTimer(interval=1000, timeout=read_cpu)
     cpu_timer.start()
     process_before, process_spent = _process_cpu_s(), []
 
@@ -139,15 +151,18 @@ def _run(args, app, work: Path) -> int:
         if sampler is not None:
             sampler.stop()
         cpu_timer.stop()
-        cpu_after.update(thread_cpu_s())
+        read_cpu()
         process_spent.append(_process_cpu_s() - process_before)
         window.quit_without_asking()
     QTimer.singleShot(round(args.seconds * 1000), end)
     app.exec()                                          # the app's own event loop, as in use
     gaps = heartbeat.gaps_ms()
     roles = {"gui": threading.get_native_id(), "worker": min(worker_thread, default=None), **named}
-    cores = cores_by_role(cpu_before, cpu_after, roles, heartbeat.ticks[-1] - heartbeat.ticks[0],
-                          process_spent[0] if process_spent else None)
+    seconds = heartbeat.ticks[-1] - heartbeat.ticks[0]
+    cores = cores_by_role(cpu_before, cpu_after, roles, seconds, process_spent[0] if process_spent else None)
+    if cores and len(tracking_cpu) == 2 and tracking_cpu[0] is not None:
+        cores[TRACKING_PROCESS] = round((tracking_cpu[1] - tracking_cpu[0]) / seconds, 3)
+        cores["app"] = round(cores["process"] + cores[TRACKING_PROCESS], 3)
     measured = [t for t in processed_at if heartbeat.ticks[0] <= t <= heartbeat.ticks[-1]]
     fps = len(measured) / max(heartbeat.ticks[-1] - heartbeat.ticks[0], 1e-9)
     stored = window.acquisition.nodes.rowCount()
@@ -177,7 +192,8 @@ def _run(args, app, work: Path) -> int:
                   f"minute ({video['frame_size'][0]}x{video['frame_size'][1]})")
         if cores:
             print("CPU while measured, cores: " + ", ".join(f"{name} {value}" for name, value in cores.items())
-                  + " (the demo renderer is the simulated camera, not the app; the encoder is its own process); "
+                  + " (the demo renderer is the simulated camera, not the app; the tracking process and the "
+                  "encoder are processes of their own, app = process + tracking process); "
                   "per processed pair, ms: " + ", ".join(f"{name} {value}" for name, value in
                                                            result["cpu_ms_per_pair"].items()))
         for stack, n in (sampler.top() if sampler else []):

@@ -17,20 +17,33 @@ _TASKS = Path("/proc/self/task")
 def thread_cpu_s() -> dict[int, float]:
     """{native thread id: CPU seconds (user + system) so far} for every thread of this process; {} where
     ``/proc`` is missing."""
-    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
     times = {}
     try:
         tasks = list(_TASKS.iterdir())
     except OSError:
         return {}
     for task in tasks:
-        try:
-            stat = (task / "stat").read_text()
-        except OSError:                       # the thread ended meanwhile
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()      # after the name, which may hold spaces
-        times[int(task.name)] = (int(fields[11]) + int(fields[12])) / ticks     # utime, stime (fields 14 and 15)
+        spent = _stat_cpu_s(task / "stat")
+        if spent is not None:                 # else the thread ended meanwhile
+            times[int(task.name)] = spent
     return times
+
+
+def process_cpu_s(pid: int) -> float | None:
+    """CPU seconds (user + system, every thread's) process ``pid`` spent so far, e.g. the live loop's tracking process
+    (issue 36); None when it is gone or ``/proc`` is missing."""
+    return _stat_cpu_s(Path(f"/proc/{int(pid)}/stat"))
+
+
+def _stat_cpu_s(path: Path) -> float | None:
+    """utime + stime of a ``/proc`` stat file, in seconds; None when it cannot be read."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    try:
+        stat = path.read_text()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()      # after the name, which may hold spaces
+    return (int(fields[11]) + int(fields[12])) / ticks     # utime, stime (fields 14 and 15)
 
 
 def cores_by_role(before: dict[int, float], after: dict[int, float], roles: dict[str, int | None],

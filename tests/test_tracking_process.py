@@ -1,0 +1,176 @@
+"""The live loop's tracking in a process of its own (issue 36): the same pairs give the same fixes, reasons and
+insertions as tracking in the caller's thread, pairs begun ahead come back in their order, a killed process is said
+in words while the acquisition goes on with its nodes, and closing leaves no process, no shared memory, and the
+insertion tracker back in this process. Rendered pairs of tests/surgery_frames.py, seeded."""
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import poll, process_gone, shared_memory_segments
+from surgery_frames import NODE_A, START_MM, SlidingWorld, slide_then_rest
+
+from snreg.odometry import InsertionTracker
+from snreg.session import Session
+from snreg.tracking import StereoTracker
+from snreg.workflow.acquisition import Acquisition
+from snreg.workflow.pair_tracking import track_pair
+
+WINDOW = 4
+
+
+class Clock:
+    def __init__(self):
+        self.ns = 10**12
+
+    def __call__(self):
+        return self.ns
+
+
+@pytest.fixture(scope="module")
+def world():
+    return SlidingWorld()
+
+
+@pytest.fixture(scope="module")
+def pairs(world):
+    """Held on node A, slid 10 mm, held on node B, then two pairs with no probe (a tracking error's reason)."""
+    sliding = slide_then_rest(world, rest=WINDOW, to_mm=START_MM + 10.0)
+    return sliding + [world.pair(len(sliding) + k, START_MM + 10.0) for k in range(2)]
+
+
+def acquisition(world, session, process):
+    return Acquisition(world.calibration, world.probe, world.chain, session, fixes_per_node=WINDOW, clock=Clock(),
+                       insertion=InsertionTracker(world.calibration, world.chain, probe=world.probe),
+                       tracking_process=process)
+
+
+def run_ahead(acq, pairs, ahead=1):
+    """Begin each pair before finishing the one ``ahead`` pairs back, as the app's worker does; the outcomes."""
+    outcomes = []
+    for pair in pairs:
+        acq.begin(pair.frame, pair.imu)
+        while acq.in_flight > ahead:
+            outcomes.append(acq.finish())
+    while acq.in_flight:
+        outcomes.append(acq.finish())
+    return outcomes
+
+
+def same_estimates(a, b):
+    for name in a.__dataclass_fields__:                   # NaN (lost) equals NaN here
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_frame_order(world, pairs, tmp_path):
+    with Session.create(tmp_path / "here.h5", case_id="here-1", stream_flush_s=0) as session:
+        inline = acquisition(world, session, False)
+        assert inline.tracking_pid is None
+        here = [inline.process(p.frame, p.imu) for p in pairs]
+    segments_before = shared_memory_segments()
+    with Session.create(tmp_path / "there.h5", case_id="there-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        pid = acq.tracking_pid
+        assert pid != os.getpid() and not process_gone(pid)
+        there = run_ahead(acq, pairs, ahead=2)
+        acq.close()
+        camera = session.stream("camera")[()]
+    assert [o.index for o in there] == [p.frame.index for p in pairs]
+    assert here[-1].fix is None and here[-1].reason                          # the pairs without a probe: in words
+    for a, b in zip(here, there):
+        assert a.reason == b.reason
+        assert (a.fix is None) == (b.fix is None)
+        if a.fix is not None:
+            for name in ("tip", "centre", "axis", "quality"):
+                np.testing.assert_array_equal(getattr(a.fix, name), getattr(b.fix, name))
+            np.testing.assert_array_equal(a.tip_trocar, b.tip_trocar)
+        same_estimates(a.insertion.estimate, b.insertion.estimate)
+        assert a.insertion.used_mm == b.insertion.used_mm and a.insertion_text == b.insertion_text
+    assert all(o.insertion.estimate.tracked for o in there[:-2])
+    assert len(camera) == len(pairs)
+    # closed: no process, no shared memory of its own left
+    assert process_gone(pid) and not shared_memory_segments() - segments_before
+
+
+def test_closing_hands_the_insertion_tracker_back_to_go_on_with(world, pairs, tmp_path):
+    with Session.create(tmp_path / "kept.h5", case_id="kept-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        sent = acq.insertion.tracker
+        run_ahead(acq, pairs[:WINDOW + 2])
+        acq.close()
+        kept = acq.insertion.tracker
+        assert kept is not sent and acq.tracking_pid is None
+        probe, serial = StereoTracker(world.calibration, world.probe), InsertionTracker(world.calibration, world.chain,
+                                                                                      probe=world.probe)
+        for pair in pairs[:WINDOW + 2]:                                  # the same pairs, tracked here
+            track_pair(probe, serial, pair.frame.left, pair.frame.right, pair.imu.earth_from_imu)
+        following = pairs[WINDOW + 2]
+        went_on, expected = (track_pair(probe, tracker, following.frame.left, following.frame.right,
+                                        following.imu.earth_from_imu).estimate for tracker in (kept, serial))
+        assert went_on.tracked and went_on.index == following.frame.index
+        same_estimates(went_on, expected)
+
+
+def test_a_pair_of_another_size_raises_its_error_where_it_is_finished_as_here(world, pairs, tmp_path):
+    with Session.create(tmp_path / "size.h5", case_id="size-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        small = pairs[0].frame
+        acq.begin(type(small)(small.left[::2], small.right[::2], small.t_left_ns, small.t_right_ns, 0), pairs[0].imu)
+        with pytest.raises(ValueError, match="calibration"):
+            acq.finish()
+        outcome = acq.process(pairs[1].frame, pairs[1].imu)             # the process goes on
+        assert outcome.fix is not None
+        acq.close()
+
+
+def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_every_node(world, pairs, tmp_path):
+    segments_before = shared_memory_segments()
+    with Session.create(tmp_path / "killed.h5", case_id="killed-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        run_ahead(acq, pairs[:WINDOW])
+        first = acq.store("SN1", "")
+        acq.begin(pairs[WINDOW].frame, pairs[WINDOW].imu)
+        os.kill(acq.tracking_pid, signal.SIGKILL)
+        outcomes = run_ahead(acq, [world.pair(20 + k, START_MM, NODE_A) for k in range(WINDOW)])
+        assert acq.tracking_pid is None and "the tracking process stopped" in acq.tracking_problem
+        assert "no longer tracked" in acq.tracking_problem
+        assert all(o.fix is not None for o in outcomes)                  # the probe: tracked here from then on
+        assert all(not o.insertion.estimate.tracked and o.insertion.estimate.reason == acq.tracking_problem
+                   for o in outcomes)
+        second = acq.store("SN2", "", confirmed=True)
+        acq.close()
+        events = [e["kind"] for e in session.events()]
+        nodes = [n.id for n in session.intraop_records()]
+    assert "tracking_process_stopped" in events and nodes == [first.id, second.id]
+    assert not shared_memory_segments() - segments_before
+
+
+ROOT = Path(__file__).resolve().parents[1]
+KILLED_PARENT = """
+import os, signal, sys
+from snreg.camera import thesis_calibration
+from snreg.probe import default_probe_model
+from snreg.workflow.tracking_process import TrackingProcess
+tracking = TrackingProcess(thesis_calibration().scaled(0.25), default_probe_model(), None)
+print(tracking.pid, tracking._memory.name, flush=True)
+sys.stdin.readline()
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_killed_parent_leaves_neither_its_tracking_process_nor_its_shared_memory(tmp_path):
+    parent = subprocess.Popen([sys.executable, "-c", KILLED_PARENT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        pid, memory = parent.stdout.readline().split()
+        assert not process_gone(int(pid)) and memory.lstrip("/") in shared_memory_segments()
+        parent.stdin.write("\n")
+        parent.stdin.flush()
+        assert parent.wait(30) == -signal.SIGKILL
+    finally:
+        parent.kill()
+    assert poll(lambda: process_gone(int(pid)) and memory.lstrip("/") not in shared_memory_segments())
