@@ -19,6 +19,7 @@ from snreg.session import Session
 from snreg.tracking import StereoTracker
 from snreg.workflow.acquisition import Acquisition
 from snreg.workflow.pair_tracking import track_pair
+from snreg.workflow.tracking_child import NICER
 
 WINDOW = 4
 
@@ -77,6 +78,8 @@ def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_
         pid = acq.tracking_pid
         assert pid != os.getpid() and not process_gone(pid)
         there = run_ahead(acq, pairs, ahead=2)
+        # below the app's threads: the GUI thread gets a core first (set once the child runs: it answered)
+        assert os.getpriority(os.PRIO_PROCESS, pid) == min(os.getpriority(os.PRIO_PROCESS, 0) + NICER, 19)
         acq.close()
         camera = session.stream("camera")[()]
     assert [o.index for o in there] == [p.frame.index for p in pairs]

@@ -19,8 +19,12 @@ import numpy as np
 from snreg.tracking import StereoTracker
 from snreg.workflow.pair_tracking import track_pair
 
+NICER = 5           # below the app's threads: the GUI thread gets a core first, tracking the CPU left
+
 
 def main(argv: list[str]) -> int:
+    if hasattr(os, "nice"):                     # POSIX; elsewhere the child runs at the app's priority
+        os.nice(NICER)
     answers = os.fdopen(os.dup(1), "wb")        # the answers' own channel: a stray print goes to stderr
     os.dup2(2, 1)
     memory = shared_memory.SharedMemory(name=argv[0])

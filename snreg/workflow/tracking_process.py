@@ -5,7 +5,9 @@ Why a process: the probe tracker and the insertion tracker are numpy-heavy Pytho
 app's process they held the GIL the GUI thread waits for (its stalls were mostly such waits: with the tracking
 replaced by a sleep the p99 stall fell from 38 to 18 ms). In a process of their own they also run beside the
 acquisition's other work: while pair k is tracked there, the worker reads and records pair k+1 (pipelining; the
-outcomes still come back in frame order).
+outcomes still come back in frame order). The child runs :data:`~snreg.workflow.tracking_child.NICER` steps nicer
+than the app: at its own priority it took the CPU the GUI thread needed once the two cores were full (longest stall
+66-78 ms against 46-49 in one process), niced the GUI thread gets a core first (52 ms, p99 28) and tracking the rest.
 
 How, after :class:`~snreg.session.video.StereoRecorder`: the child is started with ``python -m
 snreg.workflow.tracking_child`` (no fork of a process that runs Qt); the pairs travel through slots of shared memory
