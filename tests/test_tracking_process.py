@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import poll, process_gone, shared_memory_segments
-from surgery_frames import NODE_A, START_MM, SlidingWorld, slide_then_rest
+from surgery_frames import NODE_A, START_MM, slide_then_rest
+from test_acquisition_insertion import WINDOW, Clock, world  # noqa: F401  (world: the sliding scene, a fixture)
 
 from snreg.odometry import InsertionTracker
 from snreg.session import Session
@@ -21,20 +22,6 @@ from snreg.workflow.acquisition import Acquisition
 from snreg.workflow.pair_tracking import track_pair
 from snreg.workflow.tracking_child import NICER
 
-WINDOW = 4
-
-
-class Clock:
-    def __init__(self):
-        self.ns = 10**12
-
-    def __call__(self):
-        return self.ns
-
-
-@pytest.fixture(scope="module")
-def world():
-    return SlidingWorld()
 
 
 @pytest.fixture(scope="module")
