@@ -66,9 +66,26 @@ def poll(predicate, timeout_s: float = 30.0, interval_s: float = 0.01) -> bool:
 
 
 def shared_memory_segments() -> set[str]:
-    """The names of the shared memory segments Python made on this machine (Linux: /dev/shm), to see none is left."""
+    """The names of the shared memory segments Python made on this machine (Linux: /dev/shm)."""
     from pathlib import Path
     return {p.name for p in Path("/dev/shm").glob("psm_*")} if Path("/dev/shm").is_dir() else set()
+
+
+@pytest.fixture
+def created_segments(monkeypatch) -> set[str]:
+    """The names of the shared memory segments this process creates during the test (the recorder's, the tracking
+    process's), to see none is left: not the machine's whole /dev/shm, where another test worker's segments come and
+    go meanwhile."""
+    from multiprocessing import shared_memory
+    created: set[str] = set()
+    make = shared_memory.SharedMemory.__init__
+
+    def recording(self, name=None, create=False, size=0, **options):
+        make(self, name, create, size, **options)
+        if create:
+            created.add(self.name.lstrip("/"))
+    monkeypatch.setattr(shared_memory.SharedMemory, "__init__", recording)
+    return created
 
 
 def process_gone(pid: int) -> bool:

@@ -351,8 +351,7 @@ def test_the_review_shows_the_insertion_over_time_with_the_lost_stretch_and_the_
 
 
 def test_a_killed_tracking_process_is_said_and_a_stopped_worker_leaves_no_process_nor_shared_memory(
-        qtbot, open_window, world, pairs):
-    segments_before = shared_memory_segments()
+        qtbot, open_window, world, pairs, created_segments):
     window = open_window(SlidingRig(world, pairs))
     screen = window.acquisition
     qtbot.waitUntil(lambda: screen.store_reason.text().startswith("ready"), timeout=TIMEOUT_MS)
@@ -373,4 +372,4 @@ def test_a_killed_tracking_process_is_said_and_a_stopped_worker_leaves_no_proces
     pid = window.worker.acquisition.tracking_pid
     assert pid is not None and not process_gone(pid)
     window.shutdown()
-    assert process_gone(pid) and not shared_memory_segments() - segments_before
+    assert process_gone(pid) and created_segments and not created_segments & shared_memory_segments()

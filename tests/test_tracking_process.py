@@ -54,12 +54,13 @@ def same_estimates(a, b):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
-def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_frame_order(world, pairs, tmp_path):
+def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_frame_order(world, pairs, tmp_path,
+                                                                                             created_segments):
     with Session.create(tmp_path / "here.h5", case_id="here-1", stream_flush_s=0) as session:
         inline = acquisition(world, session, False)
         assert inline.tracking_pid is None
         here = [inline.process(p.frame, p.imu) for p in pairs]
-    segments_before = shared_memory_segments()
+    assert not created_segments                         # tracked here: no shared memory
     with Session.create(tmp_path / "there.h5", case_id="there-1", stream_flush_s=0) as session:
         acq = acquisition(world, session, True)
         pid = acq.tracking_pid
@@ -83,7 +84,7 @@ def test_the_process_gives_the_fixes_reasons_and_insertions_of_tracking_here_in_
     assert all(o.insertion.estimate.tracked for o in there[:-2])
     assert len(camera) == len(pairs)
     # closed: no process, no shared memory of its own left
-    assert process_gone(pid) and not shared_memory_segments() - segments_before
+    assert process_gone(pid) and created_segments and not created_segments & shared_memory_segments()
 
 
 def test_closing_hands_the_insertion_tracker_back_to_go_on_with(world, pairs, tmp_path):
@@ -117,8 +118,8 @@ def test_a_pair_of_another_size_raises_its_error_where_it_is_finished_as_here(wo
         acq.close()
 
 
-def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_every_node(world, pairs, tmp_path):
-    segments_before = shared_memory_segments()
+def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_every_node(world, pairs, tmp_path,
+                                                                                      created_segments):
     with Session.create(tmp_path / "killed.h5", case_id="killed-1", stream_flush_s=0) as session:
         acq = acquisition(world, session, True)
         run_ahead(acq, pairs[:WINDOW])
@@ -136,7 +137,7 @@ def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_ever
         events = [e["kind"] for e in session.events()]
         nodes = [n.id for n in session.intraop_records()]
     assert "tracking_process_stopped" in events and nodes == [first.id, second.id]
-    assert not shared_memory_segments() - segments_before
+    assert created_segments and not created_segments & shared_memory_segments()
 
 
 ROOT = Path(__file__).resolve().parents[1]
