@@ -31,7 +31,7 @@ from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, ChainCalibration
 from snreg.geometry import rotation_angle_deg
 from snreg.odometry.motion import Observations, fit_free, fit_pivot, pivot_departure_mm
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography, search_insertion
-from snreg.odometry.views import (EyePair, Keyframe, OdometryParams, PairImages, View, follow, inside, lucas_kanade,
+from snreg.odometry.views import (EyePair, Keyframe, OdometryParams, PairImages, View, across, follow, inside,
                                   make_keyframe)
 from snreg.probe import ProbeModel
 
@@ -44,9 +44,6 @@ _SEARCH_STEP = 0.015         # candidate insertions this share of the tissue's d
 _NEAR_STEPS = 8              # candidates on each side of the prediction
 _MAX_SEARCHED = 4            # keyframes searched whole when the view is lost (one per pair, in turn)
 _RECENT_PAIRS = 5            # the last insertion is searched about this long after it was measured
-# pyramid levels of the right eye's match across the pair: the prediction's disparity is off by a pixel or two (the
-# depth's change), well within one window, while the motion's own error, several pixels, was the left eye's to find
-_ACROSS_LEVELS = 0
 # the fit's standard error assumes independent feature errors, which neighbouring Lucas-Kanade windows are not:
 # doubled, 94 % of the errors lie within two and 73 % within one (rendered videos, half HD, seeds 11-13)
 _SD_INFLATION = 2.0
@@ -266,12 +263,8 @@ class InsertionTracker:
         left_px, found_left = follow(keyframe, 0, view.left, keyframe.left_px[usable], guess_left, p)
         if found_left.sum() < p.min_points:
             return None, f"only {int(found_left.sum())} tissue points could be followed"
-        # the right eye: where the left found them, matched across in this very pair, started at the disparity the
-        # prediction gives (issue 36: the keyframe's right image warped and followed cost a warp, a homography and
-        # Lucas-Kanade on all pyramid levels, for errors no smaller)
         left_px = np.where(found_left[:, None], left_px, guess_left)
-        right_px, found_right = lucas_kanade(view.left, view.right, left_px, left_px + (guess_right - guess_left), p,
-                                             levels=_ACROSS_LEVELS)
+        right_px, found_right = across(view, left_px, guess_right - guess_left, p)
         found = found_left & found_right
         if found.sum() < p.min_points:
             return None, f"only {int(found.sum())} tissue points could be followed"
