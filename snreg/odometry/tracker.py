@@ -257,7 +257,8 @@ class InsertionTracker:
     def _fit(self, view: View, keyframe: Keyframe, usable: np.ndarray, guess_left: np.ndarray,
              guess_right: np.ndarray, rotation_imu: np.ndarray, guess_mm: float,
              in_view: int) -> tuple[_Step | None, str]:
-        """The keyframe's ``usable`` points followed from where they are expected in each eye, and the motion fitted;
+        """The keyframe's ``usable`` points followed into the left eye from where they are expected, matched across
+        into the right (:func:`~snreg.odometry.views.across`, from the disparity expected), and the motion fitted;
         ``in_view``: how many of its points are in view (``usable`` may be some of them)."""
         p = self.params
         left_px, found_left = follow(keyframe, 0, view.left, keyframe.left_px[usable], guess_left, p)
