@@ -178,6 +178,49 @@ def test_a_pair_follows_at_most_max_followed_of_its_keyframes_points_the_stronge
     assert len(tracker.keyframes) == 1
 
 
+def test_a_pairs_right_eye_points_are_matched_across_it_from_the_predicted_disparity():
+    # issue 36: the right eye's points are found in the right image from where the left eye found them, started at
+    # the disparity the prediction gives (off by a pixel or two), on the finest level alone; a right image that is
+    # the left moved by a known sub-pixel disparity gives that disparity back
+    import cv2
+
+    from snreg.odometry import OdometryParams
+    from snreg.odometry.views import View, across
+
+    noise = np.random.default_rng(3).normal(0.0, 1.0, (180, 320)).astype(np.float32)
+    left = cv2.normalize(cv2.GaussianBlur(noise, (0, 0), 1.5), None, 40, 216, cv2.NORM_MINMAX).astype(np.uint8)
+    truth = np.array([-7.35, 0.2])
+    right = cv2.warpAffine(left, np.array([[1.0, 0.0, truth[0]], [0.0, 1.0, truth[1]]]), (320, 180),
+                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    mask = np.full(left.shape, 255, np.uint8)
+    view = View(left, right, mask, mask, 10.0, 0.1, None)
+    grid = np.stack(np.meshgrid(np.arange(40, 290, 25), np.arange(30, 160, 25)), axis=-1).reshape(-1, 2)
+    left_px = grid.astype(np.float32) + 0.3
+    start = np.tile([-5.6, -1.1], (len(left_px), 1))                      # the prediction: 1.9 px off
+    right_px, found = across(view, left_px, start, OdometryParams())
+    assert found.all()
+    np.testing.assert_allclose(right_px - left_px, np.tile(truth, (len(left_px), 1)), atol=0.05)
+
+
+def test_a_tracked_pair_warps_only_the_keyframes_left_image(rig, monkeypatch):
+    # issue 36: the keyframe's right image is no longer followed (nor warped) into later pairs; the right eye's points
+    # are matched across each pair, and the slide is still followed to the truth
+    from snreg.odometry.views import Keyframe
+
+    warped_eyes = []
+    warped = Keyframe.warped
+
+    def spy(self, eye, homography, size):
+        warped_eyes.append(eye)
+        return warped(self, eye, homography, size)
+
+    monkeypatch.setattr(Keyframe, "warped", spy)
+    estimates, video, _ = track(rig, straight_path(np.linspace(START_MM, START_MM + 6, 6)))
+    assert all(e.tracked for e in estimates), [e.reason for e in estimates]
+    assert np.abs(errors(estimates, video)).max() < 0.3
+    assert warped_eyes and set(warped_eyes) == {0}
+
+
 def test_the_keyframes_followed_are_the_best_scored_of_all_though_not_all_are_projected(rig):
     # issue 36: keyframes are scored best-first from a bound their points in view can only raise, and their points
     # projected only while they could still be among the two followed; those two must be the best of all scored

@@ -31,7 +31,8 @@ from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, ChainCalibration
 from snreg.geometry import rotation_angle_deg
 from snreg.odometry.motion import Observations, fit_free, fit_pivot, pivot_departure_mm
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography, search_insertion
-from snreg.odometry.views import EyePair, Keyframe, OdometryParams, PairImages, View, follow, inside, make_keyframe
+from snreg.odometry.views import (EyePair, Keyframe, OdometryParams, PairImages, View, across, follow, inside,
+                                  make_keyframe)
 from snreg.probe import ProbeModel
 
 __all__ = ["TRACKED", "LOST", "START_REASON", "InsertionEstimate", "InsertionTracker"]
@@ -256,11 +257,15 @@ class InsertionTracker:
     def _fit(self, view: View, keyframe: Keyframe, usable: np.ndarray, guess_left: np.ndarray,
              guess_right: np.ndarray, rotation_imu: np.ndarray, guess_mm: float,
              in_view: int) -> tuple[_Step | None, str]:
-        """The keyframe's ``usable`` points followed from where they are expected in each eye, and the motion fitted;
+        """The keyframe's ``usable`` points followed into the left eye from where they are expected, matched across
+        into the right (:func:`~snreg.odometry.views.across`, from the disparity expected), and the motion fitted;
         ``in_view``: how many of its points are in view (``usable`` may be some of them)."""
         p = self.params
         left_px, found_left = follow(keyframe, 0, view.left, keyframe.left_px[usable], guess_left, p)
-        right_px, found_right = follow(keyframe, 1, view.right, keyframe.right_px[usable], guess_right, p)
+        if found_left.sum() < p.min_points:
+            return None, f"only {int(found_left.sum())} tissue points could be followed"
+        left_px = np.where(found_left[:, None], left_px, guess_left)
+        right_px, found_right = across(view, left_px, guess_right - guess_left, p)
         found = found_left & found_right
         if found.sum() < p.min_points:
             return None, f"only {int(found.sum())} tissue points could be followed"

@@ -23,8 +23,8 @@ from snreg.camera import StereoCalibration
 from snreg.geometry import make_transform
 from snreg.probe import ProbeModel
 
-__all__ = ["OdometryParams", "EyePair", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "lucas_kanade",
-           "inside"]
+__all__ = ["OdometryParams", "EyePair", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "across",
+           "lucas_kanade", "inside"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,7 @@ COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid
 # a tenth of its time; with at most 130 points a pair, snreg experiment camera --seeds 7,8,9,10 stayed within 0.015 mm
 # median and 0.041 mm at most, docs/method/insertion.md)
 _LK_STEPS, _LK_EPS_PX = 10, 0.03
+ACROSS_LEVELS = 0                                    # pyramid levels of the match across a pair (:func:`across`)
 
 
 class EyePair:
@@ -343,6 +344,16 @@ def follow(keyframe: "Keyframe", eye: int, after: np.ndarray, points: np.ndarray
     warped = keyframe.warped(eye, homography, (after.shape[1], after.shape[0]))
     moved = cv2.perspectiveTransform(points.reshape(-1, 1, 2).astype(np.float64), homography).reshape(-1, 2)
     return lucas_kanade(warped, after, moved.astype(np.float32), predicted, params)
+
+
+def across(view: View, left_px: np.ndarray, disparity: np.ndarray,
+           params: OdometryParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where points of the view's left image (``left_px``, N, 2) are in its right image, started at ``left_px +
+    disparity`` (N, 2, the prediction's): positions and found. Issue 36: a pair's left-eye points are followed from the
+    keyframe, which finds the motion's error (several pixels); its right-eye points are then matched across the pair,
+    where the prediction's disparity is off by a pixel or two, on the finest level alone (``ACROSS_LEVELS``), and
+    the keyframe's right image needs no warp (docs/method/insertion.md)."""
+    return lucas_kanade(view.left, view.right, left_px, np.asarray(left_px) + disparity, params, ACROSS_LEVELS)
 
 
 def lucas_kanade(before: np.ndarray, after: np.ndarray, points: np.ndarray, guess: np.ndarray,
