@@ -52,6 +52,7 @@ EARTH_DOWN = np.array([0.0, 0.0, -1.0])     # gravity in the IMU's earth frame (
 
 _TRANSFORMS = ("imu_from_camera", "trocar_from_earth")
 _ORTHONORMAL_TOL = 1e-6
+_LAST_ROW, _EYE3 = np.array([0.0, 0.0, 0.0, 1.0]), np.eye(3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -235,14 +236,20 @@ def _orientation(earth_from_imu) -> np.ndarray:
     return _rigid(make_transform(matrix[:3, :3], np.zeros(3)), "the IMU orientation")[:3, :3]
 
 
+def _close(a: np.ndarray, b: np.ndarray, atol: float) -> bool:
+    """``np.allclose(a, b, atol=atol)`` (rtol 1e-5) for finite ``a``, without its wrapper's cost: the chain checks
+    its transforms several times per live pair (issue 36), where ``allclose`` took most of the check."""
+    return bool((np.abs(a - b) <= atol + 1e-5 * np.abs(b)).all())
+
+
 def _rigid(transform: np.ndarray, name: str) -> np.ndarray:
     """A read-only float (4, 4) copy of a rigid transform; ``ValueError`` naming ``name`` otherwise."""
     matrix = np.array(transform, dtype=float)
     if matrix.shape != (4, 4):
         raise ValueError(f"{name} must be a 4x4 transform, got shape {matrix.shape}")
     rotation = matrix[:3, :3]
-    if (not np.isfinite(matrix).all() or not np.allclose(matrix[3], [0, 0, 0, 1])
-            or not np.allclose(rotation @ rotation.T, np.eye(3), atol=_ORTHONORMAL_TOL)
+    if (not np.isfinite(matrix).all() or not _close(matrix[3], _LAST_ROW, 1e-8)
+            or not _close(rotation @ rotation.T, _EYE3, _ORTHONORMAL_TOL)
             or np.linalg.det(rotation) < 0):
         raise ValueError(f"{name} is not a rigid transform (rotation with determinant +1, last row 0 0 0 1)")
     matrix.setflags(write=False)

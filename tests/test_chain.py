@@ -176,3 +176,27 @@ def test_gravity_in_the_trocar_frame_is_the_imus_down_through_the_reference():
     camera_down = (held * turned).inv().apply(EARTH_DOWN)
     np.testing.assert_allclose(trocar_from_camera(chain, held * turned)[:3, :3] @ camera_down, chain.down_trocar,
                                atol=1e-9)
+
+
+def test_rigid_check_keeps_allclose_tolerances():
+    """The chain's cheaper rigidity check (issue 36) accepts and refuses as ``np.allclose`` did: a last row or a
+    rotation off by more than the tolerance is refused, one within it accepted."""
+    chain = ChainCalibration.manual()
+    rotation = Rotation.from_euler("ZYX", [20, -10, 5], degrees=True).as_matrix()
+    for off, rigid in ((5e-9, True), (1e-6, False)):            # last row: allclose's atol 1e-8
+        bad_row = make_transform(rotation, [1.0, 2.0, 3.0])
+        bad_row[3, 0] = off
+        assert (np.allclose(bad_row[3], [0, 0, 0, 1])) is rigid
+        if rigid:
+            trocar_from_probe(chain, np.eye(3), bad_row)
+        else:
+            with pytest.raises(ValueError, match="not a rigid transform"):
+                trocar_from_probe(chain, np.eye(3), bad_row)
+    for scale, rigid in ((1 + 2e-7, True), (1 + 1e-5, False)):   # rotation: R R^T = I within 1e-6 (+ rtol 1e-5)
+        stretched = rotation * np.array([scale, 1.0, 1.0])[:, None]
+        assert np.allclose(stretched @ stretched.T, np.eye(3), atol=1e-6) is rigid
+        if rigid:
+            camera_to_trocar(chain, stretched, np.zeros(3))
+        else:
+            with pytest.raises(ValueError, match="not a rigid transform"):
+                camera_to_trocar(chain, stretched, np.zeros(3))

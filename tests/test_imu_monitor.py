@@ -6,7 +6,7 @@ import tty
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from conftest import poll
 
@@ -29,6 +29,18 @@ def test_between_samples_the_orientation_is_slerped_at_the_frame_time():
     assert euler_from_rotation(earth_from_imu)[0] == pytest.approx(15.0, abs=1e-3)
     assert gap_s == pytest.approx((t - times[1]) / 1e9)
 
+
+
+def test_the_interpolation_is_scipys_slerp_to_the_last_bit():
+    """Slerp done step by step (issue 36: building a Slerp object per pair cost the worker) gives the very
+    orientation scipy's Slerp gives, between turns of any size, at any time between two samples (seeded)."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        times = np.sort(rng.integers(10**12, 10**12 + 10**8, 2)) + np.array([0, 1])
+        quats = Rotation.random(2, random_state=rng).as_quat()
+        t = int(rng.integers(times[0] + 1, times[1] + 1))
+        expected = Slerp(times.astype(float), Rotation.from_quat(quats))([float(t)])[0].as_matrix()
+        assert np.array_equal(interpolate_orientation(times, quats, t)[0], expected)
 
 def test_outside_the_samples_the_nearest_is_used_and_the_gap_says_how_far():
     times, quats = _history([0.0, 10.0, 20.0])

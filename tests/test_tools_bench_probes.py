@@ -10,7 +10,7 @@ import pytest
 
 from conftest import poll
 from snreg_gui.tools.stall_stacks import StallSampler
-from snreg_gui.tools.thread_cpu import cores_by_role, process_cpu_s, thread_cpu_s
+from snreg_gui.tools.thread_cpu import cores_by_name, cores_by_role, process_cpu_s, thread_cpu_s, thread_names
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread CPU is read from /proc")
 
@@ -63,6 +63,30 @@ def test_cores_share_out_the_process_time_and_keep_the_rest_as_other_threads():
     assert cores == {"gui": 1.0, "worker": 0.5, "other threads": 1.0, "process": 2.5}
     assert cores_by_role({}, {}, {"gui": 1}, 2.0) == {}
 
+
+
+def test_other_threads_are_told_apart_by_name_and_threads_of_one_name_summed():
+    names = {1: "gui", 2: "pool", 3: "pool", 4: "snreg-video-reports", 5: "idle"}
+    before = {1: 0.0, 2: 1.0, 3: 0.0, 4: 0.0, 5: 2.0}
+    after = {1: 4.0, 2: 2.0, 3: 1.0, 4: 0.5, 5: 2.0, 6: 0.2}          # 6: a thread that began meanwhile, unnamed
+    assert cores_by_name(before, after, names, 2.0, leave_out={1}) == {"pool": 1.0, "snreg-video-reports": 0.25,
+                                                                        "?": 0.1}
+    assert cores_by_name(before, {}, names, 2.0) == {}
+
+
+@linux_only
+def test_a_python_thread_is_named_as_python_named_it():
+    stop = threading.Event()
+    ids = []
+    thread = threading.Thread(target=lambda: (ids.append(threading.get_native_id()), stop.wait()), name="snreg-probe")
+    thread.start()
+    try:
+        assert poll(lambda: ids)
+        assert thread_names()[ids[0]] == "snreg-probe"
+        assert threading.get_native_id() in thread_names()
+    finally:
+        stop.set()
+        thread.join()
 
 def _stalled_here(sampler: StallSampler) -> None:
     """Hold this thread in Python (so the sampler gets its turns) until the sampler has seen it here, 30 s at most."""

@@ -19,7 +19,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from snreg.imu import Fusion, ImuSample, SerialImuReader
 from snreg.imu.fusion import euler_of_wxyz
@@ -73,7 +73,10 @@ def interpolate_orientation(times_ns: np.ndarray, quats_xyzw: np.ndarray, t_ns: 
         nearest = 0 if k == 0 else len(times_ns) - 1
         return Rotation.from_quat(quats_xyzw[nearest]).as_matrix(), abs(int(t_ns) - int(times_ns[nearest])) / 1e9
     pair = times_ns[k - 1:k + 1]
-    rotation = Slerp(pair.astype(float), Rotation.from_quat(quats_xyzw[k - 1:k + 1]))([float(t_ns)])[0]
+    # scipy's Slerp, step by step: building a Slerp object took most of the worker's IMU time per pair (issue 36)
+    before, after = Rotation.from_quat(quats_xyzw[k - 1]), Rotation.from_quat(quats_xyzw[k])
+    alpha = (float(t_ns) - float(pair[0])) / (float(pair[1]) - float(pair[0]))
+    rotation = before * Rotation.from_rotvec((before.inv() * after).as_rotvec() * alpha)
     return rotation.as_matrix(), min(int(t_ns) - int(pair[0]), int(pair[1]) - int(t_ns)) / 1e9
 
 

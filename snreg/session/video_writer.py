@@ -10,7 +10,8 @@ The tracker finds the stripes by colour thresholds; compression moves a few of a
 which shifts its centroid by hundredths of a pixel and the tip's depth by tenths of a millimetre: at brightness
 quality 75 a node moved 0.3-0.4 mm on the surgery scene at full HD; at 85, over six seeds, at most 0.15 mm. Smaller
 frames keep x264: it takes under a core there (its CPU goes with the pixels), and JPEG's 8x8 blocks are coarse
-against smaller stripes (0.5-0.9 mm at 480x270). The readers decode whatever codec a file holds.
+against smaller stripes (0.5-0.9 mm at 480x270; at the demo's 960x540, on the surgery scene's six seeds, up to 1.1 mm
+at luma 85 where x264 moved a node 0.33 mm: docs/guide/review.md). The readers decode whatever codec a file holds.
 """
 
 from __future__ import annotations

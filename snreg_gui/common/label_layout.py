@@ -42,6 +42,12 @@ def _overlap(box, boxes: np.ndarray) -> float:
     return float(np.sum(np.clip(w, 0, None) * np.clip(h, 0, None)))
 
 
+def _within(box, area) -> bool:
+    """Whether ``box`` (left, top, right, bottom) lies wholly inside ``area``: it then has no part outside, exactly
+    (the area less the overlap left rounding errors, so a free spot was not seen as free and every spot was tried)."""
+    return bool(box[0] >= area[0] and box[1] >= area[1] and box[2] <= area[2] and box[3] <= area[3])
+
+
 def label_boxes(corners, sizes) -> np.ndarray:
     """(N, 4) left, top, right, bottom of labels with these top-left ``corners`` and ``sizes`` (N, 2) px."""
     corners, sizes = np.asarray(corners, float).reshape(-1, 2), np.asarray(sizes, float).reshape(-1, 2)
@@ -90,6 +96,7 @@ def place_beside(bounds, size, obstacles=(), *, area=None, gap: float = 4.0, rin
     least covered. Why: a hot spot's words were drawn under the probe's depth label when the probe rested beside it."""
     (left, top, right, bottom), (w, h) = np.asarray(bounds, float), np.asarray(size, float)
     obstacles = np.asarray(obstacles, float).reshape(-1, 4)
+    inside = None if area is None else np.asarray(area, float).reshape(4)
     mid_x, mid_y = (left + right - w) / 2, (top + bottom - h) / 2
     best, best_cost = None, np.inf
     for ring in range(rings):
@@ -99,8 +106,8 @@ def place_beside(bounds, size, obstacles=(), *, area=None, gap: float = 4.0, rin
                      (left - d - w, bottom + d)):
             box = np.array([x, y, x + w, y + h])
             cost = _overlap(box, obstacles)
-            if area is not None:             # the part outside the area counts as covered, and more
-                cost += 4.0 * (w * h - _overlap(box, np.asarray(area, float).reshape(1, 4)))
+            if inside is not None and not _within(box, inside):     # the part outside counts as covered, and more
+                cost += 4.0 * (w * h - _overlap(box, inside.reshape(1, 4)))
             if cost == 0.0:
                 return box[:2]
             if cost + ring < best_cost:

@@ -11,7 +11,8 @@ recorded as the app records them (``--no-video``: not), and the video's cost is 
 the encoder's CPU seconds per second of video (the cores it keeps busy), with how many pairs the worker processed
 per second while measured, and the CPU each thread spent (in cores: the GUI thread, the acquisition worker, the
 insertion's thread beside it, the IMU reader, the demo's renderer, the rest of the process, and the tracking process
-where the pairs are tracked (issue 36) with "app" the two processes together; :mod:`snreg_gui.tools.thread_cpu`), in
+where the pairs are tracked (issue 36) with "app" the two processes together, and the rest of the process's threads
+by name; :mod:`snreg_gui.tools.thread_cpu`), in
 all and per processed pair (the budget of a pair; what a thread spends per
 second whatever the pairs, the IMU reader's, weighs more per pair when few are processed), so the app's own cost is
 seen apart from the simulated camera's;
@@ -38,7 +39,7 @@ import numpy as np
 from PySide6.QtCore import QSettings, Qt, QTimer
 
 from snreg_gui.tools.stall_stacks import SAMPLE_S, StallSampler
-from snreg_gui.tools.thread_cpu import cores_by_role, process_cpu_s, thread_cpu_s
+from snreg_gui.tools.thread_cpu import cores_by_name, cores_by_role, process_cpu_s, thread_cpu_s, thread_names
 
 TICK_MS = 10
 # threads with a CPU figure of their own, by the start of their names: the insertion's images made beside the probe
@@ -134,11 +135,13 @@ def _run(args, app, work: Path) -> int:
     named = {role: next((t.native_id for t in threading.enumerate() if t.name.startswith(prefix)), None)
              for role, prefix in NAMED_THREADS.items()}
     cpu_before, cpu_after = thread_cpu_s(), {}       # the latest reading of each thread (one may end meanwhile)
+    names = thread_names()                           # each thread's name, for the other threads' breakdown
     tracking_pid = window.worker.acquisition.tracking_pid       # the tracking process (None: tracked in the worker)
     tracking_cpu = [process_cpu_s(tracking_pid)] if tracking_pid is not None else []
 
     def read_cpu() -> None:
         cpu_after.update(thread_cpu_s())
+        names.update(thread_names())
         if tracking_cpu:
             spent = process_cpu_s(tracking_pid)
             tracking_cpu[1:] = [spent] if spent is not None else tracking_cpu[1:]     # its latest, while it lived
@@ -160,6 +163,7 @@ def _run(args, app, work: Path) -> int:
     roles = {"gui": threading.get_native_id(), "worker": min(worker_thread, default=None), **named}
     seconds = heartbeat.ticks[-1] - heartbeat.ticks[0]
     cores = cores_by_role(cpu_before, cpu_after, roles, seconds, process_spent[0] if process_spent else None)
+    others = cores_by_name(cpu_before, cpu_after, names, seconds, leave_out=set(roles.values()))
     if cores and len(tracking_cpu) == 2 and tracking_cpu[0] is not None:
         cores[TRACKING_PROCESS] = round((tracking_cpu[1] - tracking_cpu[0]) / seconds, 3)
         cores["app"] = round(cores["process"] + cores[TRACKING_PROCESS], 3)
@@ -174,7 +178,7 @@ def _run(args, app, work: Path) -> int:
               "ticks": len(gaps) + 1, "processed_fps": round(fps, 1),
               "max_gap_ms": round(float(gaps.max()), 1), "p99_gap_ms": round(float(np.percentile(gaps, 99)), 1),
               "median_gap_ms": round(float(np.median(gaps)), 1), "platform": app.platformName(),
-              "clock": clock_figures(session_path), "video": video, "cores": cores,
+              "clock": clock_figures(session_path), "video": video, "cores": cores, "other_threads": others,
               "cpu_ms_per_pair": {name: round(1e3 * value / fps, 1) for name, value in cores.items()} if fps else {},
               "stalls": [{"stack": stack, "samples": n} for stack, n in sampler.top()] if sampler else None,
               "session": str(session_path) if args.keep else None}
@@ -196,6 +200,8 @@ def _run(args, app, work: Path) -> int:
                   "encoder are processes of their own, app = process + tracking process); "
                   "per processed pair, ms: " + ", ".join(f"{name} {value}" for name, value in
                                                            result["cpu_ms_per_pair"].items()))
+        if others:
+            print("other threads by name, cores: " + ", ".join(f"{name} {value}" for name, value in others.items()))
         for stack, n in (sampler.top() if sampler else []):
             print(f"stalled {n * SAMPLE_S * 1e3:.0f} ms in: {stack}")
         print(f"targets (issue 36, a quiet machine): stalls at most {TARGET_STALL_MS} ms, at least {TARGET_FPS} pairs "

@@ -9,6 +9,7 @@ however loaded the machine is; wall times taken beside other work are not. Elsew
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 
 _TASKS = Path("/proc/self/task")
@@ -60,3 +61,37 @@ def cores_by_role(before: dict[int, float], after: dict[int, float], roles: dict
     figures["other threads"] = round(max(total / seconds - sum(figures.values()), 0.0), 3)
     figures["process"] = round(total / seconds, 3)
     return figures
+
+
+def thread_names() -> dict[int, str]:
+    """{native thread id: name} for every thread of this process now: a Python thread's own name (e.g.
+    "snreg-video-reports"), else the name Linux keeps for it (a Qt thread's, e.g. "QThread"); {} where ``/proc`` is
+    missing."""
+    names = {}
+    try:
+        tasks = list(_TASKS.iterdir())
+    except OSError:
+        return {}
+    for task in tasks:
+        try:
+            names[int(task.name)] = (task / "comm").read_text().strip()
+        except OSError:
+            pass                               # ended meanwhile
+    names.update({t.native_id: t.name for t in threading.enumerate() if t.native_id in names})
+    return names
+
+
+def cores_by_name(before: dict[int, float], after: dict[int, float], names: dict[int, str], seconds: float,
+                  leave_out=()) -> dict[str, float]:
+    """Cores (CPU s per s) the threads of each name spent between two readings of :func:`thread_cpu_s`, those in
+    ``leave_out`` (native ids: the roles counted apart) left out, largest first; threads of one name summed (e.g. a
+    thread pool's). Why: "other threads" of the bench (issue 36) said how much, not which."""
+    if not after or seconds <= 0:
+        return {}
+    spent: dict[str, float] = {}
+    for tid, cpu in after.items():
+        if tid not in leave_out:
+            name = names.get(tid, "?")
+            spent[name] = spent.get(name, 0.0) + cpu - before.get(tid, 0.0)
+    return {name: round(cpu / seconds, 3) for name, cpu in sorted(spent.items(), key=lambda kv: -kv[1])
+            if cpu / seconds >= 0.0005}
