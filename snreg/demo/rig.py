@@ -19,7 +19,7 @@ orientation it was rendered at, however long the simulator process took to start
 streaming, not stale, while the scene is prepared), and the surgery tour is rendered as it plays: a thread started with
 the rig renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
 frame not ready yet itself, and :attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery
-tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (20-60 s).
+tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (~25 s of CPU, 10-30 s).
 
 ``hold_rests`` (the app's demo and the headless one, issue 35): the technician holds the probe on each node until it
 is stored, as a real one does, however few frames a loaded computer processes: the feed's frames map to the tour's
