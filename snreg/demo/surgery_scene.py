@@ -155,14 +155,37 @@ class SurgeryScene:
         """Render the first distinct frame not rendered yet from frame ``after`` on in tour order (wrapping round),
         at most ``within`` frames ahead (None: anywhere); False when there is none (all rendered, or none that
         near)."""
+        index = self.pending(after, within)
+        if index is not None:
+            self.render(index)
+        return index is not None
+
+    def pending(self, after: int = 0, within: int | None = None, done=None) -> int | None:
+        """The first frame from ``after`` on in tour order (wrapping round), at most ``within`` frames ahead (None:
+        anywhere), whose distinct frame's key (:meth:`distinct_key`) is not in ``done`` (default: those rendered
+        here); None when there is none."""
+        done = self._cache if done is None else done
         ahead = self.cycle if within is None else min(int(within), self.cycle)
         start = after % self.cycle
         for step in range(ahead):
             index = (start + step) % self.cycle
-            if self._key(index) not in self._cache:
-                self.render(index)
-                return True
-        return False
+            if self._key(index) not in done:
+                return index
+        return None
+
+    def distinct_key(self, index: int) -> tuple[int, int]:
+        """The key of frame ``index``'s distinct frame: frames sharing it show one rendering."""
+        return self._key(index)
+
+    def render_distinct(self, index: int):
+        """Frame ``index``'s distinct frame rendered now and not kept (the render process's; :meth:`keep` takes it
+        in): a rest's :class:`~snreg.demo.rest_exposures.RestExposures` or a moving frame's (left, right)."""
+        return self._render_distinct(index, self._key(index))
+
+    def keep(self, key: tuple[int, int], rendered) -> None:
+        """Take in a distinct frame rendered elsewhere (:meth:`render_distinct` of a scene made alike: the same
+        frame, as the noise is seeded by its key); one rendered here already stays."""
+        self._cache.setdefault(key, rendered)
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback; thread-safe): a rest's
