@@ -31,6 +31,7 @@ TEXTURE_PX = 2048
 _FIDUCIAL_BGR = np.array([70.0, 185.0, 75.0], np.float32)     # green: inside the probe model's stripe colour range
 _FRINGE_BGR = np.array([90.0, 200.0, 110.0], np.float32)
 _BORDER_BLOB_BGR = np.array([80.0, 170.0, 95.0], np.float32)
+_BAND_PX = 16             # the probe is cast over boxes this many rows high round it (it lies across the image)
 
 
 @dataclass(frozen=True)
@@ -123,7 +124,7 @@ class StereoRenderer:
 
     def radiance(self, pose: ProbePose, options: RenderOptions = RenderOptions()) -> tuple[np.ndarray, np.ndarray]:
         """The noise-free float images; :meth:`expose` turns them into frames (for many noisy frames of one pose)."""
-        images = tuple(self._shade(rays, origin, pose, options) for rays, origin in self._eyes)
+        images = tuple(self._shade(eye, pose, options) for eye in range(len(self._eyes)))
         if options.border_blobs:
             self._border_blobs(images, options)
         return images
@@ -132,43 +133,60 @@ class StereoRenderer:
                       exposure_mm: float, *, probe_in_front: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free images of the probe at ``pose`` (None: no probe) in front of another scene.
 
-        ``background(eye, rays, origin)`` gives, for eye 0 (left) or 1 (right), the distance along each ray (H, W)
-        and the unlit colour (H, W, 3) of that scene, rays (H, W, 3) and origin (3,) in the left camera frame; the
-        endoscope light is set for a scene ``exposure_mm`` ahead. ``probe_in_front``: the scene never hides the probe
-        (drawn over it wherever the probe is, as if the scene gave way under it).
+        ``background(eye, rays, origin)`` gives, for eye 0 (left) or 1 (right), the distance along each ray (H, W),
+        the unlit colour (H, W, 3) of that scene and a shade (H, W) its colour is still to be multiplied by (its
+        Lambert term, so one product lights it; None: none), rays (H, W, 3) and origin (3,) in the left camera frame;
+        the endoscope light is set for a scene ``exposure_mm`` ahead. ``probe_in_front``: the scene never hides the
+        probe (drawn over it wherever the probe is, as if the scene gave way under it).
         """
         images = []
         for eye, (rays, origin) in enumerate(self._eyes):
-            depth, colour = background(eye, rays, origin)
-            depth, colour = depth.astype(np.float32), colour.astype(np.float32)
-            if pose is not None and probe_in_front:
-                probe_depth = np.full_like(depth, np.inf)
-                self._probe(rays, origin, pose, options, probe_depth, colour)
-                depth = np.where(np.isfinite(probe_depth), probe_depth, depth)
-            elif pose is not None:
-                self._probe(rays, origin, pose, options, depth, colour)
-            images.append(colour * self._lighting(rays, depth, exposure_mm)[..., None])
+            depth, colour, shade = background(eye, rays, origin)
+            depth, colour = np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(colour, np.float32)
+            drawn = self._probe(eye, pose, options, depth, colour, in_front=probe_in_front) if pose is not None else []
+            light = self._lighting(rays, depth, exposure_mm)
+            if shade is not None:
+                shade = np.array(shade, np.float32)
+                shade.reshape(-1)[drawn] = 1.0         # the probe is shaded already
+                light *= shade
+            images.append(colour * light[..., None])
         return images[0], images[1]
 
-    def expose(self, radiance: tuple[np.ndarray, np.ndarray], options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
-        """Blur, sensor noise (seeded by ``options.seed``) and 8-bit quantisation of both eyes."""
-        rng = np.random.default_rng(options.seed)
+    def expose(self, radiance: tuple[np.ndarray, np.ndarray], options: RenderOptions, *,
+               opencv_noise: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Blur, sensor noise (seeded by ``options.seed``) and 8-bit quantisation of both eyes.
+
+        ``opencv_noise``: draw the noise with OpenCV's generator (``cv2.randn``, its thread's generator seeded per eye
+        from ``options.seed``): the same statistics (independent normal draws of sd ``noise_sigma`` at every pixel and
+        channel) for a third of the CPU of numpy's; the tissue scenes use it (the surgery demo renders hundreds of
+        frames), the probe-only scenes keep numpy's draws, which the tracking experiments' seeded figures were
+        measured with."""
+        rng = None if opencv_noise else np.random.default_rng(options.seed)
+        eye_seeds = np.random.SeedSequence(options.seed).generate_state(2) >> 1 if opencv_noise else (0, 0)
         images = []
-        for image in radiance:
+        for image, eye_seed in zip(radiance, eye_seeds):
             if options.blur_sigma_px > 0:
                 image = cv2.GaussianBlur(image, (0, 0), options.blur_sigma_px)
+            if options.noise_sigma > 0 and rng is None:
+                noise = np.empty(image.shape, np.float32)
+                cv2.setRNGSeed(int(eye_seed))           # OpenCV's generator is each thread's own: deterministic
+                # less half a grey level: OpenCV's saturating conversion rounds where numpy's below truncates
+                cv2.randn(noise.reshape(image.shape[0], -1), -0.5, float(options.noise_sigma))
+                images.append(cv2.add(np.ascontiguousarray(image, np.float32), noise, dtype=cv2.CV_8U))
+                continue
             if options.noise_sigma > 0:
                 image = image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(options.noise_sigma)
             images.append(np.clip(image, 0, 255).astype(np.uint8))
         return images[0], images[1]
 
     # -- scene -------------------------------------------------------------
-    def _shade(self, rays, origin, pose: ProbePose, options: RenderOptions) -> np.ndarray:
+    def _shade(self, eye: int, pose: ProbePose, options: RenderOptions) -> np.ndarray:
+        rays, origin = self._eyes[eye]
         depth = np.full(rays.shape[:2], np.inf, np.float32)
         colour = np.zeros(rays.shape, np.float32)
         self._tissue_plane(rays, origin, pose, options, depth, colour)
         if options.probe:
-            self._probe(rays, origin, pose, options, depth, colour)
+            self._probe(eye, pose, options, depth, colour)
         if options.hide_stripe is not None:
             self._blob(rays, origin, pose, options, depth, colour)
         return colour * self._lighting(rays, depth, pose.tip[2])[..., None]
@@ -224,46 +242,86 @@ class StereoRenderer:
             for image in images:
                 cv2.circle(image, centre, radius, tuple(float(v) for v in _BORDER_BLOB_BGR), -1, cv2.LINE_AA)
 
-    def _probe(self, rays, origin, pose, options, depth, colour):
+    def _probe(self, eye: int, pose: ProbePose, options: RenderOptions, depth, colour, *, in_front: bool = False,
+               whole: bool = False) -> np.ndarray:
+        """Draw the probe into eye ``eye``'s ``depth`` and ``colour`` (H, W) where it is nearer than ``depth`` (or
+        wherever it is, ``in_front``): cast only over the pixels that can see it (:meth:`_probe_windows`, a fifth of
+        the image or less) unless ``whole``. Returns the flat indices of the pixels drawn."""
+        rays, origin = self._eyes[eye]
+        height, width = rays.shape[:2]
+        windows = [(slice(0, height), slice(0, width))] if whole else self._probe_windows(eye, pose)
+        pixels = np.concatenate([(np.arange(rows.start, rows.stop)[:, None] * width
+                                  + np.arange(columns.start, columns.stop)).ravel() for rows, columns in windows]
+                                or [np.zeros(0, int)])
+        if pixels.size == 0:                            # out of view
+            return pixels
+        t, along, lambert = self._probe_cast(rays.reshape(-1, 3)[pixels], origin, pose)
+        depth, colour = depth.reshape(-1), colour.reshape(-1, 3)       # views (both C-contiguous): drawn in place
+        hit = np.isfinite(t) if in_front else t < depth[pixels]
+        drawn = pixels[hit]
+        depth[drawn] = t[hit]
+        albedo = np.array([self.probe.body_bgr, self.probe.stripe_bgr], np.float32)[
+            (self.probe.stripe_at(along[hit]) >= 0).astype(np.intp)]
+        shade = albedo * (0.25 + 0.75 * lambert[hit][:, None])
+        if options.specular:
+            shade += 160.0 * (lambert[hit] ** 60)[:, None]
+        colour[drawn] = shade
+        return drawn
+
+    def _probe_windows(self, eye: int, pose: ProbePose) -> list[tuple[slice, slice]]:
+        """(rows, columns) boxes of eye ``eye`` that hold every pixel that can see the probe at ``pose``, one per band
+        of :data:`_BAND_PX` rows it crosses: round the axis' projection (from a radius before the tip to the body's
+        end, every 1/3 mm or so), 1.5 times the widest a sphere of its radius there can look and 4 pixels; the whole
+        image when part of it is within two radii of the eye's image plane."""
+        calibration, probe = self.calibration, self.probe
+        radius = probe.radius_mm
+        points = pose.tip + np.linspace(-radius, probe.length_mm, 256)[:, None] * pose.axis
+        if eye == 0:
+            K, D = np.asarray(calibration.K1, float), np.asarray(calibration.D1, float)
+        else:
+            K, D = np.asarray(calibration.K2, float), np.asarray(calibration.D2, float)
+            points = points @ np.asarray(calibration.R, float).T + np.asarray(calibration.T, float).ravel()
+        depth = points[:, 2]
+        width, height = calibration.image_size
+        if depth.min() < 2.0 * radius + 1.0:
+            return [(slice(0, height), slice(0, width))]
+        u, v = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K, D)[0].reshape(-1, 2).T
+        off_axis = np.hypot(points[:, 0], points[:, 1]) / depth       # a sphere looks longer off the axis
+        margin = 1.5 * max(K[0, 0], K[1, 1]) * radius * np.sqrt(1.0 + off_axis**2) / depth + 4.0
+        windows = []
+        for top in range(0, height, _BAND_PX):
+            near = (v + margin >= top) & (v - margin < top + _BAND_PX)
+            if near.any():
+                left = max(int(np.floor((u - margin)[near].min())), 0)
+                right = min(int(np.ceil((u + margin)[near].max())) + 1, width)
+                if left < right:
+                    windows.append((slice(top, min(top + _BAND_PX, height)), slice(left, right)))
+        return windows
+
+    def _probe_cast(self, rays: np.ndarray, origin: np.ndarray, pose: ProbePose):
+        """Cast unit ``rays`` (N, 3) from ``origin`` at the probe (a cylinder of its radius from the tip to its length,
+        a hemisphere before the tip): (N,) the distance to it (inf where missed), the hit's axial position from the
+        tip (mm) and the Lambert term of the light at the camera there. Each surface's Lambert term is the square root
+        of its intersection's discriminant over the radius, so no hit point needs forming."""
         probe, r = self.probe, self.probe.radius_mm
         a, w = pose.tip.astype(np.float32), pose.axis.astype(np.float32)
         delta = origin - a
-        d_par = rays @ w
-        d_perp = rays - d_par[..., None] * w
-        delta_perp = delta - (delta @ w) * w
-        qa = (d_perp**2).sum(-1)
-        qb = 2.0 * (d_perp @ delta_perp)
-        qc = float(delta_perp @ delta_perp) - r * r
-        disc = qb * qb - 4 * qa * qc
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t_cyl = (-qb - np.sqrt(disc)) / (2 * qa)
-        s = (delta @ w) + t_cyl * d_par
-        cyl = (disc > 0) & (t_cyl > 0) & (s >= 0) & (s <= probe.length_mm)
-        # hemispherical tip
-        b = rays @ delta
+        along = float(delta @ w)
+        delta_perp = delta - along * w
+        d_par, half_b, b = (p.ravel() for p in cv2.split(cv2.transform(rays.reshape(-1, 1, 3),
+                                                                        np.stack([w, delta_perp, delta]))))
+        qa = 1.0 - d_par * d_par                       # the rays' length across the axis, squared
+        disc = half_b * half_b - qa * (float(delta_perp @ delta_perp) - r * r)
         disc_s = b * b - (float(delta @ delta) - r * r)
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t_cyl = (-half_b - np.sqrt(disc)) / qa
             t_sph = -b - np.sqrt(disc_s)
-        s_sph = (delta @ w) + t_sph * d_par
-        sph = (disc_s > 0) & (t_sph > 0) & (s_sph < 0)
-        t = np.where(cyl, t_cyl, np.where(sph, t_sph, np.inf))
-        hit_mask = np.isfinite(t) & (t < depth)
-        if not hit_mask.any():
-            return
-        tt = t[hit_mask]
-        ray = rays[hit_mask]
-        point = origin + tt[:, None] * ray
-        s_hit = (point - a) @ w
-        axis_point = a + np.maximum(s_hit, 0.0)[:, None] * w
-        normal = (point - axis_point) / r
-        lambert = np.clip(-(normal * ray).sum(-1), 0.0, 1.0)
-        stripe = probe.stripe_at(s_hit) >= 0
-        albedo = np.where(stripe[:, None], np.array(probe.stripe_bgr, np.float32), np.array(probe.body_bgr, np.float32))
-        shade = albedo * (0.25 + 0.75 * lambert[:, None])
-        if options.specular:
-            shade += 160.0 * (lambert**60)[:, None]
-        depth[hit_mask] = tt
-        colour[hit_mask] = shade
+            s_cyl, s_sph = along + t_cyl * d_par, along + t_sph * d_par
+            cyl = (disc > 0) & (t_cyl > 0) & (s_cyl >= 0) & (s_cyl <= probe.length_mm)
+            sph = (disc_s > 0) & (t_sph > 0) & (s_sph < 0)      # the hemispherical tip where not the cylinder
+            t = np.where(cyl, t_cyl, np.where(sph, t_sph, np.float32(np.inf)))
+            lambert = np.clip(np.sqrt(np.where(cyl, disc, disc_s)) / r, 0.0, 1.0)
+        return t, np.where(cyl, s_cyl, s_sph), lambert
 
     def _blob(self, rays, origin, pose, options, depth, colour):
         """A tissue sphere in front of one side of a stripe, hiding part of it."""

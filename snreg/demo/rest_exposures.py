@@ -2,14 +2,14 @@
 
 Why: a real camera's noise is new in every frame, so the spread of a store window of 60 fixes measures the tracker's
 noise, and a window that slides on meets new draws. The demo's scenes render each rest once (the ray casting costs
-~0.15 s a pair) and used to replay ``noise_variants`` exposures of it in turn, left and right together: with 3, the
-window held 3 fixes repeated, its spread that of 3 draws (chi-square on 2 degrees of freedom: half again or half the
-true value), and the same on every visit of the rest. Issue 35: the surgery demo's node at the 148 mm rest (depth
-118 mm, per-fix spread 0.91 mm over 12 independent exposures) showed 1.27-1.70 mm on every rest and was never
-auto-stored. Here the rest's noise-free radiance is exposed ``variants`` times, and frame ``index`` pairs left exposure
-``index % K`` with right exposure ``(index % K + index // K) % K``: K * K pairs, each once in K * K frames, whose fixes
-differ (the depth's error is the two eyes' disparity error), for the cost of 2K exposures (~10 ms each) and no more
-ray casting.
+~0.1 s a pair, 0.4 s before issue 36) and used to replay ``noise_variants`` exposures of it in turn, left and right
+together: with 3, the window held 3 fixes repeated, its spread that of 3 draws (chi-square on 2 degrees of freedom:
+half again or half the true value), and the same on every visit of the rest. Issue 35: the surgery demo's node at the
+148 mm rest (depth 118 mm, per-fix spread 0.91 mm over 12 independent exposures) showed 1.27-1.70 mm on every rest and
+was never auto-stored. Here the rest's noise-free radiance is exposed ``variants`` times, and frame ``index`` pairs
+left exposure ``index % K`` with right exposure ``(index % K + index // K) % K``: K * K pairs, each once in K * K
+frames, whose fixes differ (the depth's error is the two eyes' disparity error), for the cost of 2K exposures (~10 ms
+each) and no more ray casting.
 """
 
 from __future__ import annotations

@@ -16,10 +16,11 @@ between rests in the same patient; the simulator plays the same motion (``--moti
 ``IMU_HOLD_S`` after its stream starts (its fusion's still start) and writing the host-clock instant the motion starts
 (``--epoch-file``); the rendered feed counts its frames from that instant (``epoch_ns``), so each frame meets the
 orientation it was rendered at, however long the simulator process took to start. The IMU starts first (it is shown
-streaming, not stale, while the scene is prepared), and the surgery tour is rendered as it plays: a thread started with
-the rig renders its distinct frames in tour order up to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any
-frame not ready yet itself, and :attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery
-tour, 40 of 145"), so the first frame comes after the IMU's hold, not after the whole tour (20-60 s).
+streaming, not stale, while the scene is prepared), and the surgery tour is rendered as it plays: a process of its own
+(:mod:`snreg.demo.render_process`, driven by a thread started with the rig) renders its distinct frames in tour order up
+to :data:`RENDER_AHEAD_S` ahead of the play, the feed renders any frame not ready yet itself, and
+:attr:`DemoRig.preparing` says how far rendering has come ("rendering the surgery tour, 40 of 145"), so the first frame
+comes after the IMU's hold, not after the whole tour (~25 s of CPU, 10-30 s).
 
 ``hold_rests`` (the app's demo and the headless one, issue 35): the technician holds the probe on each node until it
 is stored, as a real one does, however few frames a loaded computer processes: the feed's frames map to the tour's
@@ -57,6 +58,7 @@ from snreg.demo.motion_timeline import Run
 from snreg.demo.phantom import (TRUE_TILT_DEG, TRUE_TURN_DEG, endoscope_orientation, still_demo_chain,
                                  true_sources_lps, write_phantom_spect)
 from snreg.demo.pivot_scene import PivotScene, SceneImu
+from snreg.demo.render_process import TourRenderProcess
 from snreg.demo.scene import PhantomScene, Schedule, phantom_tips
 from snreg.demo.surgery_scene import SurgeryScene, surgery_demo_chain, surgery_tour
 from snreg.demo.tissue_pivot import TissuePivotScene
@@ -249,19 +251,32 @@ class DemoRig:
                                                "tip_offsets_mm": self.errors.tip_offsets_mm}
 
     def _render_ahead(self) -> None:
-        """The renderer beside the feed, from the rig's start: builds the surgery scene, then renders the tour's
-        distinct frames in order, up to :data:`RENDER_AHEAD_S` ahead of the frame played last, until all are rendered
-        or the rig closes."""
+        """The renderer beside the feed, from the rig's start: builds the surgery scene, then has the tour's distinct
+        frames rendered in order, up to :data:`RENDER_AHEAD_S` ahead of the frame played last, until all are rendered
+        or the rig closes: in a process of its own (:class:`~snreg.demo.render_process.TourRenderProcess`, so its
+        Python never holds the app's GIL), in this thread when that process cannot start or ends early."""
+        args = (self.cameras, self.probe, self.schedule)
+        kwargs = dict(chain=self.true_chain, fps=self.fps, seed=self.seed, **self._scene_options())
         try:
-            scene = SurgeryScene(self.cameras, self.probe, self.schedule, chain=self.true_chain, fps=self.fps,
-                                 seed=self.seed, **self._scene_options())
+            scene = SurgeryScene(*args, **kwargs)
             self.scene = scene
         finally:
             self._scene_ready.set()
         within = int(RENDER_AHEAD_S * self.fps)
-        while not self._stop_rendering.is_set() and scene.rendered < scene.distinct_frames:
-            if not scene.render_next(self._played, within):
-                self._stop_rendering.wait(0.05)        # all near frames ready: wait for the play to move on
+        try:
+            process = TourRenderProcess(scene, args, kwargs, within)
+        except OSError:
+            process = None
+        try:
+            while not self._stop_rendering.is_set() and scene.rendered < scene.distinct_frames:
+                if process is not None and not process.ended:
+                    process.follow(self._played)
+                    self._stop_rendering.wait(0.05)
+                elif not scene.render_next(self._played, within):
+                    self._stop_rendering.wait(0.05)    # all near frames ready: wait for the play to move on
+        finally:
+            if process is not None:
+                process.close()
 
     def nodes_trocar(self) -> np.ndarray:
         """(4, 3) mm: where the phantom's nodes are in the trocar frame (the truth a stored node is measured by)."""

@@ -15,11 +15,13 @@ between rests it glides to the next node while the camera moves (:class:`~snreg.
 The chain is the thesis' manual one with the endoscope held as the phantom's set-up holds it (looking caudally
 34 degrees below the patient's coronal plane, :data:`~snreg.demo.phantom.TRUE_TILT_DEG`, on a table tilted 27 degrees
 head down: a few degrees below the horizontal), so a turn left or right is mostly a turn about the vertical, which
-the IMU measures with its gyroscope alone. Rendering costs ~0.15 s a pair at half resolution, so every distinct frame
+the IMU measures with its gyroscope alone. Rendering a distinct frame costs ~0.12 s of CPU at half resolution (issue 36:
+0.36-0.52 s before the tissue's cast was refined from a coarse one, the probe cast only round it and the noise drawn by
+OpenCV; :mod:`snreg.demo.tissue`, :mod:`snreg.demo.renderer`), ~25 s for the tour, so every distinct frame
 of the tour (one radiance per rest, exposed ``noise_variants`` times per eye and paired apart frame by frame; one
 render per moving frame) is rendered once and replayed from memory: on first use (:meth:`SurgeryScene.render`), or
 ahead of the play in tour order (:meth:`SurgeryScene.render_next`, which the demo rig runs beside the feed, so the
-first frame need not wait for the whole tour: 20-60 s on a loaded machine).
+first frame need not wait for the whole tour: 10-30 s on a loaded machine).
 """
 
 from __future__ import annotations
@@ -153,14 +155,37 @@ class SurgeryScene:
         """Render the first distinct frame not rendered yet from frame ``after`` on in tour order (wrapping round),
         at most ``within`` frames ahead (None: anywhere); False when there is none (all rendered, or none that
         near)."""
+        index = self.pending(after, within)
+        if index is not None:
+            self.render(index)
+        return index is not None
+
+    def pending(self, after: int = 0, within: int | None = None, done=None) -> int | None:
+        """The first frame from ``after`` on in tour order (wrapping round), at most ``within`` frames ahead (None:
+        anywhere), whose distinct frame's key (:meth:`distinct_key`) is not in ``done`` (default: those rendered
+        here); None when there is none."""
+        done = self._cache if done is None else done
         ahead = self.cycle if within is None else min(int(within), self.cycle)
         start = after % self.cycle
         for step in range(ahead):
             index = (start + step) % self.cycle
-            if self._key(index) not in self._cache:
-                self.render(index)
-                return True
-        return False
+            if self._key(index) not in done:
+                return index
+        return None
+
+    def distinct_key(self, index: int) -> tuple[int, int]:
+        """The key of frame ``index``'s distinct frame: frames sharing it show one rendering."""
+        return self._key(index)
+
+    def render_distinct(self, index: int):
+        """Frame ``index``'s distinct frame rendered now and not kept (the render process's; :meth:`keep` takes it
+        in): a rest's :class:`~snreg.demo.rest_exposures.RestExposures` or a moving frame's (left, right)."""
+        return self._render_distinct(index, self._key(index))
+
+    def keep(self, key: tuple[int, int], rendered) -> None:
+        """Take in a distinct frame rendered elsewhere (:meth:`render_distinct` of a scene made alike: the same
+        frame, as the noise is seeded by its key); one rendered here already stays."""
+        self._cache.setdefault(key, rendered)
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right BGR frames for frame ``index`` (a ``CallableSource`` callback; thread-safe): a rest's
@@ -187,7 +212,7 @@ class SurgeryScene:
         return RenderOptions(noise_sigma=self.noise_sigma, blur_sigma_px=self.blur_sigma_px, seed=seed)
 
     def _expose(self, radiance, seed: int) -> tuple[np.ndarray, np.ndarray]:
-        return self.tissue.renderer.expose(radiance, self._options(seed))
+        return self.tissue.expose(radiance, self._options(seed))
 
     def _key(self, index: int) -> tuple[int, int]:
         """Frames rendered once share a key: (node, 0) while resting, (-1, frame in the tour) moving."""
