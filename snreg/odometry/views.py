@@ -348,11 +348,9 @@ def follow(keyframe: "Keyframe", eye: int, after: np.ndarray, points: np.ndarray
 
 def across(view: View, left_px: np.ndarray, disparity: np.ndarray,
            params: OdometryParams) -> tuple[np.ndarray, np.ndarray]:
-    """Where points of the view's left image (``left_px``, N, 2) are in its right image, started at ``left_px +
-    disparity`` (N, 2, the prediction's): positions and found. Issue 36: a pair's left-eye points are followed from the
-    keyframe, which finds the motion's error (several pixels); its right-eye points are then matched across the pair,
-    where the prediction's disparity is off by a pixel or two, on the finest level alone (``ACROSS_LEVELS``), and
-    the keyframe's right image needs no warp (docs/method/insertion.md)."""
+    """Where the view's left-image points ``left_px`` (N, 2) are in its right image, from ``left_px + disparity``:
+    positions and found. The left eye's follow found the motion's error; the predicted disparity is off by a pixel or
+    two, so the finest level does (``ACROSS_LEVELS``) and no right image is warped (docs/method/insertion.md)."""
     return lucas_kanade(view.left, view.right, left_px, np.asarray(left_px) + disparity, params, ACROSS_LEVELS)
 
 
