@@ -26,7 +26,10 @@ def _spin(cpu_s: float, ids: list) -> None:
 def test_a_busy_thread_is_charged_its_cpu_and_an_idle_one_none():
     before = thread_cpu_s()
     busy_ids, idle_ids = [], []
-    busy = threading.Thread(target=_spin, args=(0.3, busy_ids))
+    spun, release = threading.Event(), threading.Event()
+    # it ends only once read after spinning: a reading takes a GIL hand-over per thread of the process, so while it
+    # spins the last reading could come well before its end (it read 0.07 of 0.3 s in 2 runs of 5)
+    busy = threading.Thread(target=lambda: (_spin(0.3, busy_ids), spun.set(), release.wait()))
     stop = threading.Event()
     idle = threading.Thread(target=lambda: (idle_ids.append(threading.get_native_id()), stop.wait()))
     busy.start()
@@ -34,7 +37,10 @@ def test_a_busy_thread_is_charged_its_cpu_and_an_idle_one_none():
     assert poll(lambda: busy_ids and idle_ids)
     last = {}
     while busy.is_alive():                      # its last reading before it ends, as the bench keeps it
+        done = spun.is_set()
         last.update(thread_cpu_s())
+        if done:
+            release.set()
         busy.join(0.05)
     last.update({tid: t for tid, t in thread_cpu_s().items() if tid == idle_ids[0]})
     stop.set()
