@@ -1,5 +1,6 @@
 """Shared fixtures. Qt runs offscreen; every random process is seeded."""
 
+import contextlib
 import os
 import tempfile
 
@@ -86,6 +87,27 @@ def created_segments(monkeypatch) -> set[str]:
             created.add(self.name.lstrip("/"))
     monkeypatch.setattr(shared_memory.SharedMemory, "__init__", recording)
     return created
+
+
+@contextlib.contextmanager
+def parent_to_kill(script: str, cwd):
+    """A Python process running ``script`` with the repository on its path, standing for the app: yielded to read
+    what it prints (text); on leaving, it is told (a line on its stdin) to SIGKILL itself and must have died so; it is
+    killed in any case."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    parent = subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True, cwd=cwd, env={**os.environ, "PYTHONPATH": str(root)})
+    try:
+        yield parent
+        parent.stdin.write("\n")
+        parent.stdin.flush()
+        assert parent.wait(30) == -signal.SIGKILL
+    finally:
+        parent.kill()
 
 
 def process_gone(pid: int) -> bool:

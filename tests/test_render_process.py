@@ -2,22 +2,16 @@
 ahead of where the play is, and the process ends with the app, even a killed one."""
 
 import os
-import signal
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import poll, process_gone
+from conftest import parent_to_kill, poll, process_gone
 from snreg.camera import thesis_calibration
 from snreg.demo.render_process import TourRenderProcess
 from snreg.demo.scene import Schedule
 from snreg.demo.surgery_scene import SurgeryScene
 from snreg.probe import default_probe_model
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -72,15 +66,8 @@ os.kill(os.getpid(), signal.SIGKILL)
 
 
 def test_a_killed_app_leaves_no_render_process(tmp_path):
-    parent = subprocess.Popen([sys.executable, "-c", KILLED_PARENT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              text=True, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    try:
+    with parent_to_kill(KILLED_PARENT, tmp_path) as parent:
         pid = int(parent.stdout.readline())
         assert parent.stdout.readline().strip() == "kept"              # rendering when the app dies
         assert not process_gone(pid)
-        parent.stdin.write("\n")
-        parent.stdin.flush()
-        assert parent.wait(30) == -signal.SIGKILL
-    finally:
-        parent.kill()
     assert poll(lambda: process_gone(pid))

@@ -5,13 +5,10 @@ insertion tracker back in this process. Rendered pairs of tests/surgery_frames.p
 
 import os
 import signal
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import poll, process_gone, shared_memory_segments
+from conftest import parent_to_kill, poll, process_gone, shared_memory_segments
 from surgery_frames import NODE_A, START_MM, slide_then_rest
 from test_acquisition_insertion import WINDOW, Clock, world  # noqa: F401  (world: the sliding scene, a fixture)
 
@@ -140,7 +137,6 @@ def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_ever
     assert created_segments and not created_segments & shared_memory_segments()
 
 
-ROOT = Path(__file__).resolve().parents[1]
 KILLED_PARENT = """
 import os, signal, sys
 from snreg.camera import thesis_calibration
@@ -154,14 +150,7 @@ os.kill(os.getpid(), signal.SIGKILL)
 
 
 def test_a_killed_parent_leaves_neither_its_tracking_process_nor_its_shared_memory(tmp_path):
-    parent = subprocess.Popen([sys.executable, "-c", KILLED_PARENT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              text=True, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    try:
+    with parent_to_kill(KILLED_PARENT, tmp_path) as parent:
         pid, memory = parent.stdout.readline().split()
         assert not process_gone(int(pid)) and memory.lstrip("/") in shared_memory_segments()
-        parent.stdin.write("\n")
-        parent.stdin.flush()
-        assert parent.wait(30) == -signal.SIGKILL
-    finally:
-        parent.kill()
     assert poll(lambda: process_gone(int(pid)) and memory.lstrip("/") not in shared_memory_segments())

@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 
+from snreg.child_process import end_child
 from snreg.demo.surgery_scene import SurgeryScene
 
 __all__ = ["TourRenderProcess"]
@@ -60,15 +61,7 @@ class TourRenderProcess:
 
     def close(self) -> None:
         """End the child (at once: its stdin closed, killed after :data:`STOP_S`) and its listener."""
-        try:
-            self._process.stdin.close()
-        except OSError:
-            pass
-        try:
-            self._process.wait(STOP_S)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        end_child(self._process, STOP_S)
         self._listener.join()
 
     def _send(self, message) -> None:

@@ -33,7 +33,6 @@ frame (the scene's truth) at it.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
@@ -50,6 +49,7 @@ import numpy as np
 from snreg.calibration.checkerboard import THESIS_BOARD
 from snreg.camera import thesis_calibration
 from snreg.chain import camera_to_trocar, reference_rotation, trocar_from_camera
+from snreg.child_process import end_child
 from snreg.demo.board_tour import board_feed
 from snreg.demo.error_rig import INJECTED, INJECTED_MOVING, DemoErrors
 from snreg.demo.errors import ErrorModel
@@ -357,13 +357,6 @@ class DemoRig:
         if self._renderer is not None:
             self._renderer.join()
         self.imu.stop()
-        if self._simulator.stdin is not None:
-            with contextlib.suppress(OSError):
-                self._simulator.stdin.close()
         self._simulator.terminate()
-        try:
-            self._simulator.wait(5.0)
-        except subprocess.TimeoutExpired:
-            self._simulator.kill()
-            self._simulator.wait()
+        end_child(self._simulator, 5.0)
         self._folder.cleanup()

@@ -33,6 +33,7 @@ from pathlib import Path
 import av
 import numpy as np
 
+from snreg.child_process import end_child
 from snreg.session.video_writer import CONTAINER, SUFFIX, recording
 
 QUEUE_PAIRS = 12                 # pairs waiting for the encoder (0.4 s at 30 Hz) before one is dropped
@@ -225,11 +226,7 @@ class StereoRecorder:
         except OSError:
             pass
         self._closed.wait(120.0)
-        try:
-            self._process.wait(10.0)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        end_child(self._process, 10.0)
         self._memory.close()
         self._memory.unlink()
 

@@ -31,6 +31,7 @@ from multiprocessing import shared_memory
 import numpy as np
 
 from snreg.camera import StereoCalibration
+from snreg.child_process import end_child
 from snreg.odometry import InsertionTracker
 from snreg.probe import ProbeModel
 from snreg.tracking import StereoTracker
@@ -170,15 +171,7 @@ class TrackingProcess:
 
     def _end_process(self) -> None:
         """Close the child's stdin (it ends), wait a little, kill it if it does not; free the shared memory (once)."""
-        try:
-            self._process.stdin.close()
-        except OSError:
-            pass
-        try:
-            self._process.wait(STOP_S)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        end_child(self._process, STOP_S)
         if self._memory is not None:
             self._memory.close()
             self._memory.unlink()

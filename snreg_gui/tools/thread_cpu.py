@@ -19,11 +19,7 @@ def thread_cpu_s() -> dict[int, float]:
     """{native thread id: CPU seconds (user + system) so far} for every thread of this process; {} where
     ``/proc`` is missing."""
     times = {}
-    try:
-        tasks = list(_TASKS.iterdir())
-    except OSError:
-        return {}
-    for task in tasks:
+    for task in _tasks():
         spent = _stat_cpu_s(task / "stat")
         if spent is not None:                 # else the thread ended meanwhile
             times[int(task.name)] = spent
@@ -34,6 +30,14 @@ def process_cpu_s(pid: int) -> float | None:
     """CPU seconds (user + system, every thread's) process ``pid`` spent so far, e.g. the live loop's tracking process
     (issue 36); None when it is gone or ``/proc`` is missing."""
     return _stat_cpu_s(Path(f"/proc/{int(pid)}/stat"))
+
+
+def _tasks() -> list[Path]:
+    """This process's threads' ``/proc`` folders now; [] where ``/proc`` is missing."""
+    try:
+        return list(_TASKS.iterdir())
+    except OSError:
+        return []
 
 
 def _stat_cpu_s(path: Path) -> float | None:
@@ -68,11 +72,7 @@ def thread_names() -> dict[int, str]:
     "snreg-video-reports"), else the name Linux keeps for it (a Qt thread's, e.g. "QThread"); {} where ``/proc`` is
     missing."""
     names = {}
-    try:
-        tasks = list(_TASKS.iterdir())
-    except OSError:
-        return {}
-    for task in tasks:
+    for task in _tasks():
         try:
             names[int(task.name)] = (task / "comm").read_text().strip()
         except OSError:
