@@ -260,7 +260,7 @@ def test_a_tracked_node_is_re_expressed_with_its_slide_under_a_new_trocar_calibr
 
 
 def outcome_with(state: str, insertion_mm: float = 171.0, residual_mm: float = 0.05,
-                 reason: str = "no tissue texture in view"):
+                 reason: str = "no tissue texture in view", imu_gap_s: float = 0.0):
     """A frame's outcome whose insertion tracker said ``state`` ("tracked" | "lost" | "" for tracking off)."""
     from snreg.workflow.acquisition import FrameOutcome
     if not state:
@@ -270,7 +270,7 @@ def outcome_with(state: str, insertion_mm: float = 171.0, residual_mm: float = 0
                                  residual_mm if tracked else np.nan, "" if tracked else reason)
     step = InsertionStep(estimate, insertion_mm, None)
     return FrameOutcome(0, None, "", None, 0, np.nan, False, False, 1.0, insertion=step,
-                        insertion_text=insertion_text(step, START_MM))
+                        insertion_text=insertion_text(step, START_MM), imu_gap_s=imu_gap_s)
 
 
 def test_the_insertion_line_reads_each_state_at_a_glance(qtbot):
@@ -283,6 +283,10 @@ def test_the_insertion_line_reads_each_state_at_a_glance(qtbot):
     assert line.text() == ("camera 171.0 mm, +13.0 mm since calibration, tracked\nthe camera is 1.6 mm off the pivot "
                            "model: the trocar moved or the IMU is off; check both, and calibrate the trocar again if "
                            "one moved")
+    assert line.styleSheet() == WARN
+    line.show_outcome(outcome_with("tracked", residual_mm=8.9, imu_gap_s=3.2))   # the IMU silent: its turns unseen
+    assert line.text() == ("camera 171.0 mm, +13.0 mm since calibration, tracked\nthe camera is 8.9 mm off the pivot "
+                           "model: the IMU has been silent for 3.2 s, so its turns are not seen; reconnect the IMU")
     assert line.styleSheet() == WARN
     line.show_outcome(outcome_with("lost"))
     assert line.text() == "camera LOST (no tissue texture in view): 171.0 mm held, +13.0 mm since calibration"

@@ -37,14 +37,15 @@ class TurnedImu:
         return ImuSnapshot("streaming", "", 208.0, 0.0, EULER, np.eye(3), 1, 0)
 
 
-def frame(tip_trocar=(1.26, -2.0, 248.04), spread_mm=0.4, fixes=5) -> FrameResult:
+def frame(tip_trocar=(1.26, -2.0, 248.04), spread_mm=0.4, fixes=5, imu_age_s=0.0) -> FrameResult:
     fix = ProbeFix(np.array([0.0, 0.0, 90.0]), np.array([0.0, 0.0, 120.0]), np.array([0.0, 0.0, 1.0]), 1.0,
                    "triangulation", 3)
     tip = None if tip_trocar is None else np.array(tip_trocar)
     outcome = FrameOutcome(0, fix if tip is not None else None, "" if tip is not None else "probe not seen", tip,
                            fixes, spread_mm, spread_mm < 1.0, False, 5.0, store_check=StoreCheck(""))
     rgb = np.zeros((54, 96, 3), np.uint8)
-    return FrameResult(outcome, rgb, rgb, None, None, TurnedImu().snapshot(), 0.0, 30.0, time.perf_counter_ns())
+    imu = replace(TurnedImu().snapshot(), age_s=imu_age_s)
+    return FrameResult(outcome, rgb, rgb, None, None, imu, 0.0, 30.0, time.perf_counter_ns())
 
 
 @pytest.fixture
@@ -64,6 +65,18 @@ def test_tip_and_angles_show_the_numbers_fed(qtbot, screen):
     screen.show_result(frame(tip_trocar=None))
     qtbot.waitUntil(lambda: screen.tip_values.texts() == [NO_VALUE] * 3, timeout=2_000)
     assert screen.tip_trocar.text() == "no fix (probe not seen)"
+
+
+def test_the_angles_of_an_imu_gone_silent_are_greyed_until_it_speaks_again(qtbot, screen):
+    colours = [value.styleSheet() for value in screen.angles.values]
+    assert all(colours) and SPREAD_NONE not in "".join(colours)
+    screen.show_result(frame(imu_age_s=3.2))                      # no sample for 3.2 s: the last angles, greyed
+    qtbot.waitUntil(lambda: screen.angles.stale, timeout=2_000)
+    assert screen.angles.texts() == ["12.3", "-4.6", "0.0"]
+    assert all(SPREAD_NONE in value.styleSheet() for value in screen.angles.values)
+    screen.show_result(frame(imu_age_s=0.01))
+    qtbot.waitUntil(lambda: not screen.angles.stale, timeout=2_000)
+    assert [value.styleSheet() for value in screen.angles.values] == colours
 
 
 def test_the_spread_is_green_within_the_store_limit_and_red_beyond(qtbot, screen):

@@ -29,6 +29,7 @@ import numpy as np
 from snreg.camera import StereoCalibration
 from snreg.chain import ChainCalibration
 from snreg.geometry import rotation_angle_deg
+from snreg.imu.monitor import STALE_AFTER_S
 from snreg.odometry import InsertionEstimate, InsertionTracker
 from snreg.odometry.held import MOVED_AFTER_S, MOVED_TURN_DEG, held_sd_mm, may_have_moved
 from snreg.probe import ProbeModel
@@ -138,13 +139,18 @@ def insertion_text(step: InsertionStep | None, start_mm: float) -> str:
     return f"camera LOST{reason}: {step.used_mm:.1f} mm held, {since}"
 
 
-def residual_text(step: InsertionStep | None) -> str:
+def residual_text(step: InsertionStep | None, imu_gap_s: float = 0.0) -> str:
     """What a large pivot residual means, in words ("" when the pair is lost or its residual is under
-    :data:`LARGE_RESIDUAL_MM`): the camera moved otherwise than about the pivot, so the chain itself is in doubt."""
+    :data:`LARGE_RESIDUAL_MM`): the camera moved otherwise than about the pivot, so the chain itself is in doubt.
+    ``imu_gap_s``: from the pair to the nearest IMU sample; while the IMU is silent (over ``STALE_AFTER_S``) the pair
+    was fitted at an old orientation, so the residual says the camera turned unseen, not that the trocar moved."""
     if step is None or not step.estimate.tracked or not step.estimate.residual_mm > LARGE_RESIDUAL_MM:
         return ""
-    return (f"the camera is {step.estimate.residual_mm:.1f} mm off the pivot model: the trocar moved or the IMU is "
-            "off; check both, and calibrate the trocar again if one moved")
+    off = f"the camera is {step.estimate.residual_mm:.1f} mm off the pivot model"
+    if imu_gap_s > STALE_AFTER_S:
+        return (f"{off}: the IMU has been silent for {imu_gap_s:.1f} s, so its turns are not seen; reconnect the "
+                "IMU")
+    return f"{off}: the trocar moved or the IMU is off; check both, and calibrate the trocar again if one moved"
 
 
 def follow_insertion(pairs: Iterable[tuple[np.ndarray, np.ndarray]], orientations: Iterable[np.ndarray],

@@ -41,6 +41,6 @@ class InsertionLine(StatusLine):
             self.setText(self.untracked)
             set_style(self, QUIET)
             return
-        self.state, residual = step.estimate.state, residual_text(step)
+        self.state, residual = step.estimate.state, residual_text(step, outcome.imu_gap_s)
         self.setText(f"{outcome.insertion_text}\n{residual}" if residual else outcome.insertion_text)
         set_style(self, BAD if step.held else WARN if residual else "")

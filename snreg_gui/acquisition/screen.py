@@ -226,7 +226,7 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
             self.orientation.redraw()
         if result.left_rgb.shape[1]:
             self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
-        self.angles.show_values(result.imu.euler_deg)
+        self.angles.show_values(result.imu.euler_deg, stale=result.imu.stale)   # greyed: the IMU went silent
         self.insertion_line.show_outcome(outcome)
         self.expected.show_guidance(result.guidance)
         self.tip_values.show_values(outcome.tip_trocar)

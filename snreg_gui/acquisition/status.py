@@ -158,6 +158,7 @@ class ValueRow(QWidget):
     def __init__(self, captions: tuple[str, ...], widest: str, colours: tuple[str, ...] = (), columns: int = 0):
         super().__init__()
         colours = colours or ("",) * len(captions)
+        self._colours, self.stale = colours, False
         self.values = [BigNumber(widest, colour) for colour in colours]
         self._captions = [QLabel(caption) for caption in captions]
         for label, colour in zip(self._captions, colours):
@@ -182,9 +183,14 @@ class ValueRow(QWidget):
             self._grid.addWidget(caption, 2 * row, column, Qt.AlignmentFlag.AlignRight)
             self._grid.addWidget(value, 2 * row + 1, column)
 
-    def show_values(self, values, decimals: int = 1) -> None:
-        """One value per caption (None or NaN shows a dash); ``values`` None shows dashes."""
+    def show_values(self, values, decimals: int = 1, stale: bool = False) -> None:
+        """One value per caption (None or NaN shows a dash); ``values`` None shows dashes. ``stale``: the last values
+        of a source gone silent, greyed so they are never read as current (colours set only when this changes)."""
         values = values if values is not None else (None,) * len(self.values)
+        if stale != self.stale:
+            self.stale = stale
+            for label, colour in zip(self.values, self._colours):
+                label.set_colour(SPREAD_NONE if stale else colour)
         for label, value in zip(self.values, values):
             label.show_value(None if value is None else float(value), decimals)
 
