@@ -75,7 +75,8 @@ def test_unplug_then_replug_behind_the_same_link(tmp_path):
         assert poll(lambda: reader.counts.samples > 50)
         first.stop()                                          # unplug: the pty closes and the link goes
         assert poll(lambda: reader.state is ImuState.DISCONNECTED)
-        assert not os.path.lexists(link) and link in reader.problem
+        assert not os.path.lexists(link)
+        assert reader.problem == f"the IMU port {link} went away; reconnect the sensor, retrying every 0.05 s"
         before = reader.counts.samples
         second = SimulatedPort(ImuSimulator(rate_hz=1000, seed=2), port_link=link).start()
         try:

@@ -146,8 +146,10 @@ class SerialImuReader:
                 data = self._read()
             except (serial.SerialException, OSError) as err:
                 self._close()
-                self._set_state(ImuState.DISCONNECTED, f"the IMU port {self.port} went away ({err}); "
-                                f"reconnect the sensor, retrying every {self.retry_interval_s:g} s")
+                if self._state is not ImuState.DISCONNECTED:      # the port's own words go to the log: they guess
+                    _log.warning("IMU port %s: %s", self.port, err)     # ("multiple access on port?") where we know
+                self._set_state(ImuState.DISCONNECTED, f"the IMU port {self.port} went away; reconnect the sensor, "
+                                f"retrying every {self.retry_interval_s:g} s")
                 continue
             now = time.perf_counter_ns()
             if data:
