@@ -1,6 +1,7 @@
 """The GUI bench's probes: CPU per thread (``snreg_gui.tools.thread_cpu``) and where the GUI thread stalls
 (``snreg_gui.tools.stall_stacks``). Neither test is timed: each waits on CPU spent or on a sample taken."""
 
+import hashlib
 import subprocess
 import sys
 import threading
@@ -9,7 +10,8 @@ import time
 import pytest
 
 from conftest import poll
-from snreg_gui.tools.stall_stacks import StallSampler
+from snreg_gui.tools import stall_stacks
+from snreg_gui.tools.stall_stacks import StallSampler, thread_state
 from snreg_gui.tools.thread_cpu import cores_by_name, cores_by_role, process_cpu_s, thread_cpu_s, thread_names
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread CPU is read from /proc")
@@ -118,3 +120,27 @@ def test_the_sampler_samples_nothing_before_the_first_tick():
     assert poll(lambda: len(asked) >= 5)
     sampler.stop()
     assert sampler.top() == []
+
+
+def _seen(sampler: StallSampler, state: str) -> bool:
+    return any(stack.startswith(f"event loop, {state}:") for stack, _ in sampler.top())
+
+
+@linux_only
+def test_the_sampler_tells_a_thread_asleep_outside_the_app_from_one_running(monkeypatch, tmp_path):
+    """Issue 36: a stall outside the app's code was one line, "Qt's own work, or waiting for the GIL"; the thread's
+    state then tells them apart: asleep (waiting for a lock another thread holds) or running."""
+    monkeypatch.setattr(stall_stacks, "_summary", lambda frame: "")      # no frame of the app's: Qt's event loop
+    sampler = StallSampler(lambda: time.perf_counter() - 1.0, late_ms=20.0)
+    data = bytes(8_000_000)
+    deadline = time.monotonic() + 30.0
+    try:
+        while not _seen(sampler, "asleep") and time.monotonic() < deadline:
+            time.sleep(0.05)                                      # asleep, the interpreter lock let go
+        while not _seen(sampler, "running") and time.monotonic() < deadline:
+            hashlib.sha256(data).digest()                         # running, the lock let go while it hashes
+    finally:
+        sampler.stop()
+    assert _seen(sampler, "asleep") and _seen(sampler, "running")
+    assert all(stack.startswith("event loop") for stack, _ in sampler.top())
+    assert thread_state(tmp_path / "no-such-thread" / "stat") == ""

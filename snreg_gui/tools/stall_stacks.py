@@ -3,8 +3,12 @@
 Why: a stall's length says nothing of its cause. A watchdog thread samples the GUI thread's Python stack whenever the
 heartbeat has not ticked for ``late_ms``; the stacks seen most often are where to look. A stack that is only the event
 loop (``app.exec``) means the thread was in Qt's own code (painting, layout) or waiting for the interpreter lock
-another thread held. The watchdog itself needs that lock to sample, so a stall under a long call that holds the lock
-is seen once it is released; the samples are where the thread was, not a profile.
+another thread held; on Linux the two are told apart by the thread's state then (``/proc``): running (Qt's work, or
+a turn of a busy machine's CPU it waits for) or asleep (for the interpreter lock another thread holds, so the stall is
+that thread's work, or for another lock; issue 36). A stack with the app's frames says no more: the thread, running
+Python, lets the lock go for the watchdog, so it is asleep whenever it is looked at. The watchdog itself needs that
+lock to sample, so a stall under a long call that holds the lock is seen once it is released; the samples are where
+the thread was, not a profile.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import time
 import traceback
 from collections import Counter
 from collections.abc import Callable
+from pathlib import Path
 
 SAMPLE_S = 0.01
 _STDLIB = sysconfig.get_paths()["stdlib"]
@@ -28,6 +33,7 @@ class StallSampler:
 
     def __init__(self, last_tick: Callable[[], float | None], late_ms: float = 50.0):
         self._target = threading.get_ident()
+        self._stat = Path(f"/proc/self/task/{threading.get_native_id()}/stat")
         self._last_tick, self._late_s = last_tick, late_ms / 1e3
         self.samples: Counter[str] = Counter()
         self._lock = threading.Lock()       # top() may be read while the watchdog samples
@@ -51,9 +57,27 @@ class StallSampler:
                 continue
             frame = sys._current_frames().get(self._target)      # noqa: SLF001 - the interpreter's one way to it
             if frame is not None:
-                stack = _summary(frame)
+                stack = _summary(frame) or _event_loop(thread_state(self._stat))
                 with self._lock:
                     self.samples[stack] += 1
+
+
+def thread_state(stat: Path) -> str:
+    """"running" (or runnable: waiting for a CPU), "asleep" (for a lock, the interpreter's among them, or for input) or
+    "" (unknown: no ``/proc``, or the thread ended), from a thread's ``/proc/.../stat``."""
+    try:
+        text = stat.read_text()
+    except OSError:
+        return ""
+    code = text[text.rindex(")") + 2:][:1]             # the field after the name, which may hold spaces
+    return {"R": "running", "S": "asleep", "D": "asleep"}.get(code, "")
+
+
+def _event_loop(state: str) -> str:
+    """A sample without the app's frames, in words, by the thread's ``state`` (:func:`thread_state`)."""
+    return {"running": "event loop, running: Qt's own work (or waiting for a CPU)",
+            "asleep": "event loop, asleep: waiting for the interpreter lock another thread holds (or another lock)"
+            }.get(state, "event loop (Qt's own work, or waiting for the GIL)")
 
 
 def _app_or_pyqtgraph(filename: str) -> bool:
@@ -67,8 +91,9 @@ def _app_or_pyqtgraph(filename: str) -> bool:
 
 
 def _summary(frame) -> str:
-    """The innermost frames of a stack as "file:line function" lines, the app's and its libraries' only."""
+    """The innermost frames of a stack as "file:line function" lines, the app's and its libraries' only ("" when it
+    has none: the event loop)."""
     kept = [f"{entry.filename.rsplit('site-packages/', 1)[-1]}:{entry.lineno} {entry.name}"
             for entry in traceback.extract_stack(frame)
             if _app_or_pyqtgraph(entry.filename)]
-    return " <- ".join(reversed(kept[-FRAMES_KEPT:])) or "event loop (Qt's own work, or waiting for the GIL)"
+    return " <- ".join(reversed(kept[-FRAMES_KEPT:]))
