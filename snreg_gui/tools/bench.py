@@ -50,7 +50,7 @@ NAMED_THREADS = {"insertion": "snreg-insertion", "imu reader": "imu-reader", "de
 # (its own "snreg-insertion" thread included), and "app": this process and it together (the encoder apart)
 TRACKING_PROCESS = "tracking process"
 TARGET_STALL_MS, TARGET_FPS, TARGET_ENCODER_CORES = 33.0, 25.0, 1.0      # issue 36: the live loop at 30 Hz
-SAMPLED_FROM_MS = 25.0      # --stalls samples the GUI thread in every stall longer than this: those that near the target
+SAMPLED_FROM_MS = 25.0      # --stalls samples the GUI thread in every stall past this: those that near the target too
 
 
 class Heartbeat:
