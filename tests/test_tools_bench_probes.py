@@ -6,12 +6,13 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
 from conftest import poll
 from snreg_gui.tools import stall_stacks
-from snreg_gui.tools.stall_stacks import StallSampler, thread_state
+from snreg_gui.tools.stall_stacks import StallSampler, sched_times, stall_split, thread_state
 from snreg_gui.tools.thread_cpu import cores_by_name, cores_by_role, process_cpu_s, thread_cpu_s, thread_names
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread CPU is read from /proc")
@@ -144,3 +145,29 @@ def test_the_sampler_tells_a_thread_asleep_outside_the_app_from_one_running(monk
     assert _seen(sampler, "asleep") and _seen(sampler, "running")
     assert all(stack.startswith("event loop") for stack, _ in sampler.top())
     assert thread_state(tmp_path / "no-such-thread" / "stat") == ""
+
+
+def test_a_stall_is_split_into_running_waiting_for_a_cpu_and_asleep():
+    """Issue 36: on a loaded machine a stall may be the GUI thread waiting for a CPU; the scheduler's times read at
+    each tick split each gap over the target."""
+    ticks = [0.0, 0.010, 0.110, 0.120, 0.170]                    # gaps 10, 100, 10 and 50 ms
+    sched = [(0.0, 0.0), (0.005, 0.0), (0.025, 0.070), (0.030, 0.070), (0.060, 0.075)]
+    split = stall_split(ticks, sched, over_ms=33.0)
+    assert split["stalls"] == 2 and split["ms"] == pytest.approx(150.0)
+    assert split["longest"] == pytest.approx({"ms": 100.0, "running_ms": 20.0, "waiting_for_cpu_ms": 70.0,
+                                              "asleep_ms": 10.0})
+    assert (split["running_ms"], split["waiting_for_cpu_ms"], split["asleep_ms"]) == pytest.approx((50.0, 75.0, 25.0))
+    capped = stall_split(ticks[:3], [(0.0, 0.0), (0.0, 0.0), (0.080, 0.050)], 33.0)   # read a moment off the ticks
+    assert capped["running_ms"] == 80.0 and capped["waiting_for_cpu_ms"] == 20.0 and capped["asleep_ms"] == 0.0
+    assert stall_split(ticks, sched[:-1], 33.0) is None and stall_split(ticks, sched, 200.0) is None
+
+
+@linux_only
+def test_the_scheduler_times_of_a_thread_grow_as_it_runs(tmp_path):
+    times = sched_times(Path(f"/proc/self/task/{threading.get_native_id()}/schedstat"))
+    if times is None:
+        pytest.skip("this kernel keeps no scheduler statistics")
+    _spin(0.05, [])
+    later = sched_times(Path(f"/proc/self/task/{threading.get_native_id()}/schedstat"))
+    assert later[0] - times[0] >= 0.04 and later[1] >= times[1]
+    assert sched_times(tmp_path / "schedstat") is None

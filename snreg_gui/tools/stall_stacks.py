@@ -22,6 +22,8 @@ from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 SAMPLE_S = 0.01
 _STDLIB = sysconfig.get_paths()["stdlib"]
 FRAMES_KEPT = 4             # the innermost frames of the app's code and pyqtgraph's, per sample
@@ -71,6 +73,44 @@ def thread_state(stat: Path) -> str:
         return ""
     code = text[text.rindex(")") + 2:][:1]             # the field after the name, which may hold spaces
     return {"R": "running", "S": "asleep", "D": "asleep"}.get(code, "")
+
+
+def sched_times(schedstat: Path) -> tuple[float, float] | None:
+    """(seconds running, seconds runnable but waiting for a CPU) a thread spent so far, from its
+    ``/proc/.../schedstat``; None where it cannot be read (not Linux, no scheduler statistics, the thread ended)."""
+    try:
+        running_ns, waiting_ns = schedstat.read_text().split()[:2]
+    except (OSError, ValueError):
+        return None
+    return int(running_ns) / 1e9, int(waiting_ns) / 1e9
+
+
+def stall_split(ticks: list[float], sched: list[tuple[float, float]], over_ms: float) -> dict | None:
+    """What the thread did in the gaps between consecutive ``ticks`` (perf_counter seconds) longer than ``over_ms``,
+    from :func:`sched_times` read at each tick (``sched``, one per tick): ``{"stalls", "ms", "running_ms",
+    "waiting_for_cpu_ms", "asleep_ms", "longest": {"ms", "running_ms", "waiting_for_cpu_ms", "asleep_ms"}}``, ms
+    summed over those gaps (asleep: the rest of each gap, a lock waited for, the interpreter's among them); None
+    without a reading per tick or a stall.
+
+    Why: a stall on a loaded machine may be the thread waiting for a CPU, which no change of the app's removes; one
+    spent asleep is another thread's (issue 36)."""
+    if len(sched) != len(ticks) or len(ticks) < 2:
+        return None
+    gaps = np.diff(ticks) * 1e3
+    used = np.diff(np.asarray(sched, dtype=float), axis=0) * 1e3      # (gaps, 2): running, waiting for a CPU
+    stalled = np.flatnonzero(gaps > over_ms)
+    if not len(stalled):
+        return None
+    running = np.minimum(used[stalled, 0], gaps[stalled])
+    waiting = np.minimum(used[stalled, 1], gaps[stalled] - running)
+    asleep = gaps[stalled] - running - waiting
+    longest = int(np.argmax(gaps[stalled]))
+
+    def split(index) -> dict:
+        parts = (("ms", gaps[stalled]), ("running_ms", running), ("waiting_for_cpu_ms", waiting),
+                 ("asleep_ms", asleep))
+        return {name: round(float(np.sum(values[index])), 1) for name, values in parts}
+    return {"stalls": len(stalled), **split(slice(None)), "longest": split(longest)}
 
 
 def _event_loop(state: str) -> str:
