@@ -1,4 +1,5 @@
-"""Where the GUI thread is while it stalls: the bench's ``--stalls`` sampler.
+"""Where the GUI thread is while it stalls: the bench's ``--stalls`` sampler, and what it did in each stall (ran,
+waited for a CPU, slept: :func:`stall_split`, from :func:`sched_times` read at each heartbeat tick).
 
 Why: a stall's length says nothing of its cause. A watchdog thread samples the GUI thread's Python stack whenever the
 heartbeat has not ticked for ``late_ms``; the stacks seen most often are where to look. A stack that is only the event
