@@ -45,7 +45,7 @@ def y_range(values: np.ndarray, current: tuple[float, float] | None) -> tuple[fl
     return wanted
 
 
-def legend_html() -> str:
+def angle_legend() -> str:
     """The plot's legend, one line: each angle's name in its curve's colour after a dash of it."""
     return " &nbsp; ".join(f"<span style='color:{colour}'>&#8212; {name}</span>"
                            for name, colour in ANGLE_COLOURS.items())
@@ -63,7 +63,7 @@ class OrientationPlot(pg.PlotWidget):
         self.setLabel("left", "angle (deg)")
         self.setLabel("bottom", "frames ago")
         self.getAxis("left").enableAutoSIPrefix(False)
-        self.setTitle(legend_html(), size="9pt")        # above the plot area: no curve ever under it
+        self.setTitle(angle_legend(), size="9pt")        # above the plot area: no curve ever under it
         self.plotItem.layout.setRowFixedHeight(0, self.plotItem.titleLabel.item.boundingRect().height())
         self.setXRange(-span + 1, 0, padding=0)
         self.enableAutoRange(x=False, y=False)
