@@ -41,6 +41,8 @@ def panel(qtbot, monkeypatch):
     monkeypatch.setattr(panel_module, "make_node_view", lambda parent=None: ThreeViewPlot(parent))
     widget = RegistrationPanel()
     qtbot.addWidget(widget)
+    widget.show()           # the view draws a scene only while shown (a hidden one draws it when next shown)
+    qtbot.waitExposed(widget)
     yield widget
     widget.shutdown()
 

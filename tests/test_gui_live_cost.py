@@ -9,7 +9,8 @@ from PySide6.QtCore import QEvent, QObject, QRect, Qt
 from PySide6.QtWidgets import QApplication
 from test_gui_acquisition import StillImu, frame_without_fix
 
-from snreg_gui.acquisition.orientation_plot import MIN_SPAN_DEG, RANGE_STEP_DEG, OrientationPlot, y_range
+from snreg_gui.acquisition.orientation_plot import (ANGLE_COLOURS, MIN_SPAN_DEG, RANGE_STEP_DEG, REDRAW_HZ,
+                                                     OrientationPlot, y_range)
 from snreg_gui.acquisition.screen import AcquisitionScreen
 from snreg_gui.acquisition.status import BigNumber, StatusLine
 from snreg_gui.common.feed_view import FeedView
@@ -67,6 +68,49 @@ def test_the_plot_sets_its_range_only_when_the_angles_leave_it(qtbot):
     for k in range(400):                                          # once the ring is full, the oldest go
         plot.append((float(k), 0.0, 0.0))
     np.testing.assert_array_equal(plot.values[:, 0], np.arange(100.0, 400.0))
+
+
+def test_the_imu_plot_redraws_at_most_at_its_rate_and_ends_on_the_newest_sample(qtbot):
+    """Issue 36: the curves are set at most ``REDRAW_HZ`` times a second however fast the pairs come, and the newest
+    sample is drawn once an interval has passed, also when no more come."""
+    plot = OrientationPlot()
+    qtbot.addWidget(plot)
+    frames, fps = 150, 60.0                                        # 2.5 s of pairs at 60 Hz, a tick after each
+    for k in range(frames):
+        plot.append((float(k), -3.0, 2.0))
+        plot.redraw_due(k / fps)
+    assert 2 <= plot.redraws <= (frames / fps) * REDRAW_HZ + 1
+    yaw = plot.listDataItems()[0].getData()[1]
+    assert yaw[-1] < frames - 1                                    # the last samples wait for the next interval
+    shown_at = (frames - 1) / fps + 1.0 / REDRAW_HZ
+    assert plot.redraw_due(shown_at)                               # the frames stopped: shown within an interval
+    assert plot.listDataItems()[0].getData()[1][-1] == frames - 1
+    drawn = plot.redraws
+    assert not plot.redraw_due(shown_at + 10.0) and plot.redraws == drawn     # nothing new: nothing redrawn
+    later = shown_at + 10.0
+    plot.append((500.0, -3.0, 2.0))
+    assert plot.redraw_due(later)                                  # long after the last redraw: at once
+    plot.append((501.0, -3.0, 2.0))
+    assert not plot.redraw_due(later + 0.5 / REDRAW_HZ)            # half an interval after it: it waits
+    assert plot.redraw_due(later + 1.0 / REDRAW_HZ) and plot.listDataItems()[0].getData()[1][-1] == 501.0
+
+
+def test_the_imu_plot_legend_lies_outside_the_plot_area_and_names_each_curve(qtbot):
+    """The legend covered the yaw line when yaw sat near the top of the range; it is now above the plot area."""
+    plot = OrientationPlot()
+    qtbot.addWidget(plot)
+    plot.resize(340, 300)
+    plot.show()
+    qtbot.waitExposed(plot)
+    for _ in range(10):
+        plot.append((0.0, 3.0, -100.0))                            # yaw at the top of the range, as in the demo
+    plot.redraw()
+    title, area = plot.plotItem.titleLabel, plot.plotItem.vb.sceneBoundingRect()
+    assert title.isVisible() and not title.sceneBoundingRect().intersects(area)
+    assert title.sceneBoundingRect().bottom() <= area.top() and title.sceneBoundingRect().height() > 5
+    text = title.item.toPlainText()
+    assert all(name in text for name in ANGLE_COLOURS) and plot.plotItem.legend is None
+    assert all(colour in title.text for colour in ANGLE_COLOURS.values())
 
 
 def test_store_sn_is_set_again_only_when_its_state_changes_and_is_right_after_a_change(qtbot):

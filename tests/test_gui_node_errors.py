@@ -94,6 +94,8 @@ def test_the_rings_lie_on_each_nodes_90_percent_ellipsoid_and_the_shadows_outlin
 def test_the_projections_draw_each_sets_ellipses_once_made_and_refit_around_them(qtbot):
     view = ThreeViewPlot()
     qtbot.addWidget(view)
+    view.show()                 # a hidden view draws a scene only once shown
+    qtbot.waitExposed(view)
     items = [dict(k) for k in view.ellipses]
     preop = NodeSet.from_xyz([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0]], prefix="P", cov=np.tile(np.eye(3) * 25.0, (2, 1, 1)))
     intraop = NodeSet.from_xyz([[1.0, 1.0, 0.0]], cov=ELONGATED[None])

@@ -103,6 +103,8 @@ def test_three_view_draws_mapped_preop_intraop_pairs_and_labels(qtbot, pelvic_no
     monkeypatch.setattr(node_views, "opengl_available", lambda: False)
     panel = RegistrationPanel()
     qtbot.addWidget(panel)
+    panel.show()                # the view draws a scene only while shown
+    qtbot.waitExposed(panel)
     preop, intraop, truth = moved_case(pelvic_nodes, 20.0)
     load_preop(qtbot, panel, preop, tmp_path / "preop.csv")
     panel.set_intraop_nodes(intraop)
@@ -688,11 +690,12 @@ def test_an_undo_that_leaves_too_few_nodes_to_register_says_out_of_date_not_upda
     session.close()
 
 
-def test_a_store_behind_another_tab_places_no_labels_until_the_registration_tab_is_shown(qtbot, panel, pelvic_nodes,
-                                                                                       tmp_path, monkeypatch):
-    """Issue 36: each store redrew the hidden registration tab's view, laying its labels out on the GUI thread (~40 ms
-    per store during acquisition). Hidden, the view draws the new node's marker but places no label; shown, it labels
-    the new node beside its marker, clear of the others."""
+def test_a_store_behind_another_tab_draws_nothing_until_the_registration_tab_is_shown(qtbot, panel, pelvic_nodes,
+                                                                                     tmp_path, monkeypatch):
+    """Issue 36: each store and each automatic registration redrew the hidden registration tab's view (markers,
+    ellipses, labels) on the GUI thread during acquisition. Hidden, the view keeps the newest scene and draws nothing,
+    its markers and labels still the old ones; shown, it draws that scene before it is painted: the new node's marker
+    where it is, labelled beside it, clear of the others."""
     from PySide6.QtWidgets import QLabel, QTabWidget
 
     from snreg_gui.common import three_view
@@ -710,16 +713,26 @@ def test_a_store_behind_another_tab_places_no_labels_until_the_registration_tab_
     tabs.show()
     qtbot.waitExposed(tabs)
     session, intraop = three_stored(qtbot, panel, pelvic_nodes, tmp_path, "gui-hidden-01")
+    tabs.setCurrentWidget(panel)                         # the three stored nodes drawn, then the tab hidden again
+    qtbot.waitUntil(lambda: panel.view.isVisible() and not panel.view.stale, timeout=TIMEOUT_MS)
+    tabs.setCurrentIndex(0)
+    qtbot.waitUntil(lambda: not panel.view.isVisible(), timeout=TIMEOUT_MS)
+    drawn, old_intraop = panel.view.scenes_drawn, panel.view.intraop_dots[0].getData()
     placed.clear()
     session.add_intraop_node(intraop.ids[3], intraop.labels[3], intraop.xyz[3])     # a store, as the app sees it
     panel.refresh_intraop()
-    assert placed == [] and panel.view.unplaced == {0, 1, 2}
-    assert intraop.ids[3] in panel.view.scene_shown.intraop.ids
-    x, y = panel.view.intraop_dots[0].getData()                     # its marker is drawn at once
-    assert np.allclose(np.c_[x, y], intraop.xyz[:4, :2])
+    panel.run()                                          # and a registration of the four, as after a store
+    qtbot.waitUntil(lambda: not panel.busy, timeout=TIMEOUT_MS)
+    assert panel.current_result is not None and len(panel.current_result.pairing) == 4
+    assert placed == [] and panel.view.scenes_drawn == drawn and panel.view.stale      # nothing drawn while hidden
+    assert np.array_equal(panel.view.intraop_dots[0].getData()[0], old_intraop[0])     # still the three
+    assert intraop.ids[3] in panel.view.scene_shown.intraop.ids and panel.view.scene_shown.pairing is not None
     tabs.setCurrentWidget(panel)
-    qtbot.waitUntil(lambda: panel.view.isVisible() and not panel.view.unplaced, timeout=TIMEOUT_MS)
-    assert placed
+    qtbot.waitUntil(lambda: panel.view.isVisible() and not panel.view.stale, timeout=TIMEOUT_MS)
+    assert placed and panel.view.scenes_drawn == drawn + 1                 # the newest scene only, once
+    x, y = panel.view.intraop_dots[0].getData()
+    assert np.allclose(np.c_[x, y], intraop.xyz[:4, :2])
+    assert "paired" in panel.view.legend.text                             # the registration's scene, not the store's
     for k, (h, v) in enumerate([(0, 1), (0, 2), (1, 2)]):
         boxes = panel.view.label_boxes(k)
         assert _overlaps(boxes) == []

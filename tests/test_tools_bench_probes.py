@@ -1,15 +1,18 @@
 """The GUI bench's probes: CPU per thread (``snreg_gui.tools.thread_cpu``) and where the GUI thread stalls
 (``snreg_gui.tools.stall_stacks``). Neither test is timed: each waits on CPU spent or on a sample taken."""
 
+import hashlib
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
 from conftest import poll
-from snreg_gui.tools.stall_stacks import StallSampler
+from snreg_gui.tools import stall_stacks
+from snreg_gui.tools.stall_stacks import StallSampler, sched_times, stall_split, thread_state
 from snreg_gui.tools.thread_cpu import cores_by_name, cores_by_role, process_cpu_s, thread_cpu_s, thread_names
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread CPU is read from /proc")
@@ -118,3 +121,53 @@ def test_the_sampler_samples_nothing_before_the_first_tick():
     assert poll(lambda: len(asked) >= 5)
     sampler.stop()
     assert sampler.top() == []
+
+
+def _seen(sampler: StallSampler, state: str) -> bool:
+    return any(stack.startswith(f"event loop, {state}:") for stack, _ in sampler.top())
+
+
+@linux_only
+def test_the_sampler_tells_a_thread_asleep_outside_the_app_from_one_running(monkeypatch, tmp_path):
+    """Issue 36: a stall outside the app's code was one line, "Qt's own work, or waiting for the GIL"; the thread's
+    state then tells them apart: asleep (waiting for a lock another thread holds) or running."""
+    monkeypatch.setattr(stall_stacks, "_summary", lambda frame: "")      # no frame of the app's: Qt's event loop
+    sampler = StallSampler(lambda: time.perf_counter() - 1.0, late_ms=20.0)
+    data = bytes(8_000_000)
+    deadline = time.monotonic() + 30.0
+    try:
+        while not _seen(sampler, "asleep") and time.monotonic() < deadline:
+            time.sleep(0.05)                                      # asleep, the interpreter lock let go
+        while not _seen(sampler, "running") and time.monotonic() < deadline:
+            hashlib.sha256(data).digest()                         # running, the lock let go while it hashes
+    finally:
+        sampler.stop()
+    assert _seen(sampler, "asleep") and _seen(sampler, "running")
+    assert all(stack.startswith("event loop") for stack, _ in sampler.top())
+    assert thread_state(tmp_path / "no-such-thread" / "stat") == ""
+
+
+def test_a_stall_is_split_into_running_waiting_for_a_cpu_and_asleep():
+    """Issue 36: on a loaded machine a stall may be the GUI thread waiting for a CPU; the scheduler's times read at
+    each tick split each gap over the target."""
+    ticks = [0.0, 0.010, 0.110, 0.120, 0.170]                    # gaps 10, 100, 10 and 50 ms
+    sched = [(0.0, 0.0), (0.005, 0.0), (0.025, 0.070), (0.030, 0.070), (0.060, 0.075)]
+    split = stall_split(ticks, sched, over_ms=33.0)
+    assert split["stalls"] == 2 and split["ms"] == pytest.approx(150.0)
+    assert split["longest"] == pytest.approx({"ms": 100.0, "running_ms": 20.0, "waiting_for_cpu_ms": 70.0,
+                                              "asleep_ms": 10.0})
+    assert (split["running_ms"], split["waiting_for_cpu_ms"], split["asleep_ms"]) == pytest.approx((50.0, 75.0, 25.0))
+    capped = stall_split(ticks[:3], [(0.0, 0.0), (0.0, 0.0), (0.080, 0.050)], 33.0)   # read a moment off the ticks
+    assert capped["running_ms"] == 80.0 and capped["waiting_for_cpu_ms"] == 20.0 and capped["asleep_ms"] == 0.0
+    assert stall_split(ticks, sched[:-1], 33.0) is None and stall_split(ticks, sched, 200.0) is None
+
+
+@linux_only
+def test_the_scheduler_times_of_a_thread_grow_as_it_runs(tmp_path):
+    times = sched_times(Path(f"/proc/self/task/{threading.get_native_id()}/schedstat"))
+    if times is None:
+        pytest.skip("this kernel keeps no scheduler statistics")
+    _spin(0.05, [])
+    later = sched_times(Path(f"/proc/self/task/{threading.get_native_id()}/schedstat"))
+    assert later[0] - times[0] >= 0.04 and later[1] >= times[1]
+    assert sched_times(tmp_path / "schedstat") is None

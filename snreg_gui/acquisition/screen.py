@@ -49,7 +49,6 @@ from snreg_gui.common.splitters import first_width
 STORE_SHORTCUTS = ("Space", "F5")        # F5: what a USB foot pedal is usually set to send
 UNDO_SHORTCUT = "Ctrl+Z"
 DRAW_INTERVAL_MS = 33        # the feeds are drawn at most at 30 Hz, the newest frame only
-PLOT_EVERY = 6               # the IMU plot at 5 Hz: enough to see the endoscope held still
 LABEL_HINT = "station, e.g. OBT R"
 PAUSED_TEXT = "paused for calibration (a wizard has the cameras)"
 
@@ -143,7 +142,6 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         self._health_timer = QTimer(self, interval=250, timeout=self._show_health)
         self._health_timer.start()
         self._undrawn: FrameResult | None = None
-        self._draws = 0
         self._draw_timer = QTimer(self, interval=DRAW_INTERVAL_MS, timeout=self._draw)
         self._draw_timer.start()
         self._store_state: tuple | None = None     # (enabled, reason, style) shown now
@@ -211,7 +209,8 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
 
     def _draw(self) -> None:
         """Draw the newest result, if any came since the last tick; older ones are skipped, so a slow paint
-        never builds a backlog of frames on the GUI thread. The IMU plot redraws every ``PLOT_EVERY`` ticks."""
+        never builds a backlog of frames on the GUI thread. The IMU plot redraws at its own rate, frames or not."""
+        self.orientation.redraw_due(time.perf_counter())
         result, self._undrawn = self._undrawn, None
         if result is None:
             return
@@ -221,9 +220,6 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         self.right_feed.show_frame(result.right_rgb, result.overlay_right, depth)
         self.left_feed.show_hot_spots(result.hot_spots_left)
         self.right_feed.show_hot_spots(result.hot_spots_right)
-        self._draws += 1
-        if self._draws % PLOT_EVERY == 0:
-            self.orientation.redraw()
         if result.left_rgb.shape[1]:
             self.live.set_aspect(result.left_rgb.shape[0] / result.left_rgb.shape[1])
         self.angles.show_values(result.imu.euler_deg, stale=result.imu.stale)   # greyed: the IMU went silent

@@ -16,7 +16,7 @@ from snreg.registration.naming import shown_preop_ids
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
 
 __all__ = ["NodeScene", "legend_html", "label_font", "xyz_of", "MISSING_COLOUR", "ELLIPSE_ALPHA", "LANDMARK_COLOUR",
-           "SUSPECT_COLOUR", "PREOP_MAPPED", "PREOP_UNREGISTERED", "PREOP_OUT_OF_DATE"]
+           "SUSPECT_COLOUR", "PREOP_MAPPED", "PREOP_UNREGISTERED", "PREOP_OUT_OF_DATE", "DrawnWhenShown"]
 
 MISSING_COLOUR = "#ff7f0e"          # a preop node with no intraop partner yet (not found, or not removed yet)
 LANDMARK_COLOUR = "#2ca02c"         # anatomical landmarks, both sides (CT: hollow diamond, touched: filled)
@@ -110,6 +110,39 @@ class NodeScene:
     @property
     def has_landmarks(self) -> bool:
         return any(m is not None and len(m) for m in (self.preop_landmarks, self.intraop_landmarks))
+
+
+class DrawnWhenShown:
+    """What both node views do with a scene given while they are hidden: keep it (``scene_shown``) and draw it when
+    next shown, the latest one only.
+
+    Why: the registration tab's view is given a scene after each store and each automatic registration while the
+    Acquisition tab is in front; drawing it there (markers, ellipses, labels: pyqtgraph ``setData`` and its layout)
+    cost the GUI thread tens of ms per store for a view nobody saw (issue 36). The view never shows a stale scene:
+    its ``showEvent`` draws the scene given last before the view is painted. ``scenes_drawn`` counts the draws;
+    ``stale`` says a scene waits. A view class defines ``_draw_scene(scene)`` and lists this first among its bases.
+    """
+
+    scenes_drawn = 0
+    stale = False
+
+    def show_scene(self, scene: NodeScene) -> None:
+        """Show ``scene``: drawn now when the view is visible, else when it is next shown."""
+        self.scene_shown = scene
+        self.stale = True
+        if self.isVisible():
+            self.draw_scene_now()
+
+    def draw_scene_now(self) -> None:
+        """Draw the scene given last if it waits."""
+        if self.stale:
+            self.stale = False
+            self.scenes_drawn += 1
+            self._draw_scene(self.scene_shown)
+
+    def showEvent(self, event) -> None:                          # noqa: N802 (Qt's name)
+        super().showEvent(event)
+        self.draw_scene_now()
 
 
 def xyz_of(nodes: NodeSet | None) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 Why: the technician turns the scene to see whether the mapped preop nodes sit on the stored ones, and how far each
 node's own error reaches. Built only where OpenGL works (:func:`snreg_gui.common.node_views.make_node_view`); items
-are made once and only updated.
+are made once and only updated; a scene given while the view is hidden is drawn when it is next shown
+(:class:`~snreg_gui.common.node_scene.DrawnWhenShown`).
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR
 from snreg_gui.common.ellipses import ellipsoid_rings
 from snreg_gui.common.label_layout import fit_camera, place_labels
-from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
-                                        xyz_of)
+from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, DrawnWhenShown, NodeScene,
+                                        label_font, xyz_of)
 
 __all__ = ["NodeView3D", "LabelOverlay"]
 
@@ -37,7 +38,7 @@ def _set_lines(item, segments: np.ndarray) -> None:
         item.setData(pos=segments)
 
 
-class NodeView3D(QWidget):
+class NodeView3D(DrawnWhenShown, QWidget):
     """The scene in a rotatable OpenGL view (pyqtgraph.opengl), a legend above; build it only when
     :func:`~snreg_gui.common.node_views.opengl_available`. Each node's 90 % error ellipsoid is drawn as its three
     principal rings, faint, in the node's colour. The camera fits every node whenever the scene's extent changes, the
@@ -80,8 +81,8 @@ class NodeView3D(QWidget):
         layout.addWidget(self.legend)
         layout.addWidget(self.view, 1)
 
-    def show_scene(self, scene: NodeScene) -> None:
-        self.scene_shown = scene
+    def _draw_scene(self, scene: NodeScene) -> None:
+        """Draw ``scene`` (visible: :class:`~snreg_gui.common.node_scene.DrawnWhenShown` calls it)."""
         self.legend.setText(scene.legend())
         preop, intraop, segments = xyz_of(scene.preop), xyz_of(scene.intraop), scene.pair_segments()
         marks = np.vstack([xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks)])

@@ -2,12 +2,11 @@
 
 Why: pyqtgraph's OpenGL view needs PyOpenGL and a working OpenGL context, which remote desktops, virtual machines and
 offscreen test runs often lack; this view shows the same :class:`~snreg_gui.common.node_scene.NodeScene` with plain
-2D plots (items made once, then ``setData``). Its labels (their texts, then their places, each against every other in
-pixels: most of a redraw's cost) are laid out only while the view is visible: a node stored during acquisition redraws
-the registration tab's view behind the acquisition tab twice (the new node, then its registration), and laying its
-labels out there cost the GUI thread ~40 ms per store (issue 36). A hidden view sets its markers, lines and range at
-once and lays its labels out when it is next shown, or when asked for them (:meth:`ThreeViewPlot.label_texts`,
-:meth:`~ThreeViewPlot.label_boxes`).
+2D plots (items made once, then ``setData``). A scene given while the view is hidden (the registration tab behind the
+acquisition tab, given a scene after each store and each automatic registration) is drawn only when the view is next
+shown (:class:`~snreg_gui.common.node_scene.DrawnWhenShown`, issue 36). Its labels (their texts, then their places,
+each against every other in pixels: most of a redraw's cost) are placed again after every change of a projection's
+range or size while the view is visible; one that changes while it is hidden waits for it to be shown.
 """
 
 from __future__ import annotations
@@ -19,8 +18,8 @@ from PySide6.QtCore import QPointF, Qt
 from snreg.registration.report import INTRAOP_COLOUR, PAIR_COLOUR, PREOP_COLOUR, VIEWS
 from snreg_gui.common.ellipses import ellipse_shadows
 from snreg_gui.common.label_layout import place_labels
-from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, NodeScene, label_font,
-                                        xyz_of)
+from snreg_gui.common.node_scene import (ELLIPSE_ALPHA, LANDMARK_COLOUR, MISSING_COLOUR, DrawnWhenShown, NodeScene,
+                                        label_font, xyz_of)
 
 LEGEND_MIN_PX = 200         # the legend's narrowest wrapping width
 LEGEND_MARGIN_PX = 20       # beside it, each side
@@ -36,7 +35,7 @@ def _faint(colour: str) -> pg.QtGui.QPen:
     return pg.mkPen(faint, width=1)
 
 
-class ThreeViewPlot(pg.GraphicsLayoutWidget):
+class ThreeViewPlot(DrawnWhenShown, pg.GraphicsLayoutWidget):
     """Three projections of the trocar frame (along z: x-y, along y: x-z, along x: y-z): preop as blue rings (orange
     when not found yet), intraop as red crosses, landmarks as green diamonds (hollow: CT, filled: touched), each node's
     90 % error ellipsoid as its shadow (faint, in the node's colour), a legend above; labels beside their markers,
@@ -86,7 +85,7 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             plot.vb.sigTransformChanged.connect(lambda _=None, k=column: self._place_labels(k))
 
     def showEvent(self, event) -> None:                          # noqa: N802 (Qt's name)
-        """Lay out the labels that changed while the view was hidden."""
+        """Draw the scene given while the view was hidden, and place the labels whose projection changed meanwhile."""
         super().showEvent(event)
         self._lay_out_unplaced()
 
@@ -98,8 +97,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
             self.legend.updateMin()
         super().resizeEvent(event)
 
-    def show_scene(self, scene: NodeScene) -> None:
-        self.scene_shown = scene
+    def _draw_scene(self, scene: NodeScene) -> None:
+        """Draw ``scene`` (visible: :class:`~snreg_gui.common.node_scene.DrawnWhenShown` calls it)."""
         self.legend.setText(scene.legend())
         preop, intraop, segments = xyz_of(scene.preop), xyz_of(scene.intraop), scene.pair_segments()
         marks_ct, marks_touched = xyz_of(scene.preop_landmarks), xyz_of(scene.intraop_landmarks)
@@ -126,10 +125,8 @@ class ThreeViewPlot(pg.GraphicsLayoutWidget):
                 item.setData(x=xyz[:, h], y=xyz[:, v])
             self._anchors[k] = np.vstack([preop[:, [h, v]], intraop[:, [h, v]], marks_ct[:, [h, v]],
                                           marks_touched[:, [h, v]]])
-            self.unplaced.add(k)
             self._fit(self.plots[k], np.vstack([self._anchors[k]] + outlines))
-            if self.isVisible():
-                self._lay_out(k)
+            self._lay_out(k)
 
     def _lay_out(self, k: int) -> None:
         """Projection ``k``'s labels: their texts, then their places."""
