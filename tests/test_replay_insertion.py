@@ -102,3 +102,23 @@ def test_a_replay_of_a_session_recorded_without_tracking_keeps_the_chains_consta
     assert len(nodes) == 2 and all(np.isnan(n.trocar_camera_mm) for n in nodes)
     first, second = node_errors(nodes)
     assert first < 1.5 and second > 18.0              # the slide unseen, as recorded
+
+
+@pytest.mark.slow
+def test_the_apps_switch_tracks_a_replays_insertion_and_the_screen_says_why_not(recorded, qapp, tmp_path):
+    from PySide6.QtCore import QSettings
+
+    from snreg_gui.acquisition.options import AcquisitionOptions
+    options = AcquisitionOptions(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
+    rigs = [ReplayRig(path) for path in recorded]
+    try:
+        tracked, untracked = rigs
+        assert options.tracks_insertion(tracked) and not options.tracks_insertion(untracked)
+        assert options.untracked_text(untracked) == ("camera insertion not tracked: the replayed session was recorded "
+                                                     "without it")
+        options.track_insertion.setChecked(False)
+        assert not options.tracks_insertion(tracked)
+        assert "(Devices > Track the camera's insertion)" in options.untracked_text(tracked)
+    finally:
+        for rig in rigs:
+            rig.close()
