@@ -6,7 +6,8 @@ The recordings: the camera sliding 20 mm between two nodes (tests/surgery_frames
 IMU gives at that still orientation. A fused IMU without a magnetometer starts its heading at 0 (snreg/imu/fusion.py)
 while the world's IMU has a heading of about 10 degrees, so the sessions are recorded in the fused IMU's earth frame
 (the world's turned by its heading about the vertical) with the trocar's orientation in that frame: the same
-geometry, as a pivot calibration with that IMU would have found it."""
+geometry, as a pivot calibration with that IMU would have found it. (Without an IMU stream a replay's IMU is absent,
+taken as level: the identity, and the nodes come out some 300 mm away.)"""
 
 from dataclasses import replace
 
@@ -16,6 +17,7 @@ from conftest import start_video
 from scipy.spatial.transform import Rotation
 from surgery_frames import NODE_A, NODE_B, START_MM, SlidingWorld, slide_then_rest
 
+from snreg.chain import ChainCalibration
 from snreg.demo.replay import ReplayRig, replay_headless
 from snreg.geometry import make_transform
 from snreg.odometry import InsertionTracker
@@ -25,12 +27,14 @@ from snreg.workflow.acquisition import Acquisition, ImuReading
 pytestmark = pytest.mark.realtime            # the IMU stream replays at its own pace (tests/conftest.py)
 
 WINDOW = 4
-IMU_LEAD_S = 1.0        # the IMU records this long before the first pair: its fusion settles on gravity meanwhile
+REST = 6                # pairs at each node: a replay's window may be full and still on any of the last three
+IMU_LEAD_S = 2.0        # the IMU records this long before the first pair: its fusion settles on gravity meanwhile,
+                        # and a reader starved for a while (a loaded machine) still stamps settled samples near them
 IMU_PERIOD_NS = 4_807_692                     # 208 Hz
-SPEED = 4.0
+SPEED = 1.0             # the IMU lines at 208 Hz, as a real one sends them
 
 
-def fused_frame(world: SlidingWorld) -> tuple[np.ndarray, object]:
+def fused_frame(world: SlidingWorld) -> tuple[np.ndarray, ChainCalibration]:
     """(earth_from_imu as the fused IMU gives it (3, 3): heading 0, the world's tilt; the chain in that earth frame)."""
     earth_from_imu = world.pose(START_MM)[1]
     heading = Rotation.from_euler("z", Rotation.from_matrix(earth_from_imu).as_euler("ZYX")[0])
@@ -41,11 +45,11 @@ def fused_frame(world: SlidingWorld) -> tuple[np.ndarray, object]:
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """(tracked, untracked): the same pairs recorded with video and a still IMU stream, SN1 stored on node A at the
+    """(tracked, untracked, earth_from_imu): the same pairs recorded with video and a still IMU stream, SN1 stored on node A at the
     start and SN2 on node B after the slide; tracked from the chain's distance, or not tracked."""
     world = SlidingWorld()
     earth_from_imu, chain = fused_frame(world)
-    pairs = slide_then_rest(world, rest=WINDOW)
+    pairs = slide_then_rest(world, rest=REST)
     t_imu = np.arange(-round(IMU_LEAD_S * 1e9), pairs[-1].frame.t_left_ns + 100_000_000, IMU_PERIOD_NS)
     gravity = earth_from_imu.T @ [0.0, 0.0, 1.0]                # what the accelerometer reads at rest, g
     folder = tmp_path_factory.mktemp("replay-insertion")
@@ -61,12 +65,12 @@ def recorded(tmp_path_factory):
                                       video_fps=30.0, insertion=tracker, clock=lambda: pairs[-1].frame.t_left_ns)
             for k, pair in enumerate(pairs):
                 acquisition.process(pair.frame, ImuReading(earth_from_imu))
-                if k == WINDOW - 1:
+                if k == REST - 1:
                     acquisition.store("SN1", "")
             acquisition.store("SN2", "")
             assert session.video_state().dropped == 0
         paths.append(path)
-    return paths
+    return *paths, earth_from_imu
 
 
 def node_errors(nodes) -> list[float]:
@@ -76,7 +80,7 @@ def node_errors(nodes) -> list[float]:
 @pytest.mark.slow
 def test_a_replay_tracks_the_insertion_a_session_tracked_live_and_maps_its_nodes_where_the_camera_was(recorded,
                                                                                                      tmp_path):
-    tracked, _ = recorded
+    tracked, _, earth_from_imu = recorded
     rig = ReplayRig(tracked)
     try:
         assert rig.moving_camera                      # so the app's switch tracks it (options.tracks_insertion)
@@ -86,13 +90,15 @@ def test_a_replay_tracks_the_insertion_a_session_tracked_live_and_maps_its_nodes
     assert len(nodes) == 2
     assert [n.trocar_camera_mm for n in nodes] == pytest.approx([START_MM, START_MM + 20.0], abs=0.5)
     assert max(node_errors(nodes)) < 1.5
+    for node in nodes:                                # the IMU stream through the serial reader and the fusion
+        assert np.degrees(Rotation.from_matrix(node.earth_from_imu.T @ earth_from_imu).magnitude()) < 0.5
     with Session.open(tmp_path / "again.h5") as session:
         assert len(session.stream("camera")) > 0     # a replay of it tracks it live too, and so on
 
 
 @pytest.mark.slow
 def test_a_replay_of_a_session_recorded_without_tracking_keeps_the_chains_constant(recorded, tmp_path):
-    _, untracked = recorded
+    _, untracked, _ = recorded
     rig = ReplayRig(untracked)
     try:
         assert not rig.moving_camera
@@ -110,7 +116,7 @@ def test_the_apps_switch_tracks_a_replays_insertion_and_the_screen_says_why_not(
 
     from snreg_gui.acquisition.options import AcquisitionOptions
     options = AcquisitionOptions(QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat))
-    rigs = [ReplayRig(path) for path in recorded]
+    rigs = [ReplayRig(path) for path in recorded[:2]]
     try:
         tracked, untracked = rigs
         assert options.tracks_insertion(tracked) and not options.tracks_insertion(untracked)
