@@ -45,8 +45,8 @@ def fused_frame(world: SlidingWorld) -> tuple[np.ndarray, ChainCalibration]:
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """(tracked, untracked, earth_from_imu): the same pairs recorded with video and a still IMU stream, SN1 stored on node A at the
-    start and SN2 on node B after the slide; tracked from the chain's distance, or not tracked."""
+    """(tracked, untracked, earth_from_imu): the same pairs recorded with video and a still IMU stream, SN1 stored on
+    node A at the start and SN2 on node B after the slide; tracked from the chain's distance, or not tracked."""
     world = SlidingWorld()
     earth_from_imu, chain = fused_frame(world)
     pairs = slide_then_rest(world, rest=REST)

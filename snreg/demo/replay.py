@@ -11,10 +11,10 @@ are the session's. A session recorded without an IMU replays with an absent one.
 The camera's insertion is tracked in the replay when the recorded session tracked it live (the rule re-tracking's
 "auto" follows, :func:`~snreg.workflow.retrack.insertion_tracked_live`): a surgery session's endoscope slid in its
 trocar, and its nodes are mapped where the replayed video shows the camera, as live. Like the live acquisition's, the
-tracker starts at the session chain's distance (the live run's start is on record: the first tracked ``streams/camera``
-row, and in the app's sessions the ``acquisition_started`` event's "tracked, from ... mm"; it is elsewhere only when
-the live tracker went on from an earlier run's insertion, "resumed at", or the chain was calibrated again since). A session recorded without
-tracking replays at the chain's constant, as it was recorded.
+tracker starts at the session chain's distance (the live run's start is on record: the first tracked
+``streams/camera`` row, and in the app's sessions the ``acquisition_started`` event's "tracked, from ... mm"; it is
+elsewhere only when the live tracker went on from an earlier run's insertion, "resumed at", or the chain was
+calibrated again since). A session recorded without tracking replays at the chain's constant, as it was recorded.
 """
 
 from __future__ import annotations
