@@ -107,6 +107,9 @@ def test_the_app_replays_a_session_into_a_new_one(qtbot, recorded_video, tmp_pat
         qtbot.waitUntil(lambda: window.acquisition._last_result is not None, timeout=30_000)
         assert "replay of s.h5 (4x)" in window.windowTitle()
         qtbot.waitUntil(lambda: "\nvideo: " in window.acquisition.video_health.text(), timeout=10_000)
+        assert window.worker.acquisition.insertion is None         # recorded without tracking (its streams/camera)
+        assert window.acquisition.insertion_line.text() == ("camera insertion not tracked: the replayed session was "
+                                                            "recorded without it")
         replayed = window.session.path
     finally:
         window._end_confirmed = True

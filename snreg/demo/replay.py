@@ -7,6 +7,14 @@ frame source, paced as recorded or ``speed`` times faster); the IMU samples go o
 :class:`~snreg.imu.monitor.ImuMonitor` (serial reader and fusion) as a real IMU, both counted from one recorded
 origin and started at one host time, so each frame meets the orientation it met when recorded. Calibration and chain
 are the session's. A session recorded without an IMU replays with an absent one.
+
+The camera's insertion is tracked in the replay when the recorded session tracked it live (the rule re-tracking's
+"auto" follows, :func:`~snreg.workflow.retrack.insertion_tracked_live`): a surgery session's endoscope slid in its
+trocar, and its nodes are mapped where the replayed video shows the camera, as live. Like the live acquisition's, the
+tracker starts at the session chain's distance (the live run's start is on record: the first tracked
+``streams/camera`` row, and in the app's sessions the ``acquisition_started`` event's "tracked, from ... mm"; it is
+elsewhere only when the live tracker went on from an earlier run's insertion, "resumed at", or the chain was
+calibrated again since). A session recorded without tracking replays at the chain's constant, as it was recorded.
 """
 
 from __future__ import annotations
@@ -23,12 +31,15 @@ from snreg.demo.imu_simulator import Faults, Readings, SimulatedPort, _LineSourc
 from snreg.errors import SourceError
 from snreg.imu.monitor import ImuMonitor
 from snreg.imu.protocol import DEVICE_CLOCK_WRAP_US
+from snreg.odometry import InsertionTracker
 from snreg.probe import default_probe_model
 from snreg.rig.hardware import AbsentImu
 from snreg.session import Session, SessionError
 from snreg.session.playback import RecordedFeed, recorded_origin_ns
 from snreg.session.reader import readable_rows
 from snreg.sources import FrameSource
+from snreg.workflow.acquisition import Acquisition, ImuReading
+from snreg.workflow.retrack import insertion_tracked_live
 
 _PORT_START_TIMEOUT_S = 10.0
 
@@ -54,11 +65,12 @@ class RecordedImu(_LineSource):
 class ReplayRig:
     """A :class:`~snreg.rig.protocols.Rig` that plays a recorded session back ``speed`` times faster than recorded.
 
+    ``moving_camera``: the recorded session tracked the camera's insertion live, so the replay tracks it too (module
+    docstring).
     SessionError (one sentence) when the session cannot be replayed: unreadable, no video, no stereo calibration.
     """
 
     simulated = True
-    moving_camera = False          # replayed at the trocar calibration's distance, as recorded before issue 27
 
     def __init__(self, path: str | Path, *, speed: float = 1.0):
         self.path, self.speed = Path(path), float(speed)
@@ -68,6 +80,7 @@ class ReplayRig:
             calibration, segments = session.calibration(), session.videos()
             imu = session.stream("imu")
             rows = readable_rows(imu) if hasattr(imu, "id") else np.asarray(imu)
+            self.moving_camera = insertion_tracked_live(session)
         if not segments:
             raise SessionError(f"{self.path} has no recorded video to replay; choose a session recorded with video")
         if "stereo" not in calibration:
@@ -121,15 +134,17 @@ class ReplayRig:
 def replay_headless(path: str | Path, out: str | Path, *, speed: float = 1.0, fixes_per_node: int = 60,
                     case_id: str = "replay", live: bool = False) -> list:
     """Replay ``path`` into a new session ``out`` with auto-store, as the app does with its box ticked (no window);
-    every recorded frame unless ``live`` (then a slow machine skips frames as the app does). Returns the stored
-    nodes (:class:`~snreg.session.IntraopNode`)."""
-    from snreg.workflow.acquisition import Acquisition, ImuReading
+    every recorded frame unless ``live`` (then a slow machine skips frames as the app does); the camera's insertion
+    tracked when the rig's camera moves (:attr:`ReplayRig.moving_camera`), from the chain's distance as the app's
+    acquisition does. Returns the stored nodes (:class:`~snreg.session.IntraopNode`)."""
     rig = ReplayRig(path, speed=speed)
     try:
         with Session.create(out, case_id=case_id) as session:
             session.set_calibration(stereo=rig.calibration, chain=rig.chain)
+            insertion = InsertionTracker(rig.calibration, rig.chain, probe=rig.probe) if rig.moving_camera else None
             acquisition = Acquisition(rig.calibration, rig.probe, rig.chain, session, fixes_per_node=fixes_per_node,
-                                      imu_required=not isinstance(rig.imu, AbsentImu), video_fps=rig.fps)
+                                      imu_required=not isinstance(rig.imu, AbsentImu), video_fps=rig.fps,
+                                      insertion=insertion)
             with rig.frame_source(live=live) as source:
                 for frame in source:
                     outcome = acquisition.process(frame, ImuReading.at_frame(rig.imu, frame))

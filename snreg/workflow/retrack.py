@@ -49,7 +49,7 @@ from snreg.tracking import ProbeFix, StereoTracker, TrackingError, summarise
 from snreg.tracking.uncertainty import NodeUncertainty, node_covariance
 
 __all__ = ["RetrackedNode", "RetrackResult", "VideoInsertion", "retrack", "store_retracked", "window_rows",
-           "INSERTION_SOURCES"]
+           "INSERTION_SOURCES", "insertion_tracked_live"]
 
 INSERTION_SOURCES = ("auto", "video", "chain")
 
@@ -117,6 +117,13 @@ class RetrackResult:
     insertion: VideoInsertion | None = None
 
 
+def insertion_tracked_live(session: Session) -> bool:
+    """Whether ``session`` tracked the camera's insertion live (its ``streams/camera`` has rows): the rule by which
+    re-tracking's "auto" follows the insertion over the video and a replay (:mod:`snreg.demo.replay`) tracks it, so
+    neither imposes the insertion tracker on a session recorded without it (module docstring)."""
+    return len(session.stream("camera")) > 0
+
+
 def window_rows(frame_times_ns: np.ndarray, probe_times_ns: np.ndarray, node: IntraopNode) -> np.ndarray:
     """The ``streams/frames`` rows of a node's store window: the frames of its last ``n_frames`` probe fixes up to its
     time (sorted row indices; fixes whose frame row is not recorded are left out)."""
@@ -138,7 +145,8 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
         stored = session.calibration()
         segments = session.videos()
         nodes = session.intraop_records(kind=None)
-        frames, probe_rows, imu, camera = (_rows(session.stream(name)) for name in ("frames", "probe", "imu", "camera"))
+        frames, probe_rows, imu = (_rows(session.stream(name)) for name in ("frames", "probe", "imu"))
+        tracked_live = insertion_tracked_live(session)
     if not segments:
         raise SessionError(f"{path}: the session has no recorded video; only sessions recorded with video can be "
                            "re-tracked")
@@ -158,7 +166,7 @@ def retrack(path: str | Path, *, calibration: StereoCalibration | None = None, p
     readers = RecordedPairs(path, segments)
     try:
         tracker = StereoTracker(calibration, probe, method=method)
-        if insertion == "video" or (insertion == "auto" and len(camera) > 0):
+        if insertion == "video" or (insertion == "auto" and tracked_live):
             followed, fixes, read = _follow(readers, path, segments, frame_times, imu, calibration, stored["chain"],
                                            probe, tracker, wanted)
         else:

@@ -1,6 +1,6 @@
 """The acquisition settings the operator chooses, remembered between runs (QSettings): the store guard's spread limit
 (set on the acquisition screen), recording the video and tracking the camera's insertion (Devices menu; only on a
-rig whose camera slides in a trocar: the demo phantom's does not).
+rig whose camera slides in a trocar: the demo phantom's does not, nor a replay of a session recorded without it).
 
 Why one place: each is read when the acquisition worker starts, and a change of the two switches restarts it; the
 window only wires them (the keys are also what ``python -m snreg_gui.bench`` sets).
@@ -11,6 +11,7 @@ from __future__ import annotations
 from PySide6.QtCore import QObject, QSettings, Signal
 from PySide6.QtGui import QAction
 
+from snreg.demo.replay import ReplayRig
 from snreg.workflow.acquisition import StoreLimits
 
 MAX_SPREAD_KEY = "acquisition/max_spread_mm"            # the store guard's spread limit (default 2 mm)
@@ -61,6 +62,8 @@ class AcquisitionOptions(QObject):
 
     def untracked_text(self, rig) -> str:
         """What the acquisition screen says when the insertion is not tracked on ``rig``, and why."""
+        if not rig.moving_camera and isinstance(rig, ReplayRig):
+            return "camera insertion not tracked: the replayed session was recorded without it"
         if not rig.moving_camera:
             return "camera insertion not tracked: this rig's camera does not slide in a trocar"
         return ("camera insertion not tracked (Devices > Track the camera's insertion): nodes are mapped at the trocar "
