@@ -55,7 +55,8 @@ from snreg.workflow.insertion import CameraInsertion, insertion_text
 from snreg.workflow.outcome import FrameOutcome, ImuReading
 from snreg.workflow.pair_tracking import TrackedPair
 from snreg.workflow.store_guard import StoreCheck, StoreLimits, nearest_node, same_landmark
-from snreg.workflow.tracking_process import InlineTracking, TrackingProcess, TrackingStopped
+from snreg.workflow.supervised_tracking import SupervisedTracking
+from snreg.workflow.tracking_process import InlineTracking
 
 __all__ = ["Acquisition", "FrameOutcome", "ImuReading", "StoreLimits", "StoreCheck", "StoreError", "StoreRefused",
            "StoreNeedsConfirmation", "THESIS_FIXES_PER_NODE", "IMU_ABSENT"]
@@ -65,6 +66,7 @@ STILL_SPREAD_MM = 1.0           # the store window counts as "held still" below 
 AUTO_STORE_SEPARATION_MM = 10.0  # auto-store only this far from every stored node: one node per rest
 IMU_ABSENT = "absent"            # the IMU state of a rig run without one (chosen in the device dialog)
 VIDEO_START_WAIT_S = 10.0        # for the video encoder to start before the first frame (it runs in its own process)
+INSERTION_ENDED = "no longer tracked since the tracking process ended"   # a lost pair's reason after its death
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,7 +96,9 @@ class Acquisition:
     back at the start. ``uncertainty``: the magnitudes each stored node's covariance is made of (their cited
     defaults unless given). ``tracking_process``: the pairs are tracked in a process of their own
     (:class:`~snreg.workflow.tracking_process.TrackingProcess`: the live app, so its GUI thread never waits for the
-    trackers' GIL), the same steps as in this thread (the default); :meth:`close` ends it.
+    trackers' GIL), the same steps as in this thread (the default), restarted when it dies
+    (:class:`~snreg.workflow.supervised_tracking.SupervisedTracking`: each death in ``tracking_problem``, counted in
+    ``tracking_stops``); :meth:`close` ends it.
     """
 
     def __init__(self, calibration: StereoCalibration, probe: ProbeModel, chain: ChainCalibration, session: Session,
@@ -103,7 +107,8 @@ class Acquisition:
                  video_fps: float | None = None, insertion: InsertionTracker | CameraInsertion | None = None,
                  uncertainty: NodeUncertainty = NodeUncertainty(), tracking_process: bool = False):
         self.tracker = StereoTracker(calibration, probe)
-        self.tracking_problem = ""                 # why the tracking process stopped ("" while it runs, or none)
+        self.tracking_problem = ""                 # the tracking process's last death, in words ("" while none)
+        self.tracking_stops = 0                    # its deaths so far
         self.uncertainty = uncertainty
         self.chain, self.session, self.limits, self.imu_required = chain, session, limits, bool(imu_required)
         self.insertion = CameraInsertion(insertion, chain) if isinstance(insertion, InsertionTracker) else insertion
@@ -116,8 +121,8 @@ class Acquisition:
         self._last_imu: ImuReading | None = None
         self._in_flight: deque[tuple[StereoFrame, ImuReading]] = deque()     # pairs begun, not finished
         tracked_insertion = None if self.insertion is None else self.insertion.tracker
-        self._tracking = (TrackingProcess(calibration, probe, tracked_insertion) if tracking_process else
-                          InlineTracking(self.tracker, tracked_insertion))
+        self._tracking = (SupervisedTracking(self.tracker, calibration, probe, tracked_insertion) if tracking_process
+                          else InlineTracking(self.tracker, tracked_insertion))
         self._stored_here: list[str] = []          # ids stored through this object, for undo
         self.error_sources: dict[str, dict] = {}   # node id -> its covariance by source (nodes stored here)
         self.video_fps, self.video_problem = video_fps, "" if video_fps else "off"
@@ -151,8 +156,6 @@ class Acquisition:
         self._in_flight.append((frame, imu))
         try:
             self._tracking.submit(frame.left, frame.right, imu.earth_from_imu)
-        except TrackingStopped as err:
-            self._track_here(str(err))         # this pair and those in flight, here
         except BaseException:
             self._in_flight.pop()              # tracked here, it raised (a pair of another size): never begun
             raise
@@ -172,11 +175,8 @@ class Acquisition:
         frame, imu = self._in_flight.popleft()
         try:
             tracked = self._tracking.result()          # its error (a pair of another size) is raised here
-        except TrackingStopped as err:
-            self._in_flight.appendleft((frame, imu))
-            self._track_here(str(err))
-            self._in_flight.popleft()
-            tracked = self._tracking.result()
+        finally:
+            self._note_tracking()
         self._last_imu = imu
         fix, reason, tip_trocar, pose = tracked.fix, tracked.reason, None, None
         self._last_reason = reason
@@ -204,32 +204,36 @@ class Acquisition:
 
     def _follow_insertion(self, frame: StereoFrame, imu: ImuReading, tracked: TrackedPair):
         """The insertion at this pair, its ``streams/camera`` row recorded; None without tracking. Lost, in words,
-        once the tracking process stopped (its keyframes went with it)."""
+        once a tracking process died (its keyframes went with it)."""
         if self.insertion is None:
             return None
         estimate = tracked.estimate
         if estimate is None:
             estimate = InsertionEstimate(frame.index, LOST, float("nan"), 0.0, float("nan"), float("nan"),
-                                         self.tracking_problem)
+                                         INSERTION_ENDED)
         step = self.insertion.step(estimate, frame.t_left_ns, imu.earth_from_imu)
         self.session.append_camera(frame.t_left_ns, frame.t_right_ns, estimate.trocar_camera_mm, estimate.state,
                                    estimate.quality, estimate.residual_mm, estimate.sd_mm)
         return step
 
-    def _track_here(self, problem: str) -> None:
-        """The tracking process stopped: say so (``tracking_problem``, on record), and track the pairs in flight and
-        every pair after in this thread, the probe alone (the insertion tracker's keyframes went with the process)."""
-        self.tracking_problem = (f"{problem}; the probe is tracked in the acquisition's thread from now on (slower) "
-                                 "and the camera's insertion is no longer tracked")
-        self.session.log_event("tracking_process_stopped", reason=self.tracking_problem)
-        self._tracking = InlineTracking(self.tracker, None)
-        for frame, imu in self._in_flight:
-            self._tracking.submit(frame.left, frame.right, imu.earth_from_imu)
+    def _note_tracking(self) -> None:
+        """A death of the tracking process (:mod:`~snreg.workflow.supervised_tracking`: restarted, or tracking here
+        for good) said in ``tracking_problem`` and put on record (``tracking_process_stopped``) once each."""
+        stops = getattr(self._tracking, "stops", 0)
+        if stops != self.tracking_stops:
+            self.tracking_stops, self.tracking_problem = stops, self._tracking.problem
+            self.session.log_event("tracking_process_stopped", reason=self.tracking_problem,
+                                   restarted=self._tracking.pid is not None)
 
     @property
     def tracking_pid(self) -> int | None:
         """The tracking process's id (None when pairs are tracked in this process)."""
         return self._tracking.pid
+
+    @property
+    def tracking_answering(self) -> bool:
+        """Pairs are tracked in a tracking process now (False in this process, and while a restarted one starts)."""
+        return bool(getattr(self._tracking, "answering", False))
 
     def close(self) -> None:
         """Finish the pairs in flight (their rows recorded, their outcomes dropped) and end the tracking process; the
