@@ -40,10 +40,11 @@ from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.odometry import InsertionTracker
 from snreg.session import Session, SessionError
 from snreg.sources import FrameSource, SourceError, SourceState
-from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading,
-                                        StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
+from snreg.workflow.acquisition import (THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError,
+                                        StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
 from snreg.workflow.insertion import CameraInsertion
+from snreg.workflow.node_store import IMU_ABSENT
 from snreg.workflow.navigation import NavigationState, navigate, trocar_from_camera_at
 from snreg_gui.acquisition.hot_spots import feed_layer, guidance_text
 
