@@ -58,3 +58,13 @@ def test_a_restarted_device_is_timed_by_its_new_clock():
     after = measured > measured[restart] + 2e9
     assert np.abs(times - measured)[after].max() < 1.0e6
     assert (times <= received).all()
+
+
+def test_a_recording_replayed_at_half_speed_is_timed_by_its_device_clock_at_that_rate():
+    """Its device clock runs half as fast as the host's: read as a sensor's, its samples would fall ever further
+    behind (a second in the ten-second window)."""
+    measured, device, received = stream(4, 20.0)
+    device = (device // 2) % DEVICE_CLOCK_WRAP_US                      # half a device second per host second
+    settled = measured > measured[0] + 2e9
+    assert np.abs(mapped(device, received, rate=0.5) - measured)[settled].max() < 1.0e6
+    assert np.abs(mapped(device, received) - measured)[settled].max() > 0.5e9

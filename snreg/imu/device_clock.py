@@ -9,7 +9,8 @@ time got the orientation of up to half a second before: 2-6 degrees off during a
 measurement's host time, the offset being the smallest ``receive - device`` seen (the samples that waited least,
 whose delay is the latency alone). The minimum is taken over the last :data:`WINDOW_S` seconds, so the two clocks'
 drift (tens of ppm: a few ms a minute) never accumulates, and it starts again when the device restarts (its clock
-jumps) or the stream pauses (a reconnect). A mapped time is never later than its own receive time, and never earlier
+jumps) or the stream pauses (a reconnect). A stream whose device clock runs faster or slower than the host's by
+design (a recording replayed ``speed`` times faster) says so with ``rate``. A mapped time is never later than its own receive time, and never earlier
 than the one before.
 """
 
@@ -26,14 +27,17 @@ PAUSE_S = 2.0       # nothing received for this long (a reconnect, a new device)
 
 
 class DeviceClock:
-    """Maps each sample's device time (us, wrapping at 2^32) to the host clock (ns), in arrival order."""
+    """Maps each sample's device time (us, wrapping at 2^32) to the host clock (ns), in arrival order; ``rate``: device
+    seconds per host second (1 for a sensor; a replay's speed)."""
 
-    def __init__(self, window_s: float = WINDOW_S):
-        self._window_ns = int(window_s * 1e9)
+    def __init__(self, window_s: float = WINDOW_S, *, rate: float = 1.0):
+        if not rate > 0:
+            raise ValueError(f"the device clock's rate must be a positive number, got {rate}")
+        self._window_ns, self._rate = int(window_s * 1e9), float(rate)
         self._offsets: deque[tuple[int, int]] = deque()   # (receive ns, receive - device ns), increasing offsets
         self._last_us: int | None = None
         self._last_receive_ns = 0
-        self._device_ns = 0                                # the device time unwrapped, ns
+        self._device_ns = 0                                # the device time unwrapped, in host ns
         self._last_ns = -(1 << 62)                         # the last time given: times never go backwards
 
     def host_ns(self, t_device_us: int, receive_ns: int) -> int:
@@ -42,9 +46,9 @@ class DeviceClock:
         step = None if self._last_us is None else (t_device_us - self._last_us) % DEVICE_CLOCK_WRAP_US
         if step is None or step > RESTART_GAP_US or receive_ns - self._last_receive_ns > PAUSE_S * 1e9:
             self._offsets.clear()                          # the first sample, a device restart, or a pause
-            self._device_ns = t_device_us * 1000
+            self._device_ns = round(t_device_us * 1000 / self._rate)
         else:
-            self._device_ns += step * 1000
+            self._device_ns += round(step * 1000 / self._rate)
         self._last_us, self._last_receive_ns = t_device_us, receive_ns
         offset = receive_ns - self._device_ns
         while self._offsets and self._offsets[-1][1] >= offset:      # a sliding minimum: increasing offsets kept

@@ -93,13 +93,14 @@ def _time_of(entry: tuple[int, np.ndarray]) -> int:
 
 class ImuMonitor:
     """Reads ``port`` at ``baudrate`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`;
-    thread-safe :meth:`snapshot`; :meth:`orientation_at` waits up to ``wait_s`` for the samples to reach a time."""
+    thread-safe :meth:`snapshot`; :meth:`orientation_at` waits up to ``wait_s`` for the samples to reach a time.
+    ``device_rate``: device seconds per host second (a recording replayed ``speed`` times faster: ``speed``)."""
 
     def __init__(self, port: str, sample_rate_hz: float = 208.0, *, baudrate: int = DEFAULT_BAUD,
-                 wait_s: float = WAIT_S):
+                 wait_s: float = WAIT_S, device_rate: float = 1.0):
         self._lock = threading.Lock()
         self._arrived = threading.Condition(self._lock)     # notified at each sample
-        self._clock = DeviceClock()
+        self._clock = DeviceClock(rate=device_rate)
         self.wait_s = float(wait_s)
         self.waiting = 0                                     # calls of orientation_at waiting for a sample now
         self._fusion = Fusion(sample_rate_hz)
