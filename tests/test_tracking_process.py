@@ -17,6 +17,7 @@ from snreg.session import Session
 from snreg.tracking import StereoTracker
 from snreg.workflow.acquisition import INSERTION_ENDED, Acquisition
 from snreg.workflow.pair_tracking import track_pair
+from snreg.workflow import supervised_tracking
 from snreg.workflow.supervised_tracking import RESTARTS
 from snreg.workflow.tracking_child import NICER
 
@@ -180,6 +181,26 @@ def test_a_process_dying_again_and_again_ends_in_tracking_here_said_in_words(wor
     assert [e["restarted"] for e in events] == [True] * RESTARTS + [False]
     assert all(process_gone(pid) for pid in killed)
     assert len(created_segments) == RESTARTS + 1 and not created_segments & shared_memory_segments()
+
+
+def test_a_process_that_cannot_be_started_again_ends_in_tracking_here_at_once(world, pairs, tmp_path, monkeypatch,
+                                                                               created_segments):
+    with Session.create(tmp_path / "none.h5", case_id="none-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+
+        def cannot(*args, **kwargs):
+            raise OSError(24, "Too many open files")
+        monkeypatch.setattr(supervised_tracking, "TrackingProcess", cannot)
+        killed = acq.tracking_pid
+        os.kill(killed, signal.SIGKILL)
+        assert acq.process(pairs[0].frame, pairs[0].imu).fix is not None
+        assert acq.tracking_pid is None and acq.tracking_stops == 1
+        assert acq.tracking_problem == ("the tracking process ended (killed by signal 9); a new one could not be "
+                                        "started ([Errno 24] Too many open files); the probe is tracked in the "
+                                        "acquisition's thread from now on (slower); the camera's insertion is no "
+                                        "longer tracked")
+        acq.close()
+    assert process_gone(killed) and not created_segments & shared_memory_segments()
 
 
 KILLED_PARENT = """

@@ -126,11 +126,15 @@ class SupervisedTracking:
                 entry[0] = _HERE
                 self._here.submit(*entry[1:])
         lost = "; the camera's insertion is no longer tracked" if self.insertion_tracked else ""
+        self._child = None
         if self._in_a_row <= self._restarts:
-            self._child, self._born = TrackingProcess(*self._setup, None), time.monotonic()
-            again = f" ({self._in_a_row} times in a row)" if self._in_a_row > 1 else ""
-            self.problem = f"{problem}; restarted{again}{lost}"
-        else:
-            self._child = None
-            self.problem = (f"{problem}, {self._in_a_row} times in a row; the probe is tracked in the acquisition's "
-                            f"thread from now on (slower){lost}")
+            try:
+                self._child, self._born = TrackingProcess(*self._setup, None), time.monotonic()
+            except OSError as err:                  # no process can be started now (out of memory, of processes)
+                problem = f"{problem}; a new one could not be started ({err})"
+            else:
+                again = f" ({self._in_a_row} times in a row)" if self._in_a_row > 1 else ""
+                self.problem = f"{problem}; restarted{again}{lost}"
+                return
+        times = f", {self._in_a_row} times in a row" if self._in_a_row > 1 else ""
+        self.problem = f"{problem}{times}; the probe is tracked in the acquisition's thread from now on (slower){lost}"
