@@ -160,6 +160,27 @@ def test_a_killed_process_is_restarted_and_a_node_stored_after_is_where_it_is(wo
     assert len(created_segments) == 2 and not created_segments & shared_memory_segments()
 
 
+def test_a_pair_of_another_size_while_the_process_restarts_leaves_the_pairs_in_order(world, pairs, tmp_path):
+    """Tracked here (the probe alone: no fix) or by the new process if it runs already (the insertion tracker's
+    error), it never puts the outcomes after it out of step."""
+    with Session.create(tmp_path / "size-again.h5", case_id="size-again-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        os.kill(acq.tracking_pid, signal.SIGKILL)
+        assert acq.process(pairs[0].frame, pairs[0].imu).fix is not None and acq.tracking_stops == 1
+        small = pairs[1].frame
+        try:
+            acq.begin(type(small)(small.left[::2], small.right[::2], small.t_left_ns, small.t_right_ns, 1),
+                      pairs[1].imu)
+            assert acq.finish().fix is None
+        except ValueError as err:
+            assert "calibration" in str(err)
+        assert acq.in_flight == 0
+        after = run_ahead(acq, pairs[2:5])
+        assert [o.index for o in after] == [p.frame.index for p in pairs[2:5]]
+        assert all(o.fix is not None for o in after)
+        acq.close()
+
+
 def test_a_process_dying_again_and_again_ends_in_tracking_here_said_in_words(world, pairs, tmp_path,
                                                                             created_segments):
     with Session.create(tmp_path / "again.h5", case_id="again-1", stream_flush_s=0) as session:

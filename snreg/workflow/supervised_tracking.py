@@ -47,7 +47,8 @@ class SupervisedTracking:
         self._child: TrackingProcess | None = TrackingProcess(calibration, probe, insertion)
         self._first = self._child                   # the child with the insertion tracker (close hands it back)
         self._born = time.monotonic()
-        self._flight: collections.deque[list] = collections.deque()   # per pair: [where, left, right, earth_from_imu]
+        # per pair in flight: [where, left, right, earth_from_imu, its error when tracked here after its child died]
+        self._flight: collections.deque[list] = collections.deque()
         self._in_a_row = 0                          # deaths since a child last tracked a pair
         self.insertion_tracked = insertion is not None
         self.problem = ""                           # the last death and what followed, in words ("" while none)
@@ -68,9 +69,10 @@ class SupervisedTracking:
         if self._child is not None and not self._child.answering and self._child is not self._first:
             self._check_starting()
         where = _CHILD if self._child is not None and (self._child is self._first or self._child.answering) else _HERE
-        self._flight.append([where, left, right, earth_from_imu])
         if where == _HERE:
-            self._here.submit(left, right, earth_from_imu)
+            self._here.submit(left, right, earth_from_imu)      # its error (a pair of another size) raised now
+        self._flight.append([where, left, right, earth_from_imu, None])
+        if where == _HERE:
             return
         try:
             self._child.submit(left, right, earth_from_imu)
@@ -96,7 +98,9 @@ class SupervisedTracking:
             self._flight.popleft()
             self._in_a_row = 0                # a child tracked a pair: the next death starts the count again
             return tracked
-        self._flight.popleft()
+        error = self._flight.popleft()[4]
+        if error is not None:                     # the pair a dead child had, of another size: its error, here
+            raise error
         return self._here.result()
 
     def close(self) -> InsertionTracker | None:
@@ -124,7 +128,10 @@ class SupervisedTracking:
         for entry in self._flight:
             if entry[0] == _CHILD:
                 entry[0] = _HERE
-                self._here.submit(*entry[1:])
+                try:
+                    self._here.submit(*entry[1:4])
+                except Exception as err:          # raised where that pair is finished, as the child would
+                    entry[4] = err
         lost = "; the camera's insertion is no longer tracked" if self.insertion_tracked else ""
         self._child = None
         if self._in_a_row <= self._restarts:
