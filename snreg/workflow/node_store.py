@@ -4,10 +4,11 @@ runs, beside the half each pair runs.
 
 A store is refused, with the reason in words and on record in the session's events (``store_refused``), when the
 window is not full, its newest fix is stale (the probe is out of view), the IMU is absent or stale (unless the
-acquisition runs without an IMU by choice) or the window spreads over the limit (:class:`StoreLimits`, 2 mm by
-default); a store within ``duplicate_mm`` of a stored node needs ``confirmed=True``
-(:class:`~snreg.errors.StoreNeedsConfirmation` names that node). Auto-store keeps its stricter rule (held still
-within ``STILL_SPREAD_MM``, over ``AUTO_STORE_SEPARATION_MM`` from every stored node and landmark) on top of the guard.
+acquisition runs without an IMU by choice) or the window spreads over the limit
+(:class:`~snreg.workflow.store_guard.StoreLimits`, 2 mm by default); a store within ``duplicate_mm`` of a stored node
+needs ``confirmed=True`` (:class:`~snreg.errors.StoreNeedsConfirmation` names that node). Auto-store keeps its stricter
+rule (held still within the acquisition's ``STILL_SPREAD_MM``, over :data:`AUTO_STORE_SEPARATION_MM` from every stored
+node and landmark) on top of the guard.
 
 Store landmark (issue 29) stores the window as an anatomical landmark (kind ``landmark``, id = its name, provenance as
 a node's) under the same guard; a landmark of that name already stored asks first, and confirmed, the new one replaces
