@@ -68,3 +68,13 @@ def test_a_recording_replayed_at_half_speed_is_timed_by_its_device_clock_at_that
     settled = measured > measured[0] + 2e9
     assert np.abs(mapped(device, received, rate=0.5) - measured)[settled].max() < 1.0e6
     assert np.abs(mapped(device, received) - measured)[settled].max() > 0.5e9
+
+
+def test_a_reader_kept_from_running_for_seconds_keeps_the_offset_it_knew():
+    """Three seconds without a sample arriving, then everything measured meanwhile at once, and the sender behind by
+    half a second from then on: the samples are still timed when they were measured."""
+    measured, device, received = stream(5, 28.0)                       # within the window of the last timely one
+    starved = np.flatnonzero(measured >= measured[0] + 10e9)[0]
+    received[starved:] = np.maximum(measured[starved:] + 500_000_000, measured[starved] + 3_000_000_000)
+    times = mapped(device, received)
+    assert np.abs(times - measured)[measured > measured[0] + 2e9].max() < 1.0e6
