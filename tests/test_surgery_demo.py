@@ -128,7 +128,8 @@ def test_the_simulated_imu_reports_the_rendered_orientation_at_each_frame_throug
     # moving frame), the max a single frame's. Under load (two CPU hogs beside other work, load 10-16 on 2 cores) the
     # simulator's samples arrived in bursts up to 0.5-1.5 s late: stamped on arrival and asked for before they came,
     # they gave frames the orientation of up to a second before (largest 2.5-22 deg during a turn); timed by the device
-    # clock and waited for (snreg.imu.device_clock, ImuMonitor.orientation_at), the largest was 0.13 deg there
+    # clock and waited for (snreg.imu.device_clock, ImuMonitor.orientation_at), the largest was 0.13 deg in most runs
+    # (at load 22-26 some still fail at 8.55 deg: the simulator's held rest out of step with the feed; docs/changelog)
     spread = (np.median(errors[moving]), np.percentile(errors, 95), errors.max())
     assert spread[0] < 0.15 and spread[1] < 0.4 and spread[2] < 2.0, spread
 
