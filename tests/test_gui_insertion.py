@@ -354,21 +354,23 @@ def test_the_review_shows_the_insertion_over_time_with_the_lost_stretch_and_the_
     assert screen.node_table.item(0, column).text() == "" and "insertion not tracked" in screen.header.text()
 
 
-def test_a_killed_tracking_process_is_said_and_a_stopped_worker_leaves_no_process_nor_shared_memory(
+def test_a_killed_tracking_process_is_restarted_and_said_and_a_stopped_worker_leaves_no_process_nor_shared_memory(
         qtbot, open_window, world, pairs, created_segments):
     window = open_window(SlidingRig(world, pairs))
     screen = window.acquisition
     qtbot.waitUntil(lambda: screen.store_reason.text().startswith("ready"), timeout=TIMEOUT_MS)
     press(qtbot, screen, Qt.Key.Key_F5)
     qtbot.waitUntil(lambda: screen.nodes.rowCount() == 1, timeout=TIMEOUT_MS)
-    os.kill(window.worker.acquisition.tracking_pid, signal.SIGKILL)
-    qtbot.waitUntil(lambda: screen.store_status.text().startswith("Tracking: the tracking process stopped"),
-                    timeout=TIMEOUT_MS)
-    assert screen.store_status.text().endswith("the camera's insertion is no longer tracked.")
-    qtbot.waitUntil(lambda: screen.insertion_line.text().startswith("camera LOST (the tracking process stopped"),
-                    timeout=TIMEOUT_MS)
+    killed = window.worker.acquisition.tracking_pid
+    os.kill(killed, signal.SIGKILL)
+    qtbot.waitUntil(lambda: screen.store_status.text() == "Tracking: the tracking process ended (killed by signal 9); "
+                    "restarted; the camera's insertion is no longer tracked.", timeout=TIMEOUT_MS)
+    qtbot.waitUntil(lambda: screen.insertion_line.text().startswith("camera LOST (no longer tracked since the "
+                                                                    "tracking process ended)"), timeout=TIMEOUT_MS)
+    acquisition = window.worker.acquisition             # the probe tracked in the new process
+    qtbot.waitUntil(lambda: acquisition.tracking_answering and acquisition.tracking_pid != killed, timeout=TIMEOUT_MS)
     fixes = len(window.session.stream("probe"))
-    qtbot.waitUntil(lambda: len(window.session.stream("probe")) > fixes, timeout=TIMEOUT_MS)   # tracked here now
+    qtbot.waitUntil(lambda: len(window.session.stream("probe")) > fixes, timeout=TIMEOUT_MS)
     assert [n.id for n in window.session.intraop_records()] == ["SN1"]
     assert len(window.session.events("tracking_process_stopped")) == 1
     window.restart_acquisition()                        # a new worker, a new tracking process

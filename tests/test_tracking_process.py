@@ -1,22 +1,24 @@
 """The live loop's tracking in a process of its own (issue 36): the same pairs give the same fixes, reasons and
-insertions as tracking in the caller's thread, pairs begun ahead come back in their order, a killed process is said
-in words while the acquisition goes on with its nodes, and closing leaves no process, no shared memory, and the
-insertion tracker back in this process. Rendered pairs of tests/surgery_frames.py, seeded."""
+insertions as tracking in the caller's thread, pairs begun ahead come back in their order, a killed process is
+restarted (after repeated deaths: tracking here for good), said in words, while the feed and the stored nodes go on,
+and closing leaves no process, no shared memory, and the insertion tracker back in this process. Rendered pairs of tests/surgery_frames.py, seeded."""
 
 import os
 import signal
 
 import numpy as np
 import pytest
-from conftest import parent_to_kill, poll, process_gone, shared_memory_segments
+from conftest import holds, parent_to_kill, poll, process_gone, shared_memory_segments
 from surgery_frames import NODE_A, START_MM, slide_then_rest
 from test_acquisition_insertion import WINDOW, Clock, world  # noqa: F401  (world: the sliding scene, a fixture)
 
 from snreg.odometry import InsertionTracker
 from snreg.session import Session
 from snreg.tracking import StereoTracker
-from snreg.workflow.acquisition import Acquisition
+from snreg.workflow.acquisition import INSERTION_ENDED, Acquisition
 from snreg.workflow.pair_tracking import track_pair
+from snreg.workflow import supervised_tracking
+from snreg.workflow.supervised_tracking import RESTARTS
 from snreg.workflow.tracking_child import NICER
 
 
@@ -115,26 +117,111 @@ def test_a_pair_of_another_size_raises_its_error_where_it_is_finished_as_here(wo
         acq.close()
 
 
-def test_a_killed_process_is_said_in_words_and_the_acquisition_goes_on_with_every_node(world, pairs, tmp_path,
-                                                                                      created_segments):
+def feed_until(world, acq, done, first_index, timeout_s=60.0):
+    """Begin and finish pairs held on node A, one at a time as a feed brings them, until ``done()`` holds (polled
+    between pairs, never raising) or ``timeout_s`` passes; the outcomes."""
+    import time
+    outcomes, deadline, index = [], time.monotonic() + timeout_s, first_index
+    while not holds(done) and time.monotonic() < deadline:
+        outcomes.append(acq.process(world.pair(index, START_MM, NODE_A).frame, world.pair(index, START_MM).imu))
+        index += 1
+    assert holds(done), "the tracking process did not come back"
+    return outcomes
+
+
+def test_a_killed_process_is_restarted_and_a_node_stored_after_is_where_it_is(world, pairs, tmp_path,
+                                                                             created_segments):
     with Session.create(tmp_path / "killed.h5", case_id="killed-1", stream_flush_s=0) as session:
         acq = acquisition(world, session, True)
         run_ahead(acq, pairs[:WINDOW])
         first = acq.store("SN1", "")
+        killed = acq.tracking_pid
+        os.kill(killed, signal.SIGKILL)                 # before the pair is begun: it is never answered there
         acq.begin(pairs[WINDOW].frame, pairs[WINDOW].imu)
-        os.kill(acq.tracking_pid, signal.SIGKILL)
-        outcomes = run_ahead(acq, [world.pair(20 + k, START_MM, NODE_A) for k in range(WINDOW)])
-        assert acq.tracking_pid is None and "the tracking process stopped" in acq.tracking_problem
-        assert "no longer tracked" in acq.tracking_problem
-        assert all(o.fix is not None for o in outcomes)                  # the probe: tracked here from then on
-        assert all(not o.insertion.estimate.tracked and o.insertion.estimate.reason == acq.tracking_problem
-                   for o in outcomes)
+        assert acq.finish().fix is not None                              # the pair it had: tracked here
+        assert acq.tracking_problem == ("the tracking process ended (killed by signal 9); restarted; the camera's "
+                                        "insertion is no longer tracked")
+        assert process_gone(killed) and acq.tracking_pid not in (None, killed)
+        # the feed goes on (tracked here) while the new process starts, then every pair is tracked there again
+        assert poll(lambda: acq.tracking_answering)
+        outcomes = run_ahead(acq, [world.pair(40 + k, START_MM, NODE_A) for k in range(WINDOW)])
+        assert acq.tracking_answering and acq.tracking_stops == 1
+        assert all(o.fix is not None for o in outcomes)
+        assert all(not o.insertion.estimate.tracked and o.insertion.estimate.reason == INSERTION_ENDED
+                   for o in outcomes)                                    # its keyframes went with the process
         second = acq.store("SN2", "", confirmed=True)
         acq.close()
-        events = [e["kind"] for e in session.events()]
+        events = session.events("tracking_process_stopped")
         nodes = [n.id for n in session.intraop_records()]
-    assert "tracking_process_stopped" in events and nodes == [first.id, second.id]
-    assert created_segments and not created_segments & shared_memory_segments()
+    assert nodes == [first.id, second.id] and len(events) == 1 and events[0]["restarted"] is True
+    # the same node, before and after: mapped at the insertion held (the camera did not move)
+    assert np.linalg.norm(second.xyz_trocar - first.xyz_trocar) < 0.3
+    assert np.linalg.norm(second.xyz_trocar - NODE_A) < 1.5
+    assert len(created_segments) == 2 and not created_segments & shared_memory_segments()
+
+
+def test_a_pair_of_another_size_while_the_process_restarts_leaves_the_pairs_in_order(world, pairs, tmp_path):
+    """Tracked here (the probe alone: no fix) or by the new process if it runs already (the insertion tracker's
+    error), it never puts the outcomes after it out of step."""
+    with Session.create(tmp_path / "size-again.h5", case_id="size-again-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        os.kill(acq.tracking_pid, signal.SIGKILL)
+        assert acq.process(pairs[0].frame, pairs[0].imu).fix is not None and acq.tracking_stops == 1
+        small = pairs[1].frame
+        try:
+            acq.begin(type(small)(small.left[::2], small.right[::2], small.t_left_ns, small.t_right_ns, 1),
+                      pairs[1].imu)
+            assert acq.finish().fix is None
+        except ValueError as err:
+            assert "calibration" in str(err)
+        assert acq.in_flight == 0
+        after = run_ahead(acq, pairs[2:5])
+        assert [o.index for o in after] == [p.frame.index for p in pairs[2:5]]
+        assert all(o.fix is not None for o in after)
+        acq.close()
+
+
+def test_a_process_dying_again_and_again_ends_in_tracking_here_said_in_words(world, pairs, tmp_path,
+                                                                            created_segments):
+    with Session.create(tmp_path / "again.h5", case_id="again-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+        killed = []
+        for death in range(RESTARTS + 1):           # each new process killed at once, before it tracked a pair
+            killed.append(acq.tracking_pid)
+            os.kill(killed[-1], signal.SIGKILL)
+            outcomes = feed_until(world, acq, lambda: acq.tracking_stops == death + 1, first_index=100 * death)
+            assert all(o.fix is not None for o in outcomes)              # the feed went on, tracked here
+            assert acq.tracking_pid not in killed
+        assert acq.tracking_pid is None and not acq.tracking_answering
+        assert acq.tracking_problem.startswith(f"the tracking process ended (killed by signal 9), {RESTARTS + 1} "
+                                               "times in a row; the probe is tracked in the acquisition's thread "
+                                               "from now on (slower)")
+        assert acq.process(pairs[0].frame, pairs[0].imu).fix is not None
+        acq.close()
+        events = session.events("tracking_process_stopped")
+    assert [e["restarted"] for e in events] == [True] * RESTARTS + [False]
+    assert all(process_gone(pid) for pid in killed)
+    assert len(created_segments) == RESTARTS + 1 and not created_segments & shared_memory_segments()
+
+
+def test_a_process_that_cannot_be_started_again_ends_in_tracking_here_at_once(world, pairs, tmp_path, monkeypatch,
+                                                                               created_segments):
+    with Session.create(tmp_path / "none.h5", case_id="none-1", stream_flush_s=0) as session:
+        acq = acquisition(world, session, True)
+
+        def cannot(*args, **kwargs):
+            raise OSError(24, "Too many open files")
+        monkeypatch.setattr(supervised_tracking, "TrackingProcess", cannot)
+        killed = acq.tracking_pid
+        os.kill(killed, signal.SIGKILL)
+        assert acq.process(pairs[0].frame, pairs[0].imu).fix is not None
+        assert acq.tracking_pid is None and acq.tracking_stops == 1
+        assert acq.tracking_problem == ("the tracking process ended (killed by signal 9); a new one could not be "
+                                        "started ([Errno 24] Too many open files); the probe is tracked in the "
+                                        "acquisition's thread from now on (slower); the camera's insertion is no "
+                                        "longer tracked")
+        acq.close()
+    assert process_gone(killed) and not created_segments & shared_memory_segments()
 
 
 KILLED_PARENT = """

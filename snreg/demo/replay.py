@@ -94,7 +94,7 @@ class ReplayRig:
         if len(rows) > 1:
             self._port = SimulatedPort(RecordedImu(rows, self.origin_ns), port_link=str(Path(self._folder.name) / "imu"),
                                        speed=self.speed).start()
-            self.imu = ImuMonitor(self._port.port)
+            self.imu = ImuMonitor(self._port.port, device_rate=self.speed)    # its device clock runs at speed
         else:
             self.imu = AbsentImu()
 

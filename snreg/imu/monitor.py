@@ -5,7 +5,11 @@ orientation and the stream's health, taken at its own pace under a lock, and the
 into the session (:meth:`ImuMonitor.take_samples`). A fix is mapped with the orientation at its frame's grab
 time, not the latest (:meth:`ImuMonitor.orientation_at`: the last ``HISTORY_S`` seconds of fused orientations,
 interpolated on the host clock), so a tracking loop that runs late still pairs each frame with its own pose.
-Sample times are host receive times: they trail the sensor by the serial latency (a few ms). The reader thread
+Sample times are when each was measured, on the host clock: its device time mapped through the offset of the samples
+that arrived soonest (:class:`~snreg.imu.device_clock.DeviceClock`), not its receive time, which trails by however
+long the reader or the sender was kept from running (half a second in bursts on a loaded computer). A frame's time the
+samples have not reached yet (grabbed an instant ago, or the IMU running late) is waited for, up to ``wait_s``, while
+the IMU streams: the orientation at a frame is then never an older one for want of patience. The reader thread
 only fuses and keeps each sample's quaternion as imufusion gives it: a scipy rotation per sample (208 Hz) once cost
 more than the fusion itself; rotations and angles are made when a frame or the screen asks.
 """
@@ -22,13 +26,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from snreg.imu import Fusion, ImuSample, SerialImuReader
+from snreg.imu.device_clock import DeviceClock
 from snreg.imu.fusion import euler_of_wxyz
-from snreg.imu.reader import DEFAULT_BAUD
+from snreg.imu.reader import DEFAULT_BAUD, ImuState
 
 STALE_AFTER_S = 1.0
 HISTORY_S = 2.0           # fused orientations kept for :meth:`ImuMonitor.orientation_at`
 _XYZW = [1, 2, 3, 0]      # a w, x, y, z quaternion's parts in scipy's order
 KEPT_SAMPLES_S = 10.0     # raw samples wait this long for :meth:`ImuMonitor.take_samples` before the oldest go
+WAIT_S = 1.0              # at most this long for the samples to reach a frame's time (then the IMU turns stale)
 
 
 @dataclass(frozen=True)
@@ -87,13 +93,19 @@ def _time_of(entry: tuple[int, np.ndarray]) -> int:
 
 class ImuMonitor:
     """Reads ``port`` at ``baudrate`` with :class:`SerialImuReader`, fuses every sample with :class:`Fusion`;
-    thread-safe :meth:`snapshot`."""
+    thread-safe :meth:`snapshot`; :meth:`orientation_at` waits up to ``wait_s`` for the samples to reach a time.
+    ``device_rate``: device seconds per host second (a recording replayed ``speed`` times faster: ``speed``)."""
 
-    def __init__(self, port: str, sample_rate_hz: float = 208.0, *, baudrate: int = DEFAULT_BAUD):
+    def __init__(self, port: str, sample_rate_hz: float = 208.0, *, baudrate: int = DEFAULT_BAUD,
+                 wait_s: float = WAIT_S, device_rate: float = 1.0):
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)     # notified at each sample
+        self._clock = DeviceClock(rate=device_rate)
+        self.wait_s = float(wait_s)
+        self.waiting = 0                                     # calls of orientation_at waiting for a sample now
         self._fusion = Fusion(sample_rate_hz)
         self._pending: deque[ImuSample] = deque(maxlen=int(sample_rate_hz * KEPT_SAMPLES_S))
-        # (host receive time ns, fused quaternion w, x, y, z as imufusion gives it) per sample, oldest first: the
+        # (host time measured ns, fused quaternion w, x, y, z as imufusion gives it) per sample, oldest first: the
         # orientations to interpolate, the latest orientation and the measured rate
         self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=int(sample_rate_hz * HISTORY_S))
         self._reader = SerialImuReader(port, baudrate, on_sample=self._on_sample)
@@ -106,24 +118,43 @@ class ImuMonitor:
 
     def stop(self) -> None:
         self._reader.stop()
+        with self._lock:
+            self._arrived.notify_all()          # a call waiting for a sample: there will be none
 
     def _on_sample(self, sample: ImuSample) -> None:
         # 208 times a second in the reader thread: the quaternion only; rotations and angles when someone asks
         self._fusion.advance(sample)
         quat = self._fusion.quaternion_wxyz
+        measured = self._clock.host_ns(sample.t_device_us, sample.t_host_ns)
         with self._lock:
             self._pending.append(sample)
-            self._history.append((sample.t_host_ns, quat))
+            self._history.append((measured, quat))
+            self._arrived.notify_all()
 
     def orientation_at(self, t_host_ns: int) -> ImuAt:
-        """The fused orientation at host time ``t_host_ns`` (a frame's grab time), interpolated between samples."""
+        """The fused orientation at host time ``t_host_ns`` (a frame's grab time), interpolated between samples;
+        while no sample has reached that time yet and the IMU streams, waits for one up to ``wait_s``."""
+        deadline = time.monotonic() + self.wait_s
         with self._lock:        # the two samples around it (one at either end), found by bisection, not copied all
+            while (not self._history or self._history[-1][0] < t_host_ns) and self._streaming():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self.waiting += 1
+                try:
+                    self._arrived.wait(left)
+                finally:
+                    self.waiting -= 1
             k = bisect.bisect_left(self._history, t_host_ns, key=_time_of)
             around = [self._history[i] for i in range(max(k - 1, 0), min(k + 1, len(self._history)))]
         times = np.array([t for t, _ in around], dtype=np.int64)
         quats = np.array([q for _, q in around]).reshape(-1, 4)[:, _XYZW]
         earth_from_imu, gap_s = interpolate_orientation(times, quats, t_host_ns)
         return ImuAt(earth_from_imu, gap_s, self._reader.state.value)
+
+    def _streaming(self) -> bool:
+        """The reader receives samples (not stopped, unplugged or stale): worth waiting for."""
+        return self._reader.state is ImuState.STREAMING
 
     def take_samples(self) -> list[ImuSample]:
         """The raw samples received since the last call (at most the last ``KEPT_SAMPLES_S`` seconds), for recording."""

@@ -15,7 +15,8 @@ this process owns and unlinks (its resource tracker unlinks it as well when this
 messages over the child's stdin and stdout. The child ends at the end of its stdin, so it never outlives the app. The
 insertion tracker (its keyframes) lives in the child while it runs and comes back at :meth:`TrackingProcess.close`,
 so a later acquisition goes on with it. A child that dies or does not answer within :data:`ANSWER_S` raises
-:class:`TrackingStopped` (the acquisition then tracks the probe in its own thread and says so).
+:class:`TrackingStopped`, saying how it ended ("killed by signal 9"); the acquisition then starts a new one
+(:mod:`snreg.workflow.supervised_tracking`).
 """
 
 from __future__ import annotations
@@ -130,7 +131,7 @@ class TrackingProcess:
             self._stop_with(f"the tracking process did not answer within "
                             f"{self._answer_s if self._started else self._start_s:.0f} s")
         if answer[0] == "ended":
-            self._stop_with("the tracking process stopped" + self._last_error())
+            self._stop_with("the tracking process ended", ended=True)
         slot = self._in_flight.popleft()
         if slot >= 0:
             self._free.append(slot)
@@ -162,12 +163,24 @@ class TrackingProcess:
             self._process.stdin.write(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
             self._process.stdin.flush()
         except (BrokenPipeError, OSError, ValueError):
-            self._stop_with("the tracking process stopped" + self._last_error())
+            self._stop_with("the tracking process ended", ended=True)
 
-    def _stop_with(self, problem: str):
-        self._problem = problem
+    def _stop_with(self, problem: str, ended: bool = False):
+        """End the child and raise :class:`TrackingStopped` with ``problem``; ``ended``: it ended by itself, and how
+        (its signal or exit status, its last words on stderr) is added in brackets."""
         self._end_process()
-        raise TrackingStopped(problem)
+        self._problem = problem + (self._how_ended() if ended else "")
+        raise TrackingStopped(self._problem)
+
+    @property
+    def answering(self) -> bool:
+        """The child has started (its trackers built) and answers pairs."""
+        return self._started and not self._problem
+
+    @property
+    def ended(self) -> bool:
+        """The child is gone (died, or ended by :meth:`close`)."""
+        return bool(self._problem) or self._process.poll() is not None
 
     def _end_process(self) -> None:
         """Close the child's stdin (it ends), wait a little, kill it if it does not; free the shared memory (once)."""
@@ -194,7 +207,12 @@ class TrackingProcess:
         for raw in self._process.stderr:
             self._errors.append(raw.decode("utf-8", "replace").strip())
 
-    def _last_error(self) -> str:
-        """The child's last words on stderr, in brackets ("" when none)."""
+    def _how_ended(self) -> str:
+        """How the child ended, in brackets: killed by which signal or its exit status, and its last words on stderr
+        ("killed by signal 9", "exit status 1: MemoryError"); call once it was waited for."""
+        code = self._process.returncode
+        how = (f"killed by signal {-code}" if code is not None and code < 0 else
+               f"exit status {code}" if code is not None else "")
         lines = [line for line in self._errors if line]
-        return f" ({lines[-1]})" if lines else ""
+        said = ": ".join(part for part in (how, lines[-1] if lines else "") if part)
+        return f" ({said})" if said else ""

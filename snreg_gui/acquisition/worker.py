@@ -18,8 +18,9 @@ tracker run in a process of their own (:class:`~snreg.workflow.tracking_process.
 never holds the GIL the GUI thread waits for, and the worker reads and records the next pair while one is tracked
 (``AHEAD`` pairs in flight at most; every pair's result is emitted in frame order, once it is back). The insertion
 tracker comes back from that process when the worker stops, for :attr:`AcquisitionWorker.kept_insertion`. A tracking
-process that dies is said in ``store_failed`` (the probe is then tracked in this thread); without
-``tracking_process`` each pair is tracked here as it is read.
+process that dies is restarted (:mod:`snreg.workflow.supervised_tracking`: its pairs meanwhile tracked in this
+thread, and for good after repeated deaths), each death said once in ``store_failed``; without ``tracking_process``
+each pair is tracked here as it is read.
 """
 
 from __future__ import annotations
@@ -39,10 +40,11 @@ from snreg.imu.monitor import ImuMonitor, ImuSnapshot
 from snreg.odometry import InsertionTracker
 from snreg.session import Session, SessionError
 from snreg.sources import FrameSource, SourceError, SourceState
-from snreg.workflow.acquisition import (IMU_ABSENT, THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading,
-                                        StoreError, StoreLimits, StoreNeedsConfirmation, StoreRefused)
+from snreg.workflow.acquisition import (THESIS_FIXES_PER_NODE, Acquisition, FrameOutcome, ImuReading, StoreError,
+                                        StoreLimits, StoreNeedsConfirmation, StoreRefused)
 from snreg.workflow.display import DISPLAY_SCALE, display_rgb
 from snreg.workflow.insertion import CameraInsertion
+from snreg.workflow.node_store import IMU_ABSENT
 from snreg.workflow.navigation import NavigationState, navigate, trocar_from_camera_at
 from snreg_gui.acquisition.hot_spots import feed_layer, guidance_text
 
@@ -134,7 +136,7 @@ class AcquisitionWorker(QObject):
         self._track_insertion, self._resume_insertion = track_insertion, resume_insertion
         self._tracking_process = tracking_process
         self._pending: deque[tuple] = deque()     # per pair begun, not emitted yet: (frame, IMU snapshot, reading, ns)
-        self._tracking_said = False
+        self._tracking_said = 0                  # the tracking process's deaths said so far
         self._setup = (calibration, probe, chain, session, fixes_per_node, limits)
         self.acquisition: Acquisition | None = None
         self._source: FrameSource | None = None
@@ -284,8 +286,8 @@ class AcquisitionWorker(QObject):
                 return
             frame, imu, reading, now = self._pending.popleft()
             self._emit(self.acquisition.finish(), frame, imu, reading, now)
-            if self.acquisition.tracking_problem and not self._tracking_said:
-                self._tracking_said = True
+            if self.acquisition.tracking_stops != self._tracking_said:
+                self._tracking_said = self.acquisition.tracking_stops
                 self.store_failed.emit(f"Tracking: {self.acquisition.tracking_problem}.")
 
     def _emit(self, outcome: FrameOutcome, frame, imu: ImuSnapshot, reading: ImuReading, now: int) -> None:
