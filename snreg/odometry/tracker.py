@@ -31,7 +31,8 @@ from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, ChainCalibration
 from snreg.geometry import rotation_angle_deg
 from snreg.odometry.motion import Observations, fit_free, fit_pivot, pivot_departure_mm
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography, search_insertion
-from snreg.odometry.views import (EyePair, Keyframe, OdometryParams, PairImages, View, across, follow, inside,
+from snreg.odometry.eyes import EyePair
+from snreg.odometry.views import (Keyframe, OdometryParams, PairImages, View, across, follow, inside,
                                   make_keyframe)
 from snreg.probe import ProbeModel
 
