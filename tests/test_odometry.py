@@ -202,6 +202,38 @@ def test_a_pairs_right_eye_points_are_matched_across_it_from_the_predicted_dispa
     np.testing.assert_allclose(right_px - left_px, np.tile(truth, (len(left_px), 1)), atol=0.05)
 
 
+def test_a_renewed_keyframe_matches_its_corners_across_from_the_pairs_matched_points(rig, monkeypatch):
+    # issue 36: a keyframe made of a tracked pair looks for each corner at the disparity of the nearest point the pair
+    # matched already and matches it on the image itself, both ways; it must find what the 5-level search from a
+    # depth guess finds (the first keyframe's way), point for point
+    from snreg.odometry import OdometryParams
+    from snreg.odometry import views
+    from snreg.odometry.eyes import EyePair
+
+    calibration, probe, scene, chain = rig
+    video = SurgeryVideo(scene, straight_path([START_MM]), chain, VideoOptions(seed=4))
+    pair, params = EyePair(calibration, 640), OdometryParams()
+    pose = video.probe_pose(0)
+    view = views.View.of(pair, *video.pair(0), params, pose.tip, pose.axis, probe)
+    kind = dict(number=0, frame=0, rotation=np.eye(3), insertion_mm=START_MM, variance_mm2=0.0)
+    searched = views.make_keyframe(pair, view, params, **kind)
+    levels = []
+    lucas_kanade = views.lucas_kanade
+
+    def spy(*args, **options):
+        levels.append(options.get("levels"))
+        return lucas_kanade(*args, **options)
+    monkeypatch.setattr(views, "lucas_kanade", spy)
+    matched = (searched.left_px[::4], searched.right_px[::4])            # a quarter of them, as a pair's agreeing
+    renewed = views.make_keyframe(pair, view, params, **kind, matched=matched)
+    assert levels == [views.ACROSS_LEVELS, views.ACROSS_LEVELS]
+    common = (searched.left_px[:, None, :] == renewed.left_px[None]).all(axis=2)
+    assert common.any(axis=1).mean() > 0.97 and common.any(axis=0).mean() > 0.97
+    i, j = np.nonzero(common)
+    assert np.abs(searched.right_px[i] - renewed.right_px[j]).max() < 0.05
+    assert np.abs(searched.points[i] - renewed.points[j]).max() < 0.5
+
+
 def test_a_tracked_pair_warps_only_the_keyframes_left_image(rig, monkeypatch):
     # issue 36: the keyframe's right image is no longer followed (nor warped) into later pairs; the right eye's points
     # are matched across each pair, and the slide is still followed to the truth

@@ -97,6 +97,7 @@ class _Step:
     rotation: np.ndarray     # (3, 3) the camera's trocar_from_camera rotation now, as the motion fit says
     kept: float              # of the keyframe's points in view, how many agree (``points`` scaled up by the share
     #                          followed when not all were: :meth:`InsertionTracker._followed`)
+    matched: tuple[np.ndarray, np.ndarray] | None = None   # the agreeing points' working pixels now, left and right
 
 
 class InsertionTracker:
@@ -289,7 +290,8 @@ class InsertionTracker:
         residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
         now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
         return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe,
-                     keyframe.rotation @ fit.rotation.T, fit.n_inliers * in_view / int(usable.sum())), ""
+                     keyframe.rotation @ fit.rotation.T, fit.n_inliers * in_view / int(usable.sum()),
+                     (left_px[found][fit.inliers], right_px[found][fit.inliers])), ""
 
     def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float,
                 wanted: int = 2) -> list[tuple[Keyframe, np.ndarray, np.ndarray]]:
@@ -342,13 +344,14 @@ class InsertionTracker:
             if angle <= p.fresh_angle_deg and scale <= p.fresh_scale and (
                     keyframe is not step.keyframe or step.kept >= 0.6 * len(keyframe.points)):
                 return
-        self._add_keyframe(view, step.rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm)
+        self._add_keyframe(view, step.rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm, step.matched)
 
     def _add_keyframe(self, view: View, rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
-                      depth_mm: float = 80.0) -> Keyframe | None:
+                      depth_mm: float = 80.0, matched: tuple[np.ndarray, np.ndarray] | None = None) -> Keyframe | None:
         number = self.keyframes[-1].number + 1 if self.keyframes else 0
         keyframe = make_keyframe(self.pair, view, self.params, number=number, frame=self._index, rotation=rotation,
-                                 insertion_mm=insertion_mm, variance_mm2=variance_mm2, depth_guess_mm=depth_mm)
+                                 insertion_mm=insertion_mm, variance_mm2=variance_mm2, depth_guess_mm=depth_mm,
+                                 matched=matched)
         if keyframe is None:
             return None
         if len(self.keyframes) >= self.params.max_keyframes:      # forget the least certain, never the first
