@@ -19,8 +19,8 @@ from scipy.spatial import cKDTree
 from snreg.odometry.eyes import EyePair
 from snreg.probe import ProbeModel
 
-__all__ = ["OdometryParams", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "across",
-           "lucas_kanade", "inside"]
+__all__ = ["OdometryParams", "PairImages", "View", "Keyframe", "make_keyframe", "keyframe_corners", "follow",
+           "across", "lucas_kanade", "inside"]
 
 
 @dataclass(frozen=True)
@@ -214,19 +214,19 @@ class Keyframe:
 
 def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: int, frame: int,
                   rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
-                  depth_guess_mm: float = 80.0, matched: tuple[np.ndarray, np.ndarray] | None = None) -> Keyframe | None:
+                  depth_guess_mm: float = 80.0, matched: tuple[np.ndarray, np.ndarray] | None = None,
+                  corners: np.ndarray | None = None) -> Keyframe | None:
     """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated).
 
     ``matched``: points of this very pair already matched left to right (working pixels (M, 2) in each eye: those the
     motion fit agreed with). Each corner is then looked for at the disparity of the nearest of them, a few hundredths
     of a pixel off at the median on the bench video, and matched on the image itself both ways (``ACROSS_LEVELS``)
     instead of from ``depth_guess_mm`` over a 5-level pyramid (issue 36: a keyframe pair's stereo match was a third of
-    what it cost over the pairs between keyframes)."""
-    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
-                                      blockSize=7)
-    if corners is None or len(corners) < params.min_points:
+    what it cost over the pairs between keyframes). ``corners``: :func:`keyframe_corners` of ``view`` when found
+    already (a pair earlier: the tracker spreads a keyframe's work over two pairs)."""
+    left_px = keyframe_corners(view, params) if corners is None else corners
+    if left_px is None:
         return None
-    left_px = corners.reshape(-1, 2).astype(np.float32)
     if matched is not None and len(matched[0]) >= _MIN_MATCHED:
         nearest = cKDTree(matched[0]).query(left_px)[1]
         guess, levels = left_px + (matched[1] - matched[0])[nearest], (ACROSS_LEVELS, ACROSS_LEVELS)
@@ -246,6 +246,16 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
         return None
     return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
                     np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view)
+
+
+def keyframe_corners(view: View, params: OdometryParams) -> np.ndarray | None:
+    """(N, 2) float32 tissue corners of the view's left image a keyframe is made of (Shi-Tomasi, on the mask, the
+    strongest first), or None when fewer than ``params.min_points``."""
+    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
+                                      blockSize=7)
+    if corners is None or len(corners) < params.min_points:
+        return None
+    return corners.reshape(-1, 2).astype(np.float32)
 
 
 def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
