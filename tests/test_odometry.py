@@ -249,8 +249,8 @@ def test_a_keyframes_work_is_spread_over_its_pair_and_the_next_with_the_same_est
                 self._pending = None
 
     calibration, probe, scene, chain = rig
-    path = straight_path(np.concatenate([np.linspace(START_MM, START_MM + 24, 7), np.linspace(180, 150, 6)]),
-                         [[0.0, 1.5 * min(k, 6), 0.0] for k in range(13)])
+    path = straight_path(np.concatenate([np.linspace(START_MM, START_MM + 20, 6), [172.0, 164.0, 156.0]]),
+                         [[0.0, 1.5 * min(k, 5), 0.0] for k in range(9)])
     video = SurgeryVideo(scene, path, chain, VideoOptions(seed=5))
     calls, current = [], {}
     for name in ("keyframe_corners", "make_keyframe"):
