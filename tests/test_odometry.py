@@ -202,6 +202,78 @@ def test_a_pairs_right_eye_points_are_matched_across_it_from_the_predicted_dispa
     np.testing.assert_allclose(right_px - left_px, np.tile(truth, (len(left_px), 1)), atol=0.05)
 
 
+def test_a_renewed_keyframe_matches_its_corners_across_from_the_pairs_matched_points(rig, monkeypatch):
+    # issue 36: a keyframe made of a tracked pair looks for each corner at the disparity of the nearest point the pair
+    # matched already and matches it on the image itself, both ways; it must find what the 5-level search from a
+    # depth guess finds (the first keyframe's way), point for point
+    from snreg.odometry import OdometryParams
+    from snreg.odometry import views
+    from snreg.odometry.eyes import EyePair
+
+    calibration, probe, scene, chain = rig
+    video = SurgeryVideo(scene, straight_path([START_MM]), chain, VideoOptions(seed=4))
+    pair, params = EyePair(calibration, 640), OdometryParams()
+    pose = video.probe_pose(0)
+    view = views.View.of(pair, *video.pair(0), params, pose.tip, pose.axis, probe)
+    kind = dict(number=0, frame=0, rotation=np.eye(3), insertion_mm=START_MM, variance_mm2=0.0)
+    searched = views.make_keyframe(pair, view, params, **kind)
+    levels = []
+    lucas_kanade = views.lucas_kanade
+
+    def spy(*args, **options):
+        levels.append(options.get("levels"))
+        return lucas_kanade(*args, **options)
+    monkeypatch.setattr(views, "lucas_kanade", spy)
+    matched = (searched.left_px[::4], searched.right_px[::4])            # a quarter of them, as a pair's agreeing
+    renewed = views.make_keyframe(pair, view, params, **kind, matched=matched)
+    assert levels == [views.ACROSS_LEVELS, views.ACROSS_LEVELS]
+    common = (searched.left_px[:, None, :] == renewed.left_px[None]).all(axis=2)
+    assert common.any(axis=1).mean() > 0.97 and common.any(axis=0).mean() > 0.97
+    i, j = np.nonzero(common)
+    assert np.abs(searched.right_px[i] - renewed.right_px[j]).max() < 0.05
+    assert np.abs(searched.points[i] - renewed.points[j]).max() < 0.5
+
+
+def test_a_keyframes_work_is_spread_over_its_pair_and_the_next_with_the_same_estimates(rig, monkeypatch):
+    # issue 36: a keyframe pair cost about 9 ms more than the others; its corners are now found at its pair and the
+    # keyframe is matched across and triangulated when the next pair comes, before that pair is compared, so every
+    # estimate is the one the keyframe made whole at its pair gives
+    from snreg.odometry import tracker as tracker_module
+    from snreg.odometry import views
+
+    class Whole(InsertionTracker):                       # the keyframe made whole at its own pair
+        def _renew(self, view, rotation, step):
+            super()._renew(view, rotation, step)
+            if self._pending is not None:
+                self._add_keyframe(**self._pending)
+                self._pending = None
+
+    calibration, probe, scene, chain = rig
+    path = straight_path(np.concatenate([np.linspace(START_MM, START_MM + 20, 6), [172.0, 164.0, 156.0]]),
+                         [[0.0, 1.5 * min(k, 5), 0.0] for k in range(9)])
+    video = SurgeryVideo(scene, path, chain, VideoOptions(seed=5))
+    calls, current = [], {}
+    for name in ("keyframe_corners", "make_keyframe"):
+        def spy(*args, _name=name, _function=getattr(tracker_module, name), **options):
+            if current["tracker"] is spread:
+                calls.append((_name, current["pair"]))
+            return _function(*args, **options)
+        monkeypatch.setattr(tracker_module, name, spy)
+    spread, whole = InsertionTracker(calibration, chain, probe=probe), Whole(calibration, chain, probe=probe)
+    for k in range(len(video)):
+        pair, earth_from_imu, fix = video.pair(k), video.earth_from_imu(k), video.probe_pose(k)
+        current.update(tracker=spread, pair=k)
+        ours = spread.update(*pair, earth_from_imu, probe_fix=fix)
+        current.update(tracker=whole)
+        assert ours == whole.update(*pair, earth_from_imu, probe_fix=fix), k
+        assert ours.tracked and abs(ours.trocar_camera_mm - video.insertion_mm(k)) < 0.3
+    renewed = [k for name, k in calls if name == "keyframe_corners"]
+    made = [k for name, k in calls if name == "make_keyframe"]
+    assert len(renewed) >= 2 and made[0] == 0            # keyframes after the first; the first is made whole
+    assert made[1:] == [k + 1 for k in renewed if k + 1 < len(video)]
+    assert [keyframe.frame for keyframe in spread.keyframes[1:]] == [k for k in renewed if k + 1 < len(video)]
+
+
 def test_a_tracked_pair_warps_only_the_keyframes_left_image(rig, monkeypatch):
     # issue 36: the keyframe's right image is no longer followed (nor warped) into later pairs; the right eye's points
     # are matched across each pair, and the slide is still followed to the truth

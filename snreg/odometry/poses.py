@@ -25,9 +25,10 @@ import numpy as np
 
 from snreg.camera import StereoCalibration
 from snreg.geometry import invert, make_transform, rotation_angle_deg
+from snreg.odometry.eyes import EyePair
 from snreg.odometry.motion import MotionFit, Observations, _both_eyes, _rms, _rotation, _rotvec, _turn_rows
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography
-from snreg.odometry.views import EyePair, Keyframe, OdometryParams, View, follow, inside, make_keyframe
+from snreg.odometry.views import Keyframe, OdometryParams, View, follow, inside, make_keyframe
 from snreg.probe import ProbeModel
 
 __all__ = ["TissuePose", "TissuePoseFollower", "fit_rigid"]

@@ -16,7 +16,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from snreg.odometry.views import EyePair, Keyframe, View
+from snreg.odometry.eyes import EyePair
+from snreg.odometry.views import Keyframe, View
 
 __all__ = ["MIN_RESPONSE", "coarse_shift", "search_insertion"]
 

@@ -8,7 +8,8 @@ a free fit beside it measures how far the camera is from the pivot model (``resi
 
 Keyframes: the one followed is the usable keyframe (scale and turn close to the view) whose insertion is known
 best, so returning to an earlier view returns to that view's insertion instead of one carried through many steps;
-a new keyframe is made when none is fresh. The comparison starts from the insertion predicted from the last two
+a new keyframe is made when none is fresh (its corners found at that pair, matched across before the next is
+compared: its work spread over two pairs). The comparison starts from the insertion predicted from the last two
 pairs; when it fails, the insertion is searched for (:mod:`snreg.odometry.search`) near the prediction, then, as after
 a lost view, along every keyframe of a similar turn. Each pair is ``tracked`` with a
 quality (the share of followed tissue points that agree with the motion) and a standard error, or ``lost`` with
@@ -31,8 +32,9 @@ from snreg.chain import THESIS_TROCAR_CAMERA_SD_MM, ChainCalibration
 from snreg.geometry import rotation_angle_deg
 from snreg.odometry.motion import Observations, fit_free, fit_pivot, pivot_departure_mm
 from snreg.odometry.search import MIN_RESPONSE, coarse_shift, predicted_homography, search_insertion
-from snreg.odometry.views import (EyePair, Keyframe, OdometryParams, PairImages, View, across, follow, inside,
-                                  make_keyframe)
+from snreg.odometry.eyes import EyePair
+from snreg.odometry.views import (Keyframe, OdometryParams, PairImages, View, across, follow, inside,
+                                  keyframe_corners, make_keyframe)
 from snreg.probe import ProbeModel
 
 __all__ = ["TRACKED", "LOST", "START_REASON", "InsertionEstimate", "InsertionTracker"]
@@ -96,6 +98,7 @@ class _Step:
     rotation: np.ndarray     # (3, 3) the camera's trocar_from_camera rotation now, as the motion fit says
     kept: float              # of the keyframe's points in view, how many agree (``points`` scaled up by the share
     #                          followed when not all were: :meth:`InsertionTracker._followed`)
+    matched: tuple[np.ndarray, np.ndarray] | None = None   # the agreeing points' working pixels now, left and right
 
 
 class InsertionTracker:
@@ -127,6 +130,7 @@ class InsertionTracker:
         self._last_index = -1
         self._velocity = 0.0                      # mm per pair between the last two tracked pairs
         self._searched = 0                        # wide searches so far: which keyframe the next one tries
+        self._pending: dict | None = None         # a keyframe whose corners were found, to be made at the next pair
 
     def prepare(self, left: np.ndarray, right: np.ndarray) -> PairImages:
         """The pair's images that need neither its probe fix nor this tracker's state (about a third of its cost on
@@ -142,6 +146,9 @@ class InsertionTracker:
         the left camera frame, mm), whose image is left out; ``images``: :meth:`prepare` of this very pair when made
         already (the estimate is the same either way). ValueError for frames of another size."""
         self._index += 1
+        if self._pending is not None:             # the last pair's keyframe, made before this pair is compared
+            self._add_keyframe(**self._pending)
+            self._pending = None
         rotation = self._trocar_from_earth @ np.asarray(earth_from_imu, float)[:3, :3] @ self._camera_from_imu
         tip, axis = (None, None) if probe_fix is None else (probe_fix.tip, probe_fix.axis)
         view = View.of(self.pair, left, right, self.params, tip, axis, self.probe, images=images)
@@ -288,7 +295,8 @@ class InsertionTracker:
         residual = pivot_departure_mm(free, rotation_imu, self.shaft, keyframe.insertion_mm)
         now = obs.points[fit.inliers] @ fit.rotation.T + fit.translation
         return _Step(fit.insertion_mm, sd, residual, share, fit.n_inliers, float(np.median(now[:, 2])), keyframe,
-                     keyframe.rotation @ fit.rotation.T, fit.n_inliers * in_view / int(usable.sum())), ""
+                     keyframe.rotation @ fit.rotation.T, fit.n_inliers * in_view / int(usable.sum()),
+                     (left_px[found][fit.inliers], right_px[found][fit.inliers])), ""
 
     def _usable(self, view: View, rotation: np.ndarray, insertion_mm: float,
                 wanted: int = 2) -> list[tuple[Keyframe, np.ndarray, np.ndarray]]:
@@ -335,19 +343,32 @@ class InsertionTracker:
         """A new keyframe from this pair when no keyframe is fresh for it, with the camera's rotation the motion fit
         found (``step.rotation``), not the IMU's reading at this one instant: a reading off while the camera moves (the
         IMU's lag behind the grab time) would otherwise stay in every later pair's relative rotation from this
-        keyframe, a pivot residual of the insertion times that error where nothing moves (issue 35)."""
+        keyframe, a pivot residual of the insertion times that error where nothing moves (issue 35).
+
+        Its work is spread over two pairs (issue 36: a keyframe pair cost about 9 ms more than the others, and made
+        the p95): its corners are found here, and it is matched across and triangulated when the next pair comes,
+        before that pair is compared, so every estimate is the one making it whole here gives."""
         p = self.params
         for keyframe, angle, scale in zip(self.keyframes, *self._turns_and_scales(rotation, step.insertion_mm)):
             if angle <= p.fresh_angle_deg and scale <= p.fresh_scale and (
                     keyframe is not step.keyframe or step.kept >= 0.6 * len(keyframe.points)):
                 return
-        self._add_keyframe(view, step.rotation, step.insertion_mm, step.sd_mm**2, step.depth_mm)
+        corners = keyframe_corners(view, p)
+        if corners is not None:
+            self._pending = dict(view=view, rotation=step.rotation, insertion_mm=step.insertion_mm,
+                                 variance_mm2=step.sd_mm**2, depth_mm=step.depth_mm, matched=step.matched,
+                                 frame=self._index, corners=corners)
 
     def _add_keyframe(self, view: View, rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
-                      depth_mm: float = 80.0) -> Keyframe | None:
+                      depth_mm: float = 80.0, matched: tuple[np.ndarray, np.ndarray] | None = None,
+                      frame: int | None = None, corners: np.ndarray | None = None) -> Keyframe | None:
+        """A keyframe of ``view`` (the pair ``frame``, default this one) added, the least certain forgotten beyond
+        ``max_keyframes``; ``matched`` and ``corners`` as :func:`~snreg.odometry.views.make_keyframe` takes them."""
         number = self.keyframes[-1].number + 1 if self.keyframes else 0
-        keyframe = make_keyframe(self.pair, view, self.params, number=number, frame=self._index, rotation=rotation,
-                                 insertion_mm=insertion_mm, variance_mm2=variance_mm2, depth_guess_mm=depth_mm)
+        keyframe = make_keyframe(self.pair, view, self.params, number=number,
+                                 frame=self._index if frame is None else frame, rotation=rotation,
+                                 insertion_mm=insertion_mm, variance_mm2=variance_mm2, depth_guess_mm=depth_mm,
+                                 matched=matched, corners=corners)
         if keyframe is None:
             return None
         if len(self.keyframes) >= self.params.max_keyframes:      # forget the least certain, never the first

@@ -1,12 +1,8 @@
-"""Stereo pairs at the working scale, and keyframes: tissue points triangulated from one pair, to follow in later ones.
+"""Stereo pairs at the working scale (:class:`~snreg.odometry.eyes.EyePair`), and keyframes: tissue points
+triangulated from one pair, to follow in later ones.
 
-Why: tracking the insertion must cost a few milliseconds per full-HD pair (issue 27: at most 10 ms), so it works
-on grey images reduced by a whole factor to at least 640 pixels wide (a full-HD pair by 3, a half-HD one not at all:
-at a third the insertion's error on three seeded full-HD surgery videos of ``snreg bench`` was about that at half,
-mean 0.010-0.026 mm against 0.024-0.031, and each image operation costs less than half), while every coordinate it
-hands to the motion fit is exact:
-working pixels map back to the full image's, then through the calibration's own distortion to normalised
-coordinates (:class:`EyePair`). A :class:`Keyframe` is a pair whose tissue features (corners away from the probe and
+A :class:`View` is a pair's grey images at the working scale, band-passed (the light moves with the camera), with
+where tissue may be followed. A :class:`Keyframe` is a pair whose tissue features (corners away from the probe and
 the border) were matched left to right (pyramidal Lucas-Kanade, checked backwards and against the epipolar line)
 and triangulated; later pairs are compared with it, not with their predecessor, so noise does not accumulate.
 """
@@ -18,20 +14,20 @@ from functools import cached_property
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
-from snreg.camera import StereoCalibration
-from snreg.geometry import make_transform
+from snreg.odometry.eyes import EyePair
 from snreg.probe import ProbeModel
 
-__all__ = ["OdometryParams", "EyePair", "PairImages", "View", "Keyframe", "make_keyframe", "follow", "across",
-           "lucas_kanade", "inside"]
+__all__ = ["OdometryParams", "PairImages", "View", "Keyframe", "make_keyframe", "keyframe_corners", "follow",
+           "across", "lucas_kanade", "inside"]
 
 
 @dataclass(frozen=True)
 class OdometryParams:
     """Tuning of the insertion tracker; pixels at the working scale, mm, degrees."""
 
-    work_width: int = 640                 # the pair is reduced by the largest whole factor keeping it this wide
+    work_width: int = 640                 # the pair is reduced to about this wide (:class:`~snreg.odometry.eyes.EyePair`)
     max_features: int = 220               # tissue corners per keyframe
     max_followed: int = 130               # of them followed into a pair at most (the strongest in view)
     min_distance_px: int = 16             # between them
@@ -71,70 +67,7 @@ COARSE_MAX_WIDTH = 400                              # the coarse images: pyramid
 # median and 0.041 mm at most, docs/method/insertion.md)
 _LK_STEPS, _LK_EPS_PX = 10, 0.03
 ACROSS_LEVELS = 0                                    # pyramid levels of the match across a pair (:func:`across`)
-
-
-class EyePair:
-    """A stereo calibration at the working scale: grey images, pixels <-> normalised coordinates, projection and
-    triangulation, all in the left camera frame (mm)."""
-
-    def __init__(self, calibration: StereoCalibration, work_width: int):
-        self.calibration = calibration
-        width, height = calibration.image_size
-        self.factor = max(1, width // work_width)
-        self.size = (width // self.factor, height // self.factor)
-        self.focal_px = float(calibration.K1[0, 0]) / self.factor
-        self.right_from_left = make_transform(calibration.R, calibration.T.ravel())
-        self._eyes = ((calibration.K1, calibration.D1, np.zeros(3), np.zeros(3)),
-                      (calibration.K2, calibration.D2, cv2.Rodrigues(calibration.R)[0].ravel(), calibration.T.ravel()))
-        self._rectify = ((calibration.R1, calibration.P1), (calibration.R2, calibration.P2))
-
-    def grey(self, image: np.ndarray, eye: str) -> np.ndarray:
-        """The BGR frame as a grey uint8 image at the working scale; ValueError for a frame of another size."""
-        width, height = self.calibration.image_size
-        if image is None or image.ndim != 3 or image.shape[2] != 3:
-            raise ValueError(f"the {eye} image must be a colour (BGR) image")
-        if image.shape[1] != width or image.shape[0] != height:
-            raise ValueError(f"the {eye} image is {image.shape[1]}x{image.shape[0]} but the calibration is for "
-                             f"{width}x{height}; use the matching calibration file")
-        if self.factor == 1:
-            return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        crop = image[:self.size[1] * self.factor, :self.size[0] * self.factor]
-        if self.factor == 2 or (self.factor == 3 and self.size[0] % 2 == 0 and self.size[1] % 2 == 0):
-            # halved first (INTER_LINEAR at exactly half is the 2 x 2 mean) and made grey on the quarter of the pixels:
-            # a full-HD frame's colour conversion and reduction cost half as much; a third is that half reduced by 1.5
-            # (INTER_LINEAR: a 4-pixel kernel centred, as the 3 x 3 mean, on full pixel 3x + 1, and as quiet)
-            half = cv2.cvtColor(cv2.resize(crop, (crop.shape[1] // 2, crop.shape[0] // 2),
-                                           interpolation=cv2.INTER_LINEAR), cv2.COLOR_BGR2GRAY)
-            return half if self.factor == 2 else cv2.resize(half, self.size, interpolation=cv2.INTER_LINEAR)
-        return cv2.resize(cv2.cvtColor(crop, cv2.COLOR_BGR2GRAY), self.size, interpolation=cv2.INTER_AREA)
-
-    def normalise(self, px: np.ndarray, eye: int) -> np.ndarray:
-        """(N, 2) working pixels of eye 0 (left) or 1 (right) -> normalised coordinates in that camera's frame."""
-        K, D = self._eyes[eye][:2]
-        full = np.asarray(px, dtype=np.float64) * self.factor + (self.factor - 1) / 2.0
-        return cv2.undistortPoints(full.reshape(-1, 1, 2), K, D).reshape(-1, 2)
-
-    def project(self, points: np.ndarray, eye: int) -> np.ndarray:
-        """(N, 2) working pixels in eye 0 or 1 of left-camera points (N, 3) mm."""
-        K, D, rvec, tvec = self._eyes[eye]
-        full = cv2.projectPoints(np.asarray(points, np.float64).reshape(-1, 1, 3), rvec, tvec, K, D)[0].reshape(-1, 2)
-        return (full - (self.factor - 1) / 2.0) / self.factor
-
-    def epipolar_gap_px(self, left_px: np.ndarray, right_px: np.ndarray) -> np.ndarray:
-        """(N,) vertical offset between matched points after rectification, working pixels (0 for a true match)."""
-        gaps = []
-        for eye, px in enumerate((left_px, right_px)):
-            K, D = self._eyes[eye][:2]
-            R, P = self._rectify[eye]
-            full = np.asarray(px, dtype=np.float64) * self.factor + (self.factor - 1) / 2.0
-            gaps.append(cv2.undistortPoints(full.reshape(-1, 1, 2), K, D, R=R, P=P).reshape(-1, 2)[:, 1])
-        return np.abs(gaps[0] - gaps[1]) / self.factor
-
-    def triangulate(self, left_norm: np.ndarray, right_norm: np.ndarray) -> np.ndarray:
-        """(N, 3) mm left-camera points from normalised coordinates in both eyes."""
-        homog = cv2.triangulatePoints(np.eye(3, 4), self.right_from_left[:3], left_norm.T.astype(np.float64),
-                                      right_norm.T.astype(np.float64))
-        return (homog[:3] / homog[3]).T
+_MIN_MATCHED = 8                                     # matched points a keyframe's corners are matched across from
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,16 +214,27 @@ class Keyframe:
 
 def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: int, frame: int,
                   rotation: np.ndarray, insertion_mm: float, variance_mm2: float,
-                  depth_guess_mm: float = 80.0) -> Keyframe | None:
-    """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated)."""
-    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
-                                      blockSize=7)
-    if corners is None or len(corners) < params.min_points:
+                  depth_guess_mm: float = 80.0, matched: tuple[np.ndarray, np.ndarray] | None = None,
+                  corners: np.ndarray | None = None) -> Keyframe | None:
+    """A keyframe of ``view`` (None when fewer than ``params.min_points`` tissue points could be triangulated).
+
+    ``matched``: points of this very pair already matched left to right (working pixels (M, 2) in each eye: those the
+    motion fit agreed with). Each corner is then looked for at the disparity of the nearest of them, a few hundredths
+    of a pixel off at the median on the bench video, and matched on the image itself both ways (``ACROSS_LEVELS``)
+    instead of from ``depth_guess_mm`` over a 5-level pyramid (issue 36: a keyframe pair's stereo match was a third of
+    what it cost over the pairs between keyframes). ``corners``: :func:`keyframe_corners` of ``view`` when found
+    already (a pair earlier: the tracker spreads a keyframe's work over two pairs)."""
+    left_px = keyframe_corners(view, params) if corners is None else corners
+    if left_px is None:
         return None
-    left_px = corners.reshape(-1, 2).astype(np.float32)
-    guess = pair.project(np.column_stack([pair.normalise(left_px, 0), np.ones(len(left_px))]) * depth_guess_mm, 1)
-    right_px, found = lucas_kanade(view.left, view.right, left_px, guess.astype(np.float32), params, levels=4)
-    back, found_back = lucas_kanade(view.right, view.left, right_px, left_px.copy(), params, levels=1)
+    if matched is not None and len(matched[0]) >= _MIN_MATCHED:
+        nearest = cKDTree(matched[0]).query(left_px)[1]
+        guess, levels = left_px + (matched[1] - matched[0])[nearest], (ACROSS_LEVELS, ACROSS_LEVELS)
+    else:
+        guess = pair.project(np.column_stack([pair.normalise(left_px, 0), np.ones(len(left_px))]) * depth_guess_mm, 1)
+        levels = (4, 1)
+    right_px, found = lucas_kanade(view.left, view.right, left_px, guess.astype(np.float32), params, levels=levels[0])
+    back, found_back = lucas_kanade(view.right, view.left, right_px, left_px.copy(), params, levels=levels[1])
     good = found & found_back & (np.linalg.norm(back - left_px, axis=1) < 0.5)
     good &= (pair.epipolar_gap_px(left_px, right_px) < 0.75) & inside(view.right_mask, right_px)
     if good.sum() < params.min_points:
@@ -302,6 +246,16 @@ def make_keyframe(pair: EyePair, view: View, params: OdometryParams, *, number: 
         return None
     return Keyframe(number, frame, points[ahead], left_px[ahead], right_px[ahead], view.left, view.right,
                     np.asarray(rotation, float), float(insertion_mm), float(variance_mm2), view.contrast, view)
+
+
+def keyframe_corners(view: View, params: OdometryParams) -> np.ndarray | None:
+    """(N, 2) float32 tissue corners of the view's left image a keyframe is made of (Shi-Tomasi, on the mask, the
+    strongest first), or None when fewer than ``params.min_points``."""
+    corners = cv2.goodFeaturesToTrack(view.left, params.max_features, 0.005, params.min_distance_px, mask=view.mask,
+                                      blockSize=7)
+    if corners is None or len(corners) < params.min_points:
+        return None
+    return corners.reshape(-1, 2).astype(np.float32)
 
 
 def inside(mask: np.ndarray, px: np.ndarray) -> np.ndarray:
