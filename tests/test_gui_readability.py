@@ -74,8 +74,10 @@ def test_the_angles_of_an_imu_gone_silent_are_greyed_until_it_speaks_again(qtbot
     qtbot.waitUntil(lambda: screen.angles.stale, timeout=2_000)
     assert screen.angles.texts() == ["12.3", "-4.6", "0.0"]
     assert all(SPREAD_NONE in value.styleSheet() for value in screen.angles.values)
+    assert np.isnan(screen.orientation.values[-1]).all()             # the plot: a gap, not the last angles again
     screen.show_result(frame(imu_age_s=0.01))
     qtbot.waitUntil(lambda: not screen.angles.stale, timeout=2_000)
+    assert screen.orientation.values[-1] == pytest.approx([12.3, -4.6, 0.0], abs=0.05)
     assert [value.styleSheet() for value in screen.angles.values] == colours
 
 

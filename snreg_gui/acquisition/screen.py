@@ -200,7 +200,7 @@ class AcquisitionScreen(LandmarkStoring, QWidget):
         """Take one processed frame pair: store state and auto-store now, pictures at the next display tick."""
         self._last_result, self._last_arrival_ns = result, time.perf_counter_ns()
         self._undrawn = result
-        self.orientation.append(result.imu.euler_deg)
+        self.orientation.append((math.nan,) * 3 if result.imu.stale else result.imu.euler_deg)   # silent: a gap
         self._update_store_state()
         self._show_spread()                  # with the ready line, so both say the same spread
         outcome = result.outcome
